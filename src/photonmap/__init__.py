@@ -1,0 +1,58 @@
+"""photonmap — photon mapping on Mitsuba 3 + Dr.Jit.
+
+Importing the package finds a usable libLLVM (see :mod:`photonmap.core.llvm`), selects a Mitsuba
+variant (``llvm_ad_rgb`` by default; ``PHOTONMAP_DEVICE=cuda`` or :func:`set_device` selects
+``cuda_ad_rgb``) and registers the Mitsuba integrator plugins (``volume_photon``).
+"""
+
+from __future__ import annotations
+
+import os
+
+from .core import llvm
+from .core.errors import BackendError, ParameterError, PhotonmapError, SceneError
+
+llvm.configure()
+
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+
+VARIANTS = {"cpu": "llvm_ad_rgb", "cuda": "cuda_ad_rgb"}
+
+
+def set_device(device: str) -> str:
+    """Select the Dr.Jit backend: ``"cpu"`` (LLVM, all cores) or ``"cuda"``. Returns the variant."""
+    if device not in VARIANTS:
+        raise ParameterError(f"unknown device {device!r}; choose one of {sorted(VARIANTS)}")
+    variant = VARIANTS[device]
+    if variant not in mi.variants():
+        raise BackendError(f"Mitsuba variant {variant!r} is not available in this installation")
+    try:
+        mi.set_variant(variant)
+    except Exception as exc:  # pragma: no cover - depends on the machine
+        raise BackendError(f"cannot start the {device} backend: {exc}") from exc
+    _register_plugins()
+    return variant
+
+
+def _register_plugins() -> None:
+    from .volume.integrator import register as register_volume
+
+    register_volume()
+
+
+set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
+
+from .volume.pipeline import VolumePipeline  # noqa: E402
+
+__all__ = [
+    "BackendError",
+    "ParameterError",
+    "PhotonmapError",
+    "SceneError",
+    "VolumePipeline",
+    "dr",
+    "mi",
+    "set_device",
+]
+__version__ = "0.1.0"

@@ -1,0 +1,1 @@
+"""Shared core of all photonmap pipelines: errors, LLVM discovery, sampling, grids, timing, I/O."""

@@ -1,0 +1,173 @@
+"""Stages S2 and S3: material grids from coverage, Gaussian smoothing, and the gradient of n.
+
+Sun et al. 2008 §4.1 (convert coverage to refractive index and smooth it), Pfeuti 2009 §3.1.2
+("the refraction index voxel grid is then filtered", "we build the gradient array from the
+refraction indices"); spec seed-000-002 S2, S3 and A3–A6.
+
+**Mapping (S2, A5).** Linear in coverage, from the fog's values to each object's, objects applied in
+turn: ``q(v) ← q(v) + cov(v)·(q_obj(v) − q(v))`` for ``q ∈ {n, σ_s, κ}`` (RGB for σ_s and κ).
+Coefficients are stored in **voxel units**: ``σ_vox = σ_world · h``.
+
+**Perturbation** (the CUBE scene of spec §3.3, [Pf Fig 4.9]): inside objects, at voxel centres
+``v``, ``n_obj(v) = n_obj + a_n·perlin(v/s)`` and
+``σ_s,obj(v) = σ_s,obj·max(0, 1 + a_σ·perlin'(v/s))`` with ``κ_obj = σ_s,obj + σ_a,obj``;
+``perlin`` is seeded with ``noise_seed``, ``perlin'`` with ``noise_seed + 1``.
+
+**Blur (S2, A3, A4).** Separable 9-tap Gaussian, σ = 9/6 = 1.5 voxels, normalised, clamp-to-edge
+(:data:`BLUR_TAPS`), applied to n; ``blur_all=True`` also blurs σ_s and κ.
+
+**Gradient (S3, A6).** Central differences in voxel units,
+``∂n/∂x (i,j,k) = (n[i+1,j,k] − n[i−1,j,k]) / 2``, one-sided at the grid faces.
+
+Simulation or painted data bypass S1 and S2 through :func:`from_arrays`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.errors import ParameterError
+from ..core.grid import GridBox, filter_separable, gaussian_taps
+from ..core.noise import perlin3
+from .scene import Medium
+
+BLUR_TAPS = gaussian_taps(4, 1.5)
+"""The 9 taps of the S2 blur: [0.00761, 0.03607, 0.10959, 0.21344, 0.26656, 0.21344, ...]."""
+
+
+@dataclass
+class MaterialGrids:
+    """Grids indexed [z, y, x]: ``ior`` (n, n, n, 1); ``sigma_s`` and ``kappa`` (n, n, n, 3), in
+    voxel units (per voxel edge)."""
+
+    ior: mi.TensorXf
+    sigma_s: mi.TensorXf
+    kappa: mi.TensorXf
+
+
+def _check_material(ior, sigma_s, kappa, where: str) -> None:
+    """Raise :class:`ParameterError` unless n ≥ 1, 0 ≤ σ_s ≤ κ and all are finite."""
+    for name, values in (("n", ior), ("sigma_s", sigma_s), ("kappa", kappa)):
+        if not np.all(np.isfinite(values)):
+            raise ParameterError(f"{name} of {where} has NaN or infinite values")
+    if np.any(ior < 1.0):
+        raise ParameterError(f"n of {where} must be >= 1 (min {np.min(ior):g})")
+    if np.any(sigma_s < 0.0) or np.any(kappa < 0.0):
+        raise ParameterError(f"sigma_s and kappa of {where} must be >= 0")
+    if np.any(kappa < sigma_s - 1e-6 * np.abs(sigma_s)):
+        raise ParameterError(
+            f"kappa of {where} is smaller than sigma_s somewhere: extinction kappa = sigma_s + "
+            "sigma_a cannot be below scattering sigma_s"
+        )
+
+
+def _voxel_centres(n: int) -> mi.Point3f:
+    index = dr.arange(mi.UInt32, n**3)
+    return mi.Point3f(index % n, (index // n) % n, index // (n * n)) + 0.5
+
+
+def _grid(values: mi.Color3f, n: int) -> mi.TensorXf:
+    return mi.TensorXf(dr.ravel(values), (n, n, n, 3))
+
+
+def material_grids(
+    coverages: list[tuple[mi.TensorXf, Medium]],
+    fog: Medium,
+    box: GridBox,
+    blur_all: bool = False,
+    ior_noise: float = 0.0,
+    sigma_s_noise: float = 0.0,
+    noise_scale: float = 16.0,
+    noise_seed: int = 0,
+) -> MaterialGrids:
+    """Map each object's coverage (n, n, n) to n, σ_s and κ over the fog, then blur n."""
+    n, h = box.n, box.h
+    _check_material(fog.ior, fog.sigma_s, fog.kappa, "the fog")
+    if not (np.isfinite(noise_scale) and noise_scale > 0):
+        raise ParameterError(f"noise_scale must be positive, got {noise_scale!r}")
+
+    def opaque_color(c):
+        return dr.opaque(mi.Color3f(*(float(x) * h for x in np.broadcast_to(c, 3))))
+
+    ior = dr.opaque(mi.Float, fog.ior, n**3)
+    sigma_s = opaque_color(fog.sigma_s) * dr.ones(mi.Float, n**3)
+    kappa = opaque_color(fog.kappa) * dr.ones(mi.Float, n**3)
+    p = _voxel_centres(n) / dr.opaque(mi.Float, noise_scale)
+    noise_n = noise_s = 0.0
+    if ior_noise:
+        noise_n = dr.opaque(mi.Float, ior_noise) * perlin3(p, noise_seed)
+    if sigma_s_noise:
+        noise_s = dr.opaque(mi.Float, sigma_s_noise) * perlin3(p, noise_seed + 1)
+    for i, (coverage, medium) in enumerate(coverages):
+        if tuple(coverage.shape[:3]) != (n, n, n) or dr.width(coverage.array) != n**3:
+            raise ParameterError(f"coverage {i} has shape {coverage.shape}, expected {(n,) * 3}")
+        _check_material(medium.ior, medium.sigma_s, medium.kappa, f"object {i}")
+        ior_obj = dr.opaque(mi.Float, medium.ior) + noise_n
+        sigma_s_obj = opaque_color(medium.sigma_s) * dr.maximum(1.0 + noise_s, 0.0)
+        kappa_obj = sigma_s_obj + opaque_color(medium.sigma_a)
+        cov = coverage.array
+        ior = dr.lerp(ior, ior_obj, cov)
+        sigma_s = dr.lerp(sigma_s, sigma_s_obj, cov)
+        kappa = dr.lerp(kappa, kappa_obj, cov)
+
+    grids = MaterialGrids(mi.TensorXf(ior, (n, n, n, 1)), _grid(sigma_s, n), _grid(kappa, n))
+    grids.ior = filter_separable(grids.ior, BLUR_TAPS)
+    if blur_all:
+        grids.sigma_s = filter_separable(grids.sigma_s, BLUR_TAPS)
+        grids.kappa = filter_separable(grids.kappa, BLUR_TAPS)
+    dr.eval(grids.ior, grids.sigma_s, grids.kappa)
+    return grids
+
+
+def from_arrays(grids: dict, box: GridBox) -> MaterialGrids:
+    """Material grids from NumPy data in world units (the bypass of S1/S2 [Sun §3]):
+    ``{"n": (n, n, n), "sigma_s": (n, n, n) or (n, n, n, 3), "kappa": same}``, indexed [z, y, x]."""
+    keys = {"n", "sigma_s", "kappa"}
+    if set(grids) != keys:
+        raise ParameterError(
+            f"volume grids need exactly the keys {sorted(keys)}, got {sorted(grids)}"
+        )
+    n = box.n
+    ior = np.asarray(grids["n"], dtype=np.float64)
+    if ior.shape != (n, n, n):
+        raise ParameterError(f"grid 'n' has shape {ior.shape}, expected {(n, n, n)}")
+    rgb = {}
+    for name in ("sigma_s", "kappa"):
+        values = np.asarray(grids[name], dtype=np.float64)
+        if values.shape == (n, n, n):
+            values = np.repeat(values[..., None], 3, axis=-1)
+        if values.shape != (n, n, n, 3):
+            raise ParameterError(
+                f"grid {name!r} has shape {values.shape}, expected {(n, n, n)} or {(n, n, n, 3)}"
+            )
+        rgb[name] = values
+    _check_material(ior, rgb["sigma_s"], rgb["kappa"], "the volume grids")
+    return MaterialGrids(
+        mi.TensorXf(ior[..., None].astype(np.float32)),
+        mi.TensorXf((rgb["sigma_s"] * box.h).astype(np.float32)),
+        mi.TensorXf((rgb["kappa"] * box.h).astype(np.float32)),
+    )
+
+
+def gradient(ior: mi.TensorXf) -> mi.TensorXf:
+    """∇n of a grid (nz, ny, nx[, 1]) in voxel units: a tensor (nz, ny, nx, 3) of (∂x, ∂y, ∂z)."""
+    extent = tuple(ior.shape[:3])
+    if len(ior.shape) not in (3, 4) or min(extent) < 2 or dr.width(ior.array) != np.prod(extent):
+        raise ParameterError(f"gradient needs a scalar grid of at least 2³ voxels, got {ior.shape}")
+    nz, ny, nx = extent
+    index = dr.arange(mi.UInt32, 3 * nz * ny * nx)
+    voxel, axis = index // 3, index % 3
+    stride = dr.select(axis == 0, 1, dr.select(axis == 1, nx, nx * ny))
+    size = dr.select(axis == 0, nx, dr.select(axis == 1, ny, nz))
+    coord = (voxel // stride) % size
+    base = voxel - coord * stride
+    below = dr.select(coord > 0, coord - 1, coord)
+    above = dr.select(coord < size - 1, coord + 1, coord)
+    difference = dr.gather(mi.Float, ior.array, base + above * stride) - dr.gather(
+        mi.Float, ior.array, base + below * stride
+    )
+    return mi.TensorXf(difference / mi.Float(above - below), (nz, ny, nx, 3))

@@ -1,0 +1,118 @@
+"""Stage S4: the octree over n as a dense level array, built from a min/max pyramid.
+
+Sun et al. 2008 §4.2 (Fig 4) and §5.3 ("Modified Octree Construction"); Pfeuti 2009 §3.1.3,
+Listings 3.1–3.3 and A.2; spec seed-000-002 S4 and A7–A9, A50.
+
+A level-k node is an aligned cube of ``2^k`` voxels; level 0 is one voxel, level K the whole
+``2^K`` grid. With the range ``r_k(v)`` = max − min of n over the level-k node holding v (from the
+min/max pyramid, built bottom-up), every voxel is labelled top-down with the first, i.e. largest,
+level whose node is uniform (A9: strict ``<``):
+
+    level(v) = max{k ∈ 0..K : r_k(v) < ε'}
+    Δs_max(v) = ∞ if r_level(v)(v) < ε else L                         (A8; ∞ everywhere if ε' = ε)
+
+The defaults are those of [Sun §5.3]: ε = 0.005, ε' = 0.02, L = 8 voxels. A grid whose side is not
+a power of two is padded to the next ``2^K`` by edge replication, for the pyramid only (A7).
+Optionally (A50) a node must also have an extinction range below ``eps_kappa`` in every channel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import reduce
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.errors import ParameterError
+
+
+@dataclass
+class Octree:
+    """Per voxel (tensors (n, n, n, 1) indexed [z, y, x]): ``level`` of the leaf node (0..K) and
+    ``step_limit`` Δs_max (+inf, or ``ds_max`` voxels where the node only passes ε')."""
+
+    level: mi.TensorXf
+    step_limit: mi.TensorXf
+
+
+def _range_pyramid(values: mi.TensorXf, size: int) -> list[mi.Float]:
+    """Per-channel range (max − min) of a grid (n, n, n, c) over the nodes of every level, after
+    padding it to ``size³`` by edge replication.
+
+    Entry k has flat index ``((z·m + y)·m + x)·c + channel`` with ``m = size / 2^k``.
+    """
+    n, c = values.shape[0], values.shape[3]
+    index = dr.arange(mi.UInt32, size**3 * c)
+    cell, channel = index // c, index % c
+    x, y, z = (dr.minimum(a, n - 1) for a in (cell % size, (cell // size) % size, cell // size**2))
+    lo = hi = dr.gather(mi.Float, values.array, ((z * n + y) * n + x) * c + channel)
+    ranges = [dr.zeros(mi.Float, dr.width(index))]
+    while size > 1:
+        size //= 2
+        index = dr.arange(mi.UInt32, size**3 * c)
+        cell, channel = index // c, index % c
+        x, y, z = 2 * (cell % size), 2 * ((cell // size) % size), 2 * (cell // size**2)
+        children = [
+            ((z + (i >> 2)) * 2 * size + y + ((i >> 1) & 1)) * 2 * size + x + (i & 1)
+            for i in range(8)
+        ]
+        lo = reduce(dr.minimum, [dr.gather(mi.Float, lo, j * c + channel) for j in children])
+        hi = reduce(dr.maximum, [dr.gather(mi.Float, hi, j * c + channel) for j in children])
+        ranges.append(hi - lo)
+        dr.eval(lo, hi, ranges[-1])
+    return ranges
+
+
+def build_octree(
+    ior: mi.TensorXf,
+    eps: float = 0.005,
+    eps2: float | None = 0.02,
+    ds_max: float = 8.0,
+    kappa: mi.TensorXf | None = None,
+    eps_kappa: float = np.inf,
+) -> Octree:
+    """Octree levels and step limits of the index grid ``ior`` (n, n, n[, 1]).
+
+    ``eps2=None`` (or ``eps2 == eps``) builds the basic octree of [Sun §4.2], with no step limit.
+    ``kappa`` (n, n, n, c) with a finite ``eps_kappa`` also splits nodes whose extinction varies.
+    """
+    n = ior.shape[0]
+    eps2 = eps if eps2 is None else eps2
+    if tuple(ior.shape[:3]) != (n, n, n) or dr.width(ior.array) != n**3:
+        raise ParameterError(f"the octree needs a cubic scalar grid, got shape {ior.shape}")
+    if not (0 < eps <= eps2 < np.inf):
+        raise ParameterError(f"octree tolerances need 0 < eps <= eps2 < inf, got {eps}, {eps2}")
+    if not (ds_max > 0 and eps_kappa > 0):
+        raise ParameterError(f"ds_max and eps_kappa must be positive, got {ds_max}, {eps_kappa}")
+    channels = 0
+    if kappa is not None:
+        channels = dr.width(kappa.array) // n**3
+        if tuple(kappa.shape[:3]) != (n, n, n) or dr.width(kappa.array) != channels * n**3:
+            raise ParameterError(f"kappa has shape {kappa.shape}, expected {(n, n, n)} + (c,)")
+
+    depth = int(np.ceil(np.log2(n)))
+    size = 2**depth
+    ior_ranges = _range_pyramid(mi.TensorXf(ior.array, (n, n, n, 1)), size)
+    if kappa is not None:
+        kappa_ranges = _range_pyramid(mi.TensorXf(kappa.array, (n, n, n, channels)), size)
+    index = dr.arange(mi.UInt32, n**3)
+    x, y, z = index % n, (index // n) % n, index // (n * n)
+    tolerances = (dr.opaque(mi.Float, eps), dr.opaque(mi.Float, eps2))
+    level = [dr.zeros(mi.Float, n**3), dr.zeros(mi.Float, n**3)]
+    labelled = [dr.zeros(mi.Bool, n**3), dr.zeros(mi.Bool, n**3)]
+    for k in range(depth, -1, -1):
+        m = size >> k
+        cell = ((z >> k) * m + (y >> k)) * m + (x >> k)
+        ior_range = dr.gather(mi.Float, ior_ranges[k], cell)
+        kappa_uniform = True
+        for c in range(channels):
+            kappa_range = dr.gather(mi.Float, kappa_ranges[k], cell * channels + c)
+            kappa_uniform &= kappa_range < dr.opaque(mi.Float, eps_kappa)
+        for i, tolerance in enumerate(tolerances):
+            uniform = ~labelled[i] & (ior_range < tolerance) & kappa_uniform
+            level[i] = dr.select(uniform, k, level[i])
+            labelled[i] |= uniform
+    step_limit = dr.select(level[0] == level[1], dr.inf, dr.opaque(mi.Float, ds_max))
+    return Octree(mi.TensorXf(level[1], (n, n, n, 1)), mi.TensorXf(step_limit, (n, n, n, 1)))

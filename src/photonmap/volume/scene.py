@@ -1,0 +1,322 @@
+"""What the volume pipeline reads from a Mitsuba 3 scene (spec seed-000-002 §0, DESIGN.md "Scenes").
+
+A :class:`VolumeScene` is plain data in **world units**; stage S2 converts coefficients to voxel
+units (``σ_vox = σ_world · h``). It is built from a Mitsuba scene by :func:`from_mitsuba`:
+
+- every closed shape with a ``dielectric`` BSDF is a :class:`RefractiveObject` (``int_ior/ext_ior``
+  → n; its interior ``homogeneous`` medium → σ_s, σ_a);
+- the exterior medium of those shapes, or of the sensor, is the fog;
+- the grid box is the cube around the medium-bearing shapes (or an explicit ``grid_bbox``);
+- point, spot, directional and area emitters are :class:`Light` s; a ``constant`` or ``envmap``
+  emitter is the background;
+- the perspective sensor is the camera.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.errors import SceneError
+from ..core.grid import GridBox
+from .voxelize import check_closed
+
+LIGHT_KINDS = ("point", "spot", "directional")
+
+
+@dataclass
+class Medium:
+    """A homogeneous medium in world units: scattering and absorption coefficients (RGB, 1/length).
+
+    For a refractive object ``ior`` is its index relative to the fog (whose ``ior`` is 1).
+    """
+
+    sigma_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sigma_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    ior: float = 1.0
+
+    @property
+    def kappa(self) -> np.ndarray:
+        """Extinction κ = σ_s + σ_a."""
+        return np.asarray(self.sigma_s) + np.asarray(self.sigma_a)
+
+
+@dataclass
+class RefractiveObject:
+    """A closed shape filled with a refractive medium of index ``medium.ior``."""
+
+    name: str
+    shape: object  # mi.Shape: voxelized by ray-casting parity (stage S1)
+    medium: Medium
+
+
+@dataclass
+class Light:
+    """A light in world units.
+
+    ``point`` and ``spot``: ``position`` and RGB ``intensity`` (W/sr). A spot light's axis is
+    ``direction`` and its intensity falls off as ``smoothstep(cos_outer, cos_inner, cos θ)`` (spec
+    A16). An area emitter becomes several point lights whose intensity has a cosine lobe about
+    ``lobe_normal`` (``I(ω) = intensity · max(0, lobe_normal · ω)``).
+    ``directional``: propagation ``direction`` and RGB ``irradiance`` (W/m² normal to the beam),
+    stored in ``intensity``.
+    """
+
+    kind: str
+    intensity: np.ndarray
+    position: np.ndarray | None = None
+    direction: np.ndarray | None = None
+    cos_inner: float = 1.0
+    cos_outer: float = 1.0
+    lobe_normal: np.ndarray | None = None
+
+
+@dataclass
+class VolumeScene:
+    """Everything the volume pipeline needs, in world units."""
+
+    box: GridBox
+    fog: Medium
+    lights: list[Light]
+    sensor: object  # mi.Sensor (perspective): the camera; S9 asks it for primary rays
+    objects: list[RefractiveObject] = field(default_factory=list)
+    environment: object | None = None  # mi.Emitter (constant / envmap) seen by escaping rays
+    grids: dict | None = None  # {"n", "sigma_s", "kappa"}: NumPy (n, n, n[, 3]), world units;
+    #                            given, they bypass voxelization (S1) and material mapping (S2)
+
+
+# ------------------------------------------------------------------------------------------------
+# Reading a Mitsuba scene
+
+AREA_LIGHT_SAMPLES = 4  # an area emitter becomes 4 × 4 stratified point lights
+MARGIN = 6.0  # voxels left around refractive objects when no fog box bounds the grid (spec A4)
+EMITTERS = "point, spot, directional and area emitters (plus one constant or envmap background)"
+
+
+def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScene:
+    """Read what the volume pipeline needs from a loaded Mitsuba scene (world units).
+
+    - **Refractive objects**: closed shapes (a sphere or a watertight mesh) with a ``dielectric``
+      BSDF. ``medium.ior`` is Mitsuba's relative index ``int_ior / ext_ior`` (the BSDF keeps only
+      this ratio; the ray equation is unchanged when n is scaled, so the fog has n = 1). The
+      interior ``homogeneous`` medium gives ``σ_s = scale·albedo·σ_t`` and
+      ``σ_a = scale·σ_t − σ_s``; no interior medium means clear glass (σ = 0).
+    - **Fog**: the exterior medium of the refractive objects, else the sensor's medium, else the
+      interior medium of a ``null``-BSDF shape, else none (σ = 0). The pipeline fills the whole grid
+      box with it.
+    - **Grid box** (``grid³`` voxels): ``grid_bbox = (min, max)`` if given, else the cube around the
+      ``null``-BSDF medium shapes with no margin when they enclose every refractive object (the fog
+      box is the domain), else the cube around all medium-bearing shapes with ``MARGIN`` voxels.
+    - **Lights**: point, spot (``cutoff_angle`` → ``cos_outer``, ``beam_width`` → ``cos_inner``),
+      directional and area emitters (``AREA_LIGHT_SAMPLES²`` stratified point lights with a cosine
+      lobe, intensity ``L / (pdf · M)``); a ``constant``/``envmap`` emitter is the ``environment``.
+    - **Camera**: the first sensor, which must be ``perspective``.
+
+    Other shapes are not seen by the volume pipeline: they are skipped with a warning.
+    Raises :class:`SceneError` saying what to fix for anything the pipeline cannot render.
+    """
+    sensor = _camera(scene)
+    objects, fog_shapes, exteriors = [], [], []
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        kind = bsdf.class_name() if bsdf is not None else "none"
+        if kind == "SmoothDielectric":
+            objects.append(_refractive_object(shape, bsdf))
+            if shape.exterior_medium() is not None:
+                exteriors.append(shape.exterior_medium())
+        elif kind in ("RoughDielectric", "ThinDielectric"):
+            raise SceneError(
+                f"shape '{shape.id()}' has a {kind} BSDF; the volume pipeline refracts only "
+                "through smooth 'dielectric' objects: change its BSDF type to 'dielectric'"
+            )
+        elif kind == "Null" and shape.interior_medium() is not None:
+            fog_shapes.append(shape)
+        elif not shape.is_emitter():
+            warnings.warn(
+                f"shape '{shape.id()}' ({shape.class_name()} with a {kind} BSDF) is not seen by "
+                "the volume pipeline, which renders dielectric objects and media only",
+                stacklevel=2,
+            )
+    if not objects and not fog_shapes:
+        raise SceneError(
+            "the scene has no refractive or medium-bearing shape: give a closed shape a "
+            "'dielectric' BSDF, or a 'null' BSDF with an interior 'homogeneous' medium (the fog)"
+        )
+    fog = _fog(scene, sensor, exteriors, fog_shapes)
+    box = _grid_box(objects, fog_shapes, grid, grid_bbox)
+    lights, environment = _lights(scene, box.center)
+    return VolumeScene(box, fog, lights, sensor, objects, environment)
+
+
+def _rgb(value) -> np.ndarray:
+    """A Mitsuba spectrum value (uniform or RGB, width 1) as a float64 RGB NumPy array."""
+    a = np.asarray(value, dtype=np.float64).reshape(-1)
+    return np.repeat(a, 3) if a.size == 1 else a[:3]
+
+
+def _np3(v) -> np.ndarray:
+    return np.asarray(v, dtype=np.float64).reshape(-1)[:3]
+
+
+def _camera(scene: mi.Scene):
+    sensors = scene.sensors()
+    if not sensors:
+        raise SceneError("the scene has no sensor: add a 'perspective' sensor (the camera)")
+    sensor = sensors[0]
+    if sensor.class_name() != "PerspectiveCamera":
+        raise SceneError(
+            f"the sensor is a {sensor.class_name()}; the volume pipeline's viewing pass needs a "
+            "pinhole camera: use a 'perspective' sensor"
+        )
+    return sensor
+
+
+def _refractive_object(shape, bsdf) -> RefractiveObject:
+    name = shape.id()
+    check_closed(shape, name)
+    eta = float(np.asarray(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
+    if not np.isfinite(eta) or eta < 1.0:
+        raise SceneError(
+            f"object '{name}' has relative index n = int_ior/ext_ior = {eta:g}; the volume "
+            "pipeline needs a finite n >= 1 (an object optically denser than the fog): fix its "
+            "int_ior/ext_ior"
+        )
+    center = _np3(shape.bbox().center())
+    medium = _medium(shape.interior_medium(), f"the interior medium of '{name}'", center)
+    medium.ior = eta
+    return RefractiveObject(name, shape, medium)
+
+
+def _medium(medium, what: str, at) -> Medium:
+    """Coefficients of a homogeneous Mitsuba medium (None → vacuum), checked."""
+    if medium is None:
+        return Medium()
+    if not medium.is_homogeneous():
+        raise SceneError(
+            f"{what} is a {medium.class_name()}; the volume pipeline reads 'homogeneous' media "
+            "only: pass varying coefficients as NumPy grids instead"
+        )
+    mei = dr.zeros(mi.MediumInteraction3f)
+    mei.p = mi.Point3f(*(float(c) for c in at))
+    sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei)
+    sigma_s, sigma_t = _rgb(sigma_s), _rgb(sigma_t)
+    if not (np.all(np.isfinite(sigma_t)) and np.all(np.isfinite(sigma_s))):
+        raise SceneError(f"{what} has non-finite coefficients (σ_t = {sigma_t}): use finite values")
+    sigma_a = sigma_t - sigma_s
+    if np.any(sigma_s < 0) or np.any(sigma_a < -1e-7 * np.abs(sigma_t)):
+        raise SceneError(
+            f"{what} has negative coefficients (σ_s = {sigma_s}, σ_a = {sigma_a}): sigma_t and "
+            "scale must be >= 0 and albedo in [0, 1]"
+        )
+    return Medium(sigma_s, np.maximum(sigma_a, 0.0))
+
+
+def _fog(scene, sensor, exteriors, fog_shapes) -> Medium:
+    if any(m != exteriors[0] for m in exteriors):
+        raise SceneError(
+            "the refractive objects have different exterior media; the volume pipeline has one "
+            "fog: give every dielectric shape the same 'exterior' medium"
+        )
+    candidates = [*exteriors, sensor.get_medium(), *(s.interior_medium() for s in fog_shapes)]
+    medium = next((m for m in candidates if m is not None), None)
+    return _medium(medium, "the fog (exterior medium)", _np3(scene.bbox().center()))
+
+
+def _grid_box(objects, fog_shapes, grid: int, grid_bbox) -> GridBox:
+    if grid_bbox is not None:
+        lo, hi = (_np3(v) for v in grid_bbox)
+        return GridBox.around(lo, hi, grid, margin=0.0)
+
+    def union(shapes):
+        lo = np.min([_np3(s.bbox().min) for s in shapes], axis=0)
+        hi = np.max([_np3(s.bbox().max) for s in shapes], axis=0)
+        return lo, hi
+
+    if fog_shapes:
+        lo, hi = union(fog_shapes)
+        inside = all(
+            np.all(_np3(o.shape.bbox().min) >= lo) and np.all(_np3(o.shape.bbox().max) <= hi)
+            for o in objects
+        )
+        if inside:
+            return GridBox.around(lo, hi, grid, margin=0.0)
+    lo, hi = union([o.shape for o in objects] + fog_shapes)
+    return GridBox.around(lo, hi, grid, margin=MARGIN)
+
+
+def _probe(emitter, ref) -> tuple[np.ndarray, np.ndarray, float]:
+    """Sample a delta emitter from ``ref``: (direction to it, I/dist² or irradiance, dist)."""
+    it = dr.zeros(mi.Interaction3f)
+    it.p = mi.Point3f(*(float(c) for c in ref))
+    ds, spec = emitter.sample_direction(it, mi.Point2f(0.5, 0.5))
+    return _np3(ds.d), _rgb(spec), float(np.asarray(ds.dist).reshape(-1)[0])
+
+
+def _lights(scene, center) -> tuple[list[Light], object]:
+    lights, environment = [], None
+    for emitter in scene.emitters():
+        kind, name = emitter.class_name(), emitter.id()
+        if emitter.is_environment():
+            environment = emitter
+        elif kind == "PointLight":
+            position = _np3(mi.traverse(emitter)["position"])
+            _, spec, dist = _probe(emitter, position - [0.0, 1.0, 0.0])
+            lights.append(Light("point", spec * dist**2, position=position))
+        elif kind == "SpotLight":
+            m = np.asarray(emitter.world_transform().matrix, dtype=np.float64).reshape(4, 4)
+            position, axis = m[:3, 3], m[:3, 2] / np.linalg.norm(m[:3, 2])
+            _, spec, dist = _probe(emitter, position + axis)
+            params = mi.traverse(emitter)
+            cos_outer, cos_inner = (
+                float(np.cos(np.radians(_np3(params[key])[0])))
+                for key in ("cutoff_angle", "beam_width")
+            )
+            lights.append(
+                Light(
+                    "spot",
+                    spec * dist**2,
+                    position=position,
+                    direction=axis,
+                    cos_inner=cos_inner,
+                    cos_outer=cos_outer,
+                )
+            )
+        elif kind == "DirectionalEmitter":
+            to_light, irradiance, _ = _probe(emitter, center)
+            lights.append(Light("directional", irradiance, direction=-to_light))
+        elif kind == "AreaLight":
+            lights.extend(_area_lights(emitter))
+        else:
+            raise SceneError(
+                f"emitter '{name}' is a {kind}, which the volume pipeline cannot use; it supports "
+                f"{EMITTERS}"
+            )
+    if not lights:
+        raise SceneError(f"the scene has no light: add one of the {EMITTERS}")
+    return lights, environment
+
+
+def _area_lights(emitter) -> list[Light]:
+    """An area emitter as M = AREA_LIGHT_SAMPLES² stratified point lights with cosine lobes."""
+    k = AREA_LIGHT_SAMPLES
+    u, v = np.meshgrid((np.arange(k) + 0.5) / k, (np.arange(k) + 0.5) / k, indexing="ij")
+    ps = emitter.get_shape().sample_position(0.0, mi.Point2f(u.ravel(), v.ravel()))
+    si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
+    si.wi = mi.Vector3f(0, 0, 1)
+    m = k * k
+
+    def rows(x, channels):  # a Dr.Jit array (possibly width 1) → NumPy (m, channels)
+        return np.broadcast_to(
+            np.asarray(x, dtype=np.float64).reshape(channels, -1).T, (m, channels)
+        )
+
+    p, n, radiance = rows(ps.p, 3), rows(ps.n, 3), rows(emitter.eval(si), 3)
+    intensity = radiance / (rows(ps.pdf, 1) * m)
+    return [
+        Light("point", i, position=x, lobe_normal=nn)
+        for i, x, nn in zip(intensity, p, n, strict=True)
+    ]

@@ -1,0 +1,186 @@
+"""S9 — the viewing pass: curved camera rays gathering single scattering (Sun et al. 2008 §4.5;
+Pfeuti 2009 §3.1.6, Listing 3.4, Listing A.4).
+
+One ray per pixel (and sample) marches with a fixed step of one voxel (``h = 1``) along the curved
+path of eqs (4)–(5), ``x += (h/‖v‖)·v``, ``v += h·∇n(x_old)``, until it leaves the grid. At each step
+
+    T  ⊙= exp(−κ(x)·h)
+    L  +=  colScale · h · σ_s(x) · p(cos θ) · C(x) ⊙ T,    cos θ = (−v · D̂(x)) / ‖v‖
+
+with the Schlick phase function ``p = (1 − k²) / (4π (1 − k cos θ)²)`` (Pfeuti §2.1.3); leaving
+the grid adds ``colScale · T ⊙ L_env(v̂)``. This is the single-scattering volume rendering equation
+with ``∫ p L_i dω' ≈ p(θ(D̂, −ω)) · φ`` (spec §2.6), ``C`` being the fluence ``φ``.
+
+Reflective table (Pfeuti §3.1.6): a ray going down through the bottom voxel layer is mirrored at
+the plane ``y = 1`` and picks up ``ρ_table/π · C ⊙ T`` (a Lambertian table of albedo ρ lit by the
+fluence there; spec A27/A28: only for ``v_y < 0``, attenuated by T). ``fidelity="paper"`` adds
+``ρ_table · C`` without T, as Listing A.4 does, and updates ``v += h·n(x)·∇n`` (spec A13).
+
+Reflective isosurface (Pfeuti §3.1.1, §3.1.6; spec A29): the first time ``n(x_old) < n_iso ≤ n(x)``
+a 10-step bisection finds the crossing, the normal is ``−∇n/‖∇n‖`` and ``R_iso · T ⊙ L_env(r)`` is
+added for the mirrored direction ``r``; the ray then continues with weight ``1 − R_iso``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.grid import GridBox, pack, trilinear_packed
+from .emit import box_entry
+
+BISECTION_STEPS = 10
+ENTRY_NUDGE = 1e-4  # voxels: start just inside the grid face
+
+
+@dataclass
+class ViewGrids:
+    """Everything S9 reads, packed as 16 channels per voxel (four vector gathers per corner):
+    ``(n, ∇n | κ_rgb, σ_s,r | σ_s,g, σ_s,b, C_r, C_g | C_b, D̂)`` in voxel units, C in W/m²."""
+
+    n: int
+    data: mi.Float
+
+    @staticmethod
+    def build(ior, grad, kappa, sigma_s, C, D_hat) -> ViewGrids:
+        n = int(C.shape[0])
+        return ViewGrids(n, pack([ior, grad, kappa, sigma_s, C, D_hat], n))
+
+
+@dataclass
+class ViewSettings:
+    """Appearance parameters of S9 (none of them requires new photons, spec §4.1)."""
+
+    phase_k: float = 0.3
+    table: tuple = (0.0, 0.0, 0.0)  # ρ_table (RGB); 0 = no table
+    iso_ior: float | None = None  # n_iso; None = no reflective isosurface
+    iso_reflect: float = 0.04  # R_iso
+    paper: bool = False
+    spp: int = 1
+    seed: int = 0
+
+
+def schlick(k: float, cos_theta):
+    """Schlick phase function (Pfeuti §2.1.3): ``(1 − k²) / (4π (1 − k cos θ)²)``."""
+    return (1.0 - k * k) / (4.0 * math.pi * dr.square(1.0 - k * cos_theta))
+
+
+def environment(emitter, d: mi.Vector3f, active=True) -> mi.Color3f:
+    """Radiance of the environment emitter (or black) seen along world direction ``d``."""
+    if emitter is None:
+        return dr.zeros(mi.Color3f, dr.width(d))
+    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(d))
+    si.wi = -d
+    return mi.Color3f(emitter.eval(si, active))
+
+
+def _sample(grids: ViewGrids, x: mi.Point3f):
+    a, b, c, e = trilinear_packed(grids.data, grids.n, 4, x)
+    ior, grad = a.x, mi.Vector3f(a.y, a.z, a.w)
+    kappa, sigma_s = mi.Color3f(b.x, b.y, b.z), mi.Color3f(b.w, c.x, c.y)
+    C, D = mi.Color3f(c.z, c.w, e.x), mi.Vector3f(e.y, e.z, e.w)
+    return ior, grad, kappa, sigma_s, C, D
+
+
+def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: float):
+    """Bisection (10 steps) on ``[x_old, x]`` for ``n = n_iso``; returns the parameter of the hit
+    along the segment and the outward normal ``−∇n/‖∇n‖`` there (spec A29)."""
+    lo = dr.zeros(mi.Float, dr.width(x))
+    hi = dr.ones(mi.Float, dr.width(x))
+    for _ in range(BISECTION_STEPS):
+        mid = 0.5 * (lo + hi)
+        above = _sample(grids, dr.lerp(x_old, x, mid))[0] >= iso
+        hi = dr.select(above, mid, hi)
+        lo = dr.select(above, lo, mid)
+    t = 0.5 * (lo + hi)
+    return t, -dr.normalize(_sample(grids, dr.lerp(x_old, x, t))[1])
+
+
+@dr.syntax
+def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings):
+    n = grids.n
+    count = dr.width(o)
+    enters, t_near, _ = box_entry(o, d, n)
+    x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
+    inside = enters & dr.all((x >= 0.0) & (x < float(n)))
+    n_x = _sample(grids, x)[0]
+    v = mi.Vector3f(n_x * d)
+    x_old, v_old, n_old = mi.Point3f(x), mi.Vector3f(v), mi.Float(n_x)
+    T = dr.ones(mi.Color3f, count)
+    col = dr.ones(mi.Float, count)
+    L = dr.zeros(mi.Color3f, count)
+    reflected = dr.zeros(mi.Bool, count)
+    steps = dr.zeros(mi.UInt32, count)
+    max_steps = 4 * n
+    table = mi.Color3f(*[float(c) for c in s.table]) * (1.0 if s.paper else 1.0 / math.pi)
+    table_on = bool(np.any(np.asarray(s.table) > 0))
+    iso_on = s.iso_ior is not None and s.iso_reflect > 0
+    iso = float(s.iso_ior) if iso_on else 0.0
+
+    active = mi.Bool(inside)
+    while active:
+        n_x, grad, kappa, sigma_s, C, D = _sample(grids, x)
+        if table_on & (v.y < 0) & (x.y < 1.0):
+            # reflective table: mirror at the plane y = 1 and add the lit table (Pfeuti §3.1.6)
+            t_hit = (1.0 - x_old.y) / v_old.y
+            x = mi.Point3f(x_old + t_hit * v_old)
+            v = mi.Vector3f(v_old.x, -v_old.y, v_old.z)
+            n_x, grad, kappa, sigma_s, C, D = _sample(grids, x)
+            L += col * table * C * (1.0 if s.paper else T)
+        elif iso_on & ~reflected & (n_old < iso) & (n_x >= iso):
+            # reflective isosurface (Pfeuti §3.1.6, spec A29): mirror the environment
+            t_iso, normal = isosurface_hit(grids, x_old, x, iso)
+            dv = dr.normalize(dr.lerp(v_old, v, t_iso))
+            r = dv - 2.0 * dr.dot(dv, normal) * normal
+            L += col * s.iso_reflect * T * environment(env, r)
+            reflected = mi.Bool(True)
+            col *= 1.0 - s.iso_reflect
+
+        speed = dr.norm(v)
+        cos_theta = -dr.dot(v, D) / (speed * dr.maximum(dr.norm(D), 1e-20))
+        T *= dr.exp(-kappa)
+        L += col * sigma_s * schlick(s.phase_k, cos_theta) * C * T
+        x_old, v_old, n_old = mi.Point3f(x), mi.Vector3f(v), mi.Float(n_x)
+        x = mi.Point3f(x + v / speed)
+        v = mi.Vector3f(v + (n_x if s.paper else 1.0) * grad)
+        steps += 1
+        active = dr.all((x >= 0.0) & (x < float(n))) & (steps < max_steps)
+    return L + col * T * environment(env, dr.normalize(v)), inside
+
+
+def render_view(grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSettings) -> mi.TensorXf:
+    """Render the image seen by ``sensor`` (a Mitsuba perspective sensor) — spec S9."""
+    film = sensor.film()
+    w, h = (int(c) for c in film.crop_size())
+    ox, oy = (int(c) for c in film.crop_offset())
+    full = film.size()
+    pixels = w * h
+    spp = max(int(settings.spp), 1)
+    idx = dr.arange(mi.UInt32, pixels * spp)
+    pix = idx // spp
+    px = mi.Float(pix % w + ox)
+    py = mi.Float(pix // w + oy)
+    if spp > 1:
+        rng = mi.PCG32(pixels * spp, mi.UInt64(settings.seed), mi.UInt64(idx))
+        jx, jy = rng.next_float32(), rng.next_float32()
+    else:
+        jx = jy = mi.Float(0.5)
+    pos = mi.Point2f((px + jx) / float(full[0]), (py + jy) / float(full[1]))
+    ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+    o = mi.Point3f((ray.o - mi.Point3f(*box.lo)) / box.h)
+    d = mi.Vector3f(ray.d)
+    L, inside = _march_rays(grids, o, d, env, settings)
+    L = dr.select(inside, L, environment(env, d))
+    image = mi.TensorXf(_average_samples(L, spp) if spp > 1 else dr.ravel(L), (h, w, 3))
+    dr.eval(image)
+    return image
+
+
+def _average_samples(L: mi.Color3f, spp: int) -> mi.Float:
+    """Mean of ``spp`` consecutive samples per pixel, as a flat RGB array."""
+    out = [dr.block_reduce(dr.ReduceOp.Add, c, spp) / spp for c in L]
+    return dr.ravel(mi.Color3f(*out))

@@ -1,0 +1,11 @@
+"""Shared test set-up: import photonmap (selects the LLVM variant); PHOTONMAP_JIT_DEBUG=1 turns on
+Dr.Jit's debug mode, which reports out-of-range gathers and scatters (DESIGN.md, Dr.Jit notes)."""
+
+import os
+
+import drjit as dr
+
+import photonmap  # noqa: F401
+
+if os.environ.get("PHOTONMAP_JIT_DEBUG"):
+    dr.set_flag(dr.JitFlag.Debug, True)
