@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import sys
 from contextlib import nullcontext
 from typing import Annotated
 
@@ -15,6 +14,15 @@ app = typer.Typer(
 )
 console = Console(stderr=True)
 METHODS = ("volume",)
+TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+def _error(exc) -> typer.Exit:
+    """Print a PhotonmapError on stderr (unwrapped, so keys are never split) → exit status 2."""
+    from rich.text import Text
+
+    console.print(Text.assemble(("error: ", "red"), str(exc)), soft_wrap=True)
+    return typer.Exit(2)
 
 
 def _parse_sets(items: list[str], fields: dict) -> dict:
@@ -34,7 +42,10 @@ def _parse_sets(items: list[str], fields: dict) -> dict:
         kind = type(fields[key])
         try:
             if kind is bool:
-                out[key] = value.strip().lower() in ("1", "true", "yes", "on")
+                word = value.strip().lower()
+                if word not in TRUE + FALSE:
+                    raise ValueError
+                out[key] = word in TRUE
             elif kind is int:
                 out[key] = int(float(value)) if "e" in value.lower() else int(value)
             else:
@@ -60,7 +71,10 @@ def render(
         bool, typer.Option("--timings", help="print per-stage milliseconds")
     ] = False,
 ):
-    """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB)."""
+    """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
+
+    Volume --set keys: grid, photons, eps, eps2, ds_min, ds_max, phase_k, sampler, fidelity, ...
+    (an unknown key lists them all). On a terminal the pipeline stages show as a progress bar."""
     from . import PhotonmapError
     from .core.image import write_image
 
@@ -70,35 +84,32 @@ def render(
         for out in output:
             if not out.lower().endswith((".exr", ".png")):
                 raise PhotonmapError(f"output {out!r} must end in .exr or .png")
-        from .volume.pipeline import VolumeParams, VolumePipeline
+        from .core.progress import interactive, stage_progress
+        from .volume.pipeline import STAGES, VolumeParams, VolumePipeline
 
         fields = {f.name: getattr(VolumeParams(), f.name) for f in dataclasses.fields(VolumeParams)}
         params = _parse_sets(set_ or [], {**fields, "grid": 128})
         grid = params.pop("grid", 128)
         params.setdefault("spp", spp)
         params.setdefault("seed", seed)
-        with (
-            console.status(f"loading {scene}", spinner="dots")
-            if sys.stderr.isatty()
-            else nullcontext()
-        ):
+        with console.status(f"loading {scene}") if interactive() else nullcontext():
             pipe = VolumePipeline(scene, grid=grid, **params)
             if width or height:
                 pipe.set_camera(width=width, height=height)
-        with console.status("rendering", spinner="dots") if sys.stderr.isatty() else nullcontext():
-            image = pipe.render()
+        with stage_progress(STAGES, f"rendering {scene}", console=console) as report:
+            image = pipe.render(progress=report)
         for out in output:
             write_image(out, image)
-            console.print(f"wrote {out}")
-        if timings:
-            console.print(pipe.timer.table(f"{scene}: per-stage timings"))
-            console.print(
+            console.print(f"wrote {out}", soft_wrap=True, markup=False, highlight=False)
+        if timings:  # a report the user asked for: on stdout
+            out_console = Console()
+            out_console.print(pipe.timer.table(f"{scene}: per-stage timings"))
+            out_console.print(
                 f"photons propagated {pipe.stats['photons_propagated']:,}, "
                 f"steps {pipe.stats['steps'] / 1e6:.2f} M"
             )
     except PhotonmapError as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from None
+        raise _error(exc) from None
 
 
 @app.command()
@@ -126,6 +137,5 @@ def compare(a: str, b: str):
     try:
         m = compare_images(read_image(a), read_image(b))
     except PhotonmapError as exc:
-        console.print(f"[red]error:[/red] {exc}")
-        raise typer.Exit(2) from None
+        raise _error(exc) from None
     print(f"RMSE {m['rmse']:.6g}  relative RMSE {m['rel_rmse']:.6g}  PSNR {m['psnr']:.2f} dB")

@@ -152,14 +152,23 @@ def filter_separable(t: mi.TensorXf, taps, axes=(0, 1, 2)) -> mi.TensorXf:
 
 
 def pack(channels: list, n: int) -> mi.Float:
-    """Interleave per-voxel channels (NumPy (n, n, n[, c]) or tensors) into one flat array of
+    """Interleave per-voxel channels (tensors or NumPy grids (n, n, n[, c])) into one flat array of
     ``4·k`` floats per voxel (zero-padded), the layout :func:`trilinear_packed` reads."""
-    parts = [np.asarray(to_tensor(c, n)) for c in channels]
-    width = sum(p.shape[-1] for p in parts)
-    pad = (-width) % 4
-    if pad:
-        parts.append(np.zeros((n, n, n, pad), np.float32))
-    return mi.Float(np.concatenate(parts, axis=-1).ravel())
+    tensors = [to_tensor(c, n) for c in channels]
+    width = sum(t.shape[3] for t in tensors)
+    stride = width + (-width) % 4
+    out = dr.zeros(mi.Float, n**3 * stride)
+    voxel = dr.arange(mi.UInt32, n**3)
+    offset = 0
+    for t in tensors:
+        c = t.shape[3]
+        for k in range(c):
+            dr.scatter(
+                out, dr.gather(mi.Float, t.array, voxel * c + k), voxel * stride + offset + k
+            )
+        offset += c
+    dr.eval(out)
+    return out
 
 
 def trilinear_packed(data: mi.Float, n: int, packets: int, p: mi.Point3f) -> list:

@@ -16,8 +16,13 @@
     scene = mi.load_file("scene.xml")
     image = mi.render(scene, integrator=mi.load_dict({"type": "volume_photon", "photons": 262144}))
 
-The integrator keeps one :class:`VolumePipeline` per scene, so rendering again from another sensor
-reuses the photon grids (Sun et al. 2008 §3: a camera change reruns only the viewing pass).
+The integrator keeps the :class:`VolumePipeline` of the scene it rendered last and re-reads that
+scene's lights, media and sensor on every render, so rendering again from another sensor reuses
+the photon grids (Sun et al. 2008 §3: a camera change reruns only the viewing pass), and parameters
+changed through ``mi.traverse`` take effect with the reruns they need. In-place edits of a mesh's
+vertices are not detected: use :meth:`VolumePipeline.set_geometry` or a new integrator.
+Errors are :class:`photonmap.PhotonmapError` (``mi.render`` wraps them in a ``RuntimeError`` whose
+``__cause__`` is the original error).
 """
 
 from __future__ import annotations
@@ -25,34 +30,64 @@ from __future__ import annotations
 import dataclasses
 
 import mitsuba as mi
+import numpy as np
 
-from .pipeline import VolumeParams, VolumePipeline
+from ..core.errors import ParameterError
+from .pipeline import VolumeParams, VolumePipeline, check_grid
 
-_FIELDS = {f.name: f.type for f in dataclasses.fields(VolumeParams)}
+_DEFAULTS = VolumeParams()
+_FIELDS = {f.name: type(getattr(_DEFAULTS, f.name)) for f in dataclasses.fields(VolumeParams)}
+_BASE = {"samples_per_pass", "hide_emitters", "timeout", "max_depth", "rr_depth"}
+
+
+def _convert(name: str, value, kind: type):
+    """A plugin property as the type of its :class:`VolumeParams` field."""
+    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
+        return float(value)
+    if kind is int and isinstance(value, float) and value.is_integer():
+        return int(value)
+    if kind is bool and isinstance(value, str) and value.lower() in ("true", "false"):
+        return value.lower() == "true"
+    return value  # VolumeParams.validate() names anything of the wrong type
 
 
 class VolumePhotonIntegrator(mi.SamplingIntegrator):
+    """Mitsuba integrator running :class:`~photonmap.volume.pipeline.VolumePipeline`."""
+
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        self.grid = int(props.get("grid", 128))
-        defaults = VolumeParams()
-        self.params = {}
-        for name in _FIELDS:
-            if props.has_property(name):
-                value = props[name]
-                self.params[name] = type(getattr(defaults, name))(value)
-        self._pipelines: dict[int, VolumePipeline] = {}
+        names = set(props.keys())
+        unknown = sorted(names - set(_FIELDS) - {"grid"} - _BASE)
+        if unknown:
+            raise ParameterError(
+                f"volume_photon: unknown parameter(s) {', '.join(unknown)}; valid: grid, "
+                f"{', '.join(sorted(_FIELDS))}"
+            )
+        self.grid = _convert("grid", props["grid"], int) if "grid" in names else 128
+        check_grid(self.grid)
+        self.params = {
+            name: _convert(name, props[name], kind)
+            for name, kind in _FIELDS.items()
+            if name in names
+        }
+        dataclasses.replace(_DEFAULTS, **self.params).validate()
+        self.pipeline: VolumePipeline | None = None
+        self._scene = None  # held, so that a new scene can never reuse its id
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if isinstance(sensor, int):
             sensor = scene.sensors()[sensor]
-        pipe = self._pipelines.get(id(scene))
-        if pipe is None:
-            pipe = VolumePipeline(scene, grid=self.grid, **self.params)
-            self._pipelines = {id(scene): pipe}
-        if spp:
-            pipe.set_params(spp=int(spp))
-        pipe.set_params(seed=int(seed) if seed else pipe.params.seed)
+        if self.pipeline is None or self._scene is not scene:
+            self.pipeline = VolumePipeline(scene, grid=self.grid, **self.params)
+            self._scene = scene
+        else:
+            self.pipeline.reload(scene)
+        pipe = self.pipeline
+        seed = int(np.asarray(seed).reshape(-1)[0]) if seed is not None else 0
+        pipe.set_params(
+            spp=int(spp) if spp else self.params.get("spp", _DEFAULTS.spp),
+            seed=seed if seed else self.params.get("seed", _DEFAULTS.seed),
+        )
         pipe.set_camera(sensor=sensor)
         return pipe.render()
 

@@ -10,13 +10,19 @@ Every stage's result is cached under a key made of exactly the inputs it depends
 reruns only what it must (spec seed-000-002 §4.1): a camera change reruns S9 only; a light change
 S5–S9; a change of σ_s that keeps κ reruns S9 only; a change of κ reruns S6–S9; a change of n reruns
 S2–S9; new geometry reruns everything. ``recomputed`` lists the stages the last :meth:`render` ran
-and ``timer`` their milliseconds (the rows of Sun et al. Table 1).
+and ``timer`` their milliseconds (the rows of Sun et al. Table 1). ``render(progress=f)`` calls
+``f(stage)`` as each stage that must run starts (the CLI's progress bar).
+
+Before allocating anything the pipeline estimates the memory its N³ grids need
+(:func:`memory_estimate`) and stops with a :class:`ParameterError` if that exceeds the available
+memory or Dr.Jit's 2³² entries per array.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
 
 import drjit as dr
 import mitsuba as mi
@@ -35,6 +41,18 @@ from .view import ViewGrids, ViewSettings, render_view
 from .voxelize import voxelize
 
 FIDELITY = ("physical", "paper")
+STAGES = (
+    "voxelization",
+    "materials",
+    "gradient",
+    "octree",
+    "march grids",
+    "photon generation",
+    "photon tracing",
+    "smoothing",
+    "view grids",
+    "viewing",
+)  # in the order render() runs them (S1, S2, S3, S4, S6 input, S5, S6/S7, S8, S9 input, S9)
 
 
 @dataclasses.dataclass
@@ -63,27 +81,162 @@ class VolumeParams:
     spp: int = 1  # camera rays per pixel
 
     def validate(self) -> None:
-        if not isinstance(self.photons, int | np.integer) or self.photons < 1:
-            raise ParameterError(f"photons must be a positive integer, got {self.photons!r}")
+        """Raise :class:`ParameterError` saying what is wrong and which values are allowed."""
+        for f in dataclasses.fields(self):
+            _check_type(f.name, getattr(self, f.name), type(f.default))
+        if not 1 <= self.photons <= 2**31:
+            raise ParameterError(
+                f"photons must be between 1 and 2**31, got {self.photons!r}: it is the number of "
+                "photons placed on each light's photon plane (e.g. photons=1048576 = 1024**2, "
+                "Sun Table 2)"
+            )
         if self.sampler not in sampling.SAMPLERS:
             raise ParameterError(
                 f"sampler must be one of {', '.join(sampling.SAMPLERS)}, got {self.sampler!r}"
             )
         if self.fidelity not in FIDELITY:
-            raise ParameterError(f"fidelity must be one of {FIDELITY}, got {self.fidelity!r}")
+            raise ParameterError(
+                f"fidelity must be one of {', '.join(FIDELITY)}, got {self.fidelity!r}"
+            )
         for key in ("eps", "ds_min", "ds_max", "noise_scale"):
             value = getattr(self, key)
             if not (math.isfinite(value) and value > 0):
                 raise ParameterError(f"{key} must be positive and finite, got {value!r}")
         if not (math.isfinite(self.eps2) and self.eps2 >= self.eps):
-            raise ParameterError(f"eps2 must be >= eps ({self.eps}), got {self.eps2!r}")
+            raise ParameterError(
+                f"eps2 must be finite and >= eps ({self.eps}), got {self.eps2!r}; "
+                "set eps2 = eps for the basic octree (Sun §5.3)"
+            )
+        if self.ds_max < self.ds_min:
+            raise ParameterError(
+                f"ds_max ({self.ds_max}) must be >= ds_min ({self.ds_min}): both are step lengths "
+                "in voxels"
+            )
         if not -1 < self.phase_k < 1:
-            raise ParameterError(f"phase_k must lie in (-1, 1), got {self.phase_k!r}")
+            raise ParameterError(
+                f"phase_k must lie in (-1, 1), got {self.phase_k!r}: Schlick's k is 0 for "
+                "isotropic scattering, > 0 forward, < 0 backward"
+            )
         for key in ("table", "iso_reflect"):
             if not 0 <= getattr(self, key) <= 1:
-                raise ParameterError(f"{key} must lie in [0, 1], got {getattr(self, key)!r}")
-        if self.spp < 1 or self.supersample < 1:
-            raise ParameterError("spp and supersample must be at least 1")
+                raise ParameterError(
+                    f"{key} must lie in [0, 1] (a reflectance; 0 turns it off), "
+                    f"got {getattr(self, key)!r}"
+                )
+        for key in ("ior_noise", "sigma_s_noise"):
+            if not (math.isfinite(getattr(self, key)) and getattr(self, key) >= 0):
+                raise ParameterError(
+                    f"{key} must be finite and >= 0 (0 = no noise), got {getattr(self, key)!r}"
+                )
+        if not (math.isfinite(self.iso_ior) and (self.iso_ior == 0 or self.iso_ior >= 1)):
+            raise ParameterError(
+                f"iso_ior must be 0 (automatic) or a finite index >= 1, got {self.iso_ior!r}"
+            )
+        for key in ("spp", "supersample"):
+            if getattr(self, key) < 1:
+                raise ParameterError(f"{key} must be at least 1, got {getattr(self, key)!r}")
+        if self.seed < 0:
+            raise ParameterError(f"seed must be >= 0, got {self.seed!r}")
+
+
+def _check_type(name: str, value, kind: type) -> None:
+    """``value`` must suit a field whose default has type ``kind`` (ints are accepted as floats;
+    bools are never taken for numbers)."""
+    if kind is bool:
+        ok = isinstance(value, bool | np.bool_)
+    elif kind is int:
+        ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
+    elif kind is float:
+        ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+            value, bool
+        )
+    else:
+        ok = isinstance(value, kind)
+    if not ok:
+        article = (
+            "an integer" if kind is int else f"a {'number' if kind is float else kind.__name__}"
+        )
+        raise ParameterError(f"{name} must be {article}, got {value!r} ({type(value).__name__})")
+
+
+# ------------------------------------------------------------------------------------------------
+# Memory
+
+DRJIT_MAX_ENTRIES = 2**32  # Dr.Jit arrays hold at most 2³² entries
+VIEW_CHANNELS = 16  # floats per voxel in the packed viewing grid, the widest N³ array
+PHOTON_BYTES = 128  # per photon: plane samples, entry point, direction, power, march state
+
+
+def memory_estimate(grid: int, objects: int = 1, photons: int = 0, threads: int | None = None):
+    """Bytes the pipeline needs for an ``grid``³ volume (a rough upper estimate), as
+    ``(total, per_voxel)``.
+
+    Per voxel, what stays cached: coverage (4 B per refractive object), material grids n, σ_s, κ
+    (28 B), ∇n (12 B), octree level and Δs_max (8 B), march grids (40 B), the traced and the
+    smoothed C, D (2 × 24 B), the packed viewing grid (64 B); and while photons are traced, the
+    64-bit fixed-point accumulator of 8 channels (64 B) with one more copy per Dr.Jit thread
+    (``ReduceMode.Expand``). Plus :data:`PHOTON_BYTES` per photon. Measured on this machine:
+    ≈ 360 B per voxel at 192³ with 2 threads, against 396 B estimated.
+    """
+    threads = dr.thread_count() if threads is None else threads
+    cached = 4 * objects + 28 + 12 + 8 + 40 + 2 * 24 + 4 * VIEW_CHANNELS
+    accumulator = 8 * 8 * (1 + max(int(threads), 1))
+    per_voxel = cached + accumulator
+    return per_voxel * int(grid) ** 3 + PHOTON_BYTES * int(photons), per_voxel
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to this process (``MemAvailable`` of /proc/meminfo, else the
+    physical memory), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _bytes(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if n < 1024 or unit == "TB":
+            return f"{n:.1f} {unit}" if unit != "B" else f"{int(n)} B"
+        n /= 1024
+    return f"{n:.1f} TB"  # pragma: no cover
+
+
+def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None = None) -> None:
+    """Raise :class:`ParameterError` unless ``grid`` is an integer >= 4 whose N³ grids fit in
+    Dr.Jit's array limit and in ``available`` bytes (default: :func:`available_memory`)."""
+    if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 4:
+        raise ParameterError(
+            f"grid must be an integer >= 4 (the grid is grid³ voxels; the papers use 128), "
+            f"got {grid!r}"
+        )
+    need, per_voxel = memory_estimate(grid, objects, photons)
+    available = available_memory() if available is None else available
+    if available is not None and need > available:
+        fits = int((max(available - PHOTON_BYTES * photons, 0) / per_voxel) ** (1 / 3))
+        parts = (
+            f"{grid}³ voxels × {per_voxel} bytes for the material, octree, photon and view grids"
+        )
+        if photons:
+            parts += f" + {photons:,} photons × {PHOTON_BYTES} bytes"
+        raise ParameterError(
+            f"grid={grid} needs about {_bytes(need)} of memory ({parts}), but only "
+            f"{_bytes(available)} is available: use a smaller grid (grid <= {fits} fits)"
+            + (" or fewer photons" if photons else "")
+        )
+    if VIEW_CHANNELS * int(grid) ** 3 > DRJIT_MAX_ENTRIES:
+        largest = int((DRJIT_MAX_ENTRIES / VIEW_CHANNELS) ** (1 / 3))
+        raise ParameterError(
+            f"grid={grid} needs arrays of {VIEW_CHANNELS}·{grid}³ = {VIEW_CHANNELS * grid**3:,} "
+            f"entries, more than Dr.Jit's limit of 2³² entries per array: use grid <= {largest}"
+        )
 
 
 def _key(value):
@@ -104,26 +257,56 @@ class VolumePipeline:
 
     ``scene`` is a Mitsuba scene (``mi.Scene``), a scene dict, an XML path or a built-in name
     (``photonmap scenes``). ``grid`` is the voxel resolution N (the grid is N³). Keyword arguments
-    are :class:`VolumeParams` fields; a built-in scene's own defaults apply first.
+    are :class:`VolumeParams` fields; a built-in scene's own defaults apply first, and for a
+    built-in the keywords of its ``build`` (``width``, ``height``, ``ior``, ...) pass through.
+    Any unknown keyword raises a :class:`ParameterError` listing the valid ones.
 
-    >>> pipe = VolumePipeline("glass_sphere_fog", grid=64, photons=256**2)
+    >>> pipe = VolumePipeline("glass_sphere_fog", grid=64, photons=256**2, width=320, height=240)
     >>> image = pipe.render()               # mi.TensorXf (height, width, 3), linear radiance
     >>> pipe.set_camera(origin=[0.5, 0.8, 2.5], target=[0.5, 0.4, 0.5])
     >>> image = pipe.render()               # reruns only the viewing pass
     """
 
     def __init__(self, scene, grid: int = 128, grid_bbox=None, **params):
-        from ..scenes import load_scene
+        from ..scenes import SCENES, load_scene
 
-        mi_scene, defaults = load_scene(scene)
-        self.scene: VolumeScene = from_mitsuba(mi_scene, grid=grid, grid_bbox=grid_bbox)
+        check_grid(grid)  # before anything is loaded or allocated
+        valid = {f.name for f in dataclasses.fields(VolumeParams)}
+        scene_params = {k: v for k, v in params.items() if k not in valid}
+        builtin = SCENES.get(scene) if isinstance(scene, str) else None
+        if scene_params:
+            accepted = set(builtin.params) if builtin else set()
+            unknown = sorted(set(scene_params) - accepted)
+            if unknown:
+                also = f"; scene {scene!r} also accepts {', '.join(sorted(accepted))}"
+                raise ParameterError(
+                    f"unknown volume parameter(s) {', '.join(unknown)}; valid: "
+                    f"grid, grid_bbox, {', '.join(sorted(valid))}{also if builtin else ''}"
+                )
+        mi_scene, defaults = load_scene(scene, **scene_params)
         self.params = VolumeParams()
-        self.set_params(**{**defaults, **params})
+        self.set_params(**{**defaults, **{k: v for k, v in params.items() if k in valid}})
+        self.scene: VolumeScene = from_mitsuba(mi_scene, grid=grid, grid_bbox=grid_bbox)
+        check_grid(
+            grid,
+            objects=len(self.scene.objects),
+            photons=self.params.photons * len(self.scene.lights),
+        )
         self.timer = StageTimer()
         self.recomputed: list[str] = []
         self.stats: dict[str, float] = {}
         self._cache: dict[str, tuple] = {}
         self._geometry_version = 0
+        self._grid_bbox = grid_bbox
+        self._progress = None
+
+    def reload(self, scene: mi.Scene) -> None:
+        """Re-read lights, media, sensor and shapes from ``scene`` (a Mitsuba scene, possibly
+        edited through ``mi.traverse``); cached stages whose inputs did not change are kept.
+        Grids given by :meth:`set_volume` stay."""
+        new = from_mitsuba(scene, grid=self.scene.box.n, grid_bbox=self._grid_bbox)
+        new.grids = self.scene.grids
+        self.scene = new
 
     # ------------------------------------------------------------------ changes
     def set_params(self, **params) -> None:
@@ -136,6 +319,10 @@ class VolumePipeline:
             )
         new = dataclasses.replace(self.params, **params)
         new.validate()
+        if hasattr(self, "scene") and new.photons != self.params.photons:
+            check_grid(
+                self.scene.box.n, len(self.scene.objects), new.photons * len(self.scene.lights)
+            )
         self.params = new
 
     def set_camera(
@@ -177,18 +364,17 @@ class VolumePipeline:
         """Change light ``index`` (fields of :class:`~.scene.Light`: position, direction, intensity,
         kind, cos_inner, cos_outer). Reruns S5–S9."""
         if not 0 <= index < len(self.scene.lights):
-            raise ParameterError(f"no light {index}; the scene has {len(self.scene.lights)}")
+            raise ParameterError(
+                f"no light {index}; the scene has {len(self.scene.lights)} "
+                f"(valid indices 0..{len(self.scene.lights) - 1})"
+            )
         light = self.scene.lights[index]
         fields = {f.name for f in dataclasses.fields(Light)}
         unknown = sorted(set(changes) - fields)
         if unknown:
             raise ParameterError(f"unknown light field(s) {unknown}; valid: {sorted(fields)}")
         changes = {
-            k: (
-                np.asarray(v, dtype=np.float64)
-                if k in ("position", "direction", "intensity", "lobe_normal") and v is not None
-                else v
-            )
+            k: (_vector3(k, v) if k in _LIGHT_VECTORS and v is not None else v)
             for k, v in changes.items()
         }
         new = dataclasses.replace(light, **changes)
@@ -215,7 +401,13 @@ class VolumePipeline:
         grids = dict(self.scene.grids or {})
         for key, value in (("n", n), ("sigma_s", sigma_s), ("kappa", kappa)):
             if value is not None:
-                grids[key] = np.asarray(value, dtype=np.float32)
+                try:
+                    grids[key] = np.array(value, dtype=np.float32)  # a copy: later edits re-key
+                except (TypeError, ValueError):
+                    raise ParameterError(
+                        f"set_volume: {key} must be a numeric array of shape (N, N, N) or "
+                        f"(N, N, N, 3), got {type(value).__name__}"
+                    ) from None
         missing = {"n", "sigma_s", "kappa"} - set(grids)
         if missing:
             raise ParameterError(
@@ -238,6 +430,8 @@ class VolumePipeline:
         hit = self._cache.get(name)
         if hit is not None and hit[0] == key:
             return hit[1]
+        if self._progress is not None:
+            self._progress(name)
         with self.timer(name):
             value = compute()
         self._cache[name] = (key, value)
@@ -249,9 +443,12 @@ class VolumePipeline:
         s, p = self.scene, self.params
         box = s.box
         if s.grids is not None:
-            key = ("grids", _key(s.grids), _key(box))
+            # separate keys, so that painting σ_s with κ unchanged reruns S9 only (spec §4.1)
+            ior_key = ("grids", _key(s.grids["n"]), _key(box))
+            kappa_key = ("grids", _key(s.grids["kappa"]), _key(box))
+            key = (ior_key, kappa_key, _key(s.grids["sigma_s"]))
             mats = self._stage("materials", key, lambda: from_arrays(s.grids, box))
-            return mats, key, key, key
+            return mats, ior_key, kappa_key, key
         geo = (
             self._geometry_version,
             tuple(id(o.shape) for o in s.objects),
@@ -294,11 +491,22 @@ class VolumePipeline:
         )
         return mats, ior_key, kappa_key, key
 
-    def render(self) -> mi.TensorXf:
-        """Run (or reuse) every stage and return the image (height, width, 3), linear radiance."""
-        s, p = self.scene, self.params
+    def render(self, progress=None) -> mi.TensorXf:
+        """Run (or reuse) every stage and return the image (height, width, 3), linear radiance.
+
+        ``progress``, if given, is called with the name of each stage (one of :data:`STAGES`) as
+        it starts; cached stages are skipped silently.
+        """
         self.timer.reset()
         self.recomputed = []
+        self._progress = progress
+        try:
+            return self._render()
+        finally:
+            self._progress = None
+
+    def _render(self) -> mi.TensorXf:
+        s, p = self.scene, self.params
         paper = p.fidelity == "paper"
 
         mats, ior_key, kappa_key, sigma_key = self._materials()
@@ -345,7 +553,7 @@ class VolumePipeline:
             "viewing",
             (
                 _key(settings),
-                id(s.sensor),
+                _sensor_key(s.sensor),
                 id(s.environment),
                 view_grids is not None and id(view_grids),
             ),
@@ -390,6 +598,22 @@ class VolumePipeline:
         return out
 
 
+def _sensor_key(sensor) -> tuple:
+    """The sensor and what can change in it in place (``mi.traverse``): pose, field of view,
+    film size and crop."""
+    film = sensor.film()
+    matrix = np.asarray(sensor.world_transform().matrix, dtype=np.float64)
+    fov = mi.traverse(sensor).get("x_fov")
+    return (
+        id(sensor),
+        matrix.tobytes(),
+        None if fov is None else float(np.asarray(fov).reshape(-1)[0]),
+        tuple(int(c) for c in film.size()),
+        tuple(int(c) for c in film.crop_size()),
+        tuple(int(c) for c in film.crop_offset()),
+    )
+
+
 def _emit_all(scene: VolumeScene, p: VolumeParams) -> s5.Photons:
     """S5 for every light (Sun §3: "a set of point or directional light sources"), concatenated."""
     batches = [
@@ -411,40 +635,86 @@ def _emit_all(scene: VolumeScene, p: VolumeParams) -> s5.Photons:
     )
 
 
+_LIGHT_VECTORS = ("position", "direction", "intensity", "lobe_normal")
+
+
+def _vector3(name: str, value) -> np.ndarray:
+    """A light vector as float64 RGB/xyz; a scalar intensity is grey."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+        if name == "intensity" and a.ndim == 0:
+            a = np.repeat(a, 3)
+        if a.shape != (3,):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"light {name} must be 3 numbers (x, y, z{'' if name != 'intensity' else ' or RGB'}), "
+            f"got {value!r}"
+        ) from None
+    return a
+
+
 def _check_light(light: Light) -> None:
     if light.kind not in ("point", "spot", "directional"):
         raise ParameterError(f"light kind must be point, spot or directional, got {light.kind!r}")
-    values = [light.intensity] + [v for v in (light.position, light.direction) if v is not None]
-    if not all(np.all(np.isfinite(v)) for v in values):
-        raise ParameterError("light position, direction and intensity must be finite")
+    for name in ("intensity", "position", "direction"):
+        value = getattr(light, name)
+        if value is not None and not np.all(np.isfinite(value)):
+            raise ParameterError(
+                f"light {name} must be finite, got {np.asarray(value).tolist()}: pass finite numbers"
+            )
     if np.any(np.asarray(light.intensity) < 0):
-        raise ParameterError("light intensity must be >= 0")
+        raise ParameterError(
+            f"light intensity must be >= 0 in every channel, got {np.asarray(light.intensity).tolist()}"
+        )
+    for name in ("cos_inner", "cos_outer"):
+        value = getattr(light, name)
+        if not (math.isfinite(value) and -1 <= value <= 1):
+            raise ParameterError(f"{name} must be a cosine in [-1, 1], got {value!r}")
     if light.kind == "directional" and (
         light.direction is None or np.linalg.norm(light.direction) == 0
     ):
-        raise ParameterError("a directional light needs a non-zero direction")
+        raise ParameterError("a directional light needs a non-zero direction (where light travels)")
     if light.kind != "directional" and light.position is None:
-        raise ParameterError(f"a {light.kind} light needs a position")
+        raise ParameterError(f"a {light.kind} light needs a position (world units)")
+    if light.kind == "spot" and (light.direction is None or np.linalg.norm(light.direction) == 0):
+        raise ParameterError("a spot light needs a non-zero direction (its axis)")
 
 
 def _updated(medium: Medium, ior, sigma_s, sigma_a, where: str) -> Medium:
+    def rgb(name, value):
+        try:
+            return np.broadcast_to(np.asarray(value, dtype=np.float64), 3).copy()
+        except (TypeError, ValueError):
+            raise ParameterError(
+                f"{name} of {where} must be a number or 3 numbers (RGB, 1/world unit), "
+                f"got {value!r}"
+            ) from None
+
+    try:
+        n = float(medium.ior if ior is None else ior)
+    except (TypeError, ValueError):
+        raise ParameterError(f"n (ior) of {where} must be a number, got {ior!r}") from None
     new = Medium(
-        sigma_s=np.broadcast_to(
-            np.asarray(medium.sigma_s if sigma_s is None else sigma_s, dtype=np.float64), 3
-        ).copy(),
-        sigma_a=np.broadcast_to(
-            np.asarray(medium.sigma_a if sigma_a is None else sigma_a, dtype=np.float64), 3
-        ).copy(),
-        ior=float(medium.ior if ior is None else ior),
+        sigma_s=rgb("sigma_s", medium.sigma_s if sigma_s is None else sigma_s),
+        sigma_a=rgb("sigma_a", medium.sigma_a if sigma_a is None else sigma_a),
+        ior=n,
     )
-    if not (
-        np.all(np.isfinite(new.sigma_s))
-        and np.all(np.isfinite(new.sigma_a))
-        and math.isfinite(new.ior)
-    ):
-        raise ParameterError(f"the medium of {where} must have finite coefficients")
-    if np.any(new.sigma_s < 0) or np.any(new.sigma_a < 0):
-        raise ParameterError(f"sigma_s and sigma_a of {where} must be >= 0")
+    for name, value in (("sigma_s", new.sigma_s), ("sigma_a", new.sigma_a), ("ior", new.ior)):
+        if not np.all(np.isfinite(value)):
+            raise ParameterError(
+                f"{name} of {where} must be finite, got {np.asarray(value).tolist()}: "
+                "pass finite coefficients (world units)"
+            )
+    for name, value in (("sigma_s", new.sigma_s), ("sigma_a", new.sigma_a)):
+        if np.any(value < 0):
+            raise ParameterError(
+                f"{name} of {where} must be >= 0, got {value.tolist()}: coefficients are "
+                "non-negative (kappa = sigma_s + sigma_a)"
+            )
     if new.ior < 1:
-        raise ParameterError(f"n of {where} must be >= 1, got {new.ior}")
+        raise ParameterError(
+            f"n (ior) of {where} must be >= 1, got {new.ior}: the volume pipeline needs objects "
+            "optically denser than the fog (n is relative to the fog)"
+        )
     return new

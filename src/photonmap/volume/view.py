@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.grid import GridBox, pack, trilinear_packed
+from ..core.grid import GridBox, pack, to_tensor, trilinear_packed
 from .emit import box_entry
 
 BISECTION_STEPS = 10
@@ -39,16 +39,25 @@ ENTRY_NUDGE = 1e-4  # voxels: start just inside the grid face
 
 @dataclass
 class ViewGrids:
-    """Everything S9 reads, packed as 16 channels per voxel (four vector gathers per corner):
-    ``(n, ∇n | κ_rgb, σ_s,r | σ_s,g, σ_s,b, C_r, C_g | C_b, D̂)`` in voxel units, C in W/m²."""
+    """Everything S9 reads, in voxel units (C in W/m²), packed for vector gathers:
+
+    - ``main`` — read at every step, 12 channels (three gathers per trilinear corner):
+      ``(∇n, κ_rgb, σ_s ⊙ C, D̂)``; the in-scattering source ``σ_s ⊙ C`` is interpolated as one
+      product (it differs from the product of interpolants only where σ_s changes within a voxel);
+    - ``aux`` — ``(n, C_rgb)``: read at every step only when the isosurface test or the paper's
+      ``v += h·n·∇n`` needs n, and for the table.
+    """
 
     n: int
-    data: mi.Float
+    main: mi.Float
+    aux: mi.Float
 
     @staticmethod
     def build(ior, grad, kappa, sigma_s, C, D_hat) -> ViewGrids:
         n = int(C.shape[0])
-        return ViewGrids(n, pack([ior, grad, kappa, sigma_s, C, D_hat], n))
+        C, sigma_s = to_tensor(C, n), to_tensor(sigma_s, n)
+        source = mi.TensorXf(sigma_s.array * C.array, tuple(C.shape))
+        return ViewGrids(n, pack([grad, kappa, source, D_hat], n), pack([ior, C], n))
 
 
 @dataclass
@@ -79,11 +88,20 @@ def environment(emitter, d: mi.Vector3f, active=True) -> mi.Color3f:
 
 
 def _sample(grids: ViewGrids, x: mi.Point3f):
-    a, b, c, e = trilinear_packed(grids.data, grids.n, 4, x)
-    ior, grad = a.x, mi.Vector3f(a.y, a.z, a.w)
-    kappa, sigma_s = mi.Color3f(b.x, b.y, b.z), mi.Color3f(b.w, c.x, c.y)
-    C, D = mi.Color3f(c.z, c.w, e.x), mi.Vector3f(e.y, e.z, e.w)
-    return ior, grad, kappa, sigma_s, C, D
+    """``(∇n, κ, σ_s ⊙ C, D)`` at voxel coordinates ``x`` (trilinear)."""
+    a, b, c = trilinear_packed(grids.main, grids.n, 3, x)
+    return (
+        mi.Vector3f(a.x, a.y, a.z),
+        mi.Color3f(a.w, b.x, b.y),
+        mi.Color3f(b.z, b.w, c.x),
+        mi.Vector3f(c.y, c.z, c.w),
+    )
+
+
+def _sample_aux(grids: ViewGrids, x: mi.Point3f):
+    """``(n, C)`` at voxel coordinates ``x`` (trilinear)."""
+    (a,) = trilinear_packed(grids.aux, grids.n, 1, x)
+    return a.x, mi.Color3f(a.y, a.z, a.w)
 
 
 def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: float):
@@ -93,11 +111,11 @@ def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: floa
     hi = dr.ones(mi.Float, dr.width(x))
     for _ in range(BISECTION_STEPS):
         mid = 0.5 * (lo + hi)
-        above = _sample(grids, dr.lerp(x_old, x, mid))[0] >= iso
+        above = _sample_aux(grids, dr.lerp(x_old, x, mid))[0] >= iso
         hi = dr.select(above, mid, hi)
         lo = dr.select(above, lo, mid)
     t = 0.5 * (lo + hi)
-    return t, -dr.normalize(_sample(grids, dr.lerp(x_old, x, t))[1])
+    return t, -dr.normalize(_sample(grids, dr.lerp(x_old, x, t))[0])
 
 
 @dr.syntax
@@ -107,7 +125,7 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
     enters, t_near, _ = box_entry(o, d, n)
     x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
     inside = enters & dr.all((x >= 0.0) & (x < float(n)))
-    n_x = _sample(grids, x)[0]
+    n_x = _sample_aux(grids, x)[0]
     v = mi.Vector3f(n_x * d)
     x_old, v_old, n_old = mi.Point3f(x), mi.Vector3f(v), mi.Float(n_x)
     T = dr.ones(mi.Color3f, count)
@@ -116,34 +134,42 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
     reflected = dr.zeros(mi.Bool, count)
     steps = dr.zeros(mi.UInt32, count)
     max_steps = 4 * n
-    table = mi.Color3f(*[float(c) for c in s.table]) * (1.0 if s.paper else 1.0 / math.pi)
+    # appearance parameters enter the kernel as opaque values: changing them does not recompile
+    table_rgb = [float(c) * (1.0 if s.paper else 1.0 / math.pi) for c in s.table]
+    table = mi.Color3f(*[dr.opaque(mi.Float, c) for c in table_rgb])
     table_on = bool(np.any(np.asarray(s.table) > 0))
     iso_on = s.iso_ior is not None and s.iso_reflect > 0
-    iso = float(s.iso_ior) if iso_on else 0.0
+    iso = dr.opaque(mi.Float, float(s.iso_ior) if iso_on else 0.0)
+    r_iso = dr.opaque(mi.Float, s.iso_reflect)
+    k = dr.opaque(mi.Float, s.phase_k)
+    need_n = iso_on or s.paper
 
     active = mi.Bool(inside)
     while active:
-        n_x, grad, kappa, sigma_s, C, D = _sample(grids, x)
+        grad, kappa, source, D = _sample(grids, x)
+        if need_n:
+            n_x = _sample_aux(grids, x)[0]
         if table_on & (v.y < 0) & (x.y < 1.0):
             # reflective table: mirror at the plane y = 1 and add the lit table (Pfeuti §3.1.6)
             t_hit = (1.0 - x_old.y) / v_old.y
             x = mi.Point3f(x_old + t_hit * v_old)
             v = mi.Vector3f(v_old.x, -v_old.y, v_old.z)
-            n_x, grad, kappa, sigma_s, C, D = _sample(grids, x)
+            grad, kappa, source, D = _sample(grids, x)
+            n_x, C = _sample_aux(grids, x)
             L += col * table * C * (1.0 if s.paper else T)
         elif iso_on & ~reflected & (n_old < iso) & (n_x >= iso):
             # reflective isosurface (Pfeuti §3.1.6, spec A29): mirror the environment
             t_iso, normal = isosurface_hit(grids, x_old, x, iso)
             dv = dr.normalize(dr.lerp(v_old, v, t_iso))
             r = dv - 2.0 * dr.dot(dv, normal) * normal
-            L += col * s.iso_reflect * T * environment(env, r)
+            L += col * r_iso * T * environment(env, r)
             reflected = mi.Bool(True)
-            col *= 1.0 - s.iso_reflect
+            col *= 1.0 - r_iso
 
         speed = dr.norm(v)
         cos_theta = -dr.dot(v, D) / (speed * dr.maximum(dr.norm(D), 1e-20))
         T *= dr.exp(-kappa)
-        L += col * sigma_s * schlick(s.phase_k, cos_theta) * C * T
+        L += col * schlick(k, cos_theta) * source * T
         x_old, v_old, n_old = mi.Point3f(x), mi.Vector3f(v), mi.Float(n_x)
         x = mi.Point3f(x + v / speed)
         v = mi.Vector3f(v + (n_x if s.paper else 1.0) * grad)

@@ -1,0 +1,35 @@
+"""Spatial orders for coherent SIMD work (Morton / Z-order).
+
+Neighbouring SIMD lanes that touch neighbouring memory share cache lines. Steinhurst (2007) shows
+this for photon gathers on a cache simulator; Pfeuti (2009, Table 4.1) sees the photon order change
+the marching time on a GPU. Here sorting photons by the Morton code of their photon-plane position
+makes the deposits of one SIMD packet land in nearby voxels (the accumulated result does not
+depend on the order: deposits are summed in exact fixed point).
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+
+def _spread_bits_16(v: mi.UInt32) -> mi.UInt32:
+    """Insert a zero bit between the low 16 bits of ``v``."""
+    v = v & 0x0000FFFF
+    v = (v | (v << 8)) & 0x00FF00FF
+    v = (v | (v << 4)) & 0x0F0F0F0F
+    v = (v | (v << 2)) & 0x33333333
+    return (v | (v << 1)) & 0x55555555
+
+
+def morton2(u: mi.Float, w: mi.Float) -> mi.UInt32:
+    """32-bit Morton code of points in the unit square (16 bits per axis)."""
+    scale = float(1 << 16)
+    a = mi.UInt32(dr.clip(u * scale, 0, scale - 1))
+    b = mi.UInt32(dr.clip(w * scale, 0, scale - 1))
+    return _spread_bits_16(a) | (_spread_bits_16(b) << 1)
+
+
+def morton_order(u: mi.Float, w: mi.Float) -> mi.UInt32:
+    """The permutation that lists the points ``(u, w)`` in Morton (Z) order."""
+    return dr.argsort(morton2(u, w))
