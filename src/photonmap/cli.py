@@ -13,7 +13,7 @@ app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Photon mapping on Mitsuba 3 + Dr.Jit."
 )
 console = Console(stderr=True)
-METHODS = ("volume",)
+METHODS = ("volume", "surface")
 TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
@@ -59,7 +59,7 @@ def _parse_sets(items: list[str], fields: dict) -> dict:
 def render(
     scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
     output: Annotated[list[str], typer.Option("-o", "--output", help=".exr or .png (repeatable)")],
-    method: Annotated[str, typer.Option(help="pipeline: volume")] = "volume",
+    method: Annotated[str, typer.Option(help="pipeline: volume | surface")] = "volume",
     width: Annotated[int | None, typer.Option(help="image width (default: the scene's)")] = None,
     height: Annotated[int | None, typer.Option(help="image height")] = None,
     spp: Annotated[int, typer.Option(help="camera samples per pixel")] = 1,
@@ -73,7 +73,8 @@ def render(
 ):
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
 
-    Volume --set keys: grid, photons, eps, eps2, ds_min, ds_max, phase_k, sampler, fidelity, ...
+    Volume --set keys: grid, photons, eps, eps2, ds_min, ds_max, phase_k, sampler, fidelity, ...;
+    surface: photons, caustic_photons, k, max_radius, fg_rays, structure, max_depth, lookup, ...
     (an unknown key lists them all). On a terminal the pipeline stages show as a progress bar."""
     from . import PhotonmapError
     from .core.image import write_image
@@ -85,15 +86,21 @@ def render(
             if not out.lower().endswith((".exr", ".png")):
                 raise PhotonmapError(f"output {out!r} must end in .exr or .png")
         from .core.progress import interactive, stage_progress
-        from .volume.pipeline import STAGES, VolumeParams, VolumePipeline
 
-        fields = {f.name: getattr(VolumeParams(), f.name) for f in dataclasses.fields(VolumeParams)}
-        params = _parse_sets(set_ or [], {**fields, "grid": 128})
-        grid = params.pop("grid", 128)
+        if method == "volume":
+            from .volume.pipeline import STAGES, VolumeParams, VolumePipeline
+
+            Pipeline, Params, extra = VolumePipeline, VolumeParams, {"grid": 128}
+        else:
+            from .surface.pipeline import STAGES, SurfaceParams, SurfacePipeline
+
+            Pipeline, Params, extra = SurfacePipeline, SurfaceParams, {}
+        fields = {f.name: getattr(Params(), f.name) for f in dataclasses.fields(Params)}
+        params = _parse_sets(set_ or [], {**fields, **extra})
         params.setdefault("spp", spp)
         params.setdefault("seed", seed)
         with console.status(f"loading {scene}") if interactive() else nullcontext():
-            pipe = VolumePipeline(scene, grid=grid, **params)
+            pipe = Pipeline(scene, **params)
             if width or height:
                 pipe.set_camera(width=width, height=height)
         with stage_progress(STAGES, f"rendering {scene}", console=console) as report:
@@ -105,8 +112,7 @@ def render(
             out_console = Console()
             out_console.print(pipe.timer.table(f"{scene}: per-stage timings"))
             out_console.print(
-                f"photons propagated {pipe.stats['photons_propagated']:,}, "
-                f"steps {pipe.stats['steps'] / 1e6:.2f} M"
+                ", ".join(f"{k.replace('_', ' ')} {v:,}" for k, v in pipe.stats.items())
             )
     except PhotonmapError as exc:
         raise _error(exc) from None

@@ -155,18 +155,17 @@ def pack(channels: list, n: int) -> mi.Float:
     """Interleave per-voxel channels (tensors or NumPy grids (n, n, n[, c])) into one flat array of
     ``4·k`` floats per voxel (zero-padded), the layout :func:`trilinear_packed` reads."""
     tensors = [to_tensor(c, n) for c in channels]
-    width = sum(t.shape[3] for t in tensors)
-    stride = width + (-width) % 4
-    out = dr.zeros(mi.Float, n**3 * stride)
+    sources = [(t, k) for t in tensors for k in range(t.shape[3])]
+    packets = (len(sources) + 3) // 4
     voxel = dr.arange(mi.UInt32, n**3)
-    offset = 0
-    for t in tensors:
-        c = t.shape[3]
-        for k in range(c):
-            dr.scatter(
-                out, dr.gather(mi.Float, t.array, voxel * c + k), voxel * stride + offset + k
-            )
-        offset += c
+    out = dr.zeros(mi.Float, n**3 * 4 * packets)
+    for p in range(packets):
+        values = [
+            dr.gather(mi.Float, t.array, voxel * t.shape[3] + k)
+            for t, k in sources[4 * p : 4 * p + 4]
+        ]
+        values += [dr.zeros(mi.Float, n**3)] * (4 - len(values))
+        dr.scatter(out, mi.Vector4f(*values), voxel * packets + p)
     dr.eval(out)
     return out
 

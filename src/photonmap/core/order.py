@@ -22,6 +22,21 @@ def _spread_bits_16(v: mi.UInt32) -> mi.UInt32:
     return (v | (v << 1)) & 0x55555555
 
 
+def _compact_bits_16(v: mi.UInt32) -> mi.UInt32:
+    """The even bits of ``v`` packed into the low 16 bits (inverse of :func:`_spread_bits_16`)."""
+    v = v & 0x55555555
+    v = (v | (v >> 1)) & 0x33333333
+    v = (v | (v >> 2)) & 0x0F0F0F0F
+    v = (v | (v >> 4)) & 0x00FF00FF
+    return (v | (v >> 8)) & 0x0000FFFF
+
+
+def morton_cells(side: int) -> tuple[mi.UInt32, mi.UInt32]:
+    """The cells ``(a, b)`` of a ``side × side`` grid (side a power of two) in Morton order."""
+    k = dr.arange(mi.UInt32, side * side)
+    return _compact_bits_16(k), _compact_bits_16(k >> 1)
+
+
 def morton2(u: mi.Float, w: mi.Float) -> mi.UInt32:
     """32-bit Morton code of points in the unit square (16 bits per axis)."""
     scale = float(1 << 16)

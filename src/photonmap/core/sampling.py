@@ -15,6 +15,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .errors import ParameterError
+from .order import morton_cells, morton_order
 
 SAMPLERS = ("hammersley", "halton", "grid", "jittered", "random")
 
@@ -33,6 +34,34 @@ def hammersley(count: int, offset: bool = True) -> tuple[mi.Float, mi.Float]:
         u += 0.5 / count
         w += 0.5 / count
     return u, w
+
+
+def hammersley_morton(count: int) -> tuple[mi.Float, mi.Float]:
+    """The offset Hammersley set of ``count = 4^m`` points listed in Morton order of their cells.
+
+    With ``s = 2^m`` the point ``i = a·s + r`` lies in column ``a = ⌊u·s⌋`` and row
+    ``b = ⌊Φ₂(i)·s⌋ = rev_m(r)`` (the (0, m, 2)-net puts one point in every cell), so walking the
+    cells ``(a, b)`` in Morton order and taking ``i = a·s + rev_m(b)`` orders the points without a
+    sort — the same order :func:`photonmap.core.order.morton_order` gives.
+    """
+    side = math.isqrt(count)
+    a, b = morton_cells(side)
+    r = mi.UInt32(radical_inverse_2(b) * side)  # rev_m(b)
+    i = a * side + r
+    return (mi.Float(i) + 0.5) / count, radical_inverse_2(i) + 0.5 / count
+
+
+def is_power_of_four(count: int) -> bool:
+    return count > 0 and count & (count - 1) == 0 and (count.bit_length() - 1) % 2 == 0
+
+
+def coherent_points(name: str, count: int, seed: int = 0) -> tuple[mi.Float, mi.Float]:
+    """:func:`points` listed in Morton order of their position (spatially coherent SIMD lanes)."""
+    if name == "hammersley" and is_power_of_four(count):
+        return hammersley_morton(count)
+    u, w = points(name, count, seed)
+    order = morton_order(u, w)
+    return dr.gather(mi.Float, u, order), dr.gather(mi.Float, w, order)
 
 
 def halton(count: int, seed: int = 0) -> tuple[mi.Float, mi.Float]:

@@ -4,7 +4,7 @@ A square "photon plane" between the light and the grid covers the whole grid as 
 Photon ``i`` starts at plane point ``Q_i`` given by a 2D point set (Hammersley by default, Pfeuti
 §4.1 Table 4.1), travels along ``d₀ = normalize(Q_i − P_L)`` (point/spot) or the light direction
 (directional) and enters the grid at the slab-test entry point ``x₀``; photons that miss the grid
-are discarded (spec S5, oracle 17). Photons are listed in Morton order of their plane position so
+carry no power (spec S5, oracle 17). Photons are listed in Morton order of their plane position so
 that neighbouring SIMD lanes deposit into neighbouring voxels (the deposited sums are exact and do
 not depend on the order).
 
@@ -33,7 +33,6 @@ import numpy as np
 from ..core import sampling
 from ..core.errors import SceneError
 from ..core.grid import GridBox
-from ..core.order import morton_order
 from .scene import Light
 
 PLANE_DISTANCE = (
@@ -43,16 +42,19 @@ PLANE_DISTANCE = (
 
 @dataclass
 class Photons:
-    """Photons that enter the grid: entry point (voxel units), unit direction, RGB power Φ (W)."""
+    """Photons on their way into the grid: entry point (voxel units), unit direction, RGB power Φ
+    (W). Photons that miss the grid have zero power."""
 
     origin: mi.Point3f
     direction: mi.Vector3f
     power: mi.Color3f
     generated: int  # photons placed on the plane, hits and misses
+    entering: int = -1  # photons that enter the grid (Sun Table 2 "photons propagated")
 
     @property
     def count(self) -> int:
-        return dr.width(self.power) if dr.width(self.origin) else 0
+        """Photons that enter the grid."""
+        return self.entering if self.entering >= 0 else dr.width(self.power)
 
 
 @dataclass
@@ -164,25 +166,22 @@ def emit(
     seed: int = 0,
     fidelity: str = "physical",
 ) -> Photons:
-    """Generate ``count`` photons on the light's photon plane and keep those that enter the grid."""
-    u, w = sampling.points(sampler, count, seed)
-    order = morton_order(u, w)  # coherent SIMD lanes while marching; the sums do not change
-    u, w = dr.gather(mi.Float, u, order), dr.gather(mi.Float, w, order)
+    """Generate ``count`` photons on the light's photon plane, started where they enter the grid.
+
+    Photons that miss the grid (or leave a spot light's cone) keep zero power: the marcher never
+    activates them, and since the photons are in Morton order such photons fill whole SIMD
+    packets, which cost nothing, so no compaction pass is needed.
+    """
+    u, w = sampling.coherent_points(sampler, count, seed)
     o, d, power = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
     hit, t_near, _ = box_entry(o, d, box.n)
     keep = hit & (dr.max(power) > 0.0)
-    origin = o + t_near * d
-    idx = dr.compress(keep)
     photons = Photons(
-        origin=_take(mi.Point3f, origin, idx),
-        direction=_take(mi.Vector3f, d, idx),
-        power=_take(mi.Color3f, power, idx),
+        origin=dr.select(keep, o + t_near * d, 0.0),
+        direction=d,
+        power=dr.select(keep, power, 0.0),
         generated=count,
     )
     dr.eval(photons.origin, photons.direction, photons.power)
+    photons.entering = int(dr.count(keep)[0]) if count else 0
     return photons
-
-
-def _take(cls, value, idx: mi.UInt32):
-    """Lanes ``idx`` of a 3-vector array."""
-    return cls(*[dr.gather(mi.Float, c, idx) for c in value])

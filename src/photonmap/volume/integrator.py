@@ -32,23 +32,10 @@ import dataclasses
 import mitsuba as mi
 import numpy as np
 
-from ..core.errors import ParameterError
+from ..core.plugin import read_properties
 from .pipeline import VolumeParams, VolumePipeline, check_grid
 
 _DEFAULTS = VolumeParams()
-_FIELDS = {f.name: type(getattr(_DEFAULTS, f.name)) for f in dataclasses.fields(VolumeParams)}
-_BASE = {"samples_per_pass", "hide_emitters", "timeout", "max_depth", "rr_depth"}
-
-
-def _convert(name: str, value, kind: type):
-    """A plugin property as the type of its :class:`VolumeParams` field."""
-    if kind is float and isinstance(value, int | float) and not isinstance(value, bool):
-        return float(value)
-    if kind is int and isinstance(value, float) and value.is_integer():
-        return int(value)
-    if kind is bool and isinstance(value, str) and value.lower() in ("true", "false"):
-        return value.lower() == "true"
-    return value  # VolumeParams.validate() names anything of the wrong type
 
 
 class VolumePhotonIntegrator(mi.SamplingIntegrator):
@@ -56,20 +43,9 @@ class VolumePhotonIntegrator(mi.SamplingIntegrator):
 
     def __init__(self, props: mi.Properties):
         super().__init__(props)
-        names = set(props.keys())
-        unknown = sorted(names - set(_FIELDS) - {"grid"} - _BASE)
-        if unknown:
-            raise ParameterError(
-                f"volume_photon: unknown parameter(s) {', '.join(unknown)}; valid: grid, "
-                f"{', '.join(sorted(_FIELDS))}"
-            )
-        self.grid = _convert("grid", props["grid"], int) if "grid" in names else 128
+        self.params = read_properties(props, VolumeParams, "volume_photon", extra={"grid": int})
+        self.grid = self.params.pop("grid", 128)
         check_grid(self.grid)
-        self.params = {
-            name: _convert(name, props[name], kind)
-            for name, kind in _FIELDS.items()
-            if name in names
-        }
         dataclasses.replace(_DEFAULTS, **self.params).validate()
         self.pipeline: VolumePipeline | None = None
         self._scene = None  # held, so that a new scene can never reuse its id

@@ -111,7 +111,7 @@ def _march(
     ior = sample_medium(medium, x)[0]
     v = ior * d  # v₀ = n(x₀)·d₀
     steps = dr.zeros(mi.UInt32, count)
-    active = dr.full(mi.Bool, True, count)
+    active = dr.max(L) > 0  # photons that miss the grid carry no power
     size = float(n)
 
     while active:

@@ -29,6 +29,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core import sampling
+from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.timer import StageTimer
 from . import emit as s5
@@ -331,32 +332,8 @@ class VolumePipeline:
         """Move the camera (reruns S9 only). Pass a Mitsuba ``sensor``, or any of ``origin``,
         ``target``, ``up``, ``fov`` (horizontal, degrees), ``width``, ``height``; the rest is kept."""
         if sensor is None:
-            old = self.scene.sensor
-            matrix = np.array(old.world_transform().matrix, dtype=np.float64)[..., 0]
-            to_world = mi.ScalarTransform4f(matrix)
-            if origin is not None or target is not None:
-                o_old, forward = matrix[:3, 3], matrix[:3, 2]
-                # the old target: the point of the old view axis nearest the grid centre
-                focus = o_old + max(np.dot(self.scene.box.center - o_old, forward), 1e-6) * forward
-                o = np.asarray(origin if origin is not None else o_old, dtype=np.float64)
-                t = np.asarray(target if target is not None else focus, dtype=np.float64)
-                to_world = mi.ScalarTransform4f().look_at(
-                    origin=o.tolist(), target=t.tolist(), up=np.asarray(up, float).tolist()
-                )
-            size = old.film().size()
-            fov = float(fov if fov is not None else np.array(mi.traverse(old)["x_fov"])[0])
-            sensor = mi.load_dict(
-                {
-                    "type": "perspective",
-                    "fov": fov,
-                    "to_world": to_world,
-                    "film": {
-                        "type": "hdrfilm",
-                        "width": int(width or size[0]),
-                        "height": int(height or size[1]),
-                        "rfilter": {"type": "box"},
-                    },
-                }
+            sensor = moved_sensor(
+                self.scene.sensor, self.scene.box.center, origin, target, up, fov, width, height
             )
         self.scene.sensor = sensor
 

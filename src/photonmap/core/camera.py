@@ -1,0 +1,39 @@
+"""Perspective cameras as Mitsuba sensors: move, re-aim or resize an existing one."""
+
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+
+
+def moved_sensor(
+    old, focus_hint, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None
+):
+    """A perspective sensor like ``old`` with the given changes. Without a new ``target`` the camera
+    keeps looking at the point of its old view axis nearest ``focus_hint`` (e.g. the scene centre);
+    ``fov`` is horizontal, in degrees; unspecified values are kept."""
+    matrix = np.array(old.world_transform().matrix, dtype=np.float64)[..., 0]
+    to_world = mi.ScalarTransform4f(matrix)
+    if origin is not None or target is not None:
+        o_old, forward = matrix[:3, 3], matrix[:3, 2]
+        focus = o_old + max(np.dot(np.asarray(focus_hint) - o_old, forward), 1e-6) * forward
+        o = np.asarray(origin if origin is not None else o_old, dtype=np.float64)
+        t = np.asarray(target if target is not None else focus, dtype=np.float64)
+        to_world = mi.ScalarTransform4f().look_at(
+            origin=o.tolist(), target=t.tolist(), up=np.asarray(up, float).tolist()
+        )
+    size = old.film().size()
+    fov = float(fov if fov is not None else np.array(mi.traverse(old)["x_fov"])[0])
+    return mi.load_dict(
+        {
+            "type": "perspective",
+            "fov": fov,
+            "to_world": to_world,
+            "film": {
+                "type": "hdrfilm",
+                "width": int(width or size[0]),
+                "height": int(height or size[1]),
+                "rfilter": {"type": "box"},
+            },
+        }
+    )
