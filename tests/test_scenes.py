@@ -15,14 +15,23 @@ V = 128.0  # voxels per world unit
 GLASS_SIGMA_A = np.array([0.004, 0.002, 0.001]) * V
 
 
+VOLUME_SCENES = [name for name, b in SCENES.items() if b.pipeline == "volume"]
+
+
 def test_registry():
     names = [b.name for b in list_scenes()]
-    assert names == ["glass_sphere_fog", "perlin_cube", "mesh_in_fog"]
-    assert all(b.description and b.defaults for b in SCENES.values())
+    assert VOLUME_SCENES == ["glass_sphere_fog", "perlin_cube", "mesh_in_fog"]
+    assert set(names) - set(VOLUME_SCENES) == {
+        "cornell_steinhurst",
+        "cornell_spot_indirect",
+        "cornell_glossy_floor",
+    }
+    assert all(b.description for b in SCENES.values())
+    assert all(SCENES[name].defaults for name in VOLUME_SCENES)
     assert {"ior_noise", "sigma_s_noise", "noise_scale"} <= set(SCENES["perlin_cube"].defaults)
 
 
-@pytest.mark.parametrize("name", list(SCENES))
+@pytest.mark.parametrize("name", VOLUME_SCENES)
 def test_builtin_reads_as_volume_scene(name):
     scene, defaults = load_scene(name, **SMALL)
     assert defaults == SCENES[name].defaults

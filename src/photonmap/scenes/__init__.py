@@ -1,8 +1,8 @@
 """Built-in scenes and scene loading (issue item 2; DESIGN.md "Scenes").
 
 A scene is a Mitsuba 3 scene: a built-in name from :data:`SCENES`, an XML file, a scene dict or a
-loaded ``mi.Scene``. Built-ins also carry the photonmap pipeline settings they want
-(:attr:`Builtin.defaults`).
+loaded ``mi.Scene``. Built-ins also carry the photonmap pipeline they are made for
+(:attr:`Builtin.pipeline`) and the pipeline settings they want (:attr:`Builtin.defaults`).
 """
 
 from __future__ import annotations
@@ -15,18 +15,20 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 
 from ..core.errors import ParameterError, SceneError
-from . import volume_scenes
+from . import cornell, volume_scenes
 
 
 @dataclass(frozen=True)
 class Builtin:
-    """A built-in scene: ``build(**params)`` returns a dict for ``mi.load_dict``; ``defaults`` are
-    the photonmap pipeline parameters the scene is meant to be rendered with."""
+    """A built-in scene: ``build(**params)`` returns a dict for ``mi.load_dict``; ``pipeline`` is
+    the ``--method`` it is made for and ``defaults`` are the pipeline parameters the scene is meant
+    to be rendered with."""
 
     name: str
     description: str
     build: Callable[..., dict]
     defaults: dict = field(default_factory=dict)
+    pipeline: str = "volume"
 
     @property
     def params(self) -> dict:
@@ -54,6 +56,25 @@ SCENES: dict[str, Builtin] = {
             "MESH of spec §3.3: glass trefoil-knot mesh in fog (params: triangles, extent)",
             volume_scenes.mesh_in_fog,
             volume_scenes.MESH_DEFAULTS,
+        ),
+        Builtin(
+            "cornell_steinhurst",
+            "Steinhurst Fig 1.2: Cornell box, ceiling light, mirror and glass spheres (caustic)",
+            cornell.cornell_steinhurst,
+            pipeline="surface",
+        ),
+        Builtin(
+            "cornell_spot_indirect",
+            "Steinhurst Fig 1.2 b: Cornell box lit only by a spot light aimed at a white ceiling disk",
+            cornell.cornell_spot_indirect,
+            pipeline="surface",
+        ),
+        Builtin(
+            "cornell_glossy_floor",
+            "Steinhurst Fig 7.5: Cornell box, Lambertian + glossy floor, checkerboard back wall "
+            "(params: roughness, glossy)",
+            cornell.cornell_glossy_floor,
+            pipeline="surface",
         ),
     )
 }

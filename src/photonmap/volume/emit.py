@@ -112,7 +112,12 @@ def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
 
 
 def _v(a) -> mi.Vector3f:
-    return mi.Vector3f(*[float(x) for x in a])
+    """An opaque 3-vector: a moved light reuses the compiled kernels."""
+    return mi.Vector3f(*[dr.opaque(mi.Float, float(x)) for x in a])
+
+
+def _s(x: float) -> mi.Float:
+    return dr.opaque(mi.Float, float(x))
 
 
 def box_entry(o: mi.Point3f, d: mi.Vector3f, n: int):
@@ -125,34 +130,33 @@ def box_entry(o: mi.Point3f, d: mi.Vector3f, n: int):
     return t_near < t_far, t_near, t_far
 
 
-def _smoothstep(e0: float, e1: float, x):
-    if e1 <= e0:
-        return dr.select(x >= e0, 1.0, 0.0)
-    t = dr.clip((x - e0) / (e1 - e0), 0.0, 1.0)
-    return t * t * (3.0 - 2.0 * t)
+def _smoothstep(e0, e1, x):
+    t = dr.clip((x - e0) / dr.maximum(e1 - e0, 1e-12), 0.0, 1.0)
+    return dr.select(e1 > e0, t * t * (3.0 - 2.0 * t), dr.select(x >= e0, 1.0, 0.0))
 
 
 def plane_photons(light: Light, box: GridBox, plane: PhotonPlane, u, w, fidelity="physical"):
     """Start point, direction and power of the photons at plane points ``(u, w)`` (before the
     grid test): the energy formulas of the module docstring."""
     count = dr.width(u)
-    q = _v(plane.corner) + u * plane.side * _v(plane.e1) + w * plane.side * _v(plane.e2)
+    side = _s(plane.side)
+    q = _v(plane.corner) + u * side * _v(plane.e1) + w * side * _v(plane.e2)
     area = plane.side**2
-    intensity = mi.Color3f(*[float(x) for x in light.intensity])
+    intensity = mi.Color3f(_v(light.intensity))
     if light.kind == "directional":
         d = dr.zeros(mi.Vector3f, count) + _v(plane.normal)
-        return q, d, intensity * (area * box.h**2 / count) + dr.zeros(mi.Color3f, count)
+        return q, d, intensity * _s(area * box.h**2 / count) + dr.zeros(mi.Color3f, count)
 
     p = _v(box.to_voxel(light.position))
     d = dr.normalize(q - p)
-    cell = area / (count * PLANE_DISTANCE**2)
+    cell = _s(area / (count * PLANE_DISTANCE**2))
     if fidelity == "paper":
         scale = cell + dr.zeros(mi.Float, count)
     else:
         scale = cell * dr.dot(d, _v(plane.normal)) ** 3  # the cell's solid angle, dA·cos³θ/d²
     if light.kind == "spot":
         axis = _v(np.asarray(light.direction) / np.linalg.norm(light.direction))
-        scale *= _smoothstep(light.cos_outer, light.cos_inner, dr.dot(d, axis))
+        scale *= _smoothstep(_s(light.cos_outer), _s(light.cos_inner), dr.dot(d, axis))
     if light.lobe_normal is not None:
         scale *= dr.maximum(dr.dot(d, _v(light.lobe_normal)), 0.0)
     return p + dr.zeros(mi.Point3f, count), d, intensity * scale

@@ -1,0 +1,295 @@
+"""Photon tracing — the first pass of two-pass photon mapping (Jensen 1996; Steinhurst 2007 §2.6.1,
+Algorithm 2.4; spec seed-001 §2.2, A5).
+
+Shared by the ``surface`` and ``screen`` pipelines: photons leave every Mitsuba emitter (area,
+point, spot, directional, environment) and bounce through Mitsuba BSDFs; every hit on a surface
+whose BSDF has a non-delta (diffuse or glossy) component is recorded. What a pipeline builds from
+the records (global map, caustic map, splats) is its own business.
+
+Emission (spec §2.2). The path budget ``N`` is split among the emitters in proportion to their
+emitted power ``Φ_e`` (:func:`emitter_powers`, :func:`split_paths`). Emitter ``e`` gets ``N_e``
+paths; path ``i`` starts with the ray and weight of ``emitter.sample_ray`` (the weight is an
+unbiased estimate of ``Φ_e``) and carries ``Φ_i = weight_i / N_e``, so ``Σ_i Φ_i → Φ_e``.
+
+Tracing. At the ``d``-th surface interaction ``x_d`` a photon of power ``Φ`` travelling along ``ω``
+is recorded as ``(x_d, Φ, ω, n_s, d, caustic)`` when the BSDF there has a smooth component, then
+the BSDF is sampled in importance (adjoint) transport mode, ``Φ ← Φ · f_s |cos θ_o| / p``. The
+records form Jensen's global map (every non-specular hit, first-bounce "direct" photons included)
+and, through the ``caustic`` flag, the caustic map: hits that end an ``L S+ D`` path — at least one
+delta (specular) bounce and no smooth bounce before the hit (spec A5; Algorithm 2.4 as printed
+never records a caustic photon). Crossing a ``null`` interface is neither. Hits 1 … ``rr_depth``
+are reached without Russian roulette; from bounce ``rr_depth`` on a photon survives with
+probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its power is divided by ``q`` (as
+Mitsuba's path tracers do; no η² factor, since importance transport through a dielectric conserves
+power). A path ends after ``max_depth`` interactions, null interfaces included.
+
+Mitsuba gives the shape of an area light without a BSDF a black ``diffuse`` BSDF, which is
+smooth: photons that reach such a light are recorded there and absorbed.
+
+Bad input raises :class:`~photonmap.core.errors.SceneError`: no emitter or no shape, an emitter
+that emits nothing, non-finite values in an emitter's or a BSDF's parameters (textures included),
+and non-finite photon power after tracing.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from .errors import ParameterError, SceneError
+
+
+@dataclass
+class PhotonRecords:
+    """Stored photon hits as a struct of Dr.Jit arrays, one entry per record, ordered by depth
+    (all first hits, then all second hits, ...) and by path within a depth."""
+
+    position: mi.Point3f
+    power: mi.Color3f  # Φ_p in W
+    direction: mi.Vector3f  # unit travel direction ω_p at the hit (pointing into the surface)
+    normal: mi.Vector3f  # shading normal at the hit as Mitsuba gives it (not flipped towards ω_p)
+    depth: mi.UInt32  # surface interactions up to this hit, included (1 = first hit)
+    caustic: mi.Bool  # the hit ends an L S+ D path (spec A5)
+    paths: int  # photon paths emitted
+    emitted_power: np.ndarray  # Σ of the initial power of all paths (RGB, W)
+
+    @property
+    def count(self) -> int:
+        """Number of records."""
+        return dr.width(self.depth)
+
+    def select(self, mask: mi.Bool) -> PhotonRecords:
+        """The records where ``mask`` holds (e.g. ``records.select(records.caustic)`` is the
+        caustic map); ``paths`` and ``emitted_power`` are kept."""
+        index = dr.compress(mask)
+        fields = (self.position, self.power, self.direction, self.normal, self.depth, self.caustic)
+        return PhotonRecords(
+            *(dr.gather(type(f), f, index) for f in fields), self.paths, self.emitted_power
+        )
+
+
+def emitter_powers(scene: mi.Scene, samples: int = 2**16, seed: int = 0) -> np.ndarray:
+    """The power ``Φ_e`` (RGB, W) of each of ``scene.emitters()``, shape ``(n_emitters, 3)``.
+
+    The mean weight of ``samples`` rays from ``emitter.sample_ray``: exact for emitters whose
+    weight is constant (point lights, uniform area lights, directional and constant environment
+    lights), a Monte Carlo estimate otherwise (spot fall-off, textured lights, environment maps).
+    Directional and environment emitters count the power that crosses the scene's bounding sphere.
+    """
+    count = len(scene.emitters())
+    if count == 0:
+        return np.zeros((0, 3))
+    emitter = dr.arange(mi.UInt32, count * samples) // samples
+    _, weight = _sample_rays(scene, emitter, seed)
+    total = dr.block_reduce(dr.ReduceOp.Add, mi.Color3d(weight), samples)
+    return np.array(total, dtype=np.float64).T.reshape(count, 3) / samples
+
+
+def split_paths(powers: np.ndarray, paths: int) -> np.ndarray:
+    """Split ``paths`` among emitters in proportion to the mean of their RGB ``powers`` by
+    largest-remainder rounding, with at least one path per emitter (spec §2.2)."""
+    weight = np.asarray(powers, dtype=np.float64).reshape(len(powers), -1).mean(axis=1)
+    if paths < len(weight):
+        raise ParameterError(
+            f"{paths} photon paths cannot cover the scene's {len(weight)} emitters; "
+            f"trace at least {len(weight)} paths"
+        )
+    ideal = paths * weight / weight.sum()
+    counts = np.floor(ideal).astype(np.int64)
+    by_remainder = np.argsort(-(ideal - counts), kind="stable")
+    counts[by_remainder[: paths - counts.sum()]] += 1
+    for starved in np.flatnonzero(counts == 0):
+        counts[np.argmax(counts)] -= 1
+        counts[starved] = 1
+    return counts
+
+
+def trace_photons(
+    scene: mi.Scene, paths: int, max_depth: int = 8, rr_depth: int = 3, seed: int = 0
+) -> PhotonRecords:
+    """Trace ``paths`` photon paths from the scene's emitters and return the stored hits.
+
+    All paths run in one symbolic Dr.Jit loop; records go to ``paths · max_depth`` preallocated
+    slots (slot = (depth − 1) · paths + path, so neighbouring lanes write neighbouring slots) and
+    are compacted at the end, so the result is the same for the same ``seed`` whatever the thread
+    schedule.
+    """
+    if paths < 1:
+        raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
+    if max_depth < 1 or rr_depth < 1:
+        raise ParameterError(
+            f"max_depth and rr_depth must be at least 1, got max_depth={max_depth}, "
+            f"rr_depth={rr_depth}"
+        )
+    counts = split_paths(_checked_powers(scene, seed), paths)
+    emitter = mi.UInt32(np.repeat(np.arange(len(counts), dtype=np.uint32), counts))
+    ray, weight = _sample_rays(scene, emitter, seed)
+    power = weight / dr.gather(mi.Float, mi.Float(counts.astype(np.float32)), emitter)
+    emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
+    records = _trace(scene, ray, power, _rng(paths, seed, stream=1), max_depth, rr_depth)
+    slot = dr.compress(records.pop("stored"))
+    fields = {name: dr.gather(type(value), value, slot) for name, value in records.items()}
+    fields["depth"] = slot // paths + 1
+    dr.eval(fields)
+    result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
+    _check_power(result)
+    return result
+
+
+def _checked_powers(scene: mi.Scene, seed: int) -> np.ndarray:
+    """:func:`emitter_powers`, after checking that the scene has emitters and shapes and that the
+    emitters and BSDFs have finite parameters (textures included); raise :class:`SceneError` if not or if an
+    emitter emits nothing."""
+    emitters = scene.emitters()
+    if not emitters:
+        raise SceneError(
+            "the scene has no emitter, so no photons can be traced; add a light (an 'area' "
+            "emitter on a shape, or a 'point', 'spot', 'directional', 'constant' or 'envmap' one)"
+        )
+    if not scene.shapes():
+        raise SceneError("the scene has no shapes for photons to land on; add some geometry")
+    for emitter in emitters:
+        _check_finite(emitter, _emitter_name(emitter))
+    checked = set()
+    for shape in scene.shapes():
+        bsdf = shape.bsdf()
+        if bsdf is not None and bsdf.ptr not in checked:
+            checked.add(bsdf.ptr)
+            _check_finite(bsdf, f"the BSDF of {_shape_name(shape)}")
+    powers = emitter_powers(scene, seed=seed)
+    dark = [_emitter_name(e) for e, p in zip(emitters, powers, strict=True) if not np.max(p) > 0]
+    if dark:
+        raise SceneError(
+            f"{', '.join(dark)} emit{'s' if len(dark) == 1 else ''} no power; give "
+            "them a positive radiance, intensity or irradiance, or remove them from the scene"
+        )
+    return powers
+
+
+def _check_finite(obj, what: str) -> None:
+    params = mi.traverse(obj)
+    for key in params.keys():
+        value = params[key]
+        if isinstance(value, float):
+            finite = math.isfinite(value)
+        elif dr.is_array_v(value) and dr.is_float_v(value):
+            finite = bool(dr.all(dr.isfinite(value), axis=None))
+        else:
+            continue
+        if not finite:
+            raise SceneError(
+                f"{what} has NaN or infinite values in its parameter '{key}'; "
+                "give it finite values (check the texture file or the colour values)"
+            )
+
+
+def _check_power(records: PhotonRecords) -> None:
+    bad = dr.compress(~dr.all(dr.isfinite(records.power)))
+    if dr.width(bad):
+        where = np.array(dr.gather(mi.Point3f, records.position, bad[0])).ravel()
+        raise SceneError(
+            f"{dr.width(bad)} photon records have NaN or infinite power (the first at "
+            f"{where.round(4).tolist()}); a BSDF or texture of the surface there evaluates to "
+            "NaN or infinity"
+        )
+
+
+def _emitter_name(emitter: mi.Emitter) -> str:
+    shape = emitter.get_shape()
+    if shape is not None:
+        return f"the area light of {_shape_name(shape)}"
+    return f"emitter '{emitter.id()}' ({emitter.class_name()})"
+
+
+def _shape_name(shape: mi.Shape) -> str:
+    """``shape 'id'``; Mitsuba's merged meshes have no id."""
+    return f"shape '{shape.id()}'" if shape.id().strip(" +") else f"a merged {shape.class_name()}"
+
+
+def _rng(count: int, seed: int, stream: int) -> mi.PCG32:
+    """One PCG32 stream per path, decorrelated by hashing (seed, stream, path index)."""
+    key = mi.UInt32(np.uint32((seed * 2 + stream) & 0xFFFFFFFF))
+    state, sequence = mi.sample_tea_32(key, dr.arange(mi.UInt32, count))
+    return mi.PCG32(count, mi.UInt64(state), mi.UInt64(sequence))
+
+
+def _sample_rays(scene: mi.Scene, emitter: mi.UInt32, seed: int) -> tuple[mi.Ray3f, mi.Color3f]:
+    """``sample_ray`` of emitter ``scene.emitters()[emitter[i]]`` for every lane ``i``."""
+    rng = _rng(dr.width(emitter), seed, stream=0)
+    wavelength = rng.next_float32()
+    spatial = mi.Point2f(rng.next_float32(), rng.next_float32())
+    directional = mi.Point2f(rng.next_float32(), rng.next_float32())
+    emitters = dr.gather(mi.EmitterPtr, scene.emitters_dr(), emitter)
+    return emitters.sample_ray(0.0, wavelength, spatial, directional)
+
+
+@dr.syntax
+def _trace(
+    scene: mi.Scene,
+    ray: mi.Ray3f,
+    power: mi.Color3f,
+    rng: mi.PCG32,
+    max_depth: int,
+    rr_depth: int,
+) -> dict:
+    """The bounce loop; returns the record slots and the ``stored`` mask over them."""
+    n = dr.width(power)
+    slots = n * max_depth
+    records = {
+        "position": dr.zeros(mi.Point3f, slots),
+        "power": dr.zeros(mi.Color3f, slots),
+        "direction": dr.zeros(mi.Vector3f, slots),
+        "normal": dr.zeros(mi.Vector3f, slots),
+        "caustic": dr.zeros(mi.Bool, slots),
+        "stored": dr.zeros(mi.Bool, slots),
+    }
+    ctx = mi.BSDFContext(mi.TransportMode.Importance)
+    path = dr.arange(mi.UInt32, n)
+    depth = dr.zeros(mi.UInt32, n)
+    throughput = dr.full(mi.Color3f, 1.0, n)  # Φ / Φ₀ per channel
+    specular_bounce = dr.zeros(mi.Bool, n)  # a delta lobe was sampled on the way here
+    smooth_bounce = dr.zeros(mi.Bool, n)  # a diffuse or glossy lobe was sampled on the way here
+    active = dr.max(power) > 0
+
+    # Every iteration either ends a path or adds one interaction, so depth < max_depth caps it.
+    while active:
+        si = scene.ray_intersect(ray, active)
+        active &= si.is_valid()
+        depth[active] += 1
+        bsdf = si.bsdf(ray)
+
+        store = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        slot = (depth - 1) * n + path
+        dr.scatter(records["position"], si.p, slot, store)
+        dr.scatter(records["power"], power * throughput, slot, store)
+        dr.scatter(records["direction"], ray.d, slot, store)
+        dr.scatter(records["normal"], mi.Vector3f(si.sh_frame.n), slot, store)
+        dr.scatter(records["caustic"], specular_bounce & ~smooth_bounce, slot, store)
+        dr.scatter(records["stored"], True, slot, store)
+
+        sample, weight = bsdf.sample(
+            ctx,
+            si,
+            rng.next_float32(),
+            mi.Point2f(rng.next_float32(), rng.next_float32()),
+            active,
+        )
+        throughput *= weight
+        lobe = sample.sampled_type
+        null = mi.has_flag(lobe, mi.BSDFFlags.Null)  # passing a null interface is no bounce
+        specular_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Delta) & ~null
+        smooth_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Smooth)
+        ray = si.spawn_ray(si.to_world(sample.wo))
+
+        # Russian roulette (Mitsuba's path tracers): survive with q, power divided by q.
+        survival = dr.minimum(dr.max(throughput), 0.95)
+        roulette = active & (depth >= rr_depth)
+        throughput[roulette] /= survival
+        active &= ~roulette | (rng.next_float32() < survival)
+        active &= (dr.max(throughput) > 0) & (depth < max_depth)
+
+    return records

@@ -1,0 +1,307 @@
+"""Photon tracing from Mitsuba emitters (spec seed-001 §2.2, A5; Steinhurst Algorithm 2.4)."""
+
+import numpy as np
+import pytest
+
+from photonmap import dr, mi
+from photonmap.core.errors import ParameterError, SceneError
+from photonmap.core.photon_trace import (
+    PhotonRecords,
+    _check_power,
+    emitter_powers,
+    split_paths,
+    trace_photons,
+)
+
+T = mi.ScalarTransform4f
+NAN = float("nan")
+
+
+def closed_box(albedo, *lights, **shapes) -> mi.Scene:
+    """A closed diffuse box (cube [−1, 1]³, normals flipped inwards) around ``lights``."""
+    box = {"type": "cube", "flip_normals": True, "bsdf": diffuse(albedo)}
+    entries = {f"light{i}": light for i, light in enumerate(lights)}
+    return mi.load_dict({"type": "scene", "box": box, **entries, **shapes})
+
+
+def diffuse(albedo) -> dict:
+    return {"type": "diffuse", "reflectance": {"type": "rgb", "value": albedo}}
+
+
+def point(position=(0.3, -0.2, 0.1), intensity=1.0) -> dict:
+    return {"type": "point", "position": list(position), "intensity": intensity}
+
+
+def floor_disk(radius=1.0) -> dict:
+    """A diffuse disk of ``radius`` at y = 0 facing +y."""
+    return {
+        "type": "disk",
+        "to_world": T().rotate([1, 0, 0], -90).scale(radius),
+        "bsdf": diffuse([0.5, 0.5, 0.5]),
+    }
+
+
+def sums(records: PhotonRecords, mask) -> tuple[np.ndarray, np.ndarray]:
+    """Σ power over the records in ``mask`` and its Monte Carlo standard error (the sum is over
+    ``records.paths`` independent paths, each contributing at most one record here)."""
+    power = np.array(records.power, dtype=np.float64)[:, np.asarray(mask)]
+    n = records.paths
+    total = power.sum(axis=1)
+    variance = (power**2).sum(axis=1) / n - (total / n) ** 2
+    return total, np.sqrt(n * np.maximum(variance, 0.0))
+
+
+def test_power_bookkeeping_in_a_closed_diffuse_box():
+    albedo = np.array([0.8, 0.5, 0.3])
+    records = trace_photons(closed_box(albedo.tolist(), point()), 20000, max_depth=6)
+    emitted = records.emitted_power
+    np.testing.assert_allclose(emitted, 4 * np.pi, rtol=1e-6)  # point light: Φ = 4π I
+    depth = np.array(records.depth)
+    assert depth.min() == 1 and depth.max() == 6
+    # Hits 1 … rr_depth = 3 carry Φ·ρ^(d−1) exactly: every photon hits the box, a diffuse
+    # bounce scales its power by ρ.
+    for d in (1, 2, 3):
+        np.testing.assert_allclose(sums(records, depth == d)[0], emitted * albedo ** (d - 1), 1e-4)
+        assert np.sum(depth == d) == records.paths
+    # Later hits go through Russian roulette: right on average.
+    for d in (4, 5, 6):
+        total, error = sums(records, depth == d)
+        assert np.all(np.abs(total - emitted * albedo ** (d - 1)) < 4 * error + 1e-9), d
+        assert np.sum(depth == d) < records.paths
+    assert not np.any(np.array(records.caustic))
+
+
+def test_records_describe_the_hits():
+    records = trace_photons(closed_box([0.5] * 3, point()), 4000, seed=3)
+    position = np.array(records.position)
+    direction = np.array(records.direction)
+    normal = np.array(records.normal)
+    assert records.count == dr.width(records.power) and records.paths == 4000
+    np.testing.assert_allclose(np.abs(position).max(axis=0), 1.0, atol=1e-5)  # on the box
+    np.testing.assert_allclose(np.linalg.norm(direction, axis=0), 1.0, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(normal, axis=0), 1.0, atol=1e-5)
+    assert np.all(np.sum(direction * normal, axis=0) < 0)  # photons arrive at the inner side
+    # The first hit lies on the ray from the light.
+    first = np.array(records.depth) == 1
+    to_hit = position[:, first] - np.array([[0.3], [-0.2], [0.1]])
+    cosine = np.sum(to_hit * direction[:, first], axis=0) / np.linalg.norm(to_hit, axis=0)
+    np.testing.assert_allclose(cosine, 1.0, atol=1e-5)
+
+
+def test_caustic_records_lie_under_a_glass_sphere():
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "floor": floor_disk(5.0),
+            "glass": {
+                "type": "sphere",
+                "center": [0, 1, 0],
+                "radius": 0.5,
+                "bsdf": {"type": "dielectric", "int_ior": 1.5},
+            },
+            "light": point((0, 4, 0), 10.0),
+        }
+    )
+    records = trace_photons(scene, 2**17)
+    caustic = np.array(records.caustic)
+    depth = np.array(records.depth)
+    position = np.array(records.position)
+    assert caustic.sum() > 500
+    assert depth[caustic].min() >= 2 and not caustic[depth == 1].any()
+    np.testing.assert_allclose(position[1, caustic], 0.0, atol=1e-5)  # on the floor
+    radius = np.hypot(position[0], position[2])
+    power = np.array(records.power).sum(axis=0)
+    under = caustic & (radius < 0.5)
+    assert power[under].sum() > 0.8 * power[caustic].sum()
+    assert not (~caustic & (depth == 1) & (radius < 0.45)).any()  # the sphere's shadow
+    # The sphere focuses: the caustic is brighter than the direct light around the shadow.
+    direct = (depth == 1) & (radius > 1.0) & (radius < 1.5)
+    caustic_density = power[caustic & (radius < 0.25)].sum() / (np.pi * 0.25**2)
+    assert caustic_density > 2 * power[direct].sum() / (np.pi * (1.5**2 - 1.0))
+    # A diffuse sphere in the same place makes no caustic.
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "floor": floor_disk(5.0),
+            "ball": {"type": "sphere", "center": [0, 1, 0], "radius": 0.5},
+            "light": point((0, 4, 0), 10.0),
+        }
+    )
+    assert not np.array(trace_photons(scene, 2**12).caustic).any()
+
+
+def spot(position=(0, 0, 0), target=(0, -1, 0)) -> dict:
+    return {
+        "type": "spot",
+        "to_world": T().look_at(origin=list(position), target=list(target), up=[0, 0, 1]),
+        "cutoff_angle": 40.0,
+        "beam_width": 25.0,
+        "intensity": 2.0,
+    }
+
+
+def area_quad() -> dict:
+    to_world = T().translate([0, 0.5, 0]).rotate([1, 0, 0], 90).scale(0.3)
+    return {
+        "type": "rectangle",
+        "to_world": to_world,
+        "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [3.0, 2.0, 1.0]}},
+    }
+
+
+def spot_power(intensity=2.0, beam_width=25.0, cutoff=40.0) -> float:
+    """Φ = 2π I ∫ falloff(θ) sin θ dθ for Mitsuba's spot fall-off, linear in θ from the beam
+    width to the cut-off angle."""
+    beam, cut = np.radians(beam_width), np.radians(cutoff)
+    theta = np.linspace(beam, cut, 10001)
+    ramp = np.trapezoid((cut - theta) / (cut - beam) * np.sin(theta), theta)
+    return 2 * np.pi * intensity * (1 - np.cos(beam) + ramp)
+
+
+ENVMAP = np.full((16, 32, 3), 0.7, dtype=np.float32)
+INSIDE_THE_BOX = {  # lights in a closed box: Σ depth-1 power = emitted power = Φ
+    "point": (point(), 4 * np.pi * 1.0),
+    "spot": (spot(), spot_power()),
+    "area": (area_quad(), np.pi * np.array([3.0, 2.0, 1.0]) * 0.6**2),  # Φ = π L A
+}
+ABOVE_A_DISK = {  # lights above a unit disk: the power reaching its front
+    "directional": (
+        {"type": "directional", "direction": [0, -1, 0], "irradiance": 2.5},
+        2.5 * np.pi,
+    ),
+    "constant": ({"type": "constant", "radiance": 0.7}, np.pi * 0.7 * np.pi),  # E = π L
+    "envmap": ({"type": "envmap", "bitmap": mi.Bitmap(ENVMAP)}, np.pi * 0.7 * np.pi),
+}
+
+
+@pytest.mark.parametrize("kind", list(INSIDE_THE_BOX))
+def test_lights_inside_a_closed_box(kind):
+    light, power = INSIDE_THE_BOX[kind]
+    scene = closed_box([0.5] * 3, light)
+    np.testing.assert_allclose(emitter_powers(scene)[0], power, rtol=0.01)
+    records = trace_photons(scene, 2**14)
+    np.testing.assert_allclose(records.emitted_power, power, rtol=0.02)
+    total, _ = sums(records, np.array(records.depth) == 1)
+    np.testing.assert_allclose(total, records.emitted_power, rtol=1e-4)
+    assert np.all(np.isfinite(np.array(records.power)))
+
+
+@pytest.mark.parametrize("kind", list(ABOVE_A_DISK))
+def test_lights_from_far_away(kind):
+    light, arriving = ABOVE_A_DISK[kind]
+    scene = mi.load_dict({"type": "scene", "floor": floor_disk(), "light": light})
+    records = trace_photons(scene, 2**15)
+    # Directional and environment light is emitted through the scene's bounding sphere.
+    np.testing.assert_allclose(records.emitted_power, emitter_powers(scene)[0], rtol=0.02)
+    front = (np.array(records.depth) == 1) & (np.array(records.direction)[1] < 0)
+    total, error = sums(records, front)
+    assert np.all(np.abs(total - arriving) < 4 * error), (total, arriving, error)
+
+
+def test_budget_split_follows_power():
+    np.testing.assert_array_equal(split_paths(np.array([[1.0] * 3, [3.0] * 3]), 1000), [250, 750])
+    counts = split_paths(np.array([0.3, 1.1, 2.9, 0.7]), 13)
+    assert counts.sum() == 13
+    assert np.all(np.abs(counts - 13 * np.array([0.3, 1.1, 2.9, 0.7]) / 5.0) < 1)
+    np.testing.assert_array_equal(split_paths(np.array([1e-6, 1.0, 1e-6]), 10), [1, 8, 1])
+    with pytest.raises(ParameterError, match="at least 3 paths"):
+        split_paths(np.ones(3), 2)
+    # Two point lights of intensity 1 and 3, each in its own closed box.
+    rooms = {
+        "left": {"type": "cube", "flip_normals": True, "to_world": T().translate([-3, 0, 0])},
+        "right": {"type": "cube", "flip_normals": True, "to_world": T().translate([3, 0, 0])},
+    }
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            **rooms,
+            "dim": point((-3, 0, 0), 1.0),
+            "bright": point((3, 0, 0), 3.0),
+        }
+    )
+    records = trace_photons(scene, 1000, max_depth=1)
+    left = np.array(records.position)[0] < 0
+    assert left.sum() == 250 and (~left).sum() == 750
+    np.testing.assert_allclose(sums(records, left)[0], 4 * np.pi, rtol=1e-5)
+    np.testing.assert_allclose(sums(records, ~left)[0], 12 * np.pi, rtol=1e-5)
+
+
+def test_same_seed_same_records():
+    scene = closed_box([0.6, 0.5, 0.4], point(), spot((0, 0.5, 0), (0, 1, 0)))
+    a, b = (trace_photons(scene, 3000, seed=7) for _ in range(2))
+    c = trace_photons(scene, 3000, seed=8)
+    for name in ("position", "power", "direction", "normal", "depth", "caustic"):
+        np.testing.assert_array_equal(np.array(getattr(a, name)), np.array(getattr(b, name)))
+    assert a.count != c.count or not np.array_equal(np.array(a.position), np.array(c.position))
+
+
+def test_select_keeps_bookkeeping():
+    records = trace_photons(closed_box([0.5] * 3, point()), 500)
+    first = records.select(records.depth == 1)
+    assert first.count == 500 and first.paths == 500
+    np.testing.assert_array_equal(first.emitted_power, records.emitted_power)
+    np.testing.assert_array_equal(np.array(first.depth), 1)
+
+
+def test_scene_without_emitters():
+    scene = mi.load_dict({"type": "scene", "ball": {"type": "sphere"}})
+    with pytest.raises(SceneError, match="no emitter.*add a light"):
+        trace_photons(scene, 100)
+    np.testing.assert_array_equal(emitter_powers(scene).shape, (0, 3))
+
+
+def test_scene_without_shapes():
+    scene = mi.load_dict({"type": "scene", "sky": {"type": "constant"}})
+    with pytest.raises(SceneError, match="no shapes"):
+        trace_photons(scene, 100)
+
+
+def test_dark_emitters_are_named():
+    scene = closed_box([0.5] * 3, point(intensity=2.0), point(intensity=0.0))
+    with pytest.raises(SceneError, match="emitter 'light1' .*emits no power"):
+        trace_photons(scene, 100)
+    dark_quad = {**area_quad(), "emitter": {"type": "area", "radiance": 0.0}}
+    scene = closed_box([0.5] * 3, **{"lamp": dark_quad})
+    with pytest.raises(SceneError, match="area light of shape 'lamp' emits no power"):
+        trace_photons(scene, 100)
+
+
+def test_nan_in_a_texture_names_the_shape():
+    texels = np.full((4, 4, 3), 0.5, dtype=np.float32)
+    texels[1, 2, 0] = NAN
+    ball = {
+        "type": "sphere",
+        "radius": 0.3,
+        "bsdf": {"type": "diffuse", "reflectance": {"type": "bitmap", "data": mi.TensorXf(texels)}},
+    }
+    with pytest.raises(SceneError, match="shape 'ball'.*'reflectance.data'"):
+        trace_photons(closed_box([0.5] * 3, point(), ball=ball), 100)
+    checks = {"type": "checkerboard", "color0": {"type": "rgb", "value": [0.2, NAN, 0.2]}}
+    tiled = {"type": "rectangle", "bsdf": {"type": "diffuse", "reflectance": checks}}
+    with pytest.raises(SceneError, match="shape 'tiles'.*'reflectance.color0.value'"):
+        trace_photons(closed_box([0.5] * 3, point(), tiles=tiled), 100)
+
+
+def test_nan_in_an_emitter_is_named():
+    with pytest.raises(SceneError, match="emitter 'light0'.*NaN"):
+        trace_photons(closed_box([0.5] * 3, point(intensity=NAN)), 100)
+
+
+def test_nan_power_after_tracing_is_reported():
+    records = trace_photons(closed_box([0.5] * 3, point()), 10, max_depth=1)
+    records.power = dr.select(records.depth == 1, mi.Color3f(NAN), records.power)
+    with pytest.raises(SceneError, match="10 photon records have NaN"):
+        _check_power(records)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"paths": 0}, "at least 1"),
+        ({"paths": 10, "max_depth": 0}, "max_depth"),
+        ({"paths": 10, "rr_depth": 0}, "rr_depth"),
+    ],
+)
+def test_bad_parameters(kwargs, message):
+    with pytest.raises(ParameterError, match=message):
+        trace_photons(closed_box([0.5] * 3, point()), **kwargs)
