@@ -2,7 +2,8 @@
 
 Importing the package finds a usable libLLVM (see :mod:`photonmap.core.llvm`), selects a Mitsuba
 variant (``llvm_ad_rgb`` by default; ``PHOTONMAP_DEVICE=cuda`` or :func:`set_device` selects
-``cuda_ad_rgb``) and registers the Mitsuba integrator plugins (``volume_photon``).
+``cuda_ad_rgb``) and registers the Mitsuba integrator plugins (``volume_photon``,
+``photon_mapper``).
 """
 
 from __future__ import annotations
@@ -36,13 +37,16 @@ def set_device(device: str) -> str:
 
 
 def _register_plugins() -> None:
+    from .surface.integrator import register as register_surface
     from .volume.integrator import register as register_volume
 
     register_volume()
+    register_surface()
 
 
 set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
 
+from .surface.pipeline import SurfacePipeline  # noqa: E402
 from .volume.pipeline import VolumePipeline  # noqa: E402
 
 __all__ = [
@@ -50,6 +54,7 @@ __all__ = [
     "ParameterError",
     "PhotonmapError",
     "SceneError",
+    "SurfacePipeline",
     "VolumePipeline",
     "dr",
     "mi",

@@ -59,7 +59,9 @@ def _parse_sets(items: list[str], fields: dict) -> dict:
 def render(
     scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
     output: Annotated[list[str], typer.Option("-o", "--output", help=".exr or .png (repeatable)")],
-    method: Annotated[str, typer.Option(help="pipeline: volume | surface")] = "volume",
+    method: Annotated[
+        str | None, typer.Option(help="pipeline: volume | surface (default: the scene's own)")
+    ] = None,
     width: Annotated[int | None, typer.Option(help="image width (default: the scene's)")] = None,
     height: Annotated[int | None, typer.Option(help="image height")] = None,
     spp: Annotated[int, typer.Option(help="camera samples per pixel")] = 1,
@@ -80,6 +82,10 @@ def render(
     from .core.image import write_image
 
     try:
+        if method is None:
+            from .scenes import SCENES
+
+            method = SCENES[scene].pipeline if scene in SCENES else "volume"
         if method not in METHODS:
             raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
         for out in output:

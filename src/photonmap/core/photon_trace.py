@@ -133,7 +133,7 @@ def trace_photons(
     records = _trace(scene, ray, power, _rng(paths, seed, stream=1), max_depth, rr_depth)
     slot = dr.compress(records.pop("stored"))
     fields = {name: dr.gather(type(value), value, slot) for name, value in records.items()}
-    fields["depth"] = slot // paths + 1
+    fields["depth"] = slot // paths + 1 if dr.width(slot) else dr.zeros(mi.UInt32, 0)
     dr.eval(fields)
     result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
     _check_power(result)
@@ -188,6 +188,8 @@ def _check_finite(obj, what: str) -> None:
 
 
 def _check_power(records: PhotonRecords) -> None:
+    if records.count == 0:
+        return
     bad = dr.compress(~dr.all(dr.isfinite(records.power)))
     if dr.width(bad):
         where = np.array(dr.gather(mi.Point3f, records.position, bad[0])).ravel()

@@ -1,0 +1,246 @@
+"""Surface photon mapping against Mitsuba's ``path`` on ``cornell_steinhurst`` (issue 3 item 7).
+
+A high-sample ``path`` render is the reference (cached in ``results/cache/``, not in git). Both
+methods are then run at several budgets; for each run the wall time and the relative RMSE
+(RMSE / mean of the reference) are recorded. The headline is the time ``path`` needs for the error
+it reaches in 60 s (interpolated in log-log, extrapolated with RMSE ∝ t^−½ past the last budget)
+divided by the time photon mapping needs for that error (interpolated along its own curve), plus
+photons traced per second and k = 100 gathers per second for the hash grid and the kd-tree.
+
+Writes ``results/surface_vs_path.json``, ``.md`` and ``surface_vs_path.png``.
+
+    .venv/bin/python benchmarks/surface_vs_path.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+
+import common  # noqa: E402
+import photonmap  # noqa: E402,F401
+from photonmap.core.hashgrid import HashGrid  # noqa: E402
+from photonmap.core.image import compare, write_image  # noqa: E402
+from photonmap.core.photon_trace import trace_photons  # noqa: E402
+from photonmap.scenes import SCENES  # noqa: E402
+from photonmap.surface.kdtree import KDTree  # noqa: E402
+from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
+
+PATH_TARGET_S = 60.0
+
+
+def reference(scene, size: int, spp: int, cache: Path) -> np.ndarray:
+    path = cache / f"cornell_steinhurst_path_{size}_{spp}spp.exr"
+    if path.exists():
+        return np.array(mi.Bitmap(str(path)), dtype=np.float32)[..., :3]
+    cache.mkdir(parents=True, exist_ok=True)
+    integrator = mi.load_dict({"type": "path", "max_depth": 16})
+    image = None
+    passes = max(1, spp // 256)
+    for i in range(passes):  # 256 spp a pass keeps the wavefront in memory
+        part = np.array(mi.render(scene, integrator=integrator, spp=spp // passes, seed=1000 + i))
+        image = part if image is None else image + part
+    image /= passes
+    write_image(str(path), image)
+    return image
+
+
+def run_path(scene, ref, spps):
+    integrator = mi.load_dict({"type": "path", "max_depth": 16})
+    rows = []
+    for spp in spps:
+        mi.render(scene, integrator=integrator, spp=1, seed=7)  # warm-up (compile)
+        t, image = common.timed(
+            lambda s=spp: np.array(mi.render(scene, integrator=integrator, spp=s, seed=7))
+        )
+        rows.append({"spp": spp, "seconds": t, **compare(image, ref)})
+        print(f"path spp={spp}: {t:.2f} s rel RMSE {rows[-1]['rel_rmse']:.4f}", flush=True)
+    return rows
+
+
+def run_photon_mapping(scene, ref, budgets):
+    rows = []
+    SurfacePipeline(scene, photons=1000, caustic_photons=1000, fg_rays=1).render()  # compile
+    for photons, caustic, fg in budgets:
+        pipe = SurfacePipeline(scene, photons=photons, caustic_photons=caustic, fg_rays=fg)
+        t, image = common.timed(lambda p=pipe: np.array(p.render()))
+        rows.append(
+            {
+                "photons": photons,
+                "caustic_photons": caustic,
+                "fg_rays": fg,
+                "seconds": t,
+                "stages_ms": dict(pipe.timer.ms),
+                **compare(image, ref),
+            }
+        )
+        print(
+            f"pm photons={photons} fg={fg}: {t:.2f} s rel RMSE {rows[-1]['rel_rmse']:.4f}",
+            flush=True,
+        )
+        last = image
+    return rows, last
+
+
+def loglog_time_for(rows, error):
+    """Time at which a (time, error) curve reaches ``error``: log-log interpolation, RMSE ∝ t^−½
+    past the end; None if the curve never gets there."""
+    t = np.array([r["seconds"] for r in rows])
+    e = np.array([r["rel_rmse"] for r in rows])
+    order = np.argsort(t)
+    t, e = t[order], e[order]
+    for i in range(len(t) - 1):
+        if e[i] >= error >= e[i + 1]:
+            f = (math.log(error) - math.log(e[i])) / (math.log(e[i + 1]) - math.log(e[i]))
+            return math.exp(math.log(t[i]) + f * (math.log(t[i + 1]) - math.log(t[i])))
+    if error <= e[-1]:
+        return t[-1] * (e[-1] / error) ** 2
+    return t[0] * (e[0] / error) ** 2 if error > e[0] else None
+
+
+def loglog_error_at(rows, seconds):
+    t = np.array([r["seconds"] for r in rows])
+    e = np.array([r["rel_rmse"] for r in rows])
+    order = np.argsort(t)
+    t, e = t[order], e[order]
+    if seconds >= t[-1]:
+        return e[-1] * math.sqrt(t[-1] / seconds)
+    return float(np.exp(np.interp(np.log(seconds), np.log(t), np.log(e))))
+
+
+def throughput(scene, photons: int, queries: int, runs: int = 3) -> dict:
+    trace_photons(scene, 10_000)
+    t_trace = common.median(common.timed(trace_photons, scene, photons)[0] for _ in range(runs))
+    records = trace_photons(scene, photons)
+    q = dr.gather(
+        mi.Point3f,
+        records.position,
+        dr.arange(mi.UInt32, 0, records.count, max(1, records.count // queries)),
+    )
+    n = dr.gather(
+        mi.Vector3f,
+        records.normal,
+        dr.arange(mi.UInt32, 0, records.count, max(1, records.count // queries)),
+    )
+    out = {"photon_paths": photons, "records": records.count, "photons_per_s": photons / t_trace}
+    for name, cls in (("hash", HashGrid), ("kdtree", KDTree)):
+        structure = cls(records.position)
+
+        def gather(s=structure):
+            return s.knn(
+                q,
+                k=100,
+                max_radius=0.1,
+                query_normal=n,
+                normals=records.normal,
+                directions=records.direction,
+            ).radius2
+
+        gather()
+        t = common.median(common.timed(gather)[0] for _ in range(runs))
+        out[f"gathers_per_s_{name}"] = dr.width(q.x) / t
+    return out
+
+
+def plot(path_rows, pm_rows, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for rows, label in ((path_rows, "Mitsuba path"), (pm_rows, "photon mapping")):
+        ax.loglog([r["seconds"] for r in rows], [r["rel_rmse"] for r in rows], "o-", label=label)
+    ax.axvline(PATH_TARGET_S, color="grey", lw=0.5)
+    ax.set_xlabel("wall time (s)")
+    ax.set_ylabel("relative RMSE vs reference")
+    ax.set_title("cornell_steinhurst, 512×512")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="64×64, few budgets (smoke test)")
+    parser.add_argument("--out-dir", type=Path, default=common.RESULTS)
+    args = parser.parse_args(argv)
+    size = 64 if args.quick else 512
+    scene = mi.load_dict(SCENES["cornell_steinhurst"].build(width=size, height=size))
+    ref_spp = 256 if args.quick else 4096
+    ref = reference(scene, size, ref_spp, args.out_dir / "cache")
+    spps = [1, 4, 16] if args.quick else [1, 4, 16, 64, 256]
+    budgets = (
+        [(20_000, 10_000, 4), (50_000, 20_000, 8)]
+        if args.quick
+        else [
+            (50_000, 25_000, 8),
+            (100_000, 50_000, 16),
+            (200_000, 100_000, 32),
+            (400_000, 200_000, 64),
+            (800_000, 400_000, 128),
+        ]
+    )
+    path_rows = run_path(scene, ref, spps)
+    pm_rows, last = run_photon_mapping(scene, ref, budgets)
+    error_60 = loglog_error_at(path_rows, PATH_TARGET_S)
+    t_path = loglog_time_for(path_rows, error_60)
+    t_pm = loglog_time_for(pm_rows, error_60)
+    rates = throughput(scene, 100_000 if args.quick else 1_000_000, 4096 if args.quick else 65536)
+    headline = {
+        "path_rel_rmse_at_60s": error_60,
+        "path_seconds_for_that_error": t_path,
+        "photon_mapping_seconds_for_that_error": t_pm,
+        "speedup_vs_path_at_equal_rmse": (t_path / t_pm) if t_pm else None,
+        "photons_per_s": rates["photons_per_s"],
+        "gathers_per_s_hash": rates["gathers_per_s_hash"],
+        "gathers_per_s_kdtree": rates["gathers_per_s_kdtree"],
+    }
+    name = "surface_vs_path_quick" if args.quick else "surface_vs_path"
+    result = {
+        "machine": common.machine_info(),
+        "image": [size, size],
+        "reference_spp": ref_spp,
+        "headline": headline,
+        "path": path_rows,
+        "photon_mapping": pm_rows,
+        "throughput": rates,
+    }
+    common.write_json(args.out_dir / f"{name}.json", result)
+    write_image(str(args.out_dir / f"{name}_photonmap.png"), last)
+    plot(path_rows, pm_rows, args.out_dir / f"{name}.png")
+    table = common.markdown_table(
+        ["method", "budget", "seconds", "relative RMSE"],
+        [
+            ["path", f"{r['spp']} spp", common.fmt(r["seconds"], 2), common.fmt(r["rel_rmse"], 4)]
+            for r in path_rows
+        ]
+        + [
+            [
+                "photon mapping",
+                f"{r['photons']:,} + {r['caustic_photons']:,} photons, {r['fg_rays']} FG rays",
+                common.fmt(r["seconds"], 2),
+                common.fmt(r["rel_rmse"], 4),
+            ]
+            for r in pm_rows
+        ],
+    )
+    summary = "\n".join(
+        f"- {k}: {v:.4g}" if isinstance(v, float) else f"- {k}: {v}" for k, v in headline.items()
+    )
+    common.write_text(args.out_dir / f"{name}.md", table + "\n\n" + summary + "\n")
+    print(table)
+    print(summary)
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,45 @@
+"""Direct lighting at the non-specular eye-ray hit: emitter sampling and BSDF sampling combined by
+multiple importance sampling (power heuristic) — the shadow rays of Steinhurst §7.3.2 ("area light
+sources ... accommodated using importance sampling"), written after Mitsuba's ``path`` integrator.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+
+def _power_heuristic(a, b):
+    a2, b2 = dr.square(a), dr.square(b)
+    return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+
+
+def direct_lighting(
+    scene: mi.Scene, si: mi.SurfaceInteraction3f, bsdf: mi.BSDFPtr, gen: mi.PCG32, active: mi.Bool
+) -> mi.Spectrum:
+    """Radiance reflected at ``si`` towards ``si.wi`` from light arriving straight from emitters."""
+    ctx = mi.BSDFContext()
+
+    # emitter sampling (shadow ray)
+    ds, em_weight = scene.sample_emitter_direction(
+        si, mi.Point2f(gen.next_float32(), gen.next_float32()), True, active
+    )
+    lit = active & (ds.pdf != 0)
+    bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), lit)
+    w_em = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
+    L = dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
+
+    # BSDF sampling towards emitters
+    bs, bsdf_weight = bsdf.sample(
+        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
+    )
+    ray = si.spawn_ray(si.to_world(bs.wo))
+    si_e = scene.ray_intersect(ray, active)
+    emitter = si_e.emitter(scene)
+    hits_light = active & (emitter != None) & (bs.pdf > 0)  # noqa: E711 (Dr.Jit pointer test)
+    delta_lobe = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    ds_e = mi.DirectionSample3f(scene, si_e, si)
+    pdf_em = scene.pdf_emitter_direction(si, ds_e, hits_light & ~delta_lobe)
+    w_bsdf = dr.select(delta_lobe, 1.0, _power_heuristic(bs.pdf, pdf_em))
+    L += dr.select(hits_light, w_bsdf * bsdf_weight * emitter.eval(si_e, hits_light), 0.0)
+    return L

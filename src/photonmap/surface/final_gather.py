@@ -1,0 +1,69 @@
+"""Final gather (Steinhurst 2007 §2.6.2.1, Eq 2.5; Jensen): indirect light at the eye-ray hit x as
+a Monte Carlo integral over the hemisphere::
+
+    L_indirect(x, ω_o) = (1/N) Σ_i f_r(x, ω_i, ω_o) · L(y_i → x) · (ω_i · n) / p(ω_i)
+
+Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``) or
+cosine-weighted hemisphere sampling (``"cosine"``), passes through purely specular surfaces and
+reads the photon map at the first non-specular hit y_i — emitters met on the way add nothing (direct
+light and caustics at x are computed separately). ``L(y_i → x)`` comes from irradiance precomputed
+at photon positions (default) or from an exact k-NN radiance estimate at y_i (the dissertation's
+naive algorithm, ``lookup="knn"``).
+
+The rays are issued in explicit batches of photon-map queries — ``batch`` final-gather rays of
+every query point at a time (about 2²¹ rays per batch), the unit that gather reordering works on.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+from .trace import follow_specular, rng
+
+FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
+BATCH_RAYS = 1 << 21  # final-gather rays traced per batch
+
+
+def final_gather(
+    scene: mi.Scene,
+    si: mi.SurfaceInteraction3f,
+    active: mi.Bool,
+    lookup,
+    rays: int,
+    seed: int,
+    max_depth: int,
+    sampling: str = "bsdf",
+    stream: int = 0,
+) -> mi.Spectrum:
+    """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
+    returns the radiance leaving y towards x."""
+    count = dr.width(active)
+    per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
+    smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
+    total = dr.zeros(mi.Spectrum, count)
+    for first in range(0, rays, per_batch):
+        m = min(per_batch, rays - first)
+        query = dr.arange(mi.UInt32, count * m) // m  # m rays of each query point, adjacent
+        x = dr.gather(mi.SurfaceInteraction3f, si, query)
+        ok = dr.gather(mi.Bool, active, query)
+        bsdf = x.bsdf()
+        gen = rng(count * m, seed, FG_STREAM + first)
+        u = mi.Point2f(gen.next_float32(), gen.next_float32())
+        if sampling == "cosine":
+            wo = mi.warp.square_to_cosine_hemisphere(u)
+            pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+            weight = bsdf.eval(smooth, x, wo, ok) / dr.maximum(pdf, 1e-12)
+            ok &= pdf > 0
+        else:
+            bs, weight = bsdf.sample(smooth, x, gen.next_float32(), u, ok)
+            wo, ok = bs.wo, ok & (bs.pdf > 0)
+        ray = x.spawn_ray(x.to_world(wo))
+        si_y, throughput, _, found = follow_specular(
+            scene, ray, dr.select(ok, weight, 0.0), ok, max_depth, gen, count_emission=False
+        )
+        dr.eval(si_y, throughput, found)  # the gathers below run several kernels over these
+        L = dr.select(found, throughput * lookup(si_y, si_y.bsdf(), found), 0.0)
+        total += mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, m) for c in L])
+        dr.eval(total)
+    return total / rays

@@ -1,0 +1,286 @@
+"""Hash grid photon gathers (spec seed-001 §2.4, §2.8, oracle O5, A13): exact k-nearest and
+fixed-radius results against ``scipy.spatial.cKDTree`` and a float32 NumPy brute force.
+
+Points lie on a 2⁻¹⁰ lattice, so every squared distance is exact in float32 and in float64 (the
+two references agree bit for bit) and ties are frequent: the tie-break by photon index is tested.
+"""
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from photonmap.core.errors import ParameterError
+from photonmap.core.hashgrid import COS_NORMAL, NO_PHOTON, HashGrid
+
+
+def lattice(values):
+    return (np.floor(np.asarray(values) * 1024) / 1024).astype(np.float32)
+
+
+def uniform_points(n, seed):
+    return lattice(np.random.default_rng(seed).random((n, 3)))
+
+
+def clustered_points(n, seed):
+    """Points on the five walls of the unit box and one axis-aligned box, with exact duplicates."""
+    rng = np.random.default_rng(seed)
+    p = rng.random((n, 3))
+    wall = rng.integers(0, 6, n)
+    p[wall == 0, 1] = 0.0
+    p[wall == 1, 1] = 1.0
+    p[wall == 2, 2] = 0.0
+    p[wall == 3, 0] = 0.0
+    p[wall == 4, 0] = 1.0
+    box = wall == 5
+    p[box] = 0.2 + 0.3 * p[box]
+    p[box, rng.integers(0, 3, box.sum())] = 0.35
+    p[n // 2 : n // 2 + n // 10] = p[: n // 10]  # duplicates
+    return lattice(p)
+
+
+def to_mi(a):
+    return mi.Point3f(*np.asarray(a, np.float32).T)
+
+
+def dot32(a, n):
+    """Row-wise ``a·n`` in float32, summed in the kernel's order."""
+    return (a[:, 0] * n[0] + a[:, 1] * n[1]) + a[:, 2] * n[2]
+
+
+def brute_force(
+    points,
+    queries,
+    k,
+    radius=math.inf,
+    query_normal=None,
+    normals=None,
+    directions=None,
+    cos_normal=COS_NORMAL,
+):
+    """The k smallest (d², index) within the radius passing the normal test, float32 arithmetic."""
+    r2 = np.float32(radius) ** 2 if math.isfinite(radius) else np.float32(np.inf)
+    index = np.full((len(queries), k), NO_PHOTON, np.uint32)
+    count = np.zeros(len(queries), np.uint32)
+    radius2 = np.zeros(len(queries), np.float32)
+    for q in range(len(queries)):
+        d = points - queries[q]
+        d2 = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
+        ok = d2 <= r2
+        if directions is not None:
+            ok &= dot32(directions, query_normal[q]) < 0
+        if normals is not None:
+            ok &= dot32(normals, query_normal[q]) >= np.float32(cos_normal)
+        candidates = np.nonzero(ok)[0]
+        best = candidates[np.lexsort((candidates, d2[candidates]))][:k]
+        index[q, : len(best)] = best
+        count[q] = len(best)
+        radius2[q] = d2[best[-1]] if len(best) else 0
+    return index, count, radius2
+
+
+def ckdtree_reference(points, queries, k, radius=math.inf, fixed_radius=False):
+    """The same result from cKDTree: ``query`` finds the k-th distance (a fixed-radius gather
+    takes the radius), ``query_ball_point`` every point at most that far, ordered by (d², index)."""
+    tree = cKDTree(points.astype(np.float64))
+    q64 = queries.astype(np.float64)
+    if fixed_radius:
+        reach = np.full(len(queries), radius)
+    else:
+        dist, _ = tree.query(q64, k=min(k, len(points)), distance_upper_bound=radius)
+        dist = dist.reshape(len(queries), -1)
+        reach = np.where(np.isfinite(dist), dist, -1.0).max(axis=1)  # -1: nothing in range
+        reach *= 1 + 1e-9  # keep the ties at the k-th distance (lattice distances differ more)
+    index = np.full((len(queries), k), NO_PHOTON, np.uint32)
+    count = np.zeros(len(queries), np.uint32)
+    radius2 = np.zeros(len(queries), np.float32)
+    for q in np.nonzero(reach >= 0)[0]:
+        near = np.array(tree.query_ball_point(q64[q], reach[q]), dtype=np.int64)
+        d2 = ((points[near].astype(np.float64) - q64[q]) ** 2).sum(axis=1)
+        order = np.lexsort((near, d2))[:k]
+        index[q, : len(order)] = near[order]
+        count[q] = len(order)
+        radius2[q] = d2[order[-1]] if len(order) else 0
+    return index, count, radius2
+
+
+def assert_same(result, reference):
+    index, count, radius2 = result.numpy()
+    ref_index, ref_count, ref_radius2 = reference
+    np.testing.assert_array_equal(count, ref_count)
+    np.testing.assert_array_equal(index, ref_index)
+    np.testing.assert_array_equal(radius2, ref_radius2.astype(np.float32))
+
+
+# ------------------------------------------------------------------------------ exact kNN
+@pytest.fixture(scope="module")
+def uniform_case():
+    points = uniform_points(3000, 1)
+    queries = lattice(np.random.default_rng(2).uniform(-0.1, 1.1, (300, 3)))
+    return points, queries, HashGrid(to_mi(points))
+
+
+@pytest.fixture(scope="module")
+def clustered_case():
+    points = clustered_points(3000, 3)
+    queries = np.concatenate([clustered_points(200, 4), points[:100]])  # on photons too
+    return points, queries, HashGrid(to_mi(points))
+
+
+@pytest.mark.parametrize("k", [1, 10, 100])
+@pytest.mark.parametrize("radius", [math.inf, 0.11])
+@pytest.mark.parametrize("case", ["uniform_case", "clustered_case"])
+def test_knn_matches_ckdtree(case, k, radius, request):
+    points, queries, grid = request.getfixturevalue(case)
+    result = grid.knn(to_mi(queries), k=k, max_radius=radius)
+    assert_same(result, ckdtree_reference(points, queries, k, radius))
+
+
+@pytest.mark.parametrize("case", ["uniform_case", "clustered_case"])
+def test_fixed_radius_matches_query_ball_point(case, request):
+    points, queries, grid = request.getfixturevalue(case)
+    radius = 0.05
+    result = grid.within(to_mi(queries), radius, k=10)
+    index, count, _ = ckdtree_reference(points, queries, 10, radius, fixed_radius=True)
+    assert_same(result, (index, count, np.full(len(queries), np.float32(radius) ** 2)))
+
+
+def test_unquantized_points_match_float32_brute_force():
+    rng = np.random.default_rng(5)
+    points = rng.normal(size=(2000, 3)).astype(np.float32)
+    queries = rng.normal(size=(200, 3)).astype(np.float32)
+    result = HashGrid(to_mi(points)).knn(to_mi(queries), k=10)
+    assert_same(result, brute_force(points, queries, 10))
+
+
+@pytest.mark.parametrize("cell_size", [0.03, 0.6])
+def test_cell_size_does_not_change_results(uniform_case, cell_size):
+    """0.03: more cells than table slots (hashed, cells share slots); 0.6: 8 cells."""
+    points, queries, _ = uniform_case
+    grid = HashGrid(to_mi(points), cell_size=cell_size)
+    assert grid.hashed == (cell_size == 0.03)
+    result = grid.knn(to_mi(queries), k=10, max_radius=0.2)
+    assert_same(result, brute_force(points, queries, 10, 0.2))
+
+
+def test_normal_test_matches_brute_force(clustered_case):
+    points, queries, grid = clustered_case
+    rng = np.random.default_rng(6)
+
+    def unit(n):
+        v = rng.normal(size=(n, 3))
+        return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
+
+    normals, directions, query_normal = unit(len(points)), unit(len(points)), unit(len(queries))
+    kwargs = dict(query_normal=to_mi(query_normal), normals=to_mi(normals))
+    result = grid.knn(to_mi(queries), k=10, directions=to_mi(directions), **kwargs)
+    reference = brute_force(points, queries, 10, math.inf, query_normal, normals, directions)
+    assert_same(result, reference)
+    result = grid.within(to_mi(queries), 0.2, k=100, cos_normal=0.0, **kwargs)
+    index, count, _ = brute_force(points, queries, 100, 0.2, query_normal, normals, None, 0.0)
+    assert_same(result, (index, count, np.full(len(queries), np.float32(0.2) ** 2)))
+
+
+# ------------------------------------------------------------------------------- layout
+def test_layout_is_sorted_by_slot(clustered_case):
+    points, _, grid = clustered_case
+    order = grid.order.numpy()
+    np.testing.assert_array_equal(np.sort(order), np.arange(len(points)))
+    record = grid.record.numpy().reshape(-1, 4)
+    np.testing.assert_array_equal(record[:, :3], points[order])
+    np.testing.assert_array_equal(record[:, 3].view(np.uint32), order)
+    start = grid.cell_start.numpy()
+    assert start[0] == 0 and start[-1] == len(points) and np.all(np.diff(start.astype(int)) >= 0)
+    slot = np.searchsorted(start, np.arange(len(points)), side="right") - 1
+    origin = np.array(grid.origin, np.float32)
+    cell = np.floor((points[order] - origin) * np.float32(grid.inv_cell)).astype(int)
+    cell = np.minimum(np.maximum(cell, 0), np.array(grid.dims) - 1)
+    number = (cell[:, 2] * grid.dims[1] + cell[:, 1]) * grid.dims[0] + cell[:, 0]
+    np.testing.assert_array_equal(slot, number % grid.table_size)
+
+
+def test_automatic_cell_size_targets_the_occupancy():
+    for points in (uniform_points(20000, 7), clustered_points(20000, 8)):
+        grid = HashGrid(to_mi(points))
+        origin = np.array(grid.origin, np.float32)
+        cell = np.floor((points - origin) * np.float32(grid.inv_cell)).astype(np.int64)
+        occupancy = len(points) / len(np.unique(cell, axis=0))
+        assert 4 <= occupancy <= 16
+
+
+# ------------------------------------------------------------------- degenerate and bad input
+def test_degenerate_inputs():
+    one = HashGrid(to_mi([[0.5, 0.5, 0.5]]))
+    index, count, radius2 = one.knn(to_mi([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]), k=3).numpy()
+    np.testing.assert_array_equal(count, [1, 1])
+    np.testing.assert_array_equal(index, [[0, NO_PHOTON, NO_PHOTON]] * 2)
+    np.testing.assert_array_equal(radius2, [0.75, 0.75])
+
+    same = np.full((50, 3), 0.25, np.float32)
+    index, count, radius2 = HashGrid(to_mi(same)).knn(to_mi([[0.25, 0.25, 0.75]]), k=5).numpy()
+    np.testing.assert_array_equal(index, [[0, 1, 2, 3, 4]])
+    assert count[0] == 5 and radius2[0] == 0.25
+
+    points = uniform_points(500, 9)
+    queries = np.array([[1000.0, -2000.0, 50.0], [-1e6, 0.5, 0.5]], np.float32)
+    grid = HashGrid(to_mi(points))
+    assert_same(grid.knn(to_mi(queries), k=10), brute_force(points, queries, 10))
+    assert_same(
+        grid.knn(to_mi(queries), k=10, max_radius=100.0), brute_force(points, queries, 10, 100)
+    )
+    assert_same(grid.knn(to_mi(points[:20]), k=600), brute_force(points, points[:20], 600))
+
+    far = to_mi([[math.inf, 0.5, 0.5], [math.nan, 0.5, 0.5], [0.5, -math.inf, 0.5]])
+    assert np.all(grid.knn(far, k=10).count.numpy() == 0)
+
+    empty = HashGrid(mi.Point3f())
+    index, count, _ = empty.knn(to_mi(queries), k=2).numpy()
+    assert np.all(count == 0) and np.all(index == NO_PHOTON)
+    assert empty.knn(mi.Point3f(), k=2).count.numpy().size == 0
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        dict(k=0),
+        dict(k=-3),
+        dict(k=2.5),
+        dict(k=5000),
+        dict(max_radius=-1.0),
+        dict(max_radius=math.nan),
+        dict(cos_normal=1.5),
+        dict(normals=mi.Vector3f(0, 0, 1)),  # wrong length
+        dict(query_normal=mi.Vector3f(0, 0, 1)),  # wrong length (query normal needs one per query)
+    ],
+)
+def test_bad_queries_raise(kwargs):
+    grid = HashGrid(to_mi(uniform_points(10, 10)))
+    with pytest.raises(ParameterError):
+        grid.knn(to_mi(uniform_points(4, 11)), **kwargs)
+
+
+def test_bad_construction_raises():
+    with pytest.raises(ParameterError):
+        HashGrid(to_mi(uniform_points(10, 12)), cell_size=-1.0)
+    with pytest.raises(ParameterError):
+        HashGrid(to_mi([[0.0, math.nan, 0.0]]))
+    grid = HashGrid(to_mi(uniform_points(10, 12)))
+    with pytest.raises(ParameterError):
+        grid.within(to_mi(uniform_points(2, 13)), -0.5)
+    with pytest.raises(ParameterError):
+        grid.knn(to_mi(uniform_points(2, 13)), normals=to_mi(uniform_points(10, 12)))
+
+
+def test_queries_are_a_batch_in_any_order(uniform_case):
+    """Reordering a batch of gathers permutes the results and changes nothing else (spec O1/O2)."""
+    _, queries, grid = uniform_case
+    permutation = np.random.default_rng(14).permutation(len(queries))
+    index, count, radius2 = grid.knn(to_mi(queries), k=10).numpy()
+    index_p, count_p, radius2_p = grid.knn(to_mi(queries[permutation]), k=10).numpy()
+    np.testing.assert_array_equal(index_p, index[permutation])
+    np.testing.assert_array_equal(count_p, count[permutation])
+    np.testing.assert_array_equal(radius2_p, radius2[permutation])
+    assert dr.width(grid.knn(to_mi(queries), k=10).index) == 10 * len(queries)
