@@ -22,6 +22,8 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/volume_table1.py
+	$(PY) benchmarks/surface_vs_path.py
+	$(PY) benchmarks/knn_throughput.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

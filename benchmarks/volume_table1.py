@@ -66,18 +66,6 @@ SECONDARY_SCENE = "glass_sphere_fog"
 PAPER_PHOTONS = (256**2, 512**2, 1024**2)
 TARGETS_S = {"full_frame_s": 0.5, "view_only_s": 0.25}
 QUICK_ROWS = (9, 11)
-STAGES = (
-    "voxelization",
-    "materials",
-    "gradient",
-    "octree",
-    "march grids",
-    "photon generation",
-    "photon tracing",
-    "smoothing",
-    "view grids",
-    "viewing",
-)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -630,6 +618,8 @@ def _photon_label(count: int) -> str:
 
 def markdown(result: dict) -> str:
     """The markdown report: Table 1 beside the paper, the headline and the profile."""
+    from photonmap.volume.pipeline import STAGES
+
     s, m = result["settings"], result["machine"]
     lines = [
         f"# Volume pipeline vs Sun et al. 2008 Table 1 ({s['scene']}, {s['grid']}³, "

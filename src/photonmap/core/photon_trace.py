@@ -41,6 +41,7 @@ import mitsuba as mi
 import numpy as np
 
 from .errors import ParameterError, SceneError
+from .sampling import rng
 
 
 @dataclass
@@ -130,7 +131,7 @@ def trace_photons(
     ray, weight = _sample_rays(scene, emitter, seed)
     power = weight / dr.gather(mi.Float, mi.Float(counts.astype(np.float32)), emitter)
     emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
-    records = _trace(scene, ray, power, _rng(paths, seed, stream=1), max_depth, rr_depth)
+    records = _trace(scene, ray, power, rng(paths, seed, stream=1), max_depth, rr_depth)
     slot = dr.compress(records.pop("stored"))
     fields = {name: dr.gather(type(value), value, slot) for name, value in records.items()}
     fields["depth"] = slot // paths + 1 if dr.width(slot) else dr.zeros(mi.UInt32, 0)
@@ -212,19 +213,12 @@ def _shape_name(shape: mi.Shape) -> str:
     return f"shape '{shape.id()}'" if shape.id().strip(" +") else f"a merged {shape.class_name()}"
 
 
-def _rng(count: int, seed: int, stream: int) -> mi.PCG32:
-    """One PCG32 stream per path, decorrelated by hashing (seed, stream, path index)."""
-    key = mi.UInt32(np.uint32((seed * 2 + stream) & 0xFFFFFFFF))
-    state, sequence = mi.sample_tea_32(key, dr.arange(mi.UInt32, count))
-    return mi.PCG32(count, mi.UInt64(state), mi.UInt64(sequence))
-
-
 def _sample_rays(scene: mi.Scene, emitter: mi.UInt32, seed: int) -> tuple[mi.Ray3f, mi.Color3f]:
     """``sample_ray`` of emitter ``scene.emitters()[emitter[i]]`` for every lane ``i``."""
-    rng = _rng(dr.width(emitter), seed, stream=0)
-    wavelength = rng.next_float32()
-    spatial = mi.Point2f(rng.next_float32(), rng.next_float32())
-    directional = mi.Point2f(rng.next_float32(), rng.next_float32())
+    gen = rng(dr.width(emitter), seed, stream=0)
+    wavelength = gen.next_float32()
+    spatial = mi.Point2f(gen.next_float32(), gen.next_float32())
+    directional = mi.Point2f(gen.next_float32(), gen.next_float32())
     emitters = dr.gather(mi.EmitterPtr, scene.emitters_dr(), emitter)
     return emitters.sample_ray(0.0, wavelength, spatial, directional)
 

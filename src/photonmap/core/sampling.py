@@ -13,11 +13,20 @@ import math
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .errors import ParameterError
 from .order import morton_cells, morton_order
 
 SAMPLERS = ("hammersley", "halton", "grid", "jittered", "random")
+
+
+def rng(count: int, seed: int, stream: int) -> mi.PCG32:
+    """``count`` PCG32 generators, one per lane, decorrelated by hashing (seed, stream, lane) with
+    TEA. The key is opaque, so new seeds and streams reuse compiled kernels."""
+    key = dr.opaque(mi.UInt32, int(np.uint32((seed * 2 + stream) & 0xFFFFFFFF)))
+    state, sequence = mi.sample_tea_32(key, dr.arange(mi.UInt32, count))
+    return mi.PCG32(count, mi.UInt64(state), mi.UInt64(sequence))
 
 
 def radical_inverse_2(i: mi.UInt32) -> mi.Float:

@@ -190,7 +190,14 @@ def _camera(width: int, height: int) -> dict:
         "to_world": mi.ScalarTransform4f().look_at(
             origin=list(CAMERA_ORIGIN), target=list(CAMERA_TARGET), up=[0, 1, 0]
         ),
-        "film": {"type": "hdrfilm", "width": int(width), "height": int(height)},
+        # a box pixel filter, as the photonmap pipelines use, so that Mitsuba's reference
+        # renders of these scenes are comparable pixel by pixel
+        "film": {
+            "type": "hdrfilm",
+            "width": int(width),
+            "height": int(height),
+            "rfilter": {"type": "box"},
+        },
     }
 
 

@@ -19,7 +19,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .trace import follow_specular, rng
+from ..core.sampling import rng
+from .trace import follow_specular
 
 FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
 BATCH_RAYS = 1 << 21  # final-gather rays traced per batch

@@ -29,13 +29,14 @@ import numpy as np
 
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
+from ..core.sampling import rng
 from ..core.timer import StageTimer
 from .direct import direct_lighting
 from .final_gather import final_gather
 from .gather import radiance_estimate
 from .irradiance import lookup_radiance, precompute_irradiance
 from .photon_map import STRUCTURES, build_photon_maps, photon_map
-from .trace import follow_specular, rng
+from .trace import follow_specular
 
 LOOKUPS = ("irradiance", "knn", "direct")
 FG_SAMPLING = ("bsdf", "cosine")

@@ -19,13 +19,6 @@ def is_specular(bsdf: mi.BSDFPtr, active) -> mi.Bool:
     return active & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
 
 
-def rng(count: int, seed: int, stream: int) -> mi.PCG32:
-    """A PCG32 per lane, seeded by (seed, stream) and the lane index: deterministic and distinct
-    for every stage and final-gather ray (the state is opaque, so new streams reuse the kernels)."""
-    state = dr.opaque(mi.UInt64, (seed & 0xFFFFFFFF) << 32 | (stream & 0xFFFFFFFF))
-    return mi.PCG32(count, state, dr.arange(mi.UInt64, count))
-
-
 @dr.syntax
 def follow_specular(
     scene: mi.Scene,
