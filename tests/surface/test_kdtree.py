@@ -14,13 +14,10 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from knn_reference import assert_same, brute_force, lattice, to_mi
 from photonmap.core.errors import ParameterError
 from photonmap.core.hashgrid import COS_NORMAL, NO_PHOTON, HashGrid
 from photonmap.surface.kdtree import KDTree, left_balanced_order
-
-
-def lattice(values):
-    return (np.floor(np.asarray(values) * 1024) / 1024).astype(np.float32)
 
 
 def clustered_points(n, seed):
@@ -30,38 +27,6 @@ def clustered_points(n, seed):
     p[np.arange(n), rng.integers(0, 3, n)] = 0.0
     p[n // 2 : n // 2 + n // 4] = p[: n // 4]
     return lattice(p)
-
-
-def to_mi(a):
-    return mi.Point3f(*np.asarray(a, np.float32).T)
-
-
-def reference(points, queries, k, radius=math.inf, query_normal=None, directions=None):
-    """k smallest (d², index) within the radius, float32 arithmetic; checked against cKDTree."""
-    r2 = np.float32(radius) ** 2 if math.isfinite(radius) else np.float32(np.inf)
-    index = np.full((len(queries), k), NO_PHOTON, np.uint32)
-    count = np.zeros(len(queries), np.uint32)
-    radius2 = np.zeros(len(queries), np.float32)
-    for q in range(len(queries)):
-        d = points - queries[q]
-        d2 = (d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1]) + d[:, 2] * d[:, 2]
-        ok = d2 <= r2
-        if directions is not None:
-            n = query_normal[q]
-            ok &= (directions[:, 0] * n[0] + directions[:, 1] * n[1]) + directions[:, 2] * n[2] < 0
-        candidates = np.nonzero(ok)[0]
-        best = candidates[np.lexsort((candidates, d2[candidates]))][:k]
-        index[q, : len(best)] = best
-        count[q] = len(best)
-        radius2[q] = d2[best[-1]] if len(best) else 0
-    return index, count, radius2
-
-
-def assert_same(result, expected):
-    index, count, radius2 = result.numpy()
-    np.testing.assert_array_equal(count, expected[1])
-    np.testing.assert_array_equal(index, expected[0])
-    np.testing.assert_array_equal(radius2, expected[2])
 
 
 @pytest.fixture(scope="module")
@@ -130,7 +95,7 @@ def test_tree_arrays(case):
 def test_knn_matches_ckdtree_and_the_hash_grid(case, k, radius):
     points, queries, tree = case
     result = tree.knn(to_mi(queries), k=k, max_radius=radius)
-    expected = reference(points, queries, k, radius)
+    expected = brute_force(points, queries, k, radius)
     assert_same(result, expected)
     # cKDTree (float64) finds as many photons with the same distance at every rank
     _, ckd_index = cKDTree(points.astype(np.float64)).query(
@@ -170,7 +135,9 @@ def test_normal_test_matches_brute_force(case):
     result = tree.knn(
         to_mi(queries), k=10, query_normal=to_mi(query_normal), directions=to_mi(directions)
     )
-    assert_same(result, reference(points, queries, 10, math.inf, query_normal, directions))
+    assert_same(
+        result, brute_force(points, queries, 10, math.inf, query_normal, directions=directions)
+    )
     # a photon stored on a perpendicular surface fails the default normal test (cos 30°)
     normals = np.tile(np.float32([0, 0, 1]), (len(points), 1))
     normals[::2] = [1, 0, 0]
@@ -198,9 +165,9 @@ def test_degenerate_inputs():
     points = clustered_points(300, 4)
     queries = np.array([[1000.0, -2000.0, 50.0], [0.5, 0.5, 0.5]], np.float32)
     tree = KDTree(to_mi(points))
-    assert_same(tree.knn(to_mi(queries), k=10), reference(points, queries, 10))
-    assert_same(tree.knn(to_mi(queries), k=400), reference(points, queries, 400))
-    assert_same(tree.knn(to_mi(queries), k=5, max_radius=0.0), reference(points, queries, 5, 0.0))
+    assert_same(tree.knn(to_mi(queries), k=10), brute_force(points, queries, 10))
+    assert_same(tree.knn(to_mi(queries), k=400), brute_force(points, queries, 400))
+    assert_same(tree.knn(to_mi(queries), k=5, max_radius=0.0), brute_force(points, queries, 5, 0.0))
 
     far = to_mi([[math.inf, 0.5, 0.5], [math.nan, 0.5, 0.5]])
     assert np.all(tree.knn(far, k=10).count.numpy() == 0)

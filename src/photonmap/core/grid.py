@@ -9,8 +9,9 @@ Conventions (DESIGN.md, spec seed-000-002 §0.2):
   ``[z, y, x]`` (``[k, j, i]``), the order of ``dr.Texture3f``; the flat index of voxel ``(i, j, k)``
   is ``(k·n + j)·n + i``.
 - "Whenever we read data from a voxel grid we apply trilinear interpolation" [Pf §3.1.1], with
-  samples at voxel centres and clamp-to-edge addressing: exactly ``dr.Texture3f`` with linear
-  filtering and ``WrapMode.Clamp`` evaluated at ``p / n``.
+  samples at voxel centres and clamp-to-edge addressing: :func:`trilinear_packed` (the semantics of
+  ``dr.Texture3f`` with linear filtering and ``WrapMode.Clamp``, reading several channels with one
+  index computation).
 """
 
 from __future__ import annotations
@@ -88,31 +89,6 @@ def to_tensor(values, n: int | None = None) -> mi.TensorXf:
     if n is not None and tuple(t.shape[:3]) != (n, n, n):
         raise ParameterError(f"grid has shape {tuple(t.shape[:3])}, expected {(n, n, n)}")
     return t
-
-
-def texture(values) -> mi.Texture3f:
-    """Trilinear, clamp-to-edge texture over a grid tensor (n, n, n, c)."""
-    return mi.Texture3f(
-        to_tensor(values),
-        use_accel=False,
-        filter_mode=dr.FilterMode.Linear,
-        wrap_mode=dr.WrapMode.Clamp,
-    )
-
-
-def nearest_texture(values) -> mi.Texture3f:
-    """Nearest-neighbour, clamp-to-edge texture (for integer grids such as octree levels)."""
-    return mi.Texture3f(
-        to_tensor(values),
-        use_accel=False,
-        filter_mode=dr.FilterMode.Nearest,
-        wrap_mode=dr.WrapMode.Clamp,
-    )
-
-
-def sample(tex: mi.Texture3f, p: mi.Point3f, n: int) -> list:
-    """Trilinear sample of a grid texture at voxel coordinates ``p`` (a list, one per channel)."""
-    return tex.eval(p * (1.0 / n))
 
 
 def gaussian_taps(radius: int, sigma: float) -> np.ndarray:

@@ -29,6 +29,7 @@ import numpy as np
 
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
+from ..core.params import updated
 from ..core.sampling import rng
 from ..core.timer import StageTimer
 from .direct import direct_lighting
@@ -109,15 +110,8 @@ class SurfacePipeline:
         self._maps = None
 
     def set_params(self, **params) -> None:
-        valid = {f.name for f in dataclasses.fields(SurfaceParams)}
-        unknown = sorted(set(params) - valid)
-        if unknown:
-            raise ParameterError(
-                f"unknown surface parameter(s) {', '.join(unknown)}; valid: {', '.join(sorted(valid))}"
-            )
-        new = dataclasses.replace(self.params, **params)
-        new.validate()
-        self.params = new
+        """Change pipeline parameters (:class:`SurfaceParams` fields)."""
+        self.params = updated(self.params, params, "surface")
 
     def set_camera(
         self, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None, sensor=None

@@ -32,7 +32,7 @@ import dataclasses
 import mitsuba as mi
 import numpy as np
 
-from ..core.plugin import read_properties
+from ..core.params import read_properties
 from .pipeline import VolumeParams, VolumePipeline, check_grid
 
 _DEFAULTS = VolumeParams()

@@ -31,6 +31,7 @@ import numpy as np
 from ..core import sampling
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
+from ..core.params import updated
 from ..core.timer import StageTimer
 from . import emit as s5
 from . import march as s6
@@ -312,14 +313,7 @@ class VolumePipeline:
     # ------------------------------------------------------------------ changes
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`VolumeParams` fields)."""
-        valid = {f.name for f in dataclasses.fields(VolumeParams)}
-        unknown = sorted(set(params) - valid)
-        if unknown:
-            raise ParameterError(
-                f"unknown volume parameter(s) {', '.join(unknown)}; valid: {', '.join(sorted(valid))}"
-            )
-        new = dataclasses.replace(self.params, **params)
-        new.validate()
+        new = updated(self.params, params, "volume")
         if hasattr(self, "scene") and new.photons != self.params.photons:
             check_grid(
                 self.scene.box.n, len(self.scene.objects), new.photons * len(self.scene.lights)

@@ -1,4 +1,5 @@
-"""Reading Mitsuba integrator properties into a pipeline's parameter dataclass."""
+"""Pipeline parameter dataclasses: validated updates, and reading them from Mitsuba integrator
+properties."""
 
 from __future__ import annotations
 
@@ -10,6 +11,20 @@ from .errors import ParameterError
 
 # properties every Mitsuba integrator may receive; the pipelines ignore them
 MITSUBA_BASE = {"samples_per_pass", "hide_emitters", "timeout", "max_depth", "rr_depth"}
+
+
+def updated(params, changes: dict, what: str):
+    """``params`` (a dataclass with ``validate()``) with ``changes`` applied and validated;
+    unknown names raise a :class:`ParameterError` listing the valid ones."""
+    valid = {f.name for f in dataclasses.fields(params)}
+    unknown = sorted(set(changes) - valid)
+    if unknown:
+        raise ParameterError(
+            f"unknown {what} parameter(s) {', '.join(unknown)}; valid: {', '.join(sorted(valid))}"
+        )
+    new = dataclasses.replace(params, **changes)
+    new.validate()
+    return new
 
 
 def _convert(value, kind: type):
