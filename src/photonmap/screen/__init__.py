@@ -1,0 +1,1 @@
+"""The ``screen`` pipeline: image-space photon mapping with image-space soft shadows (Yao 2011)."""
