@@ -233,3 +233,36 @@ def test_queries_are_a_batch_in_any_order(uniform_case):
     np.testing.assert_array_equal(count_p, count[permutation])
     np.testing.assert_array_equal(radius2_p, radius2[permutation])
     assert dr.width(grid.knn(to_mi(queries), k=10).index) == 10 * len(queries)
+
+
+@pytest.mark.parametrize("cell_size", [0.03, 0.07, 0.25])
+@pytest.mark.parametrize("with_normals", [False, True])
+def test_nearest_matches_brute_force(clustered_case, cell_size, with_normals):
+    """The fused 27-cell scan (Christensen lookups) finds the 1-NN within a cell edge exactly;
+    0.03 is a hashed grid whose cells share table slots."""
+    points, queries, _ = clustered_case
+    grid = HashGrid(to_mi(points), cell_size=cell_size)
+    radius = 0.9 * grid.cell_size
+    rng = np.random.default_rng(8)
+    normals = rng.normal(size=(len(points), 3)).astype(np.float32)
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    query_normal = normals[rng.integers(0, len(points), len(queries))]
+    kwargs = (
+        dict(query_normal=to_mi(query_normal), normals=to_mi(normals), cos_normal=0.5)
+        if with_normals
+        else {}
+    )
+    index, d2 = grid.nearest(to_mi(queries), radius, **kwargs)
+    ref = brute_force(
+        points, queries, 1, radius, *((query_normal, normals, None, 0.5) if with_normals else ())
+    )
+    np.testing.assert_array_equal(index.numpy(), ref[0][:, 0])
+    expect = np.where(ref[1] > 0, ref[2], np.inf).astype(np.float32)
+    np.testing.assert_array_equal(d2.numpy(), expect)
+    assert (ref[1] > 0).mean() > 0.3  # the test sees hits and misses
+
+
+def test_nearest_radius_beyond_the_cell_raises(uniform_case):
+    points, queries, grid = uniform_case
+    with pytest.raises(ParameterError, match="cell size"):
+        grid.nearest(to_mi(queries), 2 * grid.cell_size)

@@ -71,6 +71,36 @@ def test_power_bookkeeping_in_a_closed_diffuse_box():
     assert not np.any(np.array(records.caustic))
 
 
+def test_caustics_only_traces_exactly_the_caustic_records():
+    """Caustic records end at a path's first smooth hit, so stopping every path there (the
+    caustic map's cheap trace) keeps exactly the caustic records of a full trace."""
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "floor": floor_disk(5.0),
+            "glass": {
+                "type": "sphere",
+                "center": [0, 1, 0],
+                "radius": 0.5,
+                "bsdf": {"type": "dielectric", "int_ior": 1.5},
+            },
+            "light": point((0, 4, 0), 10.0),
+        }
+    )
+    full = trace_photons(scene, 2**14, seed=3)
+    full = full.select(full.caustic)
+    only = trace_photons(scene, 2**14, seed=3, caustics_only=True)
+    assert only.count == full.count > 50 and only.paths == full.paths
+    assert np.array(only.caustic).all()
+
+    def rows(r):
+        fields = (r.position, r.power, r.direction, r.normal)
+        table = np.concatenate([np.array(f) for f in fields] + [np.array(r.depth)[None]])
+        return table[:, np.lexsort(table[::-1])]
+
+    np.testing.assert_array_equal(rows(only), rows(full))
+
+
 def test_records_describe_the_hits():
     records = trace_photons(closed_box([0.5] * 3, point()), 4000, seed=3)
     position = np.array(records.position)

@@ -511,6 +511,66 @@ class HashGrid(PhotonSearch):
         index, radius2_found = finish(heap, k, found, lanes)
         return index, found, radius2_found
 
+    def nearest(
+        self,
+        query: mi.Point3f,
+        radius: float,
+        query_normal: mi.Vector3f | None = None,
+        normals: mi.Vector3f | None = None,
+        cos_normal: float = COS_NORMAL,
+        active: mi.Bool | bool = True,
+    ) -> tuple[mi.UInt32, mi.Float]:
+        """The nearest photon within ``radius ≤ cell_size`` of each query that passes the normal
+        test on ``normals``: ``(index, d²)``, :data:`NO_PHOTON` and +∞ where there is none.
+
+        Every photon within one cell edge of the query lies in the 3×3×3 cells around the query's
+        cell, so a fixed scan of those cells is exact — no rings, no k-best heap. The result is
+        lazy (nothing is evaluated), so the scan fuses into the caller's kernel (the final gather's
+        Christensen lookups). Ties go to the lower photon index, as in :meth:`knn`.
+        """
+        if not 0 <= radius <= self.cell_size:
+            raise ParameterError(
+                f"nearest() searches one cell around the query: the radius must lie in "
+                f"[0, {self.cell_size}] (the cell size), got {radius!r}"
+            )
+        normals = self._stored(normals) if query_normal is not None else None
+        radius2 = dr.opaque(mi.Float, _radius2(radius))
+        return self._nearest(
+            query, radius2, query_normal, normals, dr.opaque(mi.Float, cos_normal), active
+        )
+
+    @dr.syntax
+    def _nearest(self, query, radius2, query_normal, normals, cos_normal, active):
+        lanes = dr.width(query)
+        dims = self._dims
+        c0 = self._cell(query)
+        best_key = dr.full(mi.UInt64, 0xFFFFFFFFFFFFFFFF, lanes)
+        neighbour = dr.zeros(mi.Int32, lanes)  # 0..26: offset (n % 3, n // 3 % 3, n // 9) − 1
+        searching = active & dr.all(dr.isfinite(query)) & dr.full(mi.Bool, True, lanes)
+        while searching & (neighbour < 27):
+            c = c0 + mi.Point3i(neighbour % 3, neighbour // 3 % 3, neighbour // 9) - 1
+            visit = dr.all((c >= 0) & (c < dims))
+            number = self._cell_number(c)
+            slot = self._slot(number)
+            j = dr.gather(mi.UInt32, self.cell_start, slot, visit)
+            j_end = dr.gather(mi.UInt32, self.cell_start, slot + 1, visit)
+            while visit & (j < j_end):
+                p, index = read_record(self.record, j)
+                d2 = squared_distance(p, query)
+                ok = d2 <= radius2
+                if self.hashed:
+                    ok &= self._cell_number(self._cell(p)) == number
+                if normals is not None:
+                    ok &= normal_test(query_normal, normals, None, j, cos_normal, ok)
+                key = photon_key(d2, index)
+                best_key = dr.select(ok & (key < best_key), key, best_key)
+                j += 1
+            neighbour += 1
+        none = best_key == 0xFFFFFFFFFFFFFFFF
+        index = dr.select(none, NO_PHOTON, mi.UInt32(best_key & NO_PHOTON))
+        d2 = dr.select(none, dr.inf, dr.reinterpret_array(mi.Float, mi.UInt32(best_key >> 32)))
+        return index, d2
+
 
 def _automatic_cell_size(
     points: np.ndarray, lo: np.ndarray, extent: float, per_cell: float

@@ -47,7 +47,8 @@ from .sampling import rng
 @dataclass
 class PhotonRecords:
     """Stored photon hits as a struct of Dr.Jit arrays, one entry per record, ordered by depth
-    (all first hits, then all second hits, ...) and by path within a depth."""
+    (all first hits, then all second hits, ...) and by path within a depth (by path alone when
+    traced with ``caustics_only``)."""
 
     position: mi.Point3f
     power: mi.Color3f  # Φ_p in W
@@ -110,7 +111,12 @@ def split_paths(powers: np.ndarray, paths: int) -> np.ndarray:
 
 
 def trace_photons(
-    scene: mi.Scene, paths: int, max_depth: int = 8, rr_depth: int = 3, seed: int = 0
+    scene: mi.Scene,
+    paths: int,
+    max_depth: int = 8,
+    rr_depth: int = 3,
+    seed: int = 0,
+    caustics_only: bool = False,
 ) -> PhotonRecords:
     """Trace ``paths`` photon paths from the scene's emitters and return the stored hits.
 
@@ -118,6 +124,11 @@ def trace_photons(
     slots (slot = (depth − 1) · paths + path, so neighbouring lanes write neighbouring slots) and
     are compacted at the end, so the result is the same for the same ``seed`` whatever the thread
     schedule.
+
+    ``caustics_only`` traces the caustic map's paths alone: a path ends at its first smooth
+    interaction, where it is stored if a specular bounce came before. Most paths then cost one
+    ray (those whose first hit is not specular), so many paths are cheap — Jensen's projection
+    maps reach the same end by aiming photons at the specular objects. Each path keeps one slot.
     """
     if paths < 1:
         raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
@@ -131,10 +142,11 @@ def trace_photons(
     ray, weight = _sample_rays(scene, emitter, seed)
     power = weight / dr.gather(mi.Float, mi.Float(counts.astype(np.float32)), emitter)
     emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
-    records = _trace(scene, ray, power, rng(paths, seed, stream=1), max_depth, rr_depth)
+    records = _trace(
+        scene, ray, power, rng(paths, seed, stream=1), max_depth, rr_depth, caustics_only
+    )
     slot = dr.compress(records.pop("stored"))
     fields = {name: dr.gather(type(value), value, slot) for name, value in records.items()}
-    fields["depth"] = slot // paths + 1 if dr.width(slot) else dr.zeros(mi.UInt32, 0)
     dr.eval(fields)
     result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
     _check_power(result)
@@ -231,15 +243,17 @@ def _trace(
     rng: mi.PCG32,
     max_depth: int,
     rr_depth: int,
+    caustics_only: bool,
 ) -> dict:
     """The bounce loop; returns the record slots and the ``stored`` mask over them."""
     n = dr.width(power)
-    slots = n * max_depth
+    slots = n if caustics_only else n * max_depth
     records = {
         "position": dr.zeros(mi.Point3f, slots),
         "power": dr.zeros(mi.Color3f, slots),
         "direction": dr.zeros(mi.Vector3f, slots),
         "normal": dr.zeros(mi.Vector3f, slots),
+        "depth": dr.zeros(mi.UInt32, slots),
         "caustic": dr.zeros(mi.Bool, slots),
         "stored": dr.zeros(mi.Bool, slots),
     }
@@ -259,12 +273,18 @@ def _trace(
         bsdf = si.bsdf(ray)
 
         store = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        slot = (depth - 1) * n + path
+        caustic = specular_bounce & ~smooth_bounce
+        if caustics_only:
+            store &= caustic
+            slot = mi.UInt32(path)
+        else:
+            slot = (depth - 1) * n + path
         dr.scatter(records["position"], si.p, slot, store)
         dr.scatter(records["power"], power * throughput, slot, store)
         dr.scatter(records["direction"], ray.d, slot, store)
         dr.scatter(records["normal"], mi.Vector3f(si.sh_frame.n), slot, store)
-        dr.scatter(records["caustic"], specular_bounce & ~smooth_bounce, slot, store)
+        dr.scatter(records["depth"], depth, slot, store)
+        dr.scatter(records["caustic"], caustic, slot, store)
         dr.scatter(records["stored"], True, slot, store)
 
         sample, weight = bsdf.sample(
@@ -280,6 +300,8 @@ def _trace(
         specular_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Delta) & ~null
         smooth_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Smooth)
         ray = si.spawn_ray(si.to_world(sample.wo))
+        if caustics_only:
+            active &= ~smooth_bounce
 
         # Russian roulette (Mitsuba's path tracers): survive with q, power divided by q.
         survival = dr.minimum(dr.max(throughput), 0.95)

@@ -10,6 +10,11 @@ light and caustics at x are computed separately). ``L(y_i → x)`` comes from ir
 at photon positions (default) or from an exact k-NN radiance estimate at y_i (the dissertation's
 naive algorithm, ``lookup="knn"``).
 
+With the precomputed irradiance the whole batch — BSDF sampling, the specular chain and the
+nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is one fused kernel; no
+interaction at y is materialised in memory. A k-NN lookup runs its own kernels over the evaluated
+hits (``fused=False``).
+
 The rays are issued in explicit batches of photon-map queries — ``batch`` final-gather rays of
 every query point at a time (about 2²¹ rays per batch), the unit that gather reordering works on.
 """
@@ -35,10 +40,10 @@ def final_gather(
     seed: int,
     max_depth: int,
     sampling: str = "bsdf",
-    stream: int = 0,
+    fused: bool = True,
 ) -> mi.Spectrum:
     """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
-    returns the radiance leaving y towards x."""
+    returns the radiance leaving y towards x (lazily if ``fused``)."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
     smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
@@ -63,8 +68,10 @@ def final_gather(
         si_y, throughput, _, found = follow_specular(
             scene, ray, dr.select(ok, weight, 0.0), ok, max_depth, gen, count_emission=False
         )
-        dr.eval(si_y, throughput, found)  # the gathers below run several kernels over these
+        if not fused:
+            dr.eval(si_y, throughput, found)  # the k-NN gathers run several kernels over these
         L = dr.select(found, throughput * lookup(si_y, si_y.bsdf(), found), 0.0)
+        dr.eval(L)  # once: each channel's block sum below would otherwise rerun the kernel
         total += mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, m) for c in L])
         dr.eval(total)
     return total / rays

@@ -17,9 +17,13 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..core.hashgrid import HashGrid
+from ..core.hashgrid import NO_PHOTON, HashGrid
+from ..core.order import morton3_order
 from .gather import irradiance_estimate
 from .photon_map import PhotonMap
+
+LOOKUP_POINTS_PER_CELL = 4.0
+"""Occupancy of the lookup grid's cells; a lookup scans the 27 cells around the query."""
 
 
 @dataclass
@@ -39,6 +43,10 @@ def precompute_irradiance(
 ) -> PrecomputedIrradiance:
     """Irradiance at every ``every``-th photon of ``pmap`` (Christensen 1999)."""
     idx = dr.arange(mi.UInt32, 0, pmap.size, every) if pmap.size else dr.zeros(mi.UInt32, 0)
+    if pmap.size:  # gather in Morton order: neighbouring queries read neighbouring photons
+        idx = dr.gather(
+            mi.UInt32, idx, morton3_order(dr.gather(mi.Point3f, pmap.photons.position, idx))
+        )
     position = mi.Point3f(*[dr.gather(mi.Float, c, idx) for c in pmap.photons.position])
     normal = mi.Vector3f(*[dr.gather(mi.Float, c, idx) for c in pmap.photons.normal])
     dr.eval(position, normal)
@@ -46,24 +54,26 @@ def precompute_irradiance(
         return PrecomputedIrradiance(position, normal, dr.zeros(mi.Color3f, 0), None)
     E = irradiance_estimate(pmap, position, normal, k, max_radius)
     dr.eval(E)
-    return PrecomputedIrradiance(position, normal, E, HashGrid(position))
+    return PrecomputedIrradiance(
+        position, normal, E, HashGrid(position, photons_per_cell=LOOKUP_POINTS_PER_CELL)
+    )
 
 
 def lookup_radiance(
     points: PrecomputedIrradiance,
     si: mi.SurfaceInteraction3f,
     bsdf: mi.BSDFPtr,
-    max_radius: float,
     active: mi.Bool,
 ) -> mi.Spectrum:
-    """Diffuse radiance ``ρ(y)/π · E`` at ``si`` from the nearest precomputed point."""
-    count = dr.width(active)
+    """Diffuse radiance ``ρ(y)/π · E`` at ``si`` from the nearest precomputed point facing the
+    same way within one lookup-grid cell (zero where there is none). Lazy: it fuses into the
+    final-gather kernel."""
     if points.size == 0:
-        return dr.zeros(mi.Spectrum, count)
-    nb = points.grid.knn(
-        si.p, k=1, max_radius=max_radius, query_normal=si.sh_frame.n, normals=points.normal
+        return dr.zeros(mi.Spectrum, dr.width(active))
+    index, _ = points.grid.nearest(
+        si.p, points.grid.cell_size, si.sh_frame.n, points.normal, active=active
     )
-    found = active & (nb.count > 0)
-    E = mi.Color3f(*[dr.gather(mi.Float, c, nb.index, found) for c in points.irradiance])
+    found = active & (index != NO_PHOTON)
+    E = dr.gather(mi.Color3f, points.irradiance, index, found)
     rho = bsdf.eval_diffuse_reflectance(si, found)
     return dr.select(found, rho * E / math.pi, 0.0)

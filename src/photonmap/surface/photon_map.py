@@ -8,8 +8,9 @@ hits of a separate ``caustic_photons`` paths that lie on L S+ D paths. Caustics 
 come only from the caustic map, so nothing is counted twice.
 
 Each map keeps its photons as a struct of arrays (position, power, direction, normal; float32,
-52 bytes a photon) in the order of its search structure — a hash grid sorted by cell, or a
-left-balanced kd-tree in heap order (spec §2.3) — so the memory layout a gather touches is explicit.
+52 bytes a photon) in tracing order; its search structure keeps the positions with their indices in
+its own order — a hash grid sorted by cell, or a left-balanced kd-tree in heap order (spec §2.3) —
+so the memory layout a gather touches is explicit.
 """
 
 from __future__ import annotations
@@ -72,8 +73,9 @@ def build_photon_maps(
         )
     global_records = trace_photons(scene, photons, max_depth=max_depth, seed=seed)
     if caustic_photons:
-        traced = trace_photons(scene, caustic_photons, max_depth=max_depth, seed=seed + 1)
-        caustic_records = traced.select(traced.caustic)
+        caustic_records = trace_photons(
+            scene, caustic_photons, max_depth=max_depth, seed=seed + 1, caustics_only=True
+        )
     else:
         caustic_records = global_records.select(dr.zeros(mi.Bool, global_records.count))
     return photon_map(global_records, structure), photon_map(caustic_records, structure)

@@ -8,7 +8,9 @@ non-specular surface x, where
     L(x, ω_o) = L_e + L_direct + L_caustic + L_indirect
 
 - ``L_direct``: emitter sampling and BSDF sampling with MIS (:mod:`.direct`);
-- ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6);
+- ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6), once per
+  pixel: at its first sample, weighted by ``spp`` (an unbiased choice of one sample that saves
+  ``spp − 1`` of the k-NN gathers, the most expensive per-sample work);
 - ``L_indirect``: final gather of ``fg_rays`` rays (:mod:`.final_gather`) whose secondary hits read
   irradiance precomputed at photon positions (``lookup="irradiance"``, default), or run an exact
   k-NN gather per ray (``lookup="knn"``, the dissertation's naive algorithm); ``lookup="direct"``
@@ -181,7 +183,7 @@ class SurfacePipeline:
         if p.lookup == "irradiance":
 
             def lookup(si_y, bsdf_y, active):
-                return lookup_radiance(extra, si_y, bsdf_y, r_caustic, active)
+                return lookup_radiance(extra, si_y, bsdf_y, active)
         else:
 
             def lookup(si_y, bsdf_y, active):
@@ -220,8 +222,16 @@ class SurfacePipeline:
             dr.eval(L)
         if progress:
             progress("caustics")
-        with self.timer("caustics"):
-            L += beta * radiance_estimate(caustic_map, si, bsdf, p.k, r_caustic, found)
+        with self.timer("caustics"):  # one k-NN estimate per pixel, at its first sample
+            first = dr.arange(mi.UInt32, 0, lanes, p.spp)
+            si_first = dr.gather(mi.SurfaceInteraction3f, si, first)
+            found_first = dr.gather(mi.Bool, found, first)
+            caustic = radiance_estimate(
+                caustic_map, si_first, si_first.bsdf(), p.k, r_caustic, found_first
+            )
+            dr.scatter_reduce(
+                dr.ReduceOp.Add, L, dr.gather(mi.Spectrum, beta, first) * caustic * p.spp, first
+            )
             dr.eval(L)
         if progress:
             progress("final gather")
@@ -230,7 +240,15 @@ class SurfacePipeline:
                 L += beta * radiance_estimate(extra, si, bsdf, p.k, r_global, found)
             else:
                 L += beta * final_gather(
-                    self.scene, si, found, lookup, p.fg_rays, p.seed, p.max_depth, p.fg_sampling
+                    self.scene,
+                    si,
+                    found,
+                    lookup,
+                    p.fg_rays,
+                    p.seed,
+                    p.max_depth,
+                    p.fg_sampling,
+                    fused=p.lookup == "irradiance",
                 )
             dr.eval(L)
         image = mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, p.spp) for c in L])
