@@ -105,3 +105,27 @@ def test_rejects_bad_arguments(volume_table1, tmp_path):
         volume_table1.run(rows=[12], out_dir=None)
     with pytest.raises(ValueError, match="photon"):
         volume_table1.run(photons=[1, 2, 3, 4], out_dir=None)
+
+
+def test_surface_benchmark_masks_the_light_and_its_specular_images():
+    """The surface benchmark's error mask drops the pixels that see the light, directly or through
+    the mirror and glass spheres, and nothing else of note."""
+    import mitsuba as mi
+    import numpy as np
+
+    from photonmap.scenes import SCENES
+
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        import surface_vs_path
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+    scene = mi.load_dict(SCENES["cornell_steinhurst"].build(width=64, height=64))
+    mask = surface_vs_path.light_image_mask(scene, spp=16)
+    seen = np.array(
+        mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=16)
+    )
+    assert not mask[seen.max(-1) > 1.0].any()  # the light itself
+    assert 0.005 < 1 - mask.mean() < 0.05
+    # its images in the spheres are masked: more masked pixels than the light alone covers
+    assert (~mask).sum() > 2 * (seen.max(-1) > 0.01).sum()

@@ -13,7 +13,6 @@ import math
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from .errors import ParameterError
 from .order import morton_cells, morton_order
@@ -22,9 +21,11 @@ SAMPLERS = ("hammersley", "halton", "grid", "jittered", "random")
 
 
 def rng(count: int, seed: int, stream: int) -> mi.PCG32:
-    """``count`` PCG32 generators, one per lane, decorrelated by hashing (seed, stream, lane) with
-    TEA. The key is opaque, so new seeds and streams reuse compiled kernels."""
-    key = dr.opaque(mi.UInt32, int(np.uint32((seed * 2 + stream) & 0xFFFFFFFF)))
+    """``count`` PCG32 generators, one per lane, decorrelated by hashing (seed, stream) and then
+    (key, lane) with TEA: distinct (seed, stream) pairs give unrelated sequences. The key is
+    opaque, so new seeds and streams reuse compiled kernels."""
+    v0, v1 = (mi.UInt32(x & 0xFFFFFFFF) for x in (seed, stream))
+    key = dr.opaque(mi.UInt32, mi.sample_tea_32(v0, v1, 8)[0][0])
     state, sequence = mi.sample_tea_32(key, dr.arange(mi.UInt32, count))
     return mi.PCG32(count, mi.UInt64(state), mi.UInt64(sequence))
 
@@ -32,6 +33,14 @@ def rng(count: int, seed: int, stream: int) -> mi.PCG32:
 def radical_inverse_2(i: mi.UInt32) -> mi.Float:
     """Base-2 radical inverse Φ₂(i): the bits of ``i`` mirrored about the binary point."""
     return mi.radical_inverse_2(i, mi.UInt32(0))
+
+
+def rotated_hammersley(count: int, i: mi.UInt32, shift: mi.Point2f) -> mi.Point2f:
+    """Point ``i`` of the ``count``-point Hammersley set ``(i/N, Φ₂(i))`` shifted by ``shift``
+    modulo 1 (a Cranley–Patterson rotation). With a uniform random shift per pixel or query point,
+    each point is uniform — estimates stay unbiased — and the N points are stratified."""
+    u = mi.Point2f(mi.Float(i) / count, radical_inverse_2(i)) + shift
+    return u - dr.floor(u)
 
 
 def hammersley(count: int, offset: bool = True) -> tuple[mi.Float, mi.Float]:

@@ -15,15 +15,20 @@ def _power_heuristic(a, b):
 
 
 def direct_lighting(
-    scene: mi.Scene, si: mi.SurfaceInteraction3f, bsdf: mi.BSDFPtr, gen: mi.PCG32, active: mi.Bool
+    scene: mi.Scene,
+    si: mi.SurfaceInteraction3f,
+    bsdf: mi.BSDFPtr,
+    u_light: mi.Point2f,
+    gen: mi.PCG32,
+    active: mi.Bool,
 ) -> mi.Spectrum:
-    """Radiance reflected at ``si`` towards ``si.wi`` from light arriving straight from emitters."""
+    """Radiance reflected at ``si`` towards ``si.wi`` from light arriving straight from emitters;
+    ``u_light`` picks the point on the emitters (stratified over a pixel's samples by the caller),
+    ``gen`` draws the BSDF sample."""
     ctx = mi.BSDFContext()
 
     # emitter sampling (shadow ray)
-    ds, em_weight = scene.sample_emitter_direction(
-        si, mi.Point2f(gen.next_float32(), gen.next_float32()), True, active
-    )
+    ds, em_weight = scene.sample_emitter_direction(si, u_light, True, active)
     lit = active & (ds.pdf != 0)
     bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), lit)
     w_em = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))

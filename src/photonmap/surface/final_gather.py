@@ -4,11 +4,12 @@ a Monte Carlo integral over the hemisphere::
     L_indirect(x, ω_o) = (1/N) Σ_i f_r(x, ω_i, ω_o) · L(y_i → x) · (ω_i · n) / p(ω_i)
 
 Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``) or
-cosine-weighted hemisphere sampling (``"cosine"``), passes through purely specular surfaces and
-reads the photon map at the first non-specular hit y_i — emitters met on the way add nothing (direct
-light and caustics at x are computed separately). ``L(y_i → x)`` comes from irradiance precomputed
-at photon positions (default) or from an exact k-NN radiance estimate at y_i (the dissertation's
-naive algorithm, ``lookup="knn"``).
+cosine-weighted hemisphere sampling (``"cosine"``) — the N_FG directions of a point warped from a
+randomly shifted Hammersley set (:func:`~photonmap.core.sampling.rotated_hammersley`) — passes
+through purely specular surfaces and reads the photon map at the first non-specular hit y_i —
+emitters met on the way add nothing (direct light and caustics at x are computed separately).
+``L(y_i → x)`` comes from irradiance precomputed at photon positions (default) or from an exact
+k-NN radiance estimate at y_i (the dissertation's naive algorithm, ``lookup="knn"``).
 
 With the precomputed irradiance the whole batch — BSDF sampling, the specular chain and the
 nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is one fused kernel; no
@@ -24,7 +25,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.sampling import rng
+from ..core.sampling import rng, rotated_hammersley
 from .trace import follow_specular
 
 FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
@@ -48,6 +49,8 @@ def final_gather(
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
     smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
     total = dr.zeros(mi.Spectrum, count)
+    shifts = rng(count, seed, FG_STREAM - 1)
+    shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
     for first in range(0, rays, per_batch):
         m = min(per_batch, rays - first)
         query = dr.arange(mi.UInt32, count * m) // m  # m rays of each query point, adjacent
@@ -55,7 +58,8 @@ def final_gather(
         ok = dr.gather(mi.Bool, active, query)
         bsdf = x.bsdf()
         gen = rng(count * m, seed, FG_STREAM + first)
-        u = mi.Point2f(gen.next_float32(), gen.next_float32())
+        i = first + dr.arange(mi.UInt32, count * m) % m
+        u = rotated_hammersley(rays, i, dr.gather(mi.Point2f, shift, query))
         if sampling == "cosine":
             wo = mi.warp.square_to_cosine_hemisphere(u)
             pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)

@@ -8,9 +8,7 @@ non-specular surface x, where
     L(x, ω_o) = L_e + L_direct + L_caustic + L_indirect
 
 - ``L_direct``: emitter sampling and BSDF sampling with MIS (:mod:`.direct`);
-- ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6), once per
-  pixel: at its first sample, weighted by ``spp`` (an unbiased choice of one sample that saves
-  ``spp − 1`` of the k-NN gathers, the most expensive per-sample work);
+- ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6);
 - ``L_indirect``: final gather of ``fg_rays`` rays (:mod:`.final_gather`) whose secondary hits read
   irradiance precomputed at photon positions (``lookup="irradiance"``, default), or run an exact
   k-NN gather per ray (``lookup="knn"``, the dissertation's naive algorithm); ``lookup="direct"``
@@ -32,7 +30,7 @@ import numpy as np
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
-from ..core.sampling import rng
+from ..core.sampling import rng, rotated_hammersley
 from ..core.timer import StageTimer
 from .direct import direct_lighting
 from .final_gather import final_gather
@@ -196,9 +194,18 @@ class SurfacePipeline:
         lanes = w * h * p.spp  # all samples of all pixels in one wavefront; a pixel's are adjacent
         pixel = dr.arange(mi.UInt32, lanes) // p.spp
         gen = rng(lanes, p.seed, 0)
+        # a pixel's samples: stratified positions in the pixel and stratified light samples
+        shifts = rng(w * h, p.seed, 2)
+        sample = dr.arange(mi.UInt32, lanes) % p.spp
+
+        def stratified() -> mi.Point2f:
+            shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
+            return rotated_hammersley(p.spp, sample, dr.gather(mi.Point2f, shift, pixel))
+
+        jitter, u_light = stratified(), stratified()
         pos = mi.Point2f(
-            (mi.Float(pixel % w + ox) + gen.next_float32()) / float(full[0]),
-            (mi.Float(pixel // w + oy) + gen.next_float32()) / float(full[1]),
+            (mi.Float(pixel % w + ox) + jitter.x) / float(full[0]),
+            (mi.Float(pixel // w + oy) + jitter.y) / float(full[1]),
         )
         if progress:
             progress("eye pass")
@@ -218,20 +225,12 @@ class SurfacePipeline:
         if progress:
             progress("direct lighting")
         with self.timer("direct lighting"):
-            L += beta * direct_lighting(self.scene, si, bsdf, gen, found)
+            L += beta * direct_lighting(self.scene, si, bsdf, u_light, gen, found)
             dr.eval(L)
         if progress:
             progress("caustics")
-        with self.timer("caustics"):  # one k-NN estimate per pixel, at its first sample
-            first = dr.arange(mi.UInt32, 0, lanes, p.spp)
-            si_first = dr.gather(mi.SurfaceInteraction3f, si, first)
-            found_first = dr.gather(mi.Bool, found, first)
-            caustic = radiance_estimate(
-                caustic_map, si_first, si_first.bsdf(), p.k, r_caustic, found_first
-            )
-            dr.scatter_reduce(
-                dr.ReduceOp.Add, L, dr.gather(mi.Spectrum, beta, first) * caustic * p.spp, first
-            )
+        with self.timer("caustics"):
+            L += beta * radiance_estimate(caustic_map, si, bsdf, p.k, r_caustic, found)
             dr.eval(L)
         if progress:
             progress("final gather")
