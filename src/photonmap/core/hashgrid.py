@@ -440,6 +440,16 @@ class HashGrid(PhotonSearch):
             gap.append(dr.maximum(dr.maximum(lo_hi.x - q[a], q[a] - lo_hi.y), 0.0))
         return gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]
 
+    def _box_bound2(self, c: mi.Point3i, q: mi.Point3f) -> mi.Float:
+        """A lower bound on ``d²`` from ``q`` to the photons of cell ``c``: the distance to the
+        cell's box, shrunk by 10⁻³ of a cell so that a photon that float rounding placed in ``c``
+        from just outside its box is never skipped."""
+        lo = self._origin + mi.Point3f(c) / self._inv_cell
+        gap = dr.maximum(
+            dr.maximum(lo - q, q - (lo + 1 / self._inv_cell)) - 1e-3 / self._inv_cell, 0
+        )
+        return dr.squared_norm(gap)
+
     def _outside_bound2(self, q: mi.Point3f, c0: mi.Point3i, ring: mi.Int32) -> mi.Float:
         """Lower bound on ``d²`` of the photons outside the cube of ``ring`` around cell ``c0``
         (+∞ when the cube covers the grid)."""
@@ -545,11 +555,15 @@ class HashGrid(PhotonSearch):
         dims = self._dims
         c0 = self._cell(query)
         best_key = dr.full(mi.UInt64, 0xFFFFFFFFFFFFFFFF, lanes)
-        neighbour = dr.zeros(mi.Int32, lanes)  # 0..26: offset (n % 3, n // 3 % 3, n // 9) − 1
+        best2 = mi.Float(radius2)
+        # the query's own cell first (n = 13), then the others: offset (n % 3, n // 3 % 3, n // 9) − 1
+        step = dr.zeros(mi.Int32, lanes)
         searching = active & dr.all(dr.isfinite(query)) & dr.full(mi.Bool, True, lanes)
-        while searching & (neighbour < 27):
+        while searching & (step < 27):
+            neighbour = (step + 13) % 27
             c = c0 + mi.Point3i(neighbour % 3, neighbour // 3 % 3, neighbour // 9) - 1
             visit = dr.all((c >= 0) & (c < dims))
+            visit &= self._box_bound2(c, query) <= best2  # skip cells beyond the best so far
             number = self._cell_number(c)
             slot = self._slot(number)
             j = dr.gather(mi.UInt32, self.cell_start, slot, visit)
@@ -563,9 +577,11 @@ class HashGrid(PhotonSearch):
                 if normals is not None:
                     ok &= normal_test(query_normal, normals, None, j, cos_normal, ok)
                 key = photon_key(d2, index)
-                best_key = dr.select(ok & (key < best_key), key, best_key)
+                better = ok & (key < best_key)
+                best_key = dr.select(better, key, best_key)
+                best2 = dr.select(better, d2, best2)
                 j += 1
-            neighbour += 1
+            step += 1
         none = best_key == 0xFFFFFFFFFFFFFFFF
         index = dr.select(none, NO_PHOTON, mi.UInt32(best_key & NO_PHOTON))
         d2 = dr.select(none, dr.inf, dr.reinterpret_array(mi.Float, mi.UInt32(best_key >> 32)))

@@ -22,7 +22,7 @@ from ..core.order import morton3_order
 from .gather import irradiance_estimate
 from .photon_map import PhotonMap
 
-LOOKUP_POINTS_PER_CELL = 4.0
+LOOKUP_POINTS_PER_CELL = 8.0
 """Occupancy of the lookup grid's cells; a lookup scans the 27 cells around the query."""
 
 

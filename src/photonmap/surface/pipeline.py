@@ -51,7 +51,7 @@ class SurfaceParams:
     """Parameters of the surface pipeline (the ``photon_mapper`` plugin and ``--set`` keys)."""
 
     photons: int = 200_000  # light paths into the global map
-    caustic_photons: int = 100_000  # light paths traced for the caustic map
+    caustic_photons: int = 1_000_000  # light paths for the caustic map (most cost one ray)
     k: int = 100  # photons per gather (Steinhurst Table 7.1)
     max_radius: float = 0.0  # maximum gather radius; 0 = automatic (spec A12)
     fg_rays: int = 32  # final-gather rays per eye-ray hit (N_FG)
