@@ -36,7 +36,7 @@ from photonmap.core.photon_trace import trace_photons  # noqa: E402
 from photonmap.core.sampling import rng  # noqa: E402
 from photonmap.scenes import SCENES  # noqa: E402
 from photonmap.surface.kdtree import KDTree  # noqa: E402
-from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
+from photonmap.surface.pipeline import STAGES, SurfacePipeline  # noqa: E402
 from photonmap.surface.trace import follow_specular  # noqa: E402
 
 PATH_TARGET_S = 60.0
@@ -245,13 +245,14 @@ def main(argv=None) -> dict:
     ref = reference(scene, size, ref_spp, args.out_dir / "cache")
     spps = [1, 4, 16] if args.quick else [1, 4, 16, 64, 256]
     budgets = (  # (global photon paths, caustic photon paths, final-gather rays, spp)
-        [(20_000, 10_000, 4, 2), (50_000, 20_000, 4, 4)]
+        [(20_000, 100_000, 4, 2), (50_000, 200_000, 4, 4)]
         if args.quick
         else [
-            (50_000, 25_000, 4, 1),
-            (100_000, 50_000, 8, 1),
-            (200_000, 100_000, 8, 4),
-            (400_000, 200_000, 16, 4),
+            (50_000, 500_000, 4, 2),
+            (100_000, 1_000_000, 4, 4),
+            (100_000, 1_000_000, 8, 4),
+            (200_000, 2_000_000, 8, 8),
+            (400_000, 4_000_000, 16, 8),
         ]
     )
     mask = light_image_mask(scene)
@@ -284,26 +285,44 @@ def main(argv=None) -> dict:
     write_image(str(args.out_dir / f"{name}_photonmap.png"), last)
     plot(path_rows, pm_rows, args.out_dir / f"{name}.png")
     table = common.markdown_table(
-        ["method", "budget", "seconds", "relative RMSE"],
+        ["method", "budget", "seconds", "rel. RMSE (light's images masked)", "rel. RMSE (all)"],
         [
-            ["path", f"{r['spp']} spp", common.fmt(r["seconds"], 2), common.fmt(r["rel_rmse"], 4)]
+            [
+                "path",
+                f"{r['spp']} spp",
+                common.fmt(r["seconds"], 2),
+                common.fmt(r["rel_rmse"], 4),
+                common.fmt(r["rel_rmse_full"], 4),
+            ]
             for r in path_rows
         ]
         + [
             [
                 "photon mapping",
-                f"{r['photons']:,} + {r['caustic_photons']:,} photons, {r['fg_rays']} FG rays, "
+                f"{r['photons']:,} + {r['caustic_photons']:,} paths, {r['fg_rays']} FG rays, "
                 f"{r['spp']} spp",
                 common.fmt(r["seconds"], 2),
                 common.fmt(r["rel_rmse"], 4),
+                common.fmt(r["rel_rmse_full"], 4),
             ]
+            for r in pm_rows
+        ],
+    )
+    stages = common.markdown_table(
+        ["photon mapping budget", *STAGES],
+        [
+            [f"{r['photons']:,} / {r['fg_rays']} FG / {r['spp']} spp"]
+            + [common.fmt(r["stages_ms"].get(stage, 0.0), 0) for stage in STAGES]
             for r in pm_rows
         ],
     )
     summary = "\n".join(
         f"- {k}: {v:.4g}" if isinstance(v, float) else f"- {k}: {v}" for k, v in headline.items()
     )
-    common.write_text(args.out_dir / f"{name}.md", table + "\n\n" + summary + "\n")
+    common.write_text(
+        args.out_dir / f"{name}.md",
+        table + "\n\nPer-stage ms:\n\n" + stages + "\n\n" + summary + "\n",
+    )
     print(table)
     print(summary)
     return result
