@@ -109,7 +109,8 @@ def render(
             pipe = Pipeline(scene, **params)
             if width or height:
                 pipe.set_camera(width=width, height=height)
-        with stage_progress(STAGES, f"rendering {scene}", console=console) as report:
+        stages = getattr(pipe, "stages", STAGES)  # the volume pipeline's depend on emission
+        with stage_progress(stages, f"rendering {scene}", console=console) as report:
             image = pipe.render(progress=report)
         for out in output:
             write_image(out, image)

@@ -177,7 +177,19 @@ def emit(
     packets, which cost nothing, so no compaction pass is needed.
     """
     u, w = sampling.coherent_points(sampler, count, seed)
+    return emit_at(light, box, u, w, fidelity)
+
+
+def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight=None) -> Photons:
+    """Photons at the plane points ``(u, w) ∈ [0,1]²``, in the given order, entering the grid.
+
+    ``weight`` (per photon, optional) multiplies the power: ``1/p(u, w)`` for points drawn from a
+    density ``p`` on the plane (Pfeuti §3.2.3, spec A4), so that the estimator stays unbiased.
+    """
+    count = dr.width(u)
     o, d, power = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
+    if weight is not None:
+        power *= weight
     hit, t_near, _ = box_entry(o, d, box.n)
     keep = hit & (dr.max(power) > 0.0)
     photons = Photons(

@@ -25,6 +25,13 @@ interpolation ``L̃(u) = L̃_s · exp(−κ ‖Δx‖ u)`` (exact for constant �
 deposits ``w = 1`` with linear interpolation, as both papers do. Directions are interpolated
 linearly. Accumulation is in 64-bit fixed point (``2³²`` units per ``Φ_max``), so sums are exact
 and independent of thread scheduling (spec A54: deterministic accumulation).
+
+Each deposit writes two packets of four 64-bit channels per voxel; a *tally* chooses what goes in
+them. :func:`radiance_tally` (C rgb, D xyz, two spare channels) is S6/S7. Pfeuti's phase-2 marcher
+[§3.2.3, spec A5] also counts photons and sums their weights per voxel; here those two numbers fill
+the spare channels of the same packets (:func:`weight_tally`), so the adaptive march costs no
+second atomic per deposit — the cost Pfeuti measured in Fig 4.14. The pilot marcher [§3.2.2, A2]
+deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``).
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from .emit import Photons
 OVERSHOOT = 1e-3  # δ, voxels (A10)
 KILL_FRACTION = 1e-3  # τ_rel (A18)
 FIXED_POINT_BITS = 32
+WEIGHT_BITS = 20  # fixed-point bits of the photon weights 1/p summed by weight_tally
 CHANNELS = 8  # accumulator stride per voxel: C rgb, D xyz, 2 spare (one 64-byte line per voxel)
 
 Int64 = dr.int64_array_t(mi.Float)
@@ -55,6 +63,23 @@ def reduce_mode() -> dr.ReduceMode:
 Float64 = dr.float64_array_t(mi.Float)
 Vector4i64 = dr.int64_array_t(mi.Vector4f)
 Vector4d = dr.float64_array_t(mi.Vector4f)
+
+
+def radiance_tally(q: list, zero: Int64) -> tuple:
+    """The packets of one deposit from its fixed-point energy ``q[0:3]`` and weighted direction
+    ``q[3:6]``: (C rgb, D x), (D y, D z, 0, 0) (spec S8)."""
+    return Vector4i64(q[0], q[1], q[2], q[3]), Vector4i64(q[4], q[5], zero, zero)
+
+
+def weight_tally(weight: mi.Float):
+    """:func:`radiance_tally` plus, in the spare channels, one photon and the photon's weight
+    ``1/p`` in fixed point (Pfeuti §3.2.3; spec A5: ``cnt[v] += 1``, ``wsum[v] += w``)."""
+    w = Int64(dr.round(weight * 2.0**WEIGHT_BITS))
+
+    def tally(q, zero):
+        return Vector4i64(q[0], q[1], q[2], q[3]), Vector4i64(q[4], q[5], zero + 1, w)
+
+    return tally
 
 
 @dataclass
@@ -90,6 +115,8 @@ class MarchResult:
     D: mi.TensorXf  # (n, n, n, 3) Σ (R+G+B)·direction, unnormalised
     steps: int  # photon marching steps taken (Sun Table 1 "millions of steps")
     final: tuple = ()  # per photon (x, v, L̃) where it stopped (voxel units)
+    count: mi.TensorXf | None = None  # (n, n, n) deposits per voxel (weighted march only)
+    weight: mi.TensorXf | None = None  # (n, n, n) their average weight w̄ = Σw / cnt, 0 if none
 
 
 @dr.syntax
@@ -104,6 +131,8 @@ def _march(
     scale: mi.Float,
     paper: bool,
     pfeuti_update: bool,
+    tally=radiance_tally,
+    shift: int = 0,
 ):
     n = medium.n
     count = dr.width(L)
@@ -142,7 +171,9 @@ def _march(
         dir_new = dr.normalize(v_new)
 
         # ---- S7: rasterise the segment x → x_new ------------------------------------------
-        deposit_segment(acc, n, x, x_new, L, kappa * t, dir_, dir_new, scale, paper)
+        deposit_segment(
+            acc, n, x, x_new, L, kappa * t, dir_, dir_new, scale, paper, tally=tally, shift=shift
+        )
 
         x, v, L = x_new, v_new, L_new
         steps += 1
@@ -151,14 +182,30 @@ def _march(
 
 
 @dr.syntax
-def deposit_segment(acc, n, s, e, L_s, optical_depth, dir_s, dir_e, scale, paper, active=True):
+def deposit_segment(
+    acc,
+    n,
+    s,
+    e,
+    L_s,
+    optical_depth,
+    dir_s,
+    dir_e,
+    scale,
+    paper,
+    active=True,
+    tally=radiance_tally,
+    shift: int = 0,
+):
     """S7: deposit the segment ``s → e`` (voxel units) into the fixed-point accumulator ``acc``.
 
     The voxels touched are those holding the segment's intersections with the major-axis centre
     planes ``c = m + ½`` in the half-open range ``[s_a, e_a)`` (spec S7 pseudocode and oracle 18).
     At parameter ``u`` the energy is ``L_s · exp(−optical_depth · u)`` (geometric interpolation,
     A20) or, with ``paper``, the linear ``lerp(L_s, L_e, u)``; the direction is linear. Each deposit
-    is weighted by ``‖δ‖ = 1/|v̂_a|`` (length weighting, A19), or 1 with ``paper``.
+    is weighted by ``‖δ‖ = 1/|v̂_a|`` (length weighting, A19), or 1 with ``paper``. ``tally`` makes
+    the two packets written per voxel; with ``shift > 0`` voxel ``v`` deposits into cell
+    ``v >> shift`` of a ``⌈n / 2^shift⌉³`` grid (the rasterisation stays at full resolution).
     """
     count = dr.width(s)
     L_e = L_s * dr.exp(-optical_depth)
@@ -192,6 +239,7 @@ def deposit_segment(acc, n, s, e, L_s, optical_depth, dir_s, dir_e, scale, paper
     direction = dr.lerp(dir_s, dir_e, u0)
     turn = (dir_e - dir_s) * du
     zero = dr.zeros(Int64, count)
+    m = coarse_size(n, shift)
 
     j = dr.zeros(mi.Int32, count)
     while j < total:
@@ -199,30 +247,65 @@ def deposit_segment(acc, n, s, e, L_s, optical_depth, dir_s, dir_e, scale, paper
         inside = dr.all((cell >= 0) & (cell < n))
         flux_dir = (energy.x + energy.y + energy.z) * direction
         q = [Int64(dr.round(c)) for c in (*energy, *flux_dir)]
-        packet = mi.UInt32((cell.z * n + cell.y) * n + cell.x) * 2
+        cell >>= shift
+        packet = mi.UInt32((cell.z * m + cell.y) * m + cell.x) * 2
+        first, second = tally(q, zero)
         mode = reduce_mode()
-        dr.scatter_reduce(
-            dr.ReduceOp.Add,
-            acc,
-            Vector4i64(q[0], q[1], q[2], q[3]),
-            packet,
-            active=inside,
-            mode=mode,
-        )
-        dr.scatter_reduce(
-            dr.ReduceOp.Add,
-            acc,
-            Vector4i64(q[4], q[5], zero, zero),
-            packet + 1,
-            active=inside,
-            mode=mode,
-        )
+        dr.scatter_reduce(dr.ReduceOp.Add, acc, first, packet, active=inside, mode=mode)
+        dr.scatter_reduce(dr.ReduceOp.Add, acc, second, packet + 1, active=inside, mode=mode)
         if paper:
             energy += growth
         else:
             energy *= growth
         direction += turn
         j += 1
+
+
+def coarse_size(n: int, shift: int) -> int:
+    """Cells per axis of the deposit grid ``2^shift`` times coarser than ``n``."""
+    return (n + (1 << shift) - 1) >> shift
+
+
+def accumulate(
+    photons: Photons,
+    medium: MarchGrids,
+    tally=radiance_tally,
+    shift: int = 0,
+    ds_min: float = 1.0,
+    max_steps: int | None = None,
+    fidelity: str = "physical",
+    pfeuti_update: bool = False,
+):
+    """March ``photons`` and return ``(first, second, unit, steps, final)``: the two packets each
+    voxel of the deposit grid received (``Vector4d`` raw fixed-point sums; energy channels times
+    ``unit`` are watts), the total step count and the per-photon final state."""
+    n = medium.n
+    m = coarse_size(n, shift)
+    acc = dr.zeros(Int64, m**3 * CHANNELS)
+    phi_max = float(dr.max(dr.max(photons.power))[0]) if photons.count else 0.0
+    steps, final = 0, ()
+    if phi_max > 0:
+        scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
+        steps, x, v, L = _march(
+            acc,
+            medium,
+            mi.Point3f(photons.origin),
+            mi.Vector3f(photons.direction),
+            mi.Color3f(photons.power),
+            dr.opaque(mi.Float, ds_min),
+            max_steps or 8 * n,
+            scale,
+            fidelity == "paper",
+            pfeuti_update,
+            tally,
+            shift,
+        )
+        dr.eval(acc, steps, x, v, L)
+        steps, final = int(dr.sum(Float64(steps))[0]), (x, v, L)
+    voxel = dr.arange(mi.UInt32, m**3) * 2
+    first = Vector4d(dr.gather(Vector4i64, acc, voxel))
+    second = Vector4d(dr.gather(Vector4i64, acc, voxel + 1))
+    return first, second, phi_max / 2.0**FIXED_POINT_BITS, steps, final
 
 
 def march(
@@ -233,38 +316,30 @@ def march(
     fidelity: str = "physical",
     pfeuti_update: bool = False,
     voxel_size: float = 1.0,
+    weights: mi.Float | None = None,
 ) -> MarchResult:
     """March ``photons`` through ``medium`` and return the deposited C, D grids (spec S6/S7).
 
     ``C`` is returned divided by ``voxel_size²`` (the voxel edge h in world units), i.e. as fluence
-    in world units (spec §2.6: ``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise.
+    in world units (spec §2.6: ``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
+    per-photon ``weights`` (``1/p`` of importance sampling, Pfeuti §3.2.3) the result also holds
+    the deposit count and average weight per voxel.
     """
     n = medium.n
-    acc = dr.zeros(Int64, n**3 * CHANNELS)
-    if photons.count == 0:
-        zero = mi.TensorXf(dr.zeros(mi.Float, n**3 * 3), (n, n, n, 3))
-        return MarchResult(zero, mi.TensorXf(zero), 0)
-    phi_max = float(dr.max(dr.max(photons.power))[0])
-    scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
-    steps, x, v, L = _march(
-        acc,
-        medium,
-        mi.Point3f(photons.origin),
-        mi.Vector3f(photons.direction),
-        mi.Color3f(photons.power),
-        dr.opaque(mi.Float, ds_min),
-        max_steps or 8 * n,
-        scale,
-        fidelity == "paper",
-        pfeuti_update,
+    tally = radiance_tally if weights is None else weight_tally(weights)
+    first, second, unit, steps, final = accumulate(
+        photons, medium, tally, 0, ds_min, max_steps, fidelity, pfeuti_update
     )
-    dr.eval(acc, steps, x, v, L)
-    total_steps = int(dr.sum(Float64(steps))[0])
-    unit = phi_max / 2.0**FIXED_POINT_BITS / voxel_size**2
-    voxel = dr.arange(mi.UInt32, n**3) * 2
-    first = mi.Vector4f(Vector4d(dr.gather(Vector4i64, acc, voxel)) * unit)
-    second = mi.Vector4f(Vector4d(dr.gather(Vector4i64, acc, voxel + 1)) * unit)
-    C = mi.TensorXf(dr.ravel(mi.Vector3f(first.x, first.y, first.z)), (n, n, n, 3))
-    D = mi.TensorXf(dr.ravel(mi.Vector3f(first.w, second.x, second.y)), (n, n, n, 3))
+    unit /= voxel_size**2
+    energy, flux = mi.Vector4f(first * unit), mi.Vector4f(second * unit)
+    C = mi.TensorXf(dr.ravel(mi.Vector3f(energy.x, energy.y, energy.z)), (n, n, n, 3))
+    D = mi.TensorXf(dr.ravel(mi.Vector3f(energy.w, flux.x, flux.y)), (n, n, n, 3))
+    result = MarchResult(C, D, steps, final)
+    if weights is not None:
+        count = mi.Float(second.z)
+        weight = mi.Float(second.w * 2.0**-WEIGHT_BITS / dr.maximum(second.z, 1.0))
+        result.count = mi.TensorXf(count, (n, n, n))
+        result.weight = mi.TensorXf(weight, (n, n, n))
+        dr.eval(result.count, result.weight)
     dr.eval(C, D)
-    return MarchResult(C, D, total_steps, (x, v, L))
+    return result

@@ -6,12 +6,18 @@
     lights ─► S5 photon generation ────────────────────────────────────┼─► S6/S7 march ─► S8 smooth ─┐
     camera, phase k, table, isosurface ─────────────────────────────────────────────────────────────┴─► S9
 
+With ``emission="adaptive"`` (Pfeuti 2009 §3.2, spec §A) S5–S8 become the stages of
+:data:`ADAPTIVE_STAGES`: pilot photons (A1–A2, ``pilot.py``), the photon-plane pdf (A3),
+importance-sampled photons marched with their weights (A4–A5, ``adaptive.py``), mipmaps and the
+level-selecting filter (A6–A7, ``mipmap.py``).
+
 Every stage's result is cached under a key made of exactly the inputs it depends on, so a change
 reruns only what it must (spec seed-000-002 §4.1): a camera change reruns S9 only; a light change
-S5–S9; a change of σ_s that keeps κ reruns S9 only; a change of κ reruns S6–S9; a change of n reruns
-S2–S9; new geometry reruns everything. ``recomputed`` lists the stages the last :meth:`render` ran
-and ``timer`` their milliseconds (the rows of Sun et al. Table 1). ``render(progress=f)`` calls
-``f(stage)`` as each stage that must run starts (the CLI's progress bar).
+S5–S9 (adaptive: A1–A7 and S9); a change of σ_s that keeps κ reruns S9 only; a change of κ reruns
+S6–S9 (adaptive: A2–A7 and S9); a change of n reruns S2–S9; new geometry reruns everything.
+``recomputed`` lists the stages the last :meth:`render` ran and ``timer`` their milliseconds (the
+rows of Sun et al. Table 1). ``render(progress=f)`` calls ``f(stage)`` as each stage that must run
+starts (the CLI's progress bar).
 
 Before allocating anything the pipeline estimates the memory its N³ grids need
 (:func:`memory_estimate`) and stops with a :class:`ParameterError` if that exceeds the available
@@ -31,18 +37,23 @@ import numpy as np
 from ..core import sampling
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
+from ..core.grid import filter_separable
 from ..core.params import updated
 from ..core.timer import StageTimer
+from . import adaptive as a4
 from . import emit as s5
 from . import march as s6
+from . import mipmap as a6
+from . import pilot as a1
 from .materials import MaterialGrids, from_arrays, gradient, material_grids
 from .octree import build_octree
 from .scene import Light, Medium, VolumeScene, from_mitsuba
-from .smooth import smooth
+from .smooth import BINOMIAL, smooth
 from .view import ViewGrids, ViewSettings, render_view
 from .voxelize import voxelize
 
 FIDELITY = ("physical", "paper")
+EMISSION = ("uniform", "adaptive")
 STAGES = (
     "voxelization",
     "materials",
@@ -55,6 +66,18 @@ STAGES = (
     "view grids",
     "viewing",
 )  # in the order render() runs them (S1, S2, S3, S4, S6 input, S5, S6/S7, S8, S9 input, S9)
+ADAPTIVE_STAGES = (
+    *STAGES[:5],
+    "pilot photon generation",
+    "pilot photon marching",
+    "photon distribution",
+    "photon generation",
+    "photon tracing",
+    "mipmap generation",
+    "filtering",
+    "view grids",
+    "viewing",
+)  # emission="adaptive": A1, A2, A3, A4, A5, A6, A7 replace S5–S8 (Pfeuti Tables 4.2–4.4)
 
 
 @dataclasses.dataclass
@@ -81,6 +104,13 @@ class VolumeParams:
     noise_scale: float = 16.0  # Perlin feature size, voxels
     fidelity: str = "physical"  # "paper": the papers' literal behaviour (spec §6)
     spp: int = 1  # camera rays per pixel
+    emission: str = "uniform"  # "adaptive": Pfeuti's pilot + importance photons (§3.2)
+    pilot_photons: int = 64**2  # adaptive: pilot photons, s² on an s × s grid (Pfeuti §4.3)
+    grad_threshold: float = 0.0  # adaptive: pilot gradient threshold in (0, 1]; 0 = automatic
+    rad_threshold: float = 0.0  # adaptive: pilot radiance threshold in (0, 1]; 0 = automatic
+    background: float = 0.75  # adaptive: share β of the pdf spread uniformly (spec A37: 0.25)
+    delta_weight: float = 1.0  # adaptive: Δweight of the photon-weight filter at 16 photons per
+    # voxel column (spec A7; mipmap.weight_step scales it with the budget)
 
     def validate(self) -> None:
         """Raise :class:`ParameterError` saying what is wrong and which values are allowed."""
@@ -139,6 +169,38 @@ class VolumeParams:
                 raise ParameterError(f"{key} must be at least 1, got {getattr(self, key)!r}")
         if self.seed < 0:
             raise ParameterError(f"seed must be >= 0, got {self.seed!r}")
+        self._validate_adaptive()
+
+    def _validate_adaptive(self) -> None:
+        if self.emission not in EMISSION:
+            raise ParameterError(
+                f"emission must be one of {', '.join(EMISSION)}, got {self.emission!r}"
+            )
+        a1.pilot_side(self.pilot_photons)
+        if self.emission == "adaptive" and self.pilot_photons >= self.photons:
+            raise ParameterError(
+                f"pilot_photons ({self.pilot_photons}) must be smaller than photons "
+                f"({self.photons}), the total budget of pilot and importance photons per light: "
+                "raise photons or lower pilot_photons (Pfeuti: 4096 pilots for 65536 importance "
+                "photons)"
+            )
+        for key in ("grad_threshold", "rad_threshold"):
+            value = getattr(self, key)
+            if not 0 <= value <= 1:
+                raise ParameterError(
+                    f"{key} must lie in [0, 1] (relative to the pilot maximum; 0 = automatic "
+                    f"from the pilot statistics), got {value!r}"
+                )
+        if not 0 < self.background < 1:
+            raise ParameterError(
+                f"background must lie in (0, 1) (the share of the photon-plane pdf spread "
+                f"uniformly; 0 would leave regions unsampled), got {self.background!r}"
+            )
+        if not (math.isfinite(self.delta_weight) and self.delta_weight > 0):
+            raise ParameterError(
+                f"delta_weight must be positive and finite (photon weight per mip level; 1 = "
+                f"level 1 at 16 uniform photons per voxel column), got {self.delta_weight!r}"
+            )
 
 
 def _check_type(name: str, value, kind: type) -> None:
@@ -494,18 +556,10 @@ class VolumePipeline:
             ),
         )
 
-        light_key = (_key(s.lights), _key(s.box), p.photons, p.sampler, p.seed, p.fidelity)
-        photons = self._stage("photon generation", light_key, lambda: _emit_all(s, p))
-        march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity)
-        traced = self._stage(
-            "photon tracing",
-            march_key,
-            lambda: s6.march(
-                photons, march_grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h
-            ),
-        )
-        smooth_key = (march_key, p.smoothing)
-        C, D = self._stage("smoothing", smooth_key, lambda: smooth(traced.C, traced.D, p.smoothing))
+        if p.emission == "adaptive":
+            C, D, smooth_key = self._adaptive(march_grids, octree_key, kappa_key)
+        else:
+            C, D, smooth_key = self._uniform(march_grids, octree_key, kappa_key)
         view_grids = self._stage(
             "view grids",
             (smooth_key, ior_key, kappa_key, sigma_key),
@@ -530,14 +584,116 @@ class VolumePipeline:
             ),
             lambda: render_view(view_grids, s.box, s.sensor, s.environment, settings),
         )
-        self.stats = {
-            "photons_generated": sum(1 for _ in s.lights) * p.photons,
-            "photons_propagated": photons.count,
-            "steps": traced.steps,
-        }
         if not np.all(np.isfinite(np.asarray(image))):
             raise SceneError("the render produced NaN or infinite values; please report this scene")
         return image
+
+    def _uniform(self, march_grids, octree_key, kappa_key):
+        """S5–S8: uniform photons on the photon plane, marched and smoothed."""
+        s, p = self.scene, self.params
+        light_key = (_key(s.lights), _key(s.box), p.photons, p.sampler, p.seed, p.fidelity)
+        photons = self._stage("photon generation", light_key, lambda: _emit_all(s, p))
+        march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity)
+        traced = self._stage(
+            "photon tracing",
+            march_key,
+            lambda: s6.march(
+                photons, march_grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h
+            ),
+        )
+        smooth_key = (march_key, p.smoothing)
+        C, D = self._stage("smoothing", smooth_key, lambda: smooth(traced.C, traced.D, p.smoothing))
+        self.stats = {
+            "photons_generated": len(s.lights) * p.photons,
+            "photons_propagated": photons.count,
+            "steps": traced.steps,
+        }
+        return C, D, smooth_key
+
+    def _adaptive(self, march_grids, octree_key, kappa_key):
+        """A1–A7 (Pfeuti §3.2): pilot photons → photon-plane pdf per light → importance photons
+        marched with their weights → mipmaps → level-selecting filter."""
+        s, p = self.scene, self.params
+        box, lights = s.box, s.lights
+        pilot_key = (_key(lights), _key(box), p.pilot_photons, p.seed, p.fidelity)
+        pilots = self._stage(
+            "pilot photon generation",
+            pilot_key,
+            lambda: [a1.emit_pilot(li, box, p.pilot_photons, p.seed, p.fidelity) for li in lights],
+        )
+        pilot_march_key = (pilot_key, octree_key, kappa_key, p.ds_min)
+        pilot_grids = self._stage(
+            "pilot photon marching",
+            pilot_march_key,
+            lambda: [a1.march_pilot(b, march_grids, p.ds_min, p.fidelity) for b in pilots],
+        )
+        pdf_key = (pilot_march_key, p.grad_threshold, p.rad_threshold, p.background)
+        samplers = self._stage(
+            "photon distribution",
+            pdf_key,
+            lambda: [
+                a4.PlaneSampler.build(
+                    a1.importance_pdf(g, p.grad_threshold, p.rad_threshold, p.background)
+                )
+                for g in pilot_grids
+            ],
+        )
+        gen_key = (pdf_key, p.photons, p.sampler)
+        count = p.photons - p.pilot_photons
+
+        def generate():
+            batches = [
+                a4.emit_importance(li, box, smp, count, p.sampler, p.seed, p.fidelity)
+                for li, smp in zip(lights, samplers, strict=True)
+            ]
+            photons = _concat([b[0] for b in batches])
+            return photons, dr.concat([b[1] for b in batches]) if len(batches) > 1 else batches[0][
+                1
+            ]
+
+        photons, weights = self._stage("photon generation", gen_key, generate)
+        march_key = (gen_key, octree_key, kappa_key, p.ds_min)
+        traced = self._stage(
+            "photon tracing",
+            march_key,
+            lambda: s6.march(
+                photons,
+                march_grids,
+                ds_min=p.ds_min,
+                fidelity=p.fidelity,
+                voxel_size=box.h,
+                weights=weights,
+            ),
+        )
+        mip_key = (march_key, p.smoothing)
+
+        def mipmaps():
+            C, D = traced.C, traced.D
+            if p.smoothing:
+                C, D = filter_separable(C, BINOMIAL), filter_separable(D, BINOMIAL)
+            return a6.build_pyramid(C, D, traced.count, traced.weight)
+
+        pyramid = self._stage("mipmap generation", mip_key, mipmaps)
+        filter_key = (mip_key, p.delta_weight)
+
+        def reconstruct():
+            step = a6.weight_step(p.delta_weight, count, box.n)
+            C, D, level = a6.reconstruct(pyramid, step)
+            return (*smooth(C, D, enabled=False), level)
+
+        C, D, _ = self._stage("filtering", filter_key, reconstruct)
+        self.stats = {
+            "photons_generated": len(lights) * p.photons,
+            "photons_propagated": photons.count + sum(b.count for b in pilots),
+            "pilot_photons_propagated": sum(b.count for b in pilots),
+            "steps": traced.steps + sum(g.steps for g in pilot_grids),
+        }
+        return C, D, filter_key
+
+    @property
+    def stages(self) -> tuple[str, ...]:
+        """The stage names of the current emission, in the order :meth:`render` runs them."""
+        return ADAPTIVE_STAGES if self.params.emission == "adaptive" else STAGES
 
     def _iso_ior(self, mats: MaterialGrids) -> float | None:
         p, s = self.params, self.scene
@@ -554,14 +710,20 @@ class VolumePipeline:
         """The cached intermediate grids of the last render, as NumPy arrays (for inspection)."""
         out = {}
         for name, (_, value) in self._cache.items():
+            if name not in self.stages:
+                continue  # left over from the other emission
             if isinstance(value, MaterialGrids):
                 out.update(
                     ior=np.asarray(value.ior),
                     sigma_s=np.asarray(value.sigma_s),
                     kappa=np.asarray(value.kappa),
                 )
-            elif name == "smoothing":
+            elif name in ("smoothing", "filtering"):
                 out.update(C=np.asarray(value[0]), D=np.asarray(value[1]))
+                if name == "filtering":
+                    out["mip_level"] = np.asarray(value[2]).reshape(value[0].shape[:3])
+            elif name == "photon distribution":
+                out["pdf"] = np.stack([sampler.pdf for sampler in value])
             elif name == "gradient":
                 out["grad"] = np.asarray(value)
             elif name == "octree":
@@ -591,6 +753,11 @@ def _emit_all(scene: VolumeScene, p: VolumeParams) -> s5.Photons:
         s5.emit(light, scene.box, p.photons, p.sampler, p.seed, p.fidelity)
         for light in scene.lights
     ]
+    return _concat(batches)
+
+
+def _concat(batches: list[s5.Photons]) -> s5.Photons:
+    """One photon list from the lists of several lights."""
     if len(batches) == 1:
         return batches[0]
 
@@ -603,6 +770,7 @@ def _emit_all(scene: VolumeScene, p: VolumeParams) -> s5.Photons:
         direction=cat(mi.Vector3f, "direction"),
         power=cat(mi.Color3f, "power"),
         generated=sum(b.generated for b in batches),
+        entering=sum(b.count for b in batches),
     )
 
 

@@ -1,0 +1,586 @@
+"""Benchmark: Pfeuti's adaptive pipeline against the reference pipeline at equal RMSE (issue 5).
+
+Spec seed-000-002 §5.7 oracle 33 and §3.2 (Pfeuti Tables 4.2–4.4). Scenes SPHERE, CUBE, MESH
+(``glass_sphere_fog``, ``perlin_cube``, ``mesh_in_fog``) at a 128³ grid.
+
+* **Ground truth**: the reference pipeline with 16× the nominal photon count ``N_R`` (512² =
+  262144, Pfeuti's reference, §4.3), marched in 16 batches of ``N_R`` consecutive points of one
+  Halton sequence (memory), the C and D sums averaged, then smoothed and viewed as usual.
+* **Sweep**: for each photon budget, both pipelines render light-change frames — every stage that
+  depends on the light runs (reference S5–S9, adaptive A1–A7 + S9; the geometry stages are the
+  same for both and cached) — after one warm-up frame; wall time = median of ``runs`` frames;
+  RMSE of the linear-radiance image against the ground truth. Photon counts are the photons that
+  entered the grid (pilots included), as in Pfeuti's tables.
+* **Equal RMSE**: the target is ``1.1 × RMSE(reference at N_R)``; the adaptive budget reaching it
+  is interpolated log–log on the sweep, then rendered (and timed) at that budget to report the
+  per-pass times in the layout of Pfeuti Tables 4.2–4.4. ``headline[scene]`` = photon and time
+  ratios of that run against the reference at ``N_R``; the targets are ≤ 0.5 and < 1.
+  ``by_nominal`` repeats the comparison for every reference budget of the sweep, interpolated
+  log–log on the sweep alone (no extra run; the ground truth stays 16 × N_R).
+
+Writes ``benchmarks/results/adaptive_vs_reference.{json,md,png}`` (``--quick``: ``*_quick.*``)
+and prints the markdown. ``python benchmarks/adaptive_vs_reference.py [--quick] [--runs N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from common import (
+    RESULTS,
+    fmt,
+    machine_info,
+    markdown_table,
+    median,
+    stage_medians,
+    write_json,
+    write_text,
+)
+
+NAME = "adaptive_vs_reference"
+SCENES = {"SPHERE": "glass_sphere_fog", "CUBE": "perlin_cube", "MESH": "mesh_in_fog"}
+RMSE_TOLERANCE = 1.1  # "at equal RMSE (≤ 1.1× the reference's)"
+TRUTH_FACTOR = 16
+TARGETS = {"photon_ratio": 0.5, "time_ratio": 1.0}
+# rows of Pfeuti Tables 4.2–4.4 → our stages (ours that the thesis does not list are extra rows)
+PASSES = (
+    ("Voxelization", ("voxelization",)),
+    ("Materials + gradient", ("materials", "gradient")),
+    ("Octree", ("octree", "march grids")),
+    ("Pilot Photon Generation", ("pilot photon generation",)),
+    ("Pilot Photon Marching", ("pilot photon marching",)),
+    ("Photon Distribution", ("photon distribution",)),
+    ("Photon Generation", ("photon generation",)),
+    ("Photon Marching", ("photon tracing",)),
+    ("Smoothing (S8)", ("smoothing",)),
+    ("Mipmap Generation (incl. S8)", ("mipmap generation",)),
+    ("Filtering", ("filtering",)),
+    ("Copy (view grids)", ("view grids",)),
+    ("Viewing Pass", ("viewing",)),
+)
+LIGHT_STAGES = {
+    "uniform": ("photon generation", "photon tracing", "smoothing", "view grids", "viewing"),
+    "adaptive": (
+        "pilot photon generation",
+        "pilot photon marching",
+        "photon distribution",
+        "photon generation",
+        "photon tracing",
+        "mipmap generation",
+        "filtering",
+        "view grids",
+        "viewing",
+    ),
+}
+
+
+def _log(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+def rmse(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    peak = float(np.max(b))
+    err = rmse(a, b)
+    return 20 * math.log10(peak / err) if err > 0 and peak > 0 else math.inf
+
+
+def light_frames(pipe, configs: Sequence[tuple[str, int]], runs: int) -> list[dict]:
+    """Light-change frames (every cached stage that depends on the light dropped, then render) of
+    each ``(emission, photons)`` config, interleaved run by run so that a load change on the
+    shared machine hits every config alike; one untimed warm-up round first. Per config: the
+    image, medians and samples."""
+    walls = [[] for _ in configs]
+    per_stage = [[] for _ in configs]
+    images, stats = [None] * len(configs), [None] * len(configs)
+    for run in range(runs + 1):
+        for k, (emission, photons) in enumerate(configs):
+            pipe.set_params(emission=emission, photons=photons)
+            stages = LIGHT_STAGES[emission]
+            for stage in stages:
+                pipe._cache.pop(stage, None)
+            start = time.perf_counter()
+            images[k] = np.array(pipe.render())
+            wall = 1e3 * (time.perf_counter() - start)
+            stats[k] = dict(pipe.stats)
+            if run:  # run 0 warms up (Dr.Jit compilation, and any stage not cached yet)
+                assert pipe.recomputed == list(stages), pipe.recomputed
+                walls[k].append(wall)
+                per_stage[k].append(dict(pipe.timer.ms))
+    out = []
+    for k in range(len(configs)):
+        photon_ms = [
+            sum(v for n, v in s.items() if n not in ("view grids", "viewing")) for s in per_stage[k]
+        ]
+        out.append(
+            {
+                "image": images[k],
+                "wall_ms": median(walls[k]),
+                "wall_ms_min": min(walls[k], default=math.nan),
+                "photon_stages_ms": median(photon_ms),
+                "stages_ms": stage_medians(per_stage[k]),
+                "samples_ms": walls[k],
+                "stats": stats[k],
+            }
+        )
+    return out
+
+
+def ground_truth(pipe, photons: int, factor: int) -> np.ndarray:
+    """The reference pipeline at ``factor × photons``: ``factor`` batches of ``photons``
+    consecutive Halton points (one sequence), C and D averaged, then S8 and S9 as usual."""
+    import drjit as dr
+
+    from photonmap.volume import emit as s5
+    from photonmap.volume import march as s6
+    from photonmap.volume.smooth import smooth
+
+    pipe.set_params(emission="uniform", photons=photons, sampler="halton")
+    pipe.render()
+    s, p = pipe.scene, pipe.params
+    grids = pipe._cache["march grids"][1]
+    C = D = None
+    for batch in range(factor):
+        parts = [s5.emit(light, s.box, photons, "halton", batch * photons) for light in s.lights]
+        for part in parts:
+            r = s6.march(part, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h)
+            C = r.C if C is None else C + r.C
+            D = r.D if D is None else D + r.D
+        dr.eval(C, D)
+    smoothed = smooth(C / factor, D / factor, p.smoothing)
+    key = pipe._cache["smoothing"][0]
+    pipe._cache["smoothing"] = (key, smoothed)  # the viewing stages read the averaged grids
+    for stage in ("view grids", "viewing"):
+        pipe._cache.pop(stage)
+    image = np.array(pipe.render())
+    assert pipe.recomputed == ["view grids", "viewing"]
+    pipe.set_params(sampler="hammersley")
+    return image
+
+
+def equal_rmse_budget(budgets: Sequence[int], errors: Sequence[float], target: float):
+    """The smallest budget whose RMSE reaches ``target``, interpolated log–log between the
+    sweep's points (None if no point of the sweep reaches it)."""
+    for i, (budget, error) in enumerate(zip(budgets, errors, strict=True)):
+        if error <= target:
+            if i == 0:
+                return float(budget)
+            b0, e0 = budgets[i - 1], errors[i - 1]
+            t = math.log(e0 / target) / math.log(e0 / error)
+            return float(math.exp(math.log(b0) + t * math.log(budget / b0)))
+    return None
+
+
+def _loglog(xs, ys, x):
+    """``y(x)`` interpolated log–log between the points of a sorted sweep (clamped)."""
+    return float(np.exp(np.interp(math.log(x), np.log(xs), np.log(ys))))
+
+
+def by_nominal(sweep: dict) -> list:
+    """Photon and time ratios at equal RMSE (≤ 1.1×) for every reference budget of the sweep,
+    from the sweep alone."""
+    adaptive = sweep["adaptive"]
+    budgets = [r["budget"] for r in adaptive]
+    out = []
+    for ref in sweep["uniform"]:
+        target = RMSE_TOLERANCE * ref["rmse"]
+        budget = equal_rmse_budget(budgets, [r["rmse"] for r in adaptive], target)
+        row = {"reference_budget": ref["budget"], "target_rmse": target, "adaptive_budget": budget}
+        if budget is not None:
+            entered = _loglog(budgets, [r["propagated"] for r in adaptive], budget)
+            row["photon_ratio"] = entered / ref["propagated"]
+            row["time_ratio"] = (
+                _loglog(budgets, [r["wall_ms"] for r in adaptive], budget) / ref["wall_ms"]
+            )
+            row["photon_stage_time_ratio"] = (
+                _loglog(budgets, [r["photon_stages_ms"] for r in adaptive], budget)
+                / ref["photon_stages_ms"]
+            )
+        out.append(row)
+    return out
+
+
+def pass_table(stages_ms: dict) -> dict:
+    return {row: sum(stages_ms.get(s, 0.0) for s in names) for row, names in PASSES}
+
+
+def run_scene(label, scene, args, log=_log) -> dict:
+    from photonmap import VolumePipeline
+
+    size = {"width": args.width, "height": args.height}
+    nominal = args.nominal
+    pipe = VolumePipeline(scene, grid=args.grid, photons=nominal, **size)
+    start = time.perf_counter()
+    log(f"{label}: ground truth ({TRUTH_FACTOR} × {nominal:,} photons) ...")
+    truth = ground_truth(pipe, nominal, TRUTH_FACTOR)
+    images = {}
+    out = {"scene": scene, "ground_truth_s": time.perf_counter() - start}
+    out["sweep"] = {"uniform": [], "adaptive": []}
+    for budget in args.budgets:
+        configs = [("uniform", budget), ("adaptive", budget)]
+        for (emission, _), frame in zip(
+            configs, light_frames(pipe, configs, args.runs), strict=True
+        ):
+            out["sweep"][emission].append(_row(frame, budget, truth))
+            images[(emission, budget)] = frame["image"]
+            log(
+                f"  {emission:8s} {budget:>9,}: RMSE {out['sweep'][emission][-1]['rmse']:.5f}, "
+                f"{frame['wall_ms']:.0f} ms ({frame['photon_stages_ms']:.0f} photon stages)"
+            )
+    # geometry stages (identical for both pipelines) from one full render
+    pipe._cache.clear()
+    pipe.set_params(emission="uniform", photons=nominal)
+    pipe.render()
+    out["geometry_ms"] = {
+        k: pipe.timer.ms[k]
+        for k in ("voxelization", "materials", "gradient", "octree", "march grids")
+    }
+
+    reference = next(r for r in out["sweep"]["uniform"] if r["budget"] == nominal)
+    target = RMSE_TOLERANCE * reference["rmse"]
+    adaptive_rows = out["sweep"]["adaptive"]
+    budget = equal_rmse_budget(
+        [r["budget"] for r in adaptive_rows], [r["rmse"] for r in adaptive_rows], target
+    )
+    out["reference"] = reference
+    out["target_rmse"] = target
+    out["by_nominal"] = by_nominal(out["sweep"])
+    out["interpolated_budget"] = budget
+    if budget is None:
+        log(f"  adaptive never reaches RMSE {target:.5f} within the sweep")
+        out["equal_rmse"] = None
+        return out
+    budget = max(int(round(budget)), 2 * pipe.params.pilot_photons)
+    # nudge up if the interpolation landed just short of the target (RMSE is not exactly smooth)
+    for _ in range(4):
+        (probe,) = light_frames(pipe, [("adaptive", budget)], runs=0)
+        if rmse(probe["image"], truth) <= target:
+            break
+        budget = int(budget * 1.1)
+    # time the adaptive run at that budget interleaved with the reference at the nominal budget
+    reference_frame, frame = light_frames(
+        pipe, [("uniform", nominal), ("adaptive", budget)], args.runs
+    )
+    reference = _row(reference_frame, nominal, truth)
+    out["reference"] = reference
+    equal = _row(frame, budget, truth)
+    equal["psnr_vs_reference_db"] = psnr(frame["image"], images[("uniform", nominal)])
+    out["equal_rmse"] = equal
+    out["photon_ratio"] = equal["propagated"] / reference["propagated"]
+    out["time_ratio"] = equal["wall_ms"] / reference["wall_ms"]
+    out["time_ratio_min"] = equal["wall_ms_min"] / reference["wall_ms_min"]
+    out["photon_stage_time_ratio"] = equal["photon_stages_ms"] / reference["photon_stages_ms"]
+    out["steps_ratio"] = equal["steps"] / reference["steps"]  # marching work, load-independent
+    out["steps_per_photon"] = {
+        "reference": reference["steps"] / reference["propagated"],
+        "adaptive": equal["steps"] / equal["propagated"],
+    }
+    log(
+        f"  equal RMSE: adaptive {budget:,} photons, RMSE {equal['rmse']:.5f} (target "
+        f"{target:.5f}), photon ratio {out['photon_ratio']:.2f}, time ratio {out['time_ratio']:.2f}"
+    )
+    return out
+
+
+def _row(frame: dict, budget: int, truth: np.ndarray) -> dict:
+    stats = frame["stats"]
+    return {
+        "budget": budget,
+        "propagated": int(stats["photons_propagated"]),
+        "steps": int(stats["steps"]),
+        "rmse": rmse(frame["image"], truth),
+        "wall_ms": frame["wall_ms"],
+        "wall_ms_min": frame["wall_ms_min"],
+        "photon_stages_ms": frame["photon_stages_ms"],
+        "stages_ms": frame["stages_ms"],
+        "passes_ms": pass_table(frame["stages_ms"]),
+        "samples_ms": frame["samples_ms"],
+    }
+
+
+# ----------------------------------------------------------------------------------- report
+def markdown(result: dict) -> str:
+    s, m = result["settings"], result["machine"]
+    lines = [
+        f"# Adaptive vs reference pipeline at equal RMSE ({s['grid']}³, {s['width']}×{s['height']})",
+        "",
+        f"{m['cpu_model']}, {m['cores']} cores, Mitsuba {m['mitsuba']}, Dr.Jit {m['drjit']}, "
+        f"{m['date']}, load average at start {m.get('load_average')} (the machine was shared). "
+        f"Ground truth: reference pipeline at {TRUTH_FACTOR}× {s['nominal']:,} photons. Times: "
+        f"median of {s['runs']} light-change frames (all light-dependent stages run) after a "
+        "warm-up frame. Target RMSE = 1.1 × the reference's at the nominal budget.",
+        "",
+        "## Headline",
+        "",
+    ]
+    rows = []
+    for label, h in result["headline"].items():
+        sc = result["scenes"][label]
+        rows.append(
+            [
+                label,
+                fmt(sc["reference"]["propagated"]),
+                fmt(sc["reference"]["rmse"], 5),
+                fmt(sc["target_rmse"], 5),
+                fmt(sc["equal_rmse"]["propagated"]) if sc.get("equal_rmse") else "–",
+                fmt(sc["equal_rmse"]["rmse"], 5) if sc.get("equal_rmse") else "–",
+                fmt(h["photon_ratio"], 2),
+                fmt(h["time_ratio"], 2),
+                fmt(sc.get("photon_stage_time_ratio"), 2),
+                fmt(sc.get("time_ratio_min"), 2),
+                "yes" if h.get("meets_targets") else "no",
+            ]
+        )
+    lines += [
+        markdown_table(
+            [
+                "scene",
+                "ref photons",
+                "ref RMSE",
+                "target RMSE",
+                "adaptive photons",
+                "adaptive RMSE",
+                "photon ratio",
+                "time ratio",
+                "photon-stage time ratio",
+                "time ratio (min of runs)",
+                "targets met",
+            ],
+            rows,
+        ),
+        "",
+        "Targets: photon ratio ≤ 0.5 (Pfeuti: 0.37–0.46) and time ratio < 1 (Pfeuti: 1.01–1.04).",
+        "",
+    ]
+    for label, sc in result["scenes"].items():
+        lines += [f"## {label} ({sc['scene']}): passes in ms (layout of Pfeuti Tables 4.2–4.4)", ""]
+        ref = sc["reference"]
+        eq = sc.get("equal_rmse")
+        geo = sc["geometry_ms"]
+        table = []
+        for row, names in PASSES:
+            r = sum(geo.get(n, ref["stages_ms"].get(n, 0.0)) for n in names)
+            a = sum(geo.get(n, eq["stages_ms"].get(n, 0.0)) for n in names) if eq else None
+            used_r = any(n in ref["stages_ms"] or n in geo for n in names)
+            used_a = eq is not None and any(n in eq["stages_ms"] or n in geo for n in names)
+            table.append([row, fmt(r) if used_r else "-", fmt(a) if used_a else "-"])
+        total_r = sum(geo.values()) + sum(ref["stages_ms"].values())
+        total_a = sum(geo.values()) + sum(eq["stages_ms"].values()) if eq else None
+        table += [
+            ["**Total**", f"**{fmt(total_r)}**", f"**{fmt(total_a)}**"],
+            [
+                "Photon Count (entered the grid)",
+                fmt(ref["propagated"]),
+                fmt(eq["propagated"]) if eq else "–",
+            ],
+            ["Marching steps", fmt(ref["steps"]), fmt(eq["steps"]) if eq else "–"],
+            ["RMSE vs ground truth", fmt(ref["rmse"], 5), fmt(eq["rmse"], 5) if eq else "–"],
+        ]
+        lines += [markdown_table(["Pass", "Reference", "Adaptive"], table), ""]
+        sweep = []
+        for emission in ("uniform", "adaptive"):
+            for r in sc["sweep"][emission]:
+                sweep.append(
+                    [
+                        "reference" if emission == "uniform" else "adaptive",
+                        fmt(r["budget"]),
+                        fmt(r["propagated"]),
+                        fmt(r["rmse"], 5),
+                        fmt(r["wall_ms"]),
+                        fmt(r["photon_stages_ms"]),
+                        fmt(r["steps"] / max(r["propagated"], 1), 1),
+                    ]
+                )
+        lines += [
+            markdown_table(
+                [
+                    "pipeline",
+                    "budget",
+                    "entered",
+                    "RMSE",
+                    "frame ms",
+                    "photon stages ms",
+                    "steps/photon",
+                ],
+                sweep,
+            ),
+            "",
+        ]
+    rows = []
+    for label, sc in result["scenes"].items():
+        for r in sc.get("by_nominal", []):
+            rows.append(
+                [
+                    label,
+                    fmt(r["reference_budget"]),
+                    fmt(r["adaptive_budget"], 0) if r["adaptive_budget"] else "not reached",
+                    fmt(r.get("photon_ratio"), 2),
+                    fmt(r.get("time_ratio"), 2),
+                    fmt(r.get("photon_stage_time_ratio"), 2),
+                ]
+            )
+    lines += [
+        "## Equal RMSE at every reference budget (interpolated on the sweep)",
+        "",
+        markdown_table(
+            [
+                "scene",
+                "reference budget",
+                "adaptive budget",
+                "photon ratio",
+                "time ratio",
+                "photon-stage time ratio",
+            ],
+            rows,
+        ),  # fmt: skip
+        "",
+    ]
+    if result.get("analysis"):
+        lines += ["## Why", "", result["analysis"], ""]
+    lines.append(f"Benchmark wall time {result['elapsed_s']:.0f} s.")
+    return "\n".join(lines)
+
+
+def analysis(result: dict) -> str:
+    """A paragraph per scene saying where the time goes, with numbers."""
+    parts = []
+    for label, sc in result["scenes"].items():
+        eq = sc.get("equal_rmse")
+        if not eq:
+            parts.append(f"{label}: the adaptive pipeline did not reach the target RMSE.")
+            continue
+        ref = sc["reference"]
+        a, r = eq["passes_ms"], ref["passes_ms"]
+        extra = (
+            sum(
+                a[k]
+                for k in ("Pilot Photon Generation", "Pilot Photon Marching", "Photon Distribution")
+            )
+            + a["Filtering"]
+            + a["Mipmap Generation (incl. S8)"]
+            - r["Smoothing (S8)"]
+        )
+        parts.append(
+            f"{label}: {eq['propagated'] / ref['propagated']:.2f}× the photons but "
+            f"{sc['steps_per_photon']['adaptive']:.1f} vs {sc['steps_per_photon']['reference']:.1f} "
+            f"marching steps per photon ({sc['steps_ratio']:.2f}× the steps), so marching takes "
+            f"{a['Photon Marching']:.0f} vs {r['Photon Marching']:.0f} ms; the extra passes "
+            f"(pilots, distribution, mipmaps + filter minus the reference's smoothing) cost "
+            f"{extra:.0f} ms; frame {eq['wall_ms']:.0f} vs {ref['wall_ms']:.0f} ms."
+        )
+    return " ".join(parts)
+
+
+def plot(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    scenes = result["scenes"]
+    fig, axes = plt.subplots(1, len(scenes), figsize=(5 * len(scenes), 4), squeeze=False)
+    for ax, (label, sc) in zip(axes[0], scenes.items(), strict=True):
+        for emission, style in (("uniform", "o-"), ("adaptive", "s-")):
+            rows = sc["sweep"][emission]
+            ax.loglog([r["wall_ms"] for r in rows], [r["rmse"] for r in rows], style,
+                      label="reference" if emission == "uniform" else "adaptive")  # fmt: skip
+        ax.axhline(sc["target_rmse"], color="grey", ls=":", label="1.1 × reference RMSE")
+        if sc.get("equal_rmse"):
+            e = sc["equal_rmse"]
+            ax.plot([e["wall_ms"]], [e["rmse"]], "k*", ms=12, label="adaptive at equal RMSE")
+        ax.set_title(f"{label} ({sc['scene']})")
+        ax.set_xlabel("light-change frame (ms)")
+        ax.set_ylabel("image RMSE vs ground truth")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# -------------------------------------------------------------------------------------- run
+def run(args, log=_log) -> dict:
+    import photonmap  # noqa: F401 - selects the Mitsuba variant
+
+    started = time.perf_counter()
+    result: dict = {
+        "benchmark": NAME,
+        "machine": machine_info(),
+        "settings": {
+            "grid": args.grid,
+            "width": args.width,
+            "height": args.height,
+            "nominal": args.nominal,
+            "budgets": list(args.budgets),
+            "runs": args.runs,
+            "truth_factor": TRUTH_FACTOR,
+            "rmse_tolerance": RMSE_TOLERANCE,
+            "targets": TARGETS,
+            "quick": args.quick,
+        },
+        "scenes": {},
+        "headline": {},
+    }
+    for label in args.scenes:
+        sc = run_scene(label, SCENES[label], args, log)
+        result["scenes"][label] = sc
+        ok = sc.get("equal_rmse") is not None
+        result["headline"][label] = {
+            "photon_ratio": sc.get("photon_ratio") if ok else None,
+            "time_ratio": sc.get("time_ratio") if ok else None,
+            "meets_targets": ok
+            and sc["photon_ratio"] <= TARGETS["photon_ratio"]
+            and sc["time_ratio"] < TARGETS["time_ratio"],
+        }
+    result["analysis"] = analysis(result)
+    result["elapsed_s"] = time.perf_counter() - started
+    result["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
+    result["markdown"] = markdown(result)
+    if args.out_dir is not None:
+        stem = Path(args.out_dir) / (NAME + ("_quick" if args.quick else ""))
+        write_text(stem.with_suffix(".md"), result["markdown"] + "\n")
+        plot(result, stem.with_suffix(".png"))
+        write_json(stem.with_suffix(".json"), result)
+    return result
+
+
+def _ints(text: str) -> list[int]:
+    return [int(float(x)) for x in text.replace(" ", "").split(",") if x]
+
+
+def main(argv: Sequence[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="smoke test: tiny grid and budgets")
+    parser.add_argument("--runs", type=int, default=3, help="timed frames per configuration")
+    parser.add_argument("--grid", type=int, default=128)
+    parser.add_argument("--width", type=int, default=480)
+    parser.add_argument("--height", type=int, default=360)
+    parser.add_argument("--nominal", type=int, default=512**2, help="reference budget N_R")
+    parser.add_argument(
+        "--budgets", type=_ints, default=[2**16, 2**17, 2**18, 2**19, 2**20], help="photon sweep"
+    )
+    parser.add_argument("--scenes", default="SPHERE,CUBE,MESH")
+    parser.add_argument("--out-dir", type=Path, default=RESULTS)
+    args = parser.parse_args(argv)
+    args.scenes = [s.strip().upper() for s in args.scenes.split(",") if s.strip()]
+    if args.quick:
+        args.grid, args.width, args.height, args.runs = 32, 48, 36, 1
+        args.nominal, args.budgets = 2**14, [2**12 * 3, 2**13, 2**14]
+    args.budgets = sorted({*args.budgets, args.nominal})
+    result = run(args)
+    print(result["markdown"])
+    return result
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,50 @@
+"""Smoke test of ``benchmarks/adaptive_vs_reference.py`` (issue 5 item 6): the quick mode runs end
+to end and writes the JSON (with the ``headline`` object), the markdown and the plot; and the
+equal-RMSE interpolation. Correctness only; speed is measured by the benchmark itself."""
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import pytest
+
+BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+
+
+@pytest.fixture(scope="module")
+def bench():
+    sys.path.insert(0, str(BENCHMARKS))
+    try:
+        import adaptive_vs_reference
+
+        yield adaptive_vs_reference
+    finally:
+        sys.path.remove(str(BENCHMARKS))
+
+
+def test_equal_rmse_budget_interpolates_log_log(bench):
+    budgets, errors = [100, 400, 1600], [0.4, 0.2, 0.1]
+    assert bench.equal_rmse_budget(budgets, errors, 0.2) == pytest.approx(400)
+    assert bench.equal_rmse_budget(budgets, errors, 0.1414213) == pytest.approx(800, rel=1e-4)
+    assert bench.equal_rmse_budget(budgets, errors, 0.5) == 100
+    assert bench.equal_rmse_budget(budgets, errors, 0.05) is None
+
+
+def test_quick_run_writes_json_markdown_and_plot(bench, tmp_path):
+    result = bench.main(["--quick", "--scenes", "SPHERE", "--out-dir", str(tmp_path)])
+    stem = tmp_path / "adaptive_vs_reference_quick"
+    for suffix in (".json", ".md", ".png"):
+        assert stem.with_suffix(suffix).is_file()
+    data = json.loads(stem.with_suffix(".json").read_text())
+    assert data == json.loads(json.dumps(result, default=str))
+    assert set(data["headline"]) == {"SPHERE"}
+    assert set(data["headline"]["SPHERE"]) >= {"photon_ratio", "time_ratio"}
+    scene = data["scenes"]["SPHERE"]
+    for emission in ("uniform", "adaptive"):
+        rows = scene["sweep"][emission]
+        assert [r["budget"] for r in rows] == data["settings"]["budgets"]
+        for row in rows:
+            assert math.isfinite(row["rmse"]) and row["rmse"] > 0 and row["wall_ms"] > 0
+    assert "Pilot Photon Marching" in scene["sweep"]["adaptive"][0]["passes_ms"]
+    assert len(scene["by_nominal"]) == len(data["settings"]["budgets"])

@@ -1,0 +1,123 @@
+"""``VolumePipeline(emission="adaptive")`` (spec seed-000-002 §A, §4.1 rerun matrix, §5.7): the
+stages it runs, what a change reruns, incremental = full recomputation, agreement with uniform
+emission, the CLI key, and bad input."""
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from photonmap import VolumePipeline
+from photonmap.cli import app
+from photonmap.core.errors import ParameterError
+from photonmap.volume.pipeline import ADAPTIVE_STAGES, STAGES
+
+SMALL = {"grid": 32, "photons": 16384, "pilot_photons": 1024, "width": 16, "height": 12}
+PHOTON_STAGES = list(ADAPTIVE_STAGES[5:])
+
+
+def adaptive(**params) -> VolumePipeline:
+    return VolumePipeline("glass_sphere_fog", **{**SMALL, "emission": "adaptive", **params})
+
+
+def image(pipe, **kw) -> np.ndarray:
+    return np.array(pipe.render(**kw))
+
+
+def test_adaptive_runs_its_stages_and_matches_uniform_emission():
+    pipe = adaptive()
+    calls = []
+    first = image(pipe, progress=calls.append)
+    assert pipe.recomputed == list(ADAPTIVE_STAGES) == calls == list(pipe.stages)
+    assert set(pipe.timer.ms) == set(ADAPTIVE_STAGES)
+    assert np.all(np.isfinite(first)) and first.mean() > 0
+    stats = pipe.stats
+    assert stats["photons_generated"] == 16384
+    assert 0 < stats["pilot_photons_propagated"] <= 1024 < stats["photons_propagated"] <= 16384
+    grids = pipe.grids
+    assert grids["pdf"].shape == (1, 32, 32) and np.isclose(grids["pdf"].sum(), 1)
+    assert grids["mip_level"].shape == (32, 32, 32) and grids["C"].shape == (32, 32, 32, 3)
+    uniform = VolumePipeline("glass_sphere_fog", **SMALL)
+    reference = image(uniform)
+    assert uniform.recomputed == list(STAGES) and "mip_level" not in uniform.grids
+    assert abs(first.mean() / reference.mean() - 1) < 0.05  # same scene, same light
+    assert image(pipe) is not None and pipe.recomputed == []
+
+
+CHANGES = {
+    "camera": (
+        lambda p: p.set_camera(origin=[1.6, 0.9, 1.9], target=[0.5, 0.45, 0.5]),
+        ["viewing"],
+    ),
+    "light": (lambda p: p.set_light(position=[0.7, 3.0, 0.4]), PHOTON_STAGES),
+    "delta_weight": (lambda p: p.set_params(delta_weight=0.5), PHOTON_STAGES[-3:]),
+    "background": (lambda p: p.set_params(background=0.6), PHOTON_STAGES[2:]),
+    "photons": (lambda p: p.set_params(photons=8192), PHOTON_STAGES[3:]),
+    "kappa": (
+        lambda p: p.set_material("glass", sigma_a=[1.0, 0.2, 0.1]),
+        ["materials", "march grids", *PHOTON_STAGES[1:]],
+    ),
+}
+
+
+@pytest.mark.parametrize("change", list(CHANGES))
+def test_rerun_matrix_and_incremental_equals_full(change):
+    """§4.1 extended: a light change reruns phases 1–2 and the reconstruction; the incremental
+    result equals a fresh pipeline's bit for bit (oracle 30)."""
+    apply, expected = CHANGES[change]
+    pipe = adaptive()
+    before = image(pipe)
+    apply(pipe)
+    after = image(pipe)
+    assert pipe.recomputed == expected
+    assert not np.array_equal(before, after)
+    fresh = adaptive()
+    apply(fresh)
+    assert np.array_equal(image(fresh), after)
+    for key, grid in fresh.grids.items():
+        assert np.array_equal(grid, pipe.grids[key]), key
+
+
+def test_same_seed_same_image_and_the_seed_moves_the_pilots():
+    a, b = image(adaptive(seed=3)), image(adaptive(seed=3))
+    assert np.array_equal(a, b)
+    assert not np.array_equal(adaptive(seed=3).render(), adaptive(seed=4).render())
+
+
+@pytest.mark.parametrize(
+    "params, message",
+    [
+        ({"grad_threshold": 1.5}, r"grad_threshold must lie in \[0, 1\].*got 1.5"),
+        ({"grad_threshold": -0.1}, r"grad_threshold must lie in \[0, 1\]"),
+        ({"rad_threshold": float("nan")}, r"rad_threshold must lie in \[0, 1\]"),
+        ({"background": 0.0}, r"background must lie in \(0, 1\)"),
+        ({"background": 1.0}, r"background must lie in \(0, 1\)"),
+        ({"delta_weight": 0.0}, "delta_weight must be positive"),
+        ({"delta_weight": float("inf")}, "delta_weight must be positive"),
+        ({"pilot_photons": 1000}, "pilot_photons must be a square number >= 4"),
+        ({"pilot_photons": 16384}, r"pilot_photons \(16384\) must be smaller than photons"),
+        ({"pilot_photons": 128**2, "photons": 4096}, "must be smaller than photons"),
+        ({"emission": "importance"}, "emission must be one of uniform, adaptive"),
+    ],
+)
+def test_bad_adaptive_parameters(params, message):
+    with pytest.raises(ParameterError, match=message):
+        adaptive(**params)
+
+
+def test_pilot_budget_only_matters_for_adaptive_emission():
+    pipe = VolumePipeline("glass_sphere_fog", **{**SMALL, "photons": 1024})  # uniform: fine
+    with pytest.raises(ParameterError, match="must be smaller than photons"):
+        pipe.set_params(emission="adaptive")
+
+
+def test_cli_set_emission_adaptive(tmp_path):
+    out = tmp_path / "x.exr"
+    args = ["render", "glass_sphere_fog", "-o", str(out), "--width", "16", "--height", "12"]
+    sets = ["grid=32", "photons=16384", "pilot_photons=1024", "emission=adaptive"]
+    for s in sets:
+        args += ["--set", s]
+    result = CliRunner().invoke(app, [*args, "--timings"])
+    assert result.exit_code == 0, result.output
+    assert out.is_file() and "mipmap generation" in result.stdout and "filtering" in result.stdout
+    bad = CliRunner().invoke(app, [*args, "--set", "background=2"])
+    assert bad.exit_code == 2 and "background must lie in (0, 1)" in bad.output
