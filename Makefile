@@ -22,8 +22,10 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/volume_table1.py
+	$(PY) benchmarks/adaptive_vs_reference.py
 	$(PY) benchmarks/surface_vs_path.py
 	$(PY) benchmarks/knn_throughput.py
+	$(PY) benchmarks/screen_table1.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

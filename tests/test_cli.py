@@ -81,7 +81,8 @@ def test_unknown_set_key_lists_the_valid_keys(tmp_path):
         (["-o", "x.png", "--set", "photons=0"], "photons must be between 1"),
         (["-o", "x.png", "--set", "phase_k=1.5"], "phase_k must lie in (-1, 1)"),
         (["-o", "x.png", "--set", "grid=2048"], "needs about"),
-        (["-o", "x.png", "--method", "screen"], "unknown --method 'screen'"),
+        (["-o", "x.png", "--method", "nope"], "unknown --method 'nope'"),
+        (["-o", "x.png", "--method", "screen", "--set", "subsample=0"], "subsample must be"),
     ],
 )
 def test_bad_arguments_exit_2_with_a_message(tmp_path, args, message):

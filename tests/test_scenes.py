@@ -25,6 +25,9 @@ def test_registry():
         "cornell_steinhurst",
         "cornell_spot_indirect",
         "cornell_glossy_floor",
+        "cornell_ispm",
+        "cornell_glass_sphere",
+        "cornell_mesh",
     }
     assert all(b.description for b in SCENES.values())
     assert all(SCENES[name].defaults for name in VOLUME_SCENES)

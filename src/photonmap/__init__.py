@@ -3,7 +3,7 @@
 Importing the package finds a usable libLLVM (see :mod:`photonmap.core.llvm`), selects a Mitsuba
 variant (``llvm_ad_rgb`` by default; ``PHOTONMAP_DEVICE=cuda`` or :func:`set_device` selects
 ``cuda_ad_rgb``) and registers the Mitsuba integrator plugins (``volume_photon``,
-``photon_mapper``).
+``photon_mapper``, ``ispm``).
 """
 
 from __future__ import annotations
@@ -37,15 +37,18 @@ def set_device(device: str) -> str:
 
 
 def _register_plugins() -> None:
+    from .screen.integrator import register as register_screen
     from .surface.integrator import register as register_surface
     from .volume.integrator import register as register_volume
 
     register_volume()
     register_surface()
+    register_screen()
 
 
 set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
 
+from .screen.pipeline import ScreenPipeline  # noqa: E402
 from .surface.pipeline import SurfacePipeline  # noqa: E402
 from .volume.pipeline import VolumePipeline  # noqa: E402
 
@@ -54,6 +57,7 @@ __all__ = [
     "ParameterError",
     "PhotonmapError",
     "SceneError",
+    "ScreenPipeline",
     "SurfacePipeline",
     "VolumePipeline",
     "dr",

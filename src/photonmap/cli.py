@@ -13,7 +13,7 @@ app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Photon mapping on Mitsuba 3 + Dr.Jit."
 )
 console = Console(stderr=True)
-METHODS = ("volume", "surface")
+METHODS = ("volume", "surface", "screen")
 TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
@@ -60,7 +60,8 @@ def render(
     scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
     output: Annotated[list[str], typer.Option("-o", "--output", help=".exr or .png (repeatable)")],
     method: Annotated[
-        str | None, typer.Option(help="pipeline: volume | surface (default: the scene's own)")
+        str | None,
+        typer.Option(help="pipeline: volume | surface | screen (default: the scene's own)"),
     ] = None,
     width: Annotated[int | None, typer.Option(help="image width (default: the scene's)")] = None,
     height: Annotated[int | None, typer.Option(help="image height")] = None,
@@ -76,7 +77,8 @@ def render(
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
 
     Volume --set keys: grid, photons, eps, eps2, ds_min, ds_max, phase_k, sampler, fidelity, ...;
-    surface: photons, caustic_photons, k, max_radius, fg_rays, structure, max_depth, lookup, ...
+    surface: photons, caustic_photons, k, max_radius, fg_rays, structure, max_depth, lookup, ...;
+    screen: bounces, light_res, radius, splat, subsample, shadows, isg_samples, light_size, ...
     (an unknown key lists them all). On a terminal the pipeline stages show as a progress bar."""
     from . import PhotonmapError
     from .core.image import write_image
@@ -97,6 +99,10 @@ def render(
             from .volume.pipeline import STAGES, VolumeParams, VolumePipeline
 
             Pipeline, Params, extra = VolumePipeline, VolumeParams, {"grid": 128}
+        elif method == "screen":
+            from .screen.pipeline import STAGES, ScreenParams, ScreenPipeline
+
+            Pipeline, Params, extra = ScreenPipeline, ScreenParams, {}
         else:
             from .surface.pipeline import STAGES, SurfaceParams, SurfacePipeline
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 
 from ..core.errors import ParameterError, SceneError
-from . import cornell, volume_scenes
+from . import cornell, ispm, volume_scenes
 
 
 @dataclass(frozen=True)
@@ -75,6 +75,25 @@ SCENES: dict[str, Builtin] = {
             "(params: roughness, glossy)",
             cornell.cornell_glossy_floor,
             pipeline="surface",
+        ),
+        Builtin(
+            "cornell_ispm",
+            "Yao Fig 5.1: Cornell box with the short and tall blocks, lit by a spot light",
+            ispm.cornell_ispm,
+            pipeline="screen",
+        ),
+        Builtin(
+            "cornell_glass_sphere",
+            "Yao Tab 1: Cornell box, glass sphere (η 1.5) under a spot light: refractive caustic",
+            ispm.cornell_glass_sphere,
+            pipeline="screen",
+        ),
+        Builtin(
+            "cornell_mesh",
+            "Yao Tab 1 Buddha/dragon/bunny rows: Cornell box, diffuse watertight mesh, spot light "
+            "(params: triangles)",
+            ispm.cornell_mesh,
+            pipeline="screen",
         ),
     )
 }

@@ -1,0 +1,225 @@
+"""Light G-buffers: the first photon hit seen from the light (Yao 2011 §3.1–3.2, Fig 3.2; spec
+seed-004 §2.2, A25, A26, A31).
+
+- **Spot light**: a square perspective frustum from the light position along the spot axis with
+  half-angle θ_outer (the spot's cut-off), one ray per texel centre (u, v) on the image plane at
+  unit distance; texel (i, j) carries the incident power Φ_ij = I(ω_ij)·Ω_ij with
+  Ω_ij = Δu Δv / (1 + u² + v²)^{3/2} — zero outside the cone, so photon emission matches direct light.
+- **Point light** ("emit photon from two hemisphere which cover the point light", §3.2): W_L·H_L
+  stratified equal-area directions over the sphere, Ω = 4π/N each.
+- **Area light** (support by sampling): ``emitter.sample_ray`` at stratified points of the light,
+  Φ = weight/N. Direct light and shadows treat it as a point at its centre with the Lambertian
+  intensity I(ω) = Φ_e/π · max(0, n_L·ω) (A31: the virtual area light softens shadows only).
+
+Every texel's first hit is direct light, which :mod:`.direct` shades; :mod:`.light_photons` scatters
+photons on from it. I(ω) of spot and point lights comes from Mitsuba's own ``sample_direction``, so
+direct light and photons use the same profile (Mitsuba's linear fall-off from the beam width to
+the cut-off rather than the spec's smoothstep, A26).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.errors import SceneError
+from ..core.sampling import rng
+
+KINDS = ("spot", "point", "area")
+MAX_FRUSTUM_DEG = 80.0  # spots wider than this emit over the sphere like a point light
+
+
+@dataclass
+class Light:
+    """One light of the scene as the ``screen`` pipeline sees it: ``kind`` (spot | point | area),
+    the Mitsuba ``emitter``, its ``position`` (the centre for an area light), ``axis`` (spot axis
+    or area normal), ``cutoff`` (radians, spots) and ``radius`` (area lights: the radius of a disk
+    of the same area, the natural virtual light size; 0 otherwise)."""
+
+    kind: str
+    emitter: mi.Emitter
+    position: np.ndarray
+    axis: np.ndarray
+    frame: np.ndarray  # 3×3 columns: tangent, bitangent, axis
+    cutoff: float = 0.0
+    radius: float = 0.0
+    power: np.ndarray | None = None  # area lights: emitted RGB power Φ_e
+
+
+@dataclass
+class LightGBuffer:
+    """Spec §2.2, per texel (row-major, ``width × height``): first hit ``si`` (a Mitsuba
+    SurfaceInteraction, kept for scattering), ``pos``, ``nrm`` (facing the light), incident power
+    ``flux`` (W), travel direction ``w_in`` and ``valid`` (a surface was hit with non-zero flux)."""
+
+    width: int
+    height: int
+    si: mi.SurfaceInteraction3f
+    pos: mi.Point3f
+    nrm: mi.Normal3f
+    flux: mi.Color3f
+    w_in: mi.Vector3f
+    valid: mi.Bool
+
+
+def find_light(scene: mi.Scene, index: int = 0) -> Light:
+    """The ``index``-th spot, point or area emitter of ``scene`` as a :class:`Light`; raise a
+    :class:`SceneError` if there is none."""
+    lights = [e for e in scene.emitters() if _kind(e) is not None]
+    if not lights:
+        names = ", ".join(e.class_name() for e in scene.emitters()) or "none"
+        raise SceneError(
+            f"the screen pipeline needs a spot, point or area light (scene emitters: {names}); "
+            "add one, e.g. {'type': 'spot', 'to_world': ..., 'cutoff_angle': 45}"
+        )
+    if not 0 <= index < len(lights):
+        raise SceneError(f"light index {index} out of range: the scene has {len(lights)} light(s)")
+    emitter = lights[index]
+    kind = _kind(emitter)
+    if kind == "area":
+        shape = emitter.get_shape()
+        ps = shape.sample_position(0.0, mi.Point2f(0.5, 0.5))
+        position = np.array(shape.bbox().center()).ravel()
+        axis = np.array(ps.n).ravel()
+        area = float(np.array(shape.surface_area()).ravel()[0])
+        power = _area_power(emitter)
+        return Light(
+            kind, emitter, position, axis, _frame(axis), 0.0, math.sqrt(area / math.pi), power
+        )
+    params = mi.traverse(emitter)
+    if "to_world" in params.keys():
+        m = np.array(params["to_world"].matrix, dtype=np.float64)[..., 0]
+    else:  # Mitsuba's point light exposes only its position
+        m = np.eye(4)
+        m[:3, 3] = np.array(params["position"], dtype=np.float64).ravel()
+    position, axis = m[:3, 3], m[:3, 2] / np.linalg.norm(m[:3, 2])
+    frame = np.stack([c / np.linalg.norm(c) for c in (m[:3, 0], m[:3, 1], m[:3, 2])], 1)
+    cutoff = 0.0
+    if kind == "spot":
+        cutoff = math.radians(float(np.array(params["cutoff_angle"]).ravel()[0]))
+    return Light(kind, emitter, position, axis, frame, cutoff)
+
+
+def _kind(emitter: mi.Emitter) -> str | None:
+    name = emitter.class_name()
+    if name == "SpotLight":
+        return "spot"
+    if name == "PointLight":
+        return "point"
+    if name == "AreaLight" and emitter.get_shape() is not None:
+        return "area"
+    return None
+
+
+def _area_power(emitter: mi.Emitter, samples: int = 1 << 14) -> np.ndarray:
+    """Emitted RGB power Φ_e of an area light: the mean ``sample_ray`` weight (exact for uniform
+    radiance)."""
+    gen = rng(samples, 0, stream=7)
+    _, weight = emitter.sample_ray(
+        0.0,
+        gen.next_float32(),
+        mi.Point2f(gen.next_float32(), gen.next_float32()),
+        mi.Point2f(gen.next_float32(), gen.next_float32()),
+        True,
+    )
+    return np.array(dr.mean(mi.Color3f(weight), axis=1)).ravel()
+
+
+def _frame(axis: np.ndarray) -> np.ndarray:
+    a = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
+    t = np.cross(axis, a)
+    t /= np.linalg.norm(t)
+    return np.stack([t, np.cross(axis, t), axis], 1)
+
+
+def intensity(light: Light, d: mi.Vector3f) -> mi.Color3f:
+    """Radiant intensity I(ω) (W/sr, RGB) of ``light`` along unit world directions ``d``."""
+    if light.kind == "area":
+        cos = dr.maximum(dr.dot(d, mi.Vector3f(*light.axis.tolist())), 0.0)
+        return mi.Color3f(*(light.power / math.pi).tolist()) * cos
+    it = dr.zeros(mi.Interaction3f, dr.width(d))
+    it.p = mi.Point3f(*(dr.opaque(mi.Float, float(c)) for c in light.position)) + d
+    ds, spec = light.emitter.sample_direction(it, mi.Point2f(0.5), True)
+    return mi.Color3f(spec)  # I(ω)/dist² at distance 1
+
+
+def light_gbuffer(
+    scene: mi.Scene, light: Light, width: int, height: int, seed: int = 0, half_angle=None
+) -> LightGBuffer:
+    """The light G-buffer of ``light`` at ``width × height`` texels (spec §2.2). ``half_angle``
+    (radians) overrides a spot's frustum half-angle (default: its cut-off); ``seed`` places the
+    stratified samples of area lights."""
+    n = width * height
+    i = dr.arange(mi.UInt32, n)
+    cu, cv = (mi.Float(i % width) + 0.5) / width, (mi.Float(i // width) + 0.5) / height
+    origin = mi.Point3f(*light.position.tolist())
+    if light.kind == "area":
+        jitter = mi.sample_tea_float32(i, mi.UInt32(seed), 4)
+        jitter2 = mi.sample_tea_float32(i, mi.UInt32(seed + 0x9E37), 4)
+        ray, weight = light.emitter.sample_ray(
+            0.0, 0.5, mi.Point2f(cu, cv), mi.Point2f(jitter, jitter2), True
+        )
+        flux = mi.Color3f(weight) / n
+    else:
+        theta = light.cutoff if half_angle is None else half_angle
+        if light.kind == "spot" and theta <= math.radians(MAX_FRUSTUM_DEG):
+            t = math.tan(theta)
+            u, v = (2 * cu - 1) * t, (2 * cv - 1) * t
+            solid = (2 * t / width) * (2 * t / height) / dr.power(1 + u * u + v * v, 1.5)
+            local = dr.normalize(mi.Vector3f(u, v, 1.0))
+        else:  # equal-area stratified sphere: z uniform in [-1, 1], φ uniform
+            z = 1 - 2 * cv
+            r = dr.safe_sqrt(1 - z * z)
+            phi = 2 * math.pi * cu
+            local = mi.Vector3f(r * dr.cos(phi), r * dr.sin(phi), z)
+            solid = dr.full(mi.Float, 4 * math.pi / n, n)
+        f = light.frame
+        d = mi.Vector3f(
+            *(f[k, 0] * local.x + f[k, 1] * local.y + f[k, 2] * local.z for k in range(3))
+        )
+        ray = mi.Ray3f(origin, d)
+        flux = intensity(light, d) * solid
+    si = scene.ray_intersect(ray, True)
+    valid = si.is_valid() & (dr.max(flux) > 0)
+    n_s = mi.Normal3f(si.sh_frame.n)
+    nrm = dr.select(dr.dot(n_s, ray.d) > 0, -n_s, n_s)
+    lgb = LightGBuffer(
+        width,
+        height,
+        si,
+        dr.select(valid, si.p, 0.0),
+        dr.select(valid, nrm, 0.0),
+        dr.select(valid, flux, 0.0),
+        mi.Vector3f(ray.d),
+        valid,
+    )
+    dr.eval(lgb.si, lgb.pos, lgb.nrm, lgb.flux, lgb.valid)
+    _check_outside(scene, light, si, ray)
+    return lgb
+
+
+def check_light_outside(scene: mi.Scene, light: Light, rays: int = 32) -> None:
+    """Raise a :class:`SceneError` if a spot or point light sits inside closed geometry (rays²
+    directions over the whole sphere, see :func:`_check_outside`). Area lights lie on their
+    shape and are not checked."""
+    if light.kind != "area":
+        light_gbuffer(scene, dataclasses.replace(light, kind="point"), rays, rays)
+
+
+def _check_outside(scene, light: Light, si, ray) -> None:
+    """Raise a :class:`SceneError` when the light sits inside closed geometry: most of its rays
+    that hit anything hit a back face (the geometric normal points away from the light)."""
+    hit = si.is_valid()
+    back = hit & (dr.dot(si.sh_frame.n, ray.d) > 0)  # shading normals: Mitsuba flips si.n
+    hits, backs = dr.count(hit)[0], dr.count(back)[0]
+    if hits and backs > 0.5 * hits:
+        raise SceneError(
+            f"the {light.kind} light at {np.round(light.position, 4).tolist()} lies inside "
+            f"geometry: {backs} of its {hits} first hits are back faces; move the light out of "
+            "the closed mesh (or flip the mesh's normals if it is a wall facing the wrong way)"
+        )

@@ -1,0 +1,385 @@
+"""``ScreenPipeline`` — Yao 2011's real-time global illumination: image-space photon mapping
+(McGuire & Luebke 2009) with image-space soft shadows (spec seed-004 §2, §7).
+
+::
+
+    camera ─► eye G-buffer ─┬─► direct light + shadow rays (V_h, d, D) ─► soft shadows (V_s) ─┐
+    light ─► light G-buffer ┴─► photon tracing (PRM) ─► splat at 1/s ─► upsample ─────────────┼─► composite
+                                                                   glass eye rays ─────────────┘
+
+Each stage's result is cached under a key of exactly the inputs it depends on (spec §7 stage
+graph): a camera move reruns the eye G-buffer and everything image-space, but keeps the light
+G-buffer and the photons; a light change reruns everything but the random map; a change of
+``radius``, ``splat`` or ``subsample`` reruns only splatting, upsampling and compositing; a change
+of ``shadows``, ``light_size`` or ``isg_samples`` only the soft shadows and compositing.
+``recomputed`` lists the stages the last :meth:`render` ran, ``timer`` their milliseconds.
+
+Lengths ``radius`` and ``light_size`` are fractions of the scene's bounding-box diagonal (spec
+A17, A19e): the thesis's radii 4.5 / 8.5 / 10.5 have no unit, and 0.045 × diagonal is the
+photon-per-kernel regime its Cornell box figure shows.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.camera import moved_sensor
+from ..core.errors import ParameterError, SceneError
+from ..core.params import updated
+from ..core.timer import StageTimer
+from .composite import composite, glass_eye
+from .direct import direct_light
+from .gbuffer import eye_gbuffer
+from .light_gbuffer import check_light_outside, find_light, light_gbuffer
+from .light_photons import GLOSSY_MODES, random_map, trace_photons
+
+SPLATS = ("quad", "icosahedron")
+SHADOWS = ("soft", "hard", "fixed_radius")
+STAGES = (
+    "eye G-buffer",
+    "light G-buffer",
+    "photon tracing",
+    "direct + shadow rays",
+    "soft shadows",
+    "subsample",
+    "splatting",
+    "upsampling",
+    "glass",
+    "composite",
+)
+
+
+@dataclasses.dataclass
+class ScreenParams:
+    """Parameters of the screen pipeline (the ``ispm`` plugin and the CLI's ``--set`` keys).
+    Defaults: spec §4.2 (thesis values where given, [REC] otherwise)."""
+
+    bounces: int = 2  # B: recorded indirect bounces per path (Tab 1: 1, 2, 3)
+    light_res: int = 100  # light G-buffer W_L = H_L; photons = light_res² · bounces
+    radius: float = 0.045  # splat radius r, × scene diagonal (A17)
+    splat: str = "quad"  # quad | icosahedron (Tab 2)
+    compression: float = 1.0  # icosahedron normal compression c (A18; 1 = Yao's uncompressed)
+    subsample: int = 4  # s: indirect light at (W/s)×(H/s) (Tab 1: 8, 4, 2)
+    shadows: str = "soft"  # soft (ISG, Eqs 2–5) | hard | fixed_radius (penumbra = light_size)
+    isg_samples: str = "4+5"  # ISG radial sample steps, pass 1 + pass 2 (Tab 1: 4+5, 4+7)
+    light_size: float = 0.02  # virtual area-light radius L, × scene diagonal (0 = hard shadow)
+    glossy: str = "yao_average"  # glossy photon bounce: yao_average (A6) | bsdf
+    seed: int = 0  # seed of the fixed random map (PRM)
+    spp: int = 1  # one primary ray per pixel centre (spec §2.1); kept for the CLI
+
+    def validate(self) -> None:
+        for key in ("bounces", "light_res", "subsample", "seed", "spp"):
+            value = getattr(self, key)
+            if not isinstance(value, int | np.integer) or isinstance(value, bool):
+                raise ParameterError(
+                    f"{key} must be an integer, got {value!r} ({type(value).__name__})"
+                )
+        if not 1 <= self.bounces <= 8:
+            raise ParameterError(
+                f"bounces must be between 1 and 8 (the thesis uses 1–3), got {self.bounces}"
+            )
+        if self.light_res < 1:
+            raise ParameterError(
+                f"light_res must be >= 1, got {self.light_res}: it is the light G-buffer's side, "
+                "and light_res² · bounces photons are traced (light_res=100 gives 10k per bounce)"
+            )
+        if self.subsample < 1:
+            raise ParameterError(
+                f"subsample must be a positive integer (1, 2, 4, 8), got {self.subsample}"
+            )
+        if not _positive(self.radius):
+            raise ParameterError(
+                f"radius must be a positive number (× scene diagonal; default 0.045), "
+                f"got {self.radius!r}"
+            )
+        if not (_positive(self.compression) and self.compression <= 1):
+            raise ParameterError(f"compression must lie in (0, 1], got {self.compression!r}")
+        if not (_positive(self.light_size) or self.light_size == 0):
+            raise ParameterError(
+                f"light_size must be >= 0 (× scene diagonal; 0 = hard shadows), got "
+                f"{self.light_size!r}"
+            )
+        for key, allowed in (("splat", SPLATS), ("shadows", SHADOWS), ("glossy", GLOSSY_MODES)):
+            if getattr(self, key) not in allowed:
+                raise ParameterError(
+                    f"{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}"
+                )
+        self.isg_pair()
+        if self.spp != 1:
+            raise ParameterError(
+                f"the screen pipeline casts one primary ray per pixel centre; spp must be 1, "
+                f"got {self.spp}"
+            )
+        if self.seed < 0:
+            raise ParameterError(f"seed must be >= 0, got {self.seed}")
+
+    def isg_pair(self) -> tuple[int, int]:
+        """``isg_samples`` "a+b" as the integer pair (a, b)."""
+        parts = str(self.isg_samples).split("+")
+        try:
+            pair = tuple(int(p) for p in parts)
+        except ValueError:
+            pair = ()
+        if len(pair) != 2 or min(pair) < 1:
+            raise ParameterError(
+                f"isg_samples must be two positive integers 'a+b' (the thesis: '4+5', '4+7'), "
+                f"got {self.isg_samples!r}"
+            )
+        return pair
+
+
+def _positive(value) -> bool:
+    """A finite number > 0 (bools are not numbers here)."""
+    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+        value, bool
+    )
+    return number and math.isfinite(value) and value > 0
+
+
+def _sensor_key(sensor) -> tuple:
+    m = np.array(sensor.world_transform().matrix, dtype=np.float64).ravel()
+    fov = np.array(mi.traverse(sensor)["x_fov"]).ravel()
+    size = tuple(int(c) for c in sensor.film().crop_size())
+    return (tuple(m.round(9)), tuple(fov), size, tuple(int(c) for c in sensor.film().size()))
+
+
+class ScreenPipeline:
+    """Image-space photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``) with
+    a spot, point or area light.
+
+    >>> pipe = ScreenPipeline("cornell_ispm", bounces=2, subsample=8)
+    >>> image = pipe.render()                  # mi.TensorXf (height, width, 3), linear radiance
+    >>> pipe.set_camera(origin=(0.3, 0.3, -0.6))
+    >>> image = pipe.render()                  # photons kept
+    """
+
+    def __init__(self, scene, light: int = 0, **params):
+        from ..scenes import load_scene
+
+        fields = {f.name for f in dataclasses.fields(ScreenParams)}
+        scene_params = {k: v for k, v in params.items() if k not in fields}
+        self.scene, _ = load_scene(scene, **scene_params)
+        if not self.scene.sensors():
+            raise ParameterError("the scene has no sensor (camera) to render from")
+        self.sensor = self.scene.sensors()[0]
+        self.params = ScreenParams()
+        self.set_params(**{k: v for k, v in params.items() if k in fields})
+        self.light_index = light
+        self.light = find_light(self.scene, light)
+        check_light_outside(self.scene, self.light)
+        self._light_version = 0
+        self.timer = StageTimer()
+        self.stats: dict[str, float] = {}
+        self.recomputed: list[str] = []
+        self._cache: dict[str, tuple] = {}
+        self.outputs: dict[str, object] = {}
+        b = self.scene.bbox()
+        self.diagonal = float(np.linalg.norm(np.array(b.max).ravel() - np.array(b.min).ravel()))
+        if not self.diagonal > 0:
+            raise SceneError("the scene has no geometry (empty bounding box)")
+
+    # ------------------------------------------------------------------------------- changes
+    def set_params(self, **params) -> None:
+        """Change :class:`ScreenParams` fields; the next render reruns only what they affect."""
+        self.params = updated(self.params, params, "screen")
+
+    def set_camera(
+        self, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None, sensor=None
+    ) -> None:
+        """Move, re-aim or resize the camera (``fov`` horizontal, degrees); photons are kept."""
+        if sensor is None:
+            centre = np.array(self.scene.bbox().center()).ravel()
+            sensor = moved_sensor(self.sensor, centre, origin, target, up, fov, width, height)
+        self.sensor = sensor
+
+    def set_light(self, position=None, target=None, intensity=None, cutoff=None, index=None):
+        """Move or re-aim the spot / point light (``target``: a point the spot aims at), scale its
+        colour (``intensity``: RGB or scalar, W/sr) or change the spot's cut-off (degrees).
+        Everything but the random map reruns."""
+        if index is not None:
+            self.light_index = index
+        light = find_light(self.scene, self.light_index)
+        params = mi.traverse(light.emitter)
+        if light.kind == "area" and any(v is not None for v in (position, target, cutoff)):
+            raise ParameterError(
+                "an area light is moved with its shape; set_light can change only its intensity"
+            )
+        if position is not None or target is not None:
+            pos = np.asarray(position if position is not None else light.position, float)
+            if target is None:
+                target = pos + light.axis
+            target = np.asarray(target, float)
+            if not np.all(np.isfinite(pos)) or np.allclose(target, pos):
+                raise ParameterError("set_light: position must be finite and differ from target")
+            axis = (target - pos) / np.linalg.norm(target - pos)
+            up = [0, 1, 0] if abs(axis[1]) < 0.99 else [0, 0, 1]
+            if light.kind == "point":
+                params["position"] = mi.Point3f(*pos.tolist())
+            else:
+                params["to_world"] = mi.ScalarTransform4f().look_at(
+                    origin=pos.tolist(), target=target.tolist(), up=up
+                )
+        if intensity is not None:
+            key = "intensity.value" if light.kind != "area" else "radiance.value"
+            value = np.broadcast_to(np.asarray(intensity, float), 3)
+            if not (np.all(np.isfinite(value)) and np.all(value >= 0)):
+                raise ParameterError(
+                    f"set_light: intensity must be finite and >= 0, got {intensity}"
+                )
+            params[key] = mi.Color3f(*value.tolist())
+        if cutoff is not None:
+            if light.kind != "spot" or not 0 < cutoff <= 90:
+                raise ParameterError(
+                    "set_light: cutoff (degrees, in (0, 90]) applies to spots only"
+                )
+            params["cutoff_angle"] = float(cutoff)
+            params["beam_width"] = min(float(np.array(params["beam_width"]).ravel()[0]), cutoff)
+        params.update()
+        self.light = find_light(self.scene, self.light_index)
+        check_light_outside(self.scene, self.light)
+        self._light_version += 1
+
+    def invalidate(self) -> None:
+        """Forget every cached stage output except the random map: the next render is a full
+        frame, as when both camera and light move (what :mod:`benchmarks.screen_table1` times)."""
+        self._cache = {k: v for k, v in self._cache.items() if k == "prm"}
+
+    # ------------------------------------------------------------------------------- stages
+    def _stage(self, name: str, key, compute):
+        hit = self._cache.get(name)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        if self._progress:
+            self._progress(name)
+        with self.timer(name):
+            value = compute()
+        self.recomputed.append(name)
+        self._cache[name] = (key, value)
+        return value
+
+    def render(self, progress=None) -> mi.TensorXf:
+        """Render from the current camera: ``(height, width, 3)`` linear radiance. Every
+        intermediate is in :attr:`outputs` (spec §7 testability)."""
+        from .soft_shadow import soft_visibility
+        from .splat import splat_icosahedra, splat_quads
+        from .upsample import subsample, upsample
+
+        p, scene, diag = self.params, self.scene, self.diagonal
+        self._progress = progress
+        self.timer.reset()
+        self.recomputed = []
+        cam_key = _sensor_key(self.sensor)
+        light_key = (self.light_index, self._light_version)
+
+        gbuf, specular = self._stage(
+            "eye G-buffer", cam_key, lambda: eye_gbuffer(scene, self.sensor)
+        )
+        lgb_key = (light_key, p.light_res, p.seed)
+        lgb = self._stage(
+            "light G-buffer",
+            lgb_key,
+            lambda: light_gbuffer(scene, self.light, p.light_res, p.light_res, p.seed),
+        )
+        prm = self._cache.get("prm", ((None,), None))
+        if prm[0] != (p.light_res, p.seed):  # the PRM is made once (§2.4), not a frame stage
+            prm = ((p.light_res, p.seed), random_map(p.light_res, p.light_res, p.seed))
+            self._cache["prm"] = prm
+        photon_key = (lgb_key, p.bounces, p.glossy)
+        photons = self._stage(
+            "photon tracing",
+            photon_key,
+            lambda: trace_photons(scene, lgb, prm[1], p.bounces, p.glossy),
+        )
+        direct_key = (cam_key, light_key)
+        direct = self._stage(
+            "direct + shadow rays", direct_key, lambda: direct_light(scene, gbuf, self.light, diag)
+        )
+        mode = {"soft": "isg", "hard": "hard", "fixed_radius": "fixed_radius"}[p.shadows]
+        light_radius = p.light_size * diag
+        shadow_key = (direct_key, mode, light_radius, p.isg_pair())
+
+        def shadows():
+            v = soft_visibility(
+                gbuf,
+                direct.hard,
+                direct.occluder_dist,
+                direct.light_dist,
+                light_radius,
+                diag,
+                samples=p.isg_pair(),
+                mode=mode,
+                fixed_radius=light_radius if mode == "fixed_radius" else None,
+            )
+            dr.eval(v)
+            return v
+
+        visibility = self._stage("soft shadows", shadow_key, shadows)
+        low_key = (cam_key, p.subsample)
+        low = self._stage("subsample", low_key, lambda: _evaluated(subsample(gbuf, p.subsample)))
+        splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
+
+        def splat():
+            if p.splat == "quad":
+                out = splat_quads(low, photons, p.radius * diag)
+            else:
+                out = splat_icosahedra(low, photons, p.radius * diag, p.compression)
+            dr.eval(out)
+            return out
+
+        L_low, E_low = self._stage("splatting", splat_key, splat)
+        up_key = splat_key
+
+        def up():
+            out = upsample(L_low, low, gbuf, p.subsample)
+            dr.eval(out)
+            return out
+
+        indirect = self._stage("upsampling", up_key, up)
+        glass = self._stage(
+            "glass", direct_key, lambda: glass_eye(scene, gbuf, specular, self.light, diag)
+        )
+        out = self._stage(
+            "composite",
+            (shadow_key, up_key, direct_key),
+            lambda: composite(direct.L, visibility, indirect, glass),
+        )
+        self.outputs = {
+            "gbuffer": gbuf,
+            "specular": specular,
+            "light_gbuffer": lgb,
+            "photons": photons,
+            "direct": direct,
+            "visibility": visibility,
+            "low_gbuffer": low,
+            "indirect_low": L_low,
+            "irradiance_low": E_low,
+            "indirect": indirect,
+            "glass": glass,
+            "image": out,
+        }
+        self.stats.update(
+            photons=int(dr.count(photons.valid)[0]),
+            photon_slots=p.light_res**2 * p.bounces,
+            width=gbuf.width,
+            height=gbuf.height,
+        )
+        self._progress = None
+        image = mi.TensorXf(dr.ravel(out), (gbuf.height, gbuf.width, 3))
+        if not dr.all(dr.isfinite(dr.sum(out, axis=None))):
+            raise SceneError(
+                "the render produced NaN or infinite values; check the scene's textures, BSDF "
+                "parameters and light intensity for NaN"
+            )
+        return image
+
+    _progress = None
+
+
+def _evaluated(gbuf):
+    dr.eval(gbuf.pos, gbuf.nrm, gbuf.depth, gbuf.albedo, gbuf.valid)
+    return gbuf

@@ -1,0 +1,44 @@
+"""``photonmap render --method screen`` (issue 4 item 3)."""
+
+import mitsuba as mi
+import numpy as np
+from typer.testing import CliRunner
+
+from photonmap import ScreenPipeline
+from photonmap.cli import app
+from photonmap.screen.pipeline import STAGES
+
+runner = CliRunner()
+
+
+def run(*args):
+    return runner.invoke(app, [str(a) for a in args])
+
+
+def test_render_cornell_ispm_with_screen_keys(tmp_path):
+    exr = tmp_path / "x.exr"
+    keys = ["bounces=1", "light_res=20", "radius=0.05", "splat=icosahedron", "subsample=2",
+            "shadows=hard", "isg_samples=4+7", "light_size=0.01"]  # fmt: skip
+    sets = [a for k in keys for a in ("--set", k)]
+    result = run(
+        "render", "cornell_ispm", "-o", exr, "--width", 40, "--height", 30, *sets, "--timings"
+    )
+    assert result.exit_code == 0, result.output
+    image = np.array(mi.Bitmap(str(exr)))[..., :3]
+    ref = ScreenPipeline("cornell_ispm", width=40, height=30, bounces=1, light_res=20,
+                         radius=0.05, splat="icosahedron", subsample=2, shadows="hard",
+                         isg_samples="4+7", light_size=0.01).render()  # fmt: skip
+    assert np.allclose(image, np.array(ref), atol=1e-6)
+    for stage in STAGES:
+        assert stage in result.stdout
+    assert "photons" in result.stdout
+
+
+def test_scene_default_method_is_screen_and_bad_keys_exit_2(tmp_path):
+    result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "radius=0")
+    assert result.exit_code == 2 and "radius must be a positive number" in result.output
+    result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "splat=disc")
+    assert result.exit_code == 2 and "splat must be one of quad, icosahedron" in result.output
+    result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "subsample=1.5")
+    assert result.exit_code == 2 and "cannot read '1.5' as int" in result.output
+    assert "cornell_ispm" in run("scenes").stdout
