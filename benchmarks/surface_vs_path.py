@@ -86,7 +86,7 @@ def light_image_mask(scene, spp: int = 64) -> np.ndarray:
         (mi.Float(pixel // w) + gen.next_float32()) / h,
     )
     ray, weight = sensor.sample_ray(0.0, gen.next_float32(), pos, mi.Point2f(0.5))
-    _, _, emitted, _ = follow_specular(
+    _, _, emitted, _, _ = follow_specular(
         scene, ray, mi.Spectrum(weight), dr.ones(mi.Bool, lanes), 16, gen, count_emission=True
     )
     seen = np.array(dr.block_reduce(dr.ReduceOp.Add, dr.max(emitted), spp)).reshape(h, w) / spp

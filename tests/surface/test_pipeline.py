@@ -177,3 +177,43 @@ def test_converges_to_mitsuba_path_on_a_diffuse_box():
     mean = ref[keep].mean()
     assert abs(image[keep].mean() / mean - 1) < 0.05
     assert np.sqrt(np.mean((image[keep] - ref[keep]) ** 2)) / mean < 0.25
+
+
+def test_caustic_estimate_is_shared_only_by_plain_pixels():
+    """caustic_radiance: one estimate per pixel whose samples all see the same surface directly,
+    Eq 2.6 at every sample elsewhere (edges, mirror and glass pixels)."""
+    import drjit as dr
+
+    from photonmap.core.sampling import rng
+    from photonmap.surface.gather import radiance_estimate
+    from photonmap.surface.pipeline import caustic_radiance
+    from photonmap.surface.trace import follow_specular
+
+    pipe = SurfacePipeline("cornell_steinhurst", photons=2000, caustic_photons=100_000)
+    _, caustic_map, _ = pipe.photon_maps()
+    radius, _ = pipe.radii()
+    w, spp = 24, 4
+    lanes = w * w * spp
+    pixel = dr.arange(mi.UInt32, lanes) // spp
+    gen = rng(lanes, 0, 0)
+    pos = mi.Point2f(
+        (mi.Float(pixel % w) + gen.next_float32()) / w,
+        (mi.Float(pixel // w) + gen.next_float32()) / w,
+    )
+    ray, weight = pipe.sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+    si, _, _, found, bounces = follow_specular(
+        pipe.scene, ray, mi.Spectrum(weight), dr.ones(mi.Bool, lanes), 8, gen, True
+    )
+    shared = np.array(caustic_radiance(caustic_map, si, found, bounces, spp, 50, radius))
+    each = np.array(radiance_estimate(caustic_map, si, si.bsdf(), 50, radius, found))
+    shared, each = (a.reshape(3, w * w, spp) for a in (shared, each))
+    direct = np.array(found & (bounces == 0)).reshape(w * w, spp)
+    normal = np.array(si.sh_frame.n).reshape(3, w * w, spp)
+    lit = np.array(dr.max(si.emitter(pipe.scene).eval(si)) > 0).reshape(w * w, spp)
+    one_wall = direct.all(axis=1) & (np.ptp(normal, axis=2).max(0) == 0) & ~lit.any(axis=1)
+    assert 0.3 < one_wall.mean() < 1 and each.max() > 0
+    first = each[:, one_wall][..., :1].repeat(spp, -1)
+    np.testing.assert_allclose(shared[:, one_wall], first, rtol=1e-5)
+    mixed = ~direct.all(axis=1)  # edges, mirror and glass: every sample keeps its own estimate
+    assert mixed.sum() > 10
+    np.testing.assert_allclose(shared[:, mixed], each[:, mixed], rtol=1e-5, atol=1e-7)

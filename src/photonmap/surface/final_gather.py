@@ -69,7 +69,7 @@ def final_gather(
             bs, weight = bsdf.sample(smooth, x, gen.next_float32(), u, ok)
             wo, ok = bs.wo, ok & (bs.pdf > 0)
         ray = x.spawn_ray(x.to_world(wo))
-        si_y, throughput, _, found = follow_specular(
+        si_y, throughput, _, found, _ = follow_specular(
             scene, ray, dr.select(ok, weight, 0.0), ok, max_depth, gen, count_emission=False
         )
         if not fused:

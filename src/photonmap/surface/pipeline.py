@@ -8,7 +8,8 @@ non-specular surface x, where
     L(x, ω_o) = L_e + L_direct + L_caustic + L_indirect
 
 - ``L_direct``: emitter sampling and BSDF sampling with MIS (:mod:`.direct`);
-- ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6);
+- ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6), once per
+  pixel where all its samples see one surface directly (:func:`caustic_radiance`);
 - ``L_indirect``: final gather of ``fg_rays`` rays (:mod:`.final_gather`) whose secondary hits read
   irradiance precomputed at photon positions (``lookup="irradiance"``, default), or run an exact
   k-NN gather per ray (``lookup="knn"``, the dissertation's naive algorithm); ``lookup="direct"``
@@ -211,7 +212,7 @@ class SurfacePipeline:
             progress("eye pass")
         with self.timer("eye pass"):
             ray, ray_weight = self.sensor.sample_ray(0.0, gen.next_float32(), pos, mi.Point2f(0.5))
-            si, beta, L, found = follow_specular(
+            si, beta, L, found, bounces = follow_specular(
                 self.scene,
                 ray,
                 mi.Spectrum(ray_weight),
@@ -221,7 +222,7 @@ class SurfacePipeline:
                 count_emission=True,
             )
             bsdf = si.bsdf()
-            dr.eval(si, beta, L, found)
+            dr.eval(si, beta, L, found, bounces)
         if progress:
             progress("direct lighting")
         with self.timer("direct lighting"):
@@ -230,7 +231,7 @@ class SurfacePipeline:
         if progress:
             progress("caustics")
         with self.timer("caustics"):
-            L += beta * radiance_estimate(caustic_map, si, bsdf, p.k, r_caustic, found)
+            L += beta * caustic_radiance(caustic_map, si, found, bounces, p.spp, p.k, r_caustic)
             dr.eval(L)
         if progress:
             progress("final gather")
@@ -258,3 +259,28 @@ class SurfacePipeline:
                 "textures and emitters for NaN"
             )
         return image
+
+
+def caustic_radiance(
+    caustic_map, si: mi.SurfaceInteraction3f, found, bounces, spp: int, k: int, radius: float
+) -> mi.Spectrum:
+    """The caustic map's radiance estimate (Eq 2.6) at every sample of a pixel — except where
+    all of a pixel's ``spp`` samples see the same surface directly: there the estimate at the
+    first sample serves them all. The k-NN kernel spans many pixels, so the estimate barely
+    changes within one, and its gathers are the costliest per-sample work; pixels on edges or
+    seen through mirrors and glass, where samples land far apart, keep one estimate each."""
+    lanes = dr.width(found)
+    lane = dr.arange(mi.UInt32, lanes)
+    first = lane // spp * spp
+    same = found & (bounces == 0) & (si.shape == dr.gather(mi.ShapePtr, si.shape, first))
+    plain = dr.gather(
+        mi.Bool, dr.block_reduce(dr.ReduceOp.Min, mi.UInt32(same), spp) > 0, lane // spp
+    )
+    needed = dr.compress(found & (~plain | (lane == first)))
+    at = dr.gather(mi.SurfaceInteraction3f, si, needed)
+    estimate = dr.zeros(mi.Spectrum, lanes)
+    everywhere = dr.ones(mi.Bool, dr.width(needed))
+    dr.scatter(
+        estimate, radiance_estimate(caustic_map, at, at.bsdf(), k, radius, everywhere), needed
+    )
+    return dr.gather(mi.Spectrum, estimate, dr.select(plain, first, lane))

@@ -31,10 +31,10 @@ def follow_specular(
 ):
     """Trace ``ray`` through purely specular surfaces until the first non-specular hit.
 
-    Returns ``(si, throughput, emitted, found)``: the interaction at the non-specular surface, the
-    product of the specular weights on the way, the radiance emitted by emitters met on the way
-    (``count_emission``; weighted by the throughput) and whether a non-specular surface was found
-    within ``max_depth`` bounces.
+    Returns ``(si, throughput, emitted, found, bounces)``: the interaction at the non-specular
+    surface, the product of the specular weights on the way, the radiance emitted by emitters met
+    on the way (``count_emission``; weighted by the throughput), whether a non-specular surface was
+    found within ``max_depth`` bounces, and the number of specular bounces before it.
     """
     ctx = mi.BSDFContext()
     ray = mi.Ray3f(ray)
@@ -64,4 +64,4 @@ def follow_specular(
         ray = dr.select(specular, si.spawn_ray(si.to_world(bs.wo)), ray)
         depth += 1
         searching = specular & (depth < max_depth) & (dr.max(throughput) > 0)
-    return si, throughput, emitted, found
+    return si, throughput, emitted, found, dr.maximum(depth, 1) - 1
