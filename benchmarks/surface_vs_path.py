@@ -30,6 +30,7 @@ import mitsuba as mi  # noqa: E402
 
 import common  # noqa: E402
 import photonmap  # noqa: E402,F401
+from photonmap.core.camera import pixel_rays  # noqa: E402
 from photonmap.core.hashgrid import HashGrid  # noqa: E402
 from photonmap.core.image import compare, write_image  # noqa: E402
 from photonmap.core.photon_trace import trace_photons  # noqa: E402
@@ -79,15 +80,10 @@ def light_image_mask(scene, spp: int = 64) -> np.ndarray:
     sensor = scene.sensors()[0]
     w, h = (int(c) for c in sensor.film().crop_size())
     lanes = w * h * spp
-    pixel = dr.arange(mi.UInt32, lanes) // spp
     gen = rng(lanes, 12345, 0)
-    pos = mi.Point2f(
-        (mi.Float(pixel % w) + gen.next_float32()) / w,
-        (mi.Float(pixel // w) + gen.next_float32()) / h,
-    )
-    ray, weight = sensor.sample_ray(0.0, gen.next_float32(), pos, mi.Point2f(0.5))
+    ray, weight = pixel_rays(sensor, spp, mi.Point2f(gen.next_float32(), gen.next_float32()))
     _, _, emitted, _, _ = follow_specular(
-        scene, ray, mi.Spectrum(weight), dr.ones(mi.Bool, lanes), 16, gen, count_emission=True
+        scene, ray, weight, dr.ones(mi.Bool, lanes), 16, gen, count_emission=True
     )
     seen = np.array(dr.block_reduce(dr.ReduceOp.Add, dr.max(emitted), spp)).reshape(h, w) / spp
     return ~binary_dilation(seen > 0.01, iterations=1)

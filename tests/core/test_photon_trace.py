@@ -71,10 +71,9 @@ def test_power_bookkeeping_in_a_closed_diffuse_box():
     assert not np.any(np.array(records.caustic))
 
 
-def test_caustics_only_traces_exactly_the_caustic_records():
-    """Caustic records end at a path's first smooth hit, so stopping every path there (the
-    caustic map's cheap trace) keeps exactly the caustic records of a full trace."""
-    scene = mi.load_dict(
+def glass_ball_over_floor():
+    """A glass ball (n = 1.5, radius 0.5) 1 m above a diffuse floor, a point light above it."""
+    return mi.load_dict(
         {
             "type": "scene",
             "floor": floor_disk(5.0),
@@ -87,6 +86,12 @@ def test_caustics_only_traces_exactly_the_caustic_records():
             "light": point((0, 4, 0), 10.0),
         }
     )
+
+
+def test_caustics_only_traces_exactly_the_caustic_records():
+    """Caustic records end at a path's first smooth hit, so stopping every path there (the
+    caustic map's cheap trace) keeps exactly the caustic records of a full trace."""
+    scene = glass_ball_over_floor()
     full = trace_photons(scene, 2**14, seed=3)
     full = full.select(full.caustic)
     only = trace_photons(scene, 2**14, seed=3, caustics_only=True)
@@ -119,19 +124,7 @@ def test_records_describe_the_hits():
 
 
 def test_caustic_records_lie_under_a_glass_sphere():
-    scene = mi.load_dict(
-        {
-            "type": "scene",
-            "floor": floor_disk(5.0),
-            "glass": {
-                "type": "sphere",
-                "center": [0, 1, 0],
-                "radius": 0.5,
-                "bsdf": {"type": "dielectric", "int_ior": 1.5},
-            },
-            "light": point((0, 4, 0), 10.0),
-        }
-    )
+    scene = glass_ball_over_floor()
     records = trace_photons(scene, 2**17)
     caustic = np.array(records.caustic)
     depth = np.array(records.depth)

@@ -184,6 +184,7 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     Eq 2.6 at every sample elsewhere (edges, mirror and glass pixels)."""
     import drjit as dr
 
+    from photonmap.core.camera import pixel_rays
     from photonmap.core.sampling import rng
     from photonmap.surface.gather import radiance_estimate
     from photonmap.surface.pipeline import caustic_radiance
@@ -194,15 +195,11 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     radius, _ = pipe.radii()
     w, spp = 24, 4
     lanes = w * w * spp
-    pixel = dr.arange(mi.UInt32, lanes) // spp
     gen = rng(lanes, 0, 0)
-    pos = mi.Point2f(
-        (mi.Float(pixel % w) + gen.next_float32()) / w,
-        (mi.Float(pixel // w) + gen.next_float32()) / w,
-    )
-    ray, weight = pipe.sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+    pipe.set_camera(width=w, height=w)
+    ray, weight = pixel_rays(pipe.sensor, spp, mi.Point2f(gen.next_float32(), gen.next_float32()))
     si, _, _, found, bounces = follow_specular(
-        pipe.scene, ray, mi.Spectrum(weight), dr.ones(mi.Bool, lanes), 8, gen, True
+        pipe.scene, ray, weight, dr.ones(mi.Bool, lanes), 8, gen, True
     )
     shared = np.array(caustic_radiance(caustic_map, si, found, bounces, spp, 50, radius))
     each = np.array(radiance_estimate(caustic_map, si, si.bsdf(), 50, radius, found))

@@ -1,7 +1,9 @@
-"""Perspective cameras as Mitsuba sensors: move, re-aim or resize an existing one."""
+"""Perspective cameras as Mitsuba sensors: move, re-aim or resize an existing one; cast a
+wavefront of pixel samples."""
 
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -37,3 +39,20 @@ def moved_sensor(
             },
         }
     )
+
+
+def pixel_rays(sensor, spp: int, jitter: mi.Point2f) -> tuple[mi.Ray3f, mi.Spectrum]:
+    """``spp`` camera rays through every pixel of the sensor's film crop, a pixel's samples in
+    adjacent lanes (lane ``pixel · spp + s``, pixels row-major); ``jitter`` (one point in [0, 1)²
+    per lane) places each sample in its pixel. Returns the rays and their importance weights."""
+    film = sensor.film()
+    w = int(film.crop_size()[0])
+    ox, oy = (int(c) for c in film.crop_offset())
+    full = film.size()
+    pixel = dr.arange(mi.UInt32, dr.width(jitter)) // spp
+    pos = mi.Point2f(
+        (mi.Float(pixel % w + ox) + jitter.x) / float(full[0]),
+        (mi.Float(pixel // w + oy) + jitter.y) / float(full[1]),
+    )
+    ray, weight = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+    return ray, mi.Spectrum(weight)

@@ -28,7 +28,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.camera import moved_sensor
+from ..core.camera import moved_sensor, pixel_rays
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
 from ..core.sampling import rng, rotated_hammersley
@@ -188,10 +188,7 @@ class SurfacePipeline:
             def lookup(si_y, bsdf_y, active):
                 return radiance_estimate(global_map, si_y, bsdf_y, p.k, r_global, active)
 
-        film = self.sensor.film()
-        w, h = (int(c) for c in film.crop_size())
-        ox, oy = (int(c) for c in film.crop_offset())
-        full = film.size()
+        w, h = (int(c) for c in self.sensor.film().crop_size())
         lanes = w * h * p.spp  # all samples of all pixels in one wavefront; a pixel's are adjacent
         pixel = dr.arange(mi.UInt32, lanes) // p.spp
         gen = rng(lanes, p.seed, 0)
@@ -204,18 +201,14 @@ class SurfacePipeline:
             return rotated_hammersley(p.spp, sample, dr.gather(mi.Point2f, shift, pixel))
 
         jitter, u_light = stratified(), stratified()
-        pos = mi.Point2f(
-            (mi.Float(pixel % w + ox) + jitter.x) / float(full[0]),
-            (mi.Float(pixel // w + oy) + jitter.y) / float(full[1]),
-        )
         if progress:
             progress("eye pass")
         with self.timer("eye pass"):
-            ray, ray_weight = self.sensor.sample_ray(0.0, gen.next_float32(), pos, mi.Point2f(0.5))
+            ray, ray_weight = pixel_rays(self.sensor, p.spp, jitter)
             si, beta, L, found, bounces = follow_specular(
                 self.scene,
                 ray,
-                mi.Spectrum(ray_weight),
+                ray_weight,
                 dr.ones(mi.Bool, lanes),
                 p.max_depth,
                 gen,
