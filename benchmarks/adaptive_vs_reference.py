@@ -50,6 +50,8 @@ SCENES = {"SPHERE": "glass_sphere_fog", "CUBE": "perlin_cube", "MESH": "mesh_in_
 RMSE_TOLERANCE = 1.1  # "at equal RMSE (≤ 1.1× the reference's)"
 TRUTH_FACTOR = 16
 TARGETS = {"photon_ratio": 0.5, "time_ratio": 1.0}
+# the adaptive pipeline's defaults recorded with the results
+ADAPTIVE_KEYS = ("pilot_photons", "background", "delta_weight", "mip_block", "cost_aware")
 # rows of Pfeuti Tables 4.2–4.4 → our stages (ours that the thesis does not list are extra rows)
 PASSES = (
     ("Voxelization", ("voxelization",)),
@@ -319,7 +321,9 @@ def markdown(result: dict) -> str:
         f"{m['date']}, load average at start {m.get('load_average')} (the machine was shared). "
         f"Ground truth: reference pipeline at {TRUTH_FACTOR}× {s['nominal']:,} photons. Times: "
         f"median of {s['runs']} light-change frames (all light-dependent stages run) after a "
-        "warm-up frame. Target RMSE = 1.1 × the reference's at the nominal budget.",
+        "warm-up frame. Target RMSE = 1.1 × the reference's at the nominal budget. Adaptive "
+        f"settings: {s.get('adaptive', {})}; load average at the end "
+        f"{result.get('load_average_end')}.",
         "",
         "## Headline",
         "",
@@ -511,6 +515,7 @@ def plot(result: dict, path: Path) -> None:
 # -------------------------------------------------------------------------------------- run
 def run(args, log=_log) -> dict:
     import photonmap  # noqa: F401 - selects the Mitsuba variant
+    from photonmap.volume.pipeline import VolumeParams
 
     started = time.perf_counter()
     result: dict = {
@@ -527,6 +532,7 @@ def run(args, log=_log) -> dict:
             "rmse_tolerance": RMSE_TOLERANCE,
             "targets": TARGETS,
             "quick": args.quick,
+            "adaptive": {k: getattr(VolumeParams(), k) for k in ADAPTIVE_KEYS},
         },
         "scenes": {},
         "headline": {},

@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 from photonmap import VolumePipeline
 from photonmap.cli import app
 from photonmap.core.errors import ParameterError
+from photonmap.volume.pilot import PHOTON_COST
 from photonmap.volume.pipeline import ADAPTIVE_STAGES, STAGES
 
 SMALL = {"grid": 32, "photons": 16384, "pilot_photons": 1024, "width": 16, "height": 12}
@@ -51,6 +52,8 @@ CHANGES = {
     "light": (lambda p: p.set_light(position=[0.7, 3.0, 0.4]), PHOTON_STAGES),
     "delta_weight": (lambda p: p.set_params(delta_weight=0.5), PHOTON_STAGES[-3:]),
     "background": (lambda p: p.set_params(background=0.6), PHOTON_STAGES[2:]),
+    "cost_aware": (lambda p: p.set_params(cost_aware=True), PHOTON_STAGES[2:]),
+    "mip_block": (lambda p: p.set_params(mip_block=1), PHOTON_STAGES[-3:]),
     "photons": (lambda p: p.set_params(photons=8192), PHOTON_STAGES[3:]),
     "kappa": (
         lambda p: p.set_material("glass", sigma_a=[1.0, 0.2, 0.1]),
@@ -97,6 +100,8 @@ def test_same_seed_same_image_and_the_seed_moves_the_pilots():
         ({"pilot_photons": 16384}, r"pilot_photons \(16384\) must be smaller than photons"),
         ({"pilot_photons": 128**2, "photons": 4096}, "must be smaller than photons"),
         ({"emission": "importance"}, "emission must be one of uniform, adaptive"),
+        ({"mip_block": 4}, r"mip_block must be one of \(1, 2\).*got 4"),
+        ({"cost_aware": 1}, "cost_aware must be a bool"),
     ],
 )
 def test_bad_adaptive_parameters(params, message):
@@ -121,3 +126,16 @@ def test_cli_set_emission_adaptive(tmp_path):
     assert out.is_file() and "mipmap generation" in result.stdout and "filtering" in result.stdout
     bad = CliRunner().invoke(app, [*args, "--set", "background=2"])
     assert bad.exit_code == 2 and "background must lie in (0, 1)" in bad.output
+
+
+def test_cost_aware_pdf_follows_the_pilot_cost_and_keeps_the_image():
+    """The cost-aware pdf (our extension) lowers the density where pilot photons took more
+    marching steps; the estimator stays unbiased, so the image keeps its mean."""
+    plain, aware = adaptive(), adaptive(cost_aware=True)
+    a, b = image(plain), image(aware)
+    pdf, costly = plain.grids["pdf"][0], aware.grids["pdf"][0]
+    cost = aware._cache["pilot photon marching"][1][0].cost
+    ratio, factor = costly / pdf, 1 / np.sqrt(cost + PHOTON_COST)
+    assert np.allclose(ratio / ratio.sum(), factor / factor.sum(), rtol=1e-4)
+    assert cost.max() > 2 * cost[cost > 0].min()  # the glass ball costs more steps
+    assert abs(b.mean() / a.mean() - 1) < 0.05

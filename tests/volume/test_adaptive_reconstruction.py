@@ -199,3 +199,95 @@ def test_weight_step_follows_the_photon_density():
     assert mipmap.weight_step(1.0, 512**2, 128) == 1.0
     assert mipmap.weight_step(0.5, 1024**2, 128) == 2.0
     assert mipmap.weight_step(1.0, 16 * 32**2, 32) == 1.0
+
+
+# ---- per-block level selection (mip_block = 2, our extension) --------------------------------
+def numpy_block_filter(levels, delta_weight):
+    """The block variant of :func:`numpy_filter`: one level per 2×2×2 block, read at the block
+    centre (level 1: the block's own cell), the weight filter decided at level 0 by the block's
+    crossed voxels (smallest level), d₀ = mean over the block of |Y₀(v) − Y₁|; every voxel then
+    reads its block's level at its own centre."""
+    n = levels[0][0].shape[0]
+    top = len(levels) - 1
+    nb = (n + 1) // 2
+    centres = (np.indices((nb, nb, nb)).reshape(3, -1) * 2 + 1.0).astype(float)
+
+    def sample(grid, level, points):
+        coords = points / 2**level - 0.5
+        if grid.ndim == 3:
+            return map_coordinates(grid, coords, order=1, mode="nearest")
+        return np.stack([sample(grid[..., c], level, points) for c in range(grid.shape[-1])], -1)
+
+    C0, _, count0, weight0 = levels[0]
+    pad = [(0, 2 * nb - n)] * 3
+    blocks = (nb, 2, nb, 2, nb, 2)
+    inside = np.pad(np.ones((n, n, n), bool), pad).reshape(blocks)
+    Y0 = np.pad(C0.sum(-1), pad).reshape(blocks)
+    crossed = np.pad(count0 >= 1, pad).reshape(blocks)
+    own = np.clip(np.floor(np.pad(weight0, pad) / delta_weight), 0, top).reshape(blocks)
+    found = crossed.any((1, 3, 5)).ravel()
+    w_own = np.where(crossed, own, top).min((1, 3, 5)).ravel().astype(int)
+    Y = [None] + [sample(c.sum(-1), lvl, centres) for lvl, (c, _, _, _) in enumerate(levels)][1:]
+    count = [None] + [sample(cnt, lvl, centres) for lvl, (_, _, cnt, _) in enumerate(levels)][1:]
+    weight = [None] + [sample(w, lvl, centres) for lvl, (_, _, _, w) in enumerate(levels)][1:]
+    wl = np.where(found, 0, 1)
+    for lvl in range(1, top):  # lowest level ≥ 1 with count ≥ 1 (or the top)
+        wl = np.where((wl == lvl) & (count[lvl] < 1), lvl + 1, wl)
+    coarse_w = np.take_along_axis(np.stack(weight[1:]), wl[None] - 1, 0)[0]
+    coarse_level = np.clip(np.floor(coarse_w / delta_weight), 0, top)
+    w_level = np.where(found, w_own, coarse_level).astype(int)
+    Y1 = Y[1].reshape(nb, 1, nb, 1, nb, 1)
+    spread = np.where(inside, np.abs(Y0 - Y1), 0).sum((1, 3, 5)) / inside.sum((1, 3, 5))
+    d = [spread.ravel()] + [np.abs(Y[k] - Y[k + 1]) for k in range(1, top)]
+    cen = np.zeros(nb**3, int)
+    if top >= 2:
+        cur, nxt, going = d[0], d[1], np.ones(nb**3, bool)
+        for k in range(1, top - 1):
+            going &= nxt <= cur
+            cen[going] = k
+            cur = np.where(going, nxt, cur)
+            nxt = np.where(going, d[k + 1], nxt)
+    block_level = np.minimum(w_level, cen).reshape(nb, nb, nb)
+    level = block_level.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:n, :n, :n].ravel()
+    v = np.indices((n, n, n)).reshape(3, -1) + 0.5
+    colors = [np.concatenate([c, dd], -1) for c, dd, _, _ in levels]
+    out = np.stack([sample(colors[lvl], lvl, v) for lvl in range(top + 1)])
+    return level, np.take_along_axis(out, level[None, :, None], 0)[0]
+
+
+@pytest.mark.parametrize("n, delta_weight", [(32, 0.2), (32, 0.7), (32, 1.2), (33, 0.7)])
+def test_block_filter_matches_numpy(n, delta_weight):
+    grids = random_grids(n, seed=4)
+    grids[2][n // 3 :] = 0  # a region no photon crossed: the weight of a coarser level decides
+    grids[3][n // 3 :] = 0
+    C, D, level = mipmap.reconstruct(build(*grids), delta_weight, block=2)
+    ref_level, ref = numpy_block_filter(numpy_pyramid(*grids), delta_weight)
+    level = np.array(level)
+    assert np.mean(level == ref_level) > 0.999  # float ties in the level comparisons
+    assert len(set(level)) > 1
+    same = level == ref_level
+    out = np.concatenate([np.array(C), np.array(D)], -1).reshape(-1, 6)
+    assert np.allclose(out[same], ref[same], rtol=1e-4, atol=1e-5)
+    blocks = level.reshape(n, n, n)
+    odd = blocks[1::2, 1::2, 1::2]
+    assert np.array_equal(
+        blocks[::2, ::2, ::2][: odd.shape[0], : odd.shape[1], : odd.shape[2]], odd
+    )
+
+
+@pytest.mark.parametrize("delta_weight", [0.3, 1.0, 5.0])
+def test_block_filter_keeps_a_uniform_field(delta_weight):
+    """Oracle 32 for the block filter: the same levels as per voxel, the output equals the input."""
+    n = 32
+    C = np.full((n, n, n, 3), [0.5, 0.25, 2.0])
+    D = np.full((n, n, n, 3), [0.0, -1.0, 0.5])
+    ones = np.ones((n, n, n))
+    out_C, out_D, level = mipmap.reconstruct(build(C, D, ones, ones), delta_weight, block=2)
+    assert np.all(np.array(level) == min(int(1 / delta_weight), mipmap.max_level(n) - 2))
+    assert np.allclose(np.array(out_C), C, rtol=1e-6) and np.allclose(np.array(out_D), D, atol=1e-6)
+
+
+def test_bad_block_raises():
+    grids = random_grids(16)
+    with pytest.raises(mipmap.ParameterError, match="block must be one of"):
+        mipmap.reconstruct(build(*grids), 1.0, block=4)

@@ -269,3 +269,100 @@ def test_weighted_march_counts_deposits_and_averages_weights():
     plain = march(ph, grids(np.ones((32, 32, 32)), level=5))
     assert np.array_equal(np.array(plain.C), np.array(result.C))  # the tally leaves C alone
     assert plain.count is None
+
+
+def brute_force_circles(g, selected):
+    """The A3 discs tested cell by cell (float64), the oracle of the run-length circle_mass."""
+    n = g.count[selected][:, None]
+    mean = g.origin_sum[selected] / n
+    spread = np.sqrt(np.maximum(g.origin_sq[selected] / n - mean**2, 0.0))
+    radius = np.maximum(0.5 * np.maximum(spread.sum(-1), 1.0), np.sqrt(0.5))
+    cells = np.arange(g.side, dtype=np.float64)
+    dx = (cells[None, None, :] - mean[:, 0, None, None]) ** 2
+    dy = (cells[None, :, None] - mean[:, 1, None, None]) ** 2
+    return ((dx + dy) <= (radius**2)[:, None, None]).sum(0).astype(np.float64)
+
+
+@pytest.mark.parametrize("integer", [True, False])
+def test_circle_mass_matches_a_cell_by_cell_test(integer):
+    """Discs at integer centres and radii (cells exactly on the rim) and at random ones, partly
+    outside the origin grid."""
+    rng = np.random.default_rng(7)
+    for _ in range(40):
+        m, side = 5, int(rng.integers(2, 40))
+        count = rng.integers(0, 5, (m, m, m)).astype(float)
+        if integer:
+            mu = rng.integers(-2, side + 2, (m, m, m, 2)).astype(float)
+            sd = rng.integers(0, 6, (m, m, m, 2)).astype(float)
+        else:
+            mu = rng.uniform(-3, side + 3, (m, m, m, 2))
+            sd = rng.uniform(0, side / 2, (m, m, m, 2))
+        g = pilot.PilotGrids(
+            np.ones((m, m, m, 3)), count, mu * count[..., None],
+            (sd**2 + mu**2) * count[..., None], side, entering=1, steps=0,
+        )  # fmt: skip
+        selected = (count > 0) & (rng.random((m, m, m)) < 0.5)
+        assert np.array_equal(pilot.circle_mass(g, selected), brute_force_circles(g, selected))
+
+
+def test_pilot_cost_is_the_steps_of_each_origin_cell():
+    """The pilot march records the marching steps of the photon from each origin cell (row
+    order): photons through a 1-voxel-step region take more steps than through the open grid."""
+    side = 16
+    n = 32
+    ior = np.ones((n, n, n))
+    level = np.full((n, n, n), 5.0)
+    level[:, :, : n // 2] = 0  # left half: 1-voxel steps
+    medium = MarchGrids.build(
+        ior.astype(np.float32), np.zeros((n, n, n, 3), np.float32),
+        np.zeros((n, n, n, 3), np.float32), level.astype(np.float32),
+        np.full((n, n, n), np.inf, np.float32),
+    )  # fmt: skip
+    result = pilot.march_pilot(pilot.emit_pilot(DOWN, BOX, side * side, seed=1), medium)
+    assert result.cost.shape == (side, side) and result.cost.sum() == result.steps
+    assert np.all(result.cost[:, : side // 2] >= n - 1) and np.all(result.cost[:, side // 2 :] <= 2)
+
+
+def test_cost_aware_pdf_divides_by_the_root_cost():
+    g = synthetic_pilot()
+    g.cost = np.arange(64, dtype=float).reshape(8, 8)
+    pdf = pilot.importance_pdf(g, 0.5, 0.01)
+    out = pilot.cost_aware_pdf(pdf, g)
+    expected = pdf / np.sqrt(g.cost + pilot.PHOTON_COST)
+    assert np.allclose(out, expected / expected.sum()) and np.isclose(out.sum(), 1.0)
+    g.cost = None  # no cost recorded: the pdf unchanged
+    assert np.allclose(pilot.cost_aware_pdf(pdf, g), pdf)
+
+
+def test_filter_pdf_weights_and_unbiased_power():
+    """A sampler of one pdf that reports another pdf's weights: the power is weighted by the
+    sampled pdf (the deposited energy stays that of uniform emission), the returned weights are
+    1/p of the filter pdf at each photon's cell."""
+    light = Light("point", np.array([1.0, 0.8, 0.6]), position=np.array([0.45, 3.0, 0.55]))
+    medium = sphere_medium()
+    count = 2**16
+    sampled = random_pdf(3, (16, 16)) + 0.002
+    shown = random_pdf(4, (16, 16)) + 0.002
+    sampler = PlaneSampler.build(sampled, filter_pdf=shown)
+    photons, weights = emit_importance(light, BOX, sampler, count)
+    u1, u2 = sampling.coherent_points("hammersley", count)
+    x, y, _ = sampler.sample(u1, u2)
+    i = np.minimum((np.array(x) * 16).astype(int), 15)
+    j = np.minimum((np.array(y) * 16).astype(int), 15)
+    hit = np.array(dr.max(photons.power)) > 0
+    expected = 1 / (shown[j, i] / shown.sum() * 256)
+    assert np.allclose(np.array(weights)[hit], expected[hit], rtol=1e-4)
+    assert np.all(np.array(weights)[~hit] == 0)
+    adaptive = march(photons, medium, weights=weights)
+    uniform = march(emit(light, BOX, count), medium)
+    a, u = np.array(adaptive.C), np.array(uniform.C)
+    assert np.allclose(a.sum((0, 1, 2)), u.sum((0, 1, 2)), rtol=0.02)
+
+
+def test_filter_pdf_must_match_the_pdf():
+    with pytest.raises(ParameterError, match="filter_pdf must have the shape"):
+        PlaneSampler.build(np.ones((4, 4)), filter_pdf=np.ones((4, 5)))
+    zero = np.ones((4, 4))
+    zero[0] = 0
+    with pytest.raises(ParameterError, match="zero cells"):
+        PlaneSampler.build(np.ones((4, 4)), filter_pdf=zero)

@@ -40,11 +40,23 @@ class PlaneSampler:
     pdf: np.ndarray  # (H, W) cell probabilities, sum 1
     row_cdf: mi.Float  # Cy, H + 1 entries
     col_cdf: mi.Float  # Cx, H rows of W + 1 entries
+    filter_pdf: np.ndarray | None = None  # (H, W) the pdf whose weights the A7 filter reads
 
     @staticmethod
-    def build(pdf) -> PlaneSampler:
+    def build(pdf, filter_pdf=None) -> PlaneSampler:
         """Normalise ``pdf`` and build the CDFs; a negative, non-finite or all-zero pdf raises a
-        :class:`ParameterError`."""
+        :class:`ParameterError`. ``filter_pdf`` (default ``pdf``): the photon weights reported to
+        the photon-weight filter are ``1/p`` of this pdf (the cost-aware pdf samples by
+        ``pilot.cost_aware_pdf`` but filters by the importance pdf)."""
+        if filter_pdf is not None:
+            f = PlaneSampler.build(filter_pdf).pdf
+            if f.shape != np.shape(pdf) or np.any((f > 0) != (np.asarray(pdf) > 0)):
+                raise ParameterError(
+                    "filter_pdf must have the shape and the zero cells of the sampled pdf"
+                )
+            sampler = PlaneSampler.build(pdf)
+            sampler.filter_pdf = f
+            return sampler
         p = np.asarray(pdf, dtype=np.float64)
         if p.ndim != 2 or min(p.shape) < 1:
             raise ParameterError(f"the photon-plane pdf must be a 2D array, got shape {p.shape}")
@@ -69,8 +81,11 @@ class PlaneSampler:
         col_cdf[:, 1:][np.arange(p.shape[1]) >= last[:, None]] = 1.0
         return PlaneSampler(p, mi.Float(row_cdf.ravel()), mi.Float(col_cdf.ravel()))
 
-    def sample(self, u1: mi.Float, u2: mi.Float) -> tuple[mi.Float, mi.Float, mi.Float]:
-        """Warp unit-square points to ``(x, y, p(x, y))`` distributed by the pdf."""
+    def sample(
+        self, u1: mi.Float, u2: mi.Float, filtered: bool = False
+    ) -> tuple[mi.Float, mi.Float, mi.Float] | tuple[mi.Float, mi.Float, mi.Float, mi.Float]:
+        """Warp unit-square points to ``(x, y, p(x, y))`` distributed by the pdf; ``filtered``
+        appends the density of ``filter_pdf`` (that of the pdf if none) at ``(x, y)``."""
         h, w = self.pdf.shape
         j = dr.binary_search(0, h - 1, lambda k: dr.gather(mi.Float, self.row_cdf, k + 1) <= u2)
         row = j * (w + 1)
@@ -85,7 +100,13 @@ class PlaneSampler:
         fx = dr.clip((u1 - cx0) / dr.maximum(cx1 - cx0, 1e-30), 0.0, 1.0 - 1e-6)
         cell = mi.Float(self.pdf.ravel().astype(np.float32))
         density = dr.gather(mi.Float, cell, j * w + i) * (w * h)
-        return (mi.Float(i) + fx) / w, (mi.Float(j) + fy) / h, density
+        x, y = (mi.Float(i) + fx) / w, (mi.Float(j) + fy) / h
+        if not filtered:
+            return x, y, density
+        if self.filter_pdf is None:
+            return x, y, density, density
+        other = mi.Float(self.filter_pdf.ravel().astype(np.float32))
+        return x, y, density, dr.gather(mi.Float, other, j * w + i) * (w * h)
 
 
 def emit_importance(
@@ -98,11 +119,12 @@ def emit_importance(
     fidelity: str = "physical",
 ) -> tuple[Photons, mi.Float]:
     """A4: ``count`` photons placed by ``sampler`` and weighted by ``1/p``; returns the photons
-    and their weights (0 for photons that miss the grid)."""
+    and the weights the photon-weight filter reads (``1/p`` of ``sampler.filter_pdf`` if set;
+    0 for photons that miss the grid)."""
     u1, u2 = sampling.coherent_points(points, count, seed)
-    x, y, density = sampler.sample(u1, u2)
-    weight = dr.rcp(density)
-    photons = emit_at(light, box, x, y, fidelity, weight)
-    weight = dr.select(dr.max(photons.power) > 0, weight, 0.0)
+    x, y, density, filter_density = sampler.sample(u1, u2, filtered=True)
+    dr.eval(x, y, density, filter_density)  # one CDF inversion, read by both kernels below
+    photons = emit_at(light, box, x, y, fidelity, dr.rcp(density))
+    weight = dr.select(dr.max(photons.power) > 0, dr.rcp(filter_density), 0.0)
     dr.eval(weight)
     return photons, weight

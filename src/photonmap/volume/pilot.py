@@ -44,6 +44,7 @@ PILOT_GRID = 16  # cells per axis of the pilot grid for a 128³ volume (Pfeuti �
 GRAD_PERCENTILE = 90.0  # automatic grad_threshold: this percentile of g over lit voxels
 RAD_PERCENTILE = 10.0  # automatic rad_threshold: this percentile of Y over lit voxels
 PDF_BLUR = (0.1117, 0.23648, 0.30364, 0.23648, 0.1117)  # 5 taps, σ² = 2 (spec A3)
+PHOTON_COST = 13.0  # cost_aware: per-photon cost independent of the steps, in steps (fitted)
 
 
 @dataclass
@@ -57,6 +58,7 @@ class PilotGrids:
     side: int
     entering: int  # pilot photons that entered the grid
     steps: int
+    cost: np.ndarray | None = None  # (s, s) [oy, ox] marching steps of each origin cell's pilot
 
 
 def pilot_side(count: int) -> int:
@@ -104,9 +106,12 @@ def march_pilot(
     side = math.isqrt(photons.generated)
     shift = pilot_shift(medium.n)
     m = coarse_size(medium.n, shift)
-    first, second, unit, steps, _ = accumulate(
+    first, second, unit, steps, final = accumulate(
         photons, medium, _origin_tally(side, photons.generated), shift, ds_min, fidelity=fidelity
     )
+    cost = np.zeros((side, side))
+    if final:
+        cost = np.asarray(final[3], dtype=np.float64).reshape(side, side)
     first = np.asarray(first, dtype=np.float64).T.reshape(m, m, m, 4)
     second = np.asarray(second, dtype=np.float64).T.reshape(m, m, m, 4)
     return PilotGrids(
@@ -117,6 +122,7 @@ def march_pilot(
         side=side,
         entering=photons.count,
         steps=steps,
+        cost=cost,
     )
 
 
@@ -150,10 +156,27 @@ def circle_mass(pilot: PilotGrids, selected: np.ndarray) -> np.ndarray:
     mean = pilot.origin_sum[selected] / n
     spread = np.sqrt(np.maximum(pilot.origin_sq[selected] / n - mean**2, 0.0))
     radius = np.maximum(0.5 * np.maximum(spread.sum(-1), 1.0), math.sqrt(0.5))
-    cells = np.arange(pilot.side, dtype=np.float64)
-    dx = (cells[None, None, :] - mean[:, 0, None, None]) ** 2
-    dy = (cells[None, :, None] - mean[:, 1, None, None]) ** 2
-    return ((dx + dy) <= (radius**2)[:, None, None]).sum(0).astype(np.float64)
+    side = pilot.side
+    rows = np.arange(side, dtype=np.float64)
+    dy = (rows[None, :] - mean[:, 1, None]) ** 2  # (discs, rows)
+    r2 = (radius**2)[:, None]
+    mx = mean[:, 0, None]
+
+    def inside(c):
+        return (c - mx) ** 2 + dy <= r2
+
+    # per disc and row the run of cells [lo, hi] inside it (the exact test fixes sqrt's rounding)
+    half = np.sqrt(np.maximum(r2 - dy, 0.0))
+    lo, hi = np.ceil(mx - half), np.floor(mx + half)
+    lo = np.where(inside(lo - 1), lo - 1, np.where(inside(lo), lo, lo + 1))
+    hi = np.where(inside(hi + 1), hi + 1, np.where(inside(hi), hi, hi - 1))
+    lo, hi = np.maximum(lo, 0), np.minimum(hi, side - 1)
+    run = (hi >= lo) & (r2 >= dy)
+    row = np.broadcast_to(np.arange(side), run.shape)[run]
+    runs = np.zeros((side, side + 1))
+    np.add.at(runs, (row, lo[run].astype(int)), 1.0)
+    np.add.at(runs, (row, hi[run].astype(int) + 1), -1.0)
+    return np.cumsum(runs, axis=1)[:, :side]
 
 
 def blur_pdf(grid: np.ndarray) -> np.ndarray:
@@ -166,6 +189,16 @@ def blur_pdf(grid: np.ndarray) -> np.ndarray:
             w * np.take(padded, np.arange(k, k + size), axis=axis) for k, w in enumerate(taps)
         )
     return grid
+
+
+def cost_factor(pilot: PilotGrids) -> np.ndarray:
+    """``1/√c`` per origin cell (Neyman allocation under per-photon cost, our extension): ``c`` =
+    the marching steps of the cell's pilot photon + :data:`PHOTON_COST` (a photon that misses the
+    grid still costs its generation), normalised to mean 1."""
+    if pilot.cost is None:
+        return np.ones((pilot.side, pilot.side))
+    factor = 1.0 / np.sqrt(np.asarray(pilot.cost, dtype=np.float64) + PHOTON_COST)
+    return factor / factor.mean()
 
 
 def importance_pdf(
@@ -181,3 +214,19 @@ def importance_pdf(
         return np.full(circles.shape, 1.0 / circles.size)
     pdf = blur_pdf(circles + background * mass / ((1.0 - background) * circles.size))
     return pdf / pdf.sum()
+
+
+def cost_aware_pdf(pdf: np.ndarray, pilot: PilotGrids) -> np.ndarray:
+    """Our extension beyond Pfeuti (``cost_aware``): the A3 ``pdf`` divided by ``√c``, the square
+    root of the pilot's marching cost from each origin cell (:func:`cost_factor`), normalised.
+
+    Pfeuti's pdf places samples by importance alone (∝ an estimate of the per-photon spread σ);
+    when samples cost ``c`` each, the variance at a fixed total cost is smallest for ``n ∝ σ/√c``
+    (Neyman allocation under per-sample cost; Cochran, *Sampling Techniques*, §5.5). Photons
+    through the glass take 1-voxel octree steps and cost several times a photon through the fog.
+    The photon powers are weighted by ``1/p`` of this pdf, so the estimator stays unbiased; the
+    photon-weight filter (A7) keeps reading the weights of the importance pdf ``pdf``
+    (:class:`~photonmap.volume.adaptive.PlaneSampler`), so the cost does not change the blur.
+    """
+    out = np.asarray(pdf, dtype=np.float64) * cost_factor(pilot)
+    return out / out.sum()

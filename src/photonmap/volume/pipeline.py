@@ -111,6 +111,8 @@ class VolumeParams:
     background: float = 0.75  # adaptive: share β of the pdf spread uniformly (spec A37: 0.25)
     delta_weight: float = 1.0  # adaptive: Δweight of the photon-weight filter at 16 photons per
     # voxel column (spec A7; mipmap.weight_step scales it with the budget)
+    cost_aware: bool = False  # adaptive: pdf × 1/√(pilot marching cost) (Neyman; False = Pfeuti)
+    mip_block: int = 2  # adaptive: filter level chosen per voxel (1, Pfeuti A7) or per 2×2×2 block
 
     def validate(self) -> None:
         """Raise :class:`ParameterError` saying what is wrong and which values are allowed."""
@@ -195,6 +197,11 @@ class VolumeParams:
             raise ParameterError(
                 f"background must lie in (0, 1) (the share of the photon-plane pdf spread "
                 f"uniformly; 0 would leave regions unsampled), got {self.background!r}"
+            )
+        if self.mip_block not in a6.BLOCKS:
+            raise ParameterError(
+                f"mip_block must be one of {a6.BLOCKS} (the reconstruction filter picks one mip "
+                f"level per voxel, as Pfeuti does, or per 2×2×2 block), got {self.mip_block!r}"
             )
         if not (math.isfinite(self.delta_weight) and self.delta_weight > 0):
             raise ParameterError(
@@ -627,16 +634,11 @@ class VolumePipeline:
             pilot_march_key,
             lambda: [a1.march_pilot(b, march_grids, p.ds_min, p.fidelity) for b in pilots],
         )
-        pdf_key = (pilot_march_key, p.grad_threshold, p.rad_threshold, p.background)
+        pdf_key = (pilot_march_key, p.grad_threshold, p.rad_threshold, p.background, p.cost_aware)
         samplers = self._stage(
             "photon distribution",
             pdf_key,
-            lambda: [
-                a4.PlaneSampler.build(
-                    a1.importance_pdf(g, p.grad_threshold, p.rad_threshold, p.background)
-                )
-                for g in pilot_grids
-            ],
+            lambda: [_sampler(g, p) for g in pilot_grids],
         )
         gen_key = (pdf_key, p.photons, p.sampler)
         count = p.photons - p.pilot_photons
@@ -674,11 +676,11 @@ class VolumePipeline:
             return a6.build_pyramid(C, D, traced.count, traced.weight)
 
         pyramid = self._stage("mipmap generation", mip_key, mipmaps)
-        filter_key = (mip_key, p.delta_weight)
+        filter_key = (mip_key, p.delta_weight, p.mip_block)
 
         def reconstruct():
             step = a6.weight_step(p.delta_weight, count, box.n)
-            C, D, level = a6.reconstruct(pyramid, step)
+            C, D, level = a6.reconstruct(pyramid, step, p.mip_block)
             return (*smooth(C, D, enabled=False), level)
 
         C, D, _ = self._stage("filtering", filter_key, reconstruct)
@@ -729,6 +731,15 @@ class VolumePipeline:
             elif name == "octree":
                 out.update(level=np.asarray(value.level), step_limit=np.asarray(value.step_limit))
         return out
+
+
+def _sampler(pilot: a1.PilotGrids, p: VolumeParams) -> a4.PlaneSampler:
+    """A3–A4: the photon-plane sampler of one light; with ``cost_aware`` it samples the
+    cost-aware pdf and reports the importance pdf's weights to the filter."""
+    pdf = a1.importance_pdf(pilot, p.grad_threshold, p.rad_threshold, p.background)
+    if not p.cost_aware:
+        return a4.PlaneSampler.build(pdf)
+    return a4.PlaneSampler.build(a1.cost_aware_pdf(pdf, pilot), filter_pdf=pdf)
 
 
 def _sensor_key(sensor) -> tuple:
