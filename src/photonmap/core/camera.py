@@ -3,7 +3,6 @@ wavefront of pixel samples."""
 
 from __future__ import annotations
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -41,15 +40,14 @@ def moved_sensor(
     )
 
 
-def pixel_rays(sensor, spp: int, jitter: mi.Point2f) -> tuple[mi.Ray3f, mi.Spectrum]:
-    """``spp`` camera rays through every pixel of the sensor's film crop, a pixel's samples in
-    adjacent lanes (lane ``pixel · spp + s``, pixels row-major); ``jitter`` (one point in [0, 1)²
-    per lane) places each sample in its pixel. Returns the rays and their importance weights."""
+def pixel_rays(sensor, pixel: mi.UInt32, jitter: mi.Point2f) -> tuple[mi.Ray3f, mi.Spectrum]:
+    """Camera rays through the given pixels of the sensor's film crop (index ``y · width + x``),
+    each placed in its pixel by ``jitter`` (a point in [0, 1)² per ray). Returns the rays and their
+    importance weights."""
     film = sensor.film()
     w = int(film.crop_size()[0])
     ox, oy = (int(c) for c in film.crop_offset())
     full = film.size()
-    pixel = dr.arange(mi.UInt32, dr.width(jitter)) // spp
     pos = mi.Point2f(
         (mi.Float(pixel % w + ox) + jitter.x) / float(full[0]),
         (mi.Float(pixel // w + oy) + jitter.y) / float(full[1]),

@@ -7,6 +7,8 @@ non-specular surface x, where
 
     L(x, ω_o) = L_e + L_direct + L_caustic + L_indirect
 
+- ``L_e``: emitters met on the way (the lights and their images in mirrors and glass), with
+  ``emitter_spp`` extra samples in the pixels that show them (:func:`light_images`);
 - ``L_direct``: emitter sampling and BSDF sampling with MIS (:mod:`.direct`);
 - ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6), once per
   pixel where all its samples see one surface directly (:func:`caustic_radiance`);
@@ -42,7 +44,15 @@ from .trace import follow_specular
 
 LOOKUPS = ("irradiance", "knn", "direct")
 FG_SAMPLING = ("bsdf", "cosine")
-STAGES = ("photon maps", "irradiance", "eye pass", "direct lighting", "caustics", "final gather")
+STAGES = (
+    "photon maps",
+    "irradiance",
+    "eye pass",
+    "direct lighting",
+    "caustics",
+    "final gather",
+    "light images",
+)
 CAUSTIC_RADIUS = 0.05  # automatic caustic gather radius, × scene diagonal (spec A12)
 GLOBAL_RADIUS = 0.1  # automatic global gather radius, × scene diagonal (A12 says unbounded)
 
@@ -63,16 +73,17 @@ class SurfaceParams:
     fg_sampling: str = "bsdf"  # final-gather directions: bsdf | cosine
     irradiance_every: int = 4  # precompute irradiance at every m-th photon (Christensen 1999)
     spp: int = 1  # eye rays per pixel
+    emitter_spp: int = 64  # extra samples of the lights' direct and specular images (0 = none)
 
     def validate(self) -> None:
         for key in ("photons", "k", "fg_rays", "max_depth", "irradiance_every", "spp"):
             value = getattr(self, key)
             if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < 1:
                 raise ParameterError(f"{key} must be an integer >= 1, got {value!r}")
-        if not isinstance(self.caustic_photons, int | np.integer) or self.caustic_photons < 0:
-            raise ParameterError(
-                f"caustic_photons must be an integer >= 0, got {self.caustic_photons!r}"
-            )
+        for key in ("caustic_photons", "emitter_spp"):
+            value = getattr(self, key)
+            if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < 0:
+                raise ParameterError(f"{key} must be an integer >= 0, got {value!r}")
         if not (math.isfinite(self.max_radius) and self.max_radius >= 0):
             raise ParameterError(
                 f"max_radius must be >= 0 (0 = automatic), got {self.max_radius!r}"
@@ -204,8 +215,8 @@ class SurfacePipeline:
         if progress:
             progress("eye pass")
         with self.timer("eye pass"):
-            ray, ray_weight = pixel_rays(self.sensor, p.spp, jitter)
-            si, beta, L, found, bounces = follow_specular(
+            ray, ray_weight = pixel_rays(self.sensor, pixel, jitter)
+            si, beta, emitted, found, bounces = follow_specular(
                 self.scene,
                 ray,
                 ray_weight,
@@ -215,7 +226,8 @@ class SurfacePipeline:
                 count_emission=True,
             )
             bsdf = si.bsdf()
-            dr.eval(si, beta, L, found, bounces)
+            dr.eval(si, beta, emitted, found, bounces)
+        L = dr.zeros(mi.Spectrum, lanes)  # reflected light at the eye-path ends
         if progress:
             progress("direct lighting")
         with self.timer("direct lighting"):
@@ -244,14 +256,56 @@ class SurfacePipeline:
                     fused=p.lookup == "irradiance",
                 )
             dr.eval(L)
-        image = mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, p.spp) for c in L])
-        image = mi.TensorXf(dr.ravel(image / p.spp), (h, w, 3))
+        image = pixel_means(L, p.spp)
+        if progress:
+            progress("light images")
+        with self.timer("light images"):
+            image += light_images(self.scene, self.sensor, emitted, w, h, p)
+        image = mi.TensorXf(dr.ravel(image), (h, w, 3))
         if not np.all(np.isfinite(np.asarray(image))):
             raise SceneError(
                 "the render produced NaN or infinite values; check the scene's "
                 "textures and emitters for NaN"
             )
         return image
+
+
+def pixel_means(L: mi.Spectrum, spp: int) -> mi.Spectrum:
+    """The mean of each pixel's ``spp`` adjacent samples."""
+    return mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, spp) for c in L]) / spp
+
+
+def light_images(scene, sensor, emitted: mi.Spectrum, w: int, h: int, p) -> mi.Spectrum:
+    """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
+    eye samples' ``emitted``, except in the pixels where a sample saw a light (and their
+    neighbours), which get ``p.emitter_spp`` further samples of this term alone. Those pixels hold
+    the lights and their specular images — bright, small, and the one place where the eye samples
+    alone leave visible noise; the extra samples only trace specular chains, so they are cheap."""
+    image = pixel_means(emitted, p.spp)
+    if p.emitter_spp == 0:
+        return image
+    seen = np.pad(np.array(dr.max(image) > 0).reshape(h, w), 1)
+    grown = np.zeros((h, w), bool)
+    for dy in range(3):
+        for dx in range(3):
+            grown |= seen[dy : dy + h, dx : dx + w]
+    flagged = mi.UInt32(np.flatnonzero(grown).astype(np.uint32))
+    count = dr.width(flagged)
+    if count == 0:
+        return image
+    lanes = count * p.emitter_spp
+    which = dr.arange(mi.UInt32, lanes) // p.emitter_spp
+    pixel = dr.gather(mi.UInt32, flagged, which)
+    shifts = rng(count, p.seed, 3)
+    shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
+    sample = dr.arange(mi.UInt32, lanes) % p.emitter_spp
+    jitter = rotated_hammersley(p.emitter_spp, sample, dr.gather(mi.Point2f, shift, which))
+    ray, weight = pixel_rays(sensor, pixel, jitter)
+    _, _, extra, _, _ = follow_specular(
+        scene, ray, weight, dr.ones(mi.Bool, lanes), p.max_depth, rng(lanes, p.seed, 4), True
+    )
+    dr.scatter(image, pixel_means(extra, p.emitter_spp), flagged)
+    return image
 
 
 def caustic_radiance(
