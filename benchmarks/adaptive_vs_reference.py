@@ -68,20 +68,13 @@ PASSES = (
     ("Copy (view grids)", ("view grids",)),
     ("Viewing Pass", ("viewing",)),
 )
-LIGHT_STAGES = {
-    "uniform": ("photon generation", "photon tracing", "smoothing", "view grids", "viewing"),
-    "adaptive": (
-        "pilot photon generation",
-        "pilot photon marching",
-        "photon distribution",
-        "photon generation",
-        "photon tracing",
-        "mipmap generation",
-        "filtering",
-        "view grids",
-        "viewing",
-    ),
-}
+
+
+def light_stages(emission: str) -> tuple[str, ...]:
+    """The stages a light change reruns (all after the octree and the march grids)."""
+    from photonmap.volume.pipeline import ADAPTIVE_STAGES, STAGES
+
+    return (ADAPTIVE_STAGES if emission == "adaptive" else STAGES)[5:]
 
 
 def _log(message: str) -> None:
@@ -109,7 +102,7 @@ def light_frames(pipe, configs: Sequence[tuple[str, int]], runs: int) -> list[di
     for run in range(runs + 1):
         for k, (emission, photons) in enumerate(configs):
             pipe.set_params(emission=emission, photons=photons)
-            stages = LIGHT_STAGES[emission]
+            stages = light_stages(emission)
             for stage in stages:
                 pipe._cache.pop(stage, None)
             start = time.perf_counter()
