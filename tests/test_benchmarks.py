@@ -4,25 +4,16 @@ Correctness only; speed is measured by the benchmark itself (DESIGN.md)."""
 
 import json
 import math
-import sys
-from pathlib import Path
 
 import pytest
 
+from benchmarks_import import benchmark
 from photonmap.volume.pipeline import STAGES
-
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 
 
 @pytest.fixture(scope="module")
 def volume_table1():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import volume_table1
-
-        yield volume_table1
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+    return benchmark("volume_table1")
 
 
 def _positive(value) -> bool:
@@ -115,11 +106,7 @@ def test_surface_benchmark_masks_the_light_and_its_specular_images():
 
     from photonmap.scenes import SCENES
 
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import surface_vs_path
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+    surface_vs_path = benchmark("surface_vs_path")
     scene = mi.load_dict(SCENES["cornell_steinhurst"].build(width=64, height=64))
     mask = surface_vs_path.light_image_mask(scene, spp=16)
     seen = np.array(

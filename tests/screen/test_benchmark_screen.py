@@ -3,18 +3,12 @@ writes the JSON with the ``headline`` the lead's tooling reads. Speed is not ass
 
 import json
 import math
-import sys
-from pathlib import Path
 
-BENCHMARKS = Path(__file__).resolve().parent.parent.parent / "benchmarks"
+from benchmarks_import import benchmark
 
 
 def test_quick_run_writes_the_headline(tmp_path):
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import screen_table1
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+    screen_table1 = benchmark("screen_table1")
     args = ["--quick", "--frames", "1", "--warmup", "0", "--width", "64", "--height", "48",
             "--out-dir", tmp_path]  # fmt: skip
     screen_table1.main([str(a) for a in args])

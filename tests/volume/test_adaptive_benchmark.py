@@ -4,23 +4,15 @@ equal-RMSE interpolation. Correctness only; speed is measured by the benchmark i
 
 import json
 import math
-import sys
-from pathlib import Path
 
 import pytest
 
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
+from benchmarks_import import benchmark
 
 
 @pytest.fixture(scope="module")
 def bench():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import adaptive_vs_reference
-
-        yield adaptive_vs_reference
-    finally:
-        sys.path.remove(str(BENCHMARKS))
+    return benchmark("adaptive_vs_reference")
 
 
 def test_equal_rmse_budget_interpolates_log_log(bench):
