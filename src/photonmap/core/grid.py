@@ -146,9 +146,13 @@ def pack(channels: list, n: int) -> mi.Float:
     return out
 
 
-def trilinear_packed(data: mi.Float, n: int, packets: int, p: mi.Point3f) -> list:
+def trilinear_packed(
+    data: mi.Float, n, packets: int, p: mi.Point3f, base=0, active: mi.Bool | bool = True
+) -> list:
     """Trilinear sample at voxel coordinates ``p`` of a grid packed by :func:`pack` with
-    ``4·packets`` channels: one list entry (``mi.Vector4f``) per packet of four channels.
+    ``4·packets`` channels: one list entry (``mi.Vector4f``) per packet of four channels. The
+    grid has ``n`` cells per axis and starts at cell ``base`` of ``data`` — both may vary per lane
+    (the levels of a mipmap pyramid stored one after another).
 
     Samples sit at voxel centres with clamp-to-edge addressing (Pfeuti §3.1.1: "whenever we read
     data from a voxel grid we apply trilinear interpolation" — a CUDA 3D texture's semantics). The
@@ -168,8 +172,8 @@ def trilinear_packed(data: mi.Float, n: int, packets: int, p: mi.Point3f) -> lis
             row = (z * n + y) * n
             for dx in (0, 1):
                 x, wx = (hi.x, w.x) if dx else (lo.x, 1.0 - w.x)
-                base = mi.UInt32(row + x) * packets
+                cell = (base + mi.UInt32(row + x)) * packets
                 weight = wx * wy * wz
                 for k in range(packets):
-                    out[k] += weight * dr.gather(mi.Vector4f, data, base + k)
+                    out[k] += weight * dr.gather(mi.Vector4f, data, cell + k, active)
     return out

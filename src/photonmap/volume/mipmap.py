@@ -44,6 +44,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError
+from ..core.grid import trilinear_packed
 
 # the 4-tap Gaussian of variance 4 at these offsets (fine voxels from the coarse cell centre),
 # normalised: [0.21891, 0.28109, 0.28109, 0.21891] (spec A6)
@@ -188,29 +189,6 @@ def build_pyramid(
     return Pyramid(C, D, count, weight, fields, colors, offsets[: len(sizes)], sizes)
 
 
-def _trilinear(data: mi.Float, packets: int, p: mi.Point3f, m, base, active=True) -> list:
-    """Trilinear read (clamp to edge, samples at cell centres) of a ``4·packets``-channel grid of
-    ``m`` cells per axis that starts at cell ``base`` of ``data`` (``m``, ``base`` per lane)."""
-    q = p - 0.5
-    f = dr.floor(q)
-    w = q - f
-    i0 = mi.Point3i(f)
-    lo = dr.clip(i0, 0, m - 1)
-    hi = dr.clip(i0 + 1, 0, m - 1)
-    out = [dr.zeros(mi.Vector4f, dr.width(p)) for _ in range(packets)]
-    for dz in (0, 1):
-        z, wz = (hi.z, w.z) if dz else (lo.z, 1.0 - w.z)
-        for dy in (0, 1):
-            y, wy = (hi.y, w.y) if dy else (lo.y, 1.0 - w.y)
-            for dx in (0, 1):
-                x, wx = (hi.x, w.x) if dx else (lo.x, 1.0 - w.x)
-                cell = base + mi.UInt32((z * m + y) * m + x)
-                for k in range(packets):
-                    value = dr.gather(mi.Vector4f, data, cell * packets + k, active)
-                    out[k] += wx * wy * wz * value
-    return out
-
-
 def _voxel_centres(n: int) -> mi.Point3f:
     voxel = dr.arange(mi.UInt32, n**3)
     return (
@@ -271,7 +249,7 @@ def _levels(pyramid, centre, Y, spread, found, w_level, dw) -> mi.Int32:
         m = dr.gather(mi.Int32, sizes, level)
         base = dr.gather(mi.UInt32, offsets, level)
         scale = dr.rcp(mi.Float(mi.Int32(1) << level))
-        f = _trilinear(pyramid.fields, 1, centre * scale, m, base)[0]
+        f = trilinear_packed(pyramid.fields, m, 1, centre * scale, base)[0]
         # photon-weight filter: the weight of the lowest level that photons crossed
         take = ~found & ((f.y >= 1) | (level == top))
         w_level = dr.select(take, dr.clip(mi.Int32(dr.floor(f.z / dw)), 0, top), w_level)
@@ -353,7 +331,7 @@ def reconstruct(
     m = dr.gather(mi.Int32, mi.Int32(pyramid.sizes), level)
     base = dr.gather(mi.UInt32, mi.UInt32(pyramid.offsets), level)
     p = _voxel_centres(n) * dr.rcp(mi.Float(mi.Int32(1) << level))
-    a, b = _trilinear(pyramid.colors, 2, p, m, base, coarse)
+    a, b = trilinear_packed(pyramid.colors, m, 2, p, base, coarse)
     c0 = dr.unravel(mi.Vector3f, pyramid.C.array)
     d0 = dr.unravel(mi.Vector3f, pyramid.D.array)
     C = dr.ravel(dr.select(coarse, mi.Vector3f(a.x, a.y, a.z), c0))
