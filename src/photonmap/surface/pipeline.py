@@ -278,7 +278,9 @@ def pixel_means(L: mi.Spectrum, spp: int) -> mi.Spectrum:
 def light_images(scene, sensor, emitted: mi.Spectrum, w: int, h: int, p) -> mi.Spectrum:
     """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
     eye samples' ``emitted``, except in the pixels where a sample saw a light (and their
-    neighbours), which get ``p.emitter_spp`` further samples of this term alone. Those pixels hold
+    neighbours): there it is the mean of ``p.emitter_spp`` new samples of this term alone (a
+    selection by the samples themselves, as in adaptive sampling: a slight bias, within the
+    noise it removes). Those pixels hold
     the lights and their specular images — bright, small, and the one place where the eye samples
     alone leave visible noise; the extra samples only trace specular chains, so they are cheap."""
     image = pixel_means(emitted, p.spp)
