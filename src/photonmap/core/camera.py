@@ -40,6 +40,31 @@ def moved_sensor(
     )
 
 
+def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, float]:
+    """The centre and the diagonal length of the scene's bounding box."""
+    box = scene.bbox()
+    lo, hi = (np.array(c, dtype=np.float64).ravel() for c in (box.min, box.max))
+    return (lo + hi) / 2, float(np.linalg.norm(hi - lo))
+
+
+class MovableCamera:
+    """``set_camera`` for a pipeline holding a Mitsuba ``scene`` and its current ``sensor``."""
+
+    scene: mi.Scene
+    sensor: mi.Sensor
+
+    def set_camera(
+        self, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None, sensor=None
+    ) -> None:
+        """Move, re-aim or resize the camera (``fov`` horizontal, degrees), or pass a Mitsuba
+        ``sensor``; the photons are kept. Without a new ``target`` the camera keeps looking at the
+        point of its view axis nearest the scene's centre."""
+        if sensor is None:
+            centre, _ = scene_bounds(self.scene)
+            sensor = moved_sensor(self.sensor, centre, origin, target, up, fov, width, height)
+        self.sensor = sensor
+
+
 def pixel_rays(sensor, pixel: mi.UInt32, jitter: mi.Point2f) -> tuple[mi.Ray3f, mi.Spectrum]:
     """Camera rays through the given pixels of the sensor's film crop (index ``y · width + x``),
     each placed in its pixel by ``jitter`` (a point in [0, 1)² per ray). Returns the rays and their

@@ -28,7 +28,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.camera import moved_sensor
+from ..core.camera import MovableCamera, scene_bounds
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
 from ..core.timer import StageTimer
@@ -148,7 +148,7 @@ def _sensor_key(sensor) -> tuple:
     return (tuple(m.round(9)), tuple(fov), size, tuple(int(c) for c in sensor.film().size()))
 
 
-class ScreenPipeline:
+class ScreenPipeline(MovableCamera):
     """Image-space photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``) with
     a spot, point or area light.
 
@@ -178,8 +178,7 @@ class ScreenPipeline:
         self.recomputed: list[str] = []
         self._cache: dict[str, tuple] = {}
         self.outputs: dict[str, object] = {}
-        b = self.scene.bbox()
-        self.diagonal = float(np.linalg.norm(np.array(b.max).ravel() - np.array(b.min).ravel()))
+        _, self.diagonal = scene_bounds(self.scene)
         if not self.diagonal > 0:
             raise SceneError("the scene has no geometry (empty bounding box)")
 
@@ -187,15 +186,6 @@ class ScreenPipeline:
     def set_params(self, **params) -> None:
         """Change :class:`ScreenParams` fields; the next render reruns only what they affect."""
         self.params = updated(self.params, params, "screen")
-
-    def set_camera(
-        self, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None, sensor=None
-    ) -> None:
-        """Move, re-aim or resize the camera (``fov`` horizontal, degrees); photons are kept."""
-        if sensor is None:
-            centre = np.array(self.scene.bbox().center()).ravel()
-            sensor = moved_sensor(self.sensor, centre, origin, target, up, fov, width, height)
-        self.sensor = sensor
 
     def set_light(self, position=None, target=None, intensity=None, cutoff=None, index=None):
         """Move or re-aim the spot / point light (``target``: a point the spot aims at), scale its

@@ -32,7 +32,7 @@ def radiance_estimate(
 ) -> mi.Spectrum:
     """Reflected radiance at ``si`` towards ``si.wi`` from the ``k`` nearest photons (Eq 2.6)."""
     if pmap.size == 0:
-        return dr.zeros(mi.Spectrum, dr.width(active))
+        return dr.zeros(mi.Spectrum, dr.width(si.p))
     neighbours = pmap.knn(si.p, si.sh_frame.n, k, max_radius)
     return _reflected(pmap, si, bsdf, k, neighbours, active)
 
@@ -40,7 +40,8 @@ def radiance_estimate(
 @dr.syntax
 def _reflected(pmap, si, bsdf, k, nb, active):
     """``Σ f_r(ω_p, ω_o) ΔΦ_p / (π r²)`` over the neighbours ``nb`` of each query."""
-    count = dr.width(active)
+    count = dr.width(nb.count)
+    active = active & dr.full(mi.Bool, True, count)  # a scalar mask means every query
     ctx = mi.BSDFContext()
     base = dr.arange(mi.UInt32, count) * k
     L = dr.zeros(mi.Spectrum, count)

@@ -41,16 +41,17 @@ def precompute_irradiance(
     pmap: PhotonMap, every: int, k: int, max_radius: float
 ) -> PrecomputedIrradiance:
     """Irradiance at every ``every``-th photon of ``pmap`` (Christensen 1999)."""
-    idx = dr.arange(mi.UInt32, 0, pmap.size, every) if pmap.size else dr.zeros(mi.UInt32, 0)
-    if pmap.size:  # gather in Morton order: neighbouring queries read neighbouring photons
-        idx = dr.gather(
-            mi.UInt32, idx, morton3_order(dr.gather(mi.Point3f, pmap.photons.position, idx))
-        )
-    position = mi.Point3f(*[dr.gather(mi.Float, c, idx) for c in pmap.photons.position])
-    normal = mi.Vector3f(*[dr.gather(mi.Float, c, idx) for c in pmap.photons.normal])
+    if pmap.size == 0:
+        empty = dr.zeros(mi.Point3f, 0)
+        return PrecomputedIrradiance(empty, mi.Vector3f(empty), mi.Color3f(empty), None)
+    idx = dr.arange(mi.UInt32, 0, pmap.size, every)
+    # in Morton order: neighbouring queries read neighbouring photons
+    idx = dr.gather(
+        mi.UInt32, idx, morton3_order(dr.gather(mi.Point3f, pmap.photons.position, idx))
+    )
+    position = dr.gather(mi.Point3f, pmap.photons.position, idx)
+    normal = dr.gather(mi.Vector3f, pmap.photons.normal, idx)
     dr.eval(position, normal)
-    if dr.width(idx) == 0:
-        return PrecomputedIrradiance(position, normal, dr.zeros(mi.Color3f, 0), None)
     E = irradiance_estimate(pmap, position, normal, k, max_radius)
     dr.eval(E)
     return PrecomputedIrradiance(position, normal, E, HashGrid(position))

@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.camera import moved_sensor, pixel_rays
+from ..core.camera import MovableCamera, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
 from ..core.sampling import rng, rotated_hammersley
@@ -99,7 +99,7 @@ class SurfaceParams:
                 )
 
 
-class SurfacePipeline:
+class SurfacePipeline(MovableCamera):
     """Two-pass photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
 
     >>> pipe = SurfacePipeline("cornell_steinhurst", photons=200_000, fg_rays=32)
@@ -125,19 +125,9 @@ class SurfacePipeline:
         """Change pipeline parameters (:class:`SurfaceParams` fields)."""
         self.params = updated(self.params, params, "surface")
 
-    def set_camera(
-        self, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None, sensor=None
-    ) -> None:
-        """Move or resize the camera; the photon maps are kept."""
-        if sensor is None:
-            centre = np.array(self.scene.bbox().center()).ravel()
-            sensor = moved_sensor(self.sensor, centre, origin, target, up, fov, width, height)
-        self.sensor = sensor
-
     @property
     def diagonal(self) -> float:
-        b = self.scene.bbox()
-        return float(np.linalg.norm(np.array(b.max).ravel() - np.array(b.min).ravel()))
+        return scene_bounds(self.scene)[1]
 
     def radii(self) -> tuple[float, float]:
         """Maximum gather radius for the caustic and the global map: spec A12's 5% of the scene
@@ -328,8 +318,5 @@ def caustic_radiance(
     needed = dr.compress(found & (~plain | (lane == first)))
     at = dr.gather(mi.SurfaceInteraction3f, si, needed)
     estimate = dr.zeros(mi.Spectrum, lanes)
-    everywhere = dr.ones(mi.Bool, dr.width(needed))
-    dr.scatter(
-        estimate, radiance_estimate(caustic_map, at, at.bsdf(), k, radius, everywhere), needed
-    )
+    dr.scatter(estimate, radiance_estimate(caustic_map, at, at.bsdf(), k, radius, True), needed)
     return dr.gather(mi.Spectrum, estimate, dr.select(plain, first, lane))
