@@ -51,7 +51,7 @@ RMSE_TOLERANCE = 1.1  # "at equal RMSE (≤ 1.1× the reference's)"
 TRUTH_FACTOR = 16
 TARGETS = {"photon_ratio": 0.5, "time_ratio": 1.0}
 # the adaptive pipeline's defaults recorded with the results
-ADAPTIVE_KEYS = ("pilot_photons", "background", "delta_weight", "mip_block", "cost_aware")
+ADAPTIVE_KEYS = ("pilot_photons", "background", "delta_weight", "mip_block", "placement")
 # rows of Pfeuti Tables 4.2–4.4 → our stages (ours that the thesis does not list are extra rows)
 PASSES = (
     ("Voxelization", ("voxelization",)),

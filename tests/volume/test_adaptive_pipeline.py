@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 from photonmap import VolumePipeline
 from photonmap.cli import app
 from photonmap.core.errors import ParameterError
-from photonmap.volume.pilot import PHOTON_COST
+from photonmap.volume import emit as s5
 from photonmap.volume.pipeline import ADAPTIVE_STAGES, STAGES
 
 SMALL = {"grid": 32, "photons": 16384, "pilot_photons": 1024, "width": 16, "height": 12}
@@ -52,7 +52,7 @@ CHANGES = {
     "light": (lambda p: p.set_light(position=[0.7, 3.0, 0.4]), PHOTON_STAGES),
     "delta_weight": (lambda p: p.set_params(delta_weight=0.5), PHOTON_STAGES[-3:]),
     "background": (lambda p: p.set_params(background=0.6), PHOTON_STAGES[2:]),
-    "cost_aware": (lambda p: p.set_params(cost_aware=True), PHOTON_STAGES[2:]),
+    "placement": (lambda p: p.set_params(placement="uniform"), PHOTON_STAGES[2:]),
     "mip_block": (lambda p: p.set_params(mip_block=1), PHOTON_STAGES[-3:]),
     "photons": (lambda p: p.set_params(photons=8192), PHOTON_STAGES[3:]),
     "kappa": (
@@ -101,7 +101,8 @@ def test_same_seed_same_image_and_the_seed_moves_the_pilots():
         ({"pilot_photons": 128**2, "photons": 4096}, "must be smaller than photons"),
         ({"emission": "importance"}, "emission must be one of uniform, adaptive"),
         ({"mip_block": 4}, r"mip_block must be one of \(1, 2\).*got 4"),
-        ({"cost_aware": 1}, "cost_aware must be a bool"),
+        ({"placement": "cost"}, "placement must be one of importance, uniform.*got 'cost'"),
+        ({"placement": 1}, "placement must be a str"),
     ],
 )
 def test_bad_adaptive_parameters(params, message):
@@ -128,14 +129,20 @@ def test_cli_set_emission_adaptive(tmp_path):
     assert bad.exit_code == 2 and "background must lie in (0, 1)" in bad.output
 
 
-def test_cost_aware_pdf_follows_the_pilot_cost_and_keeps_the_image():
-    """The cost-aware pdf (our extension) lowers the density where pilot photons took more
-    marching steps; the estimator stays unbiased, so the image keeps its mean."""
-    plain, aware = adaptive(), adaptive(cost_aware=True)
-    a, b = image(plain), image(aware)
-    pdf, costly = plain.grids["pdf"][0], aware.grids["pdf"][0]
-    cost = aware._cache["pilot photon marching"][1][0].cost
-    ratio, factor = costly / pdf, 1 / np.sqrt(cost + PHOTON_COST)
-    assert np.allclose(ratio / ratio.sum(), factor / factor.sum(), rtol=1e-4)
-    assert cost.max() > 2 * cost[cost > 0].min()  # the glass ball costs more steps
+def test_uniform_placement_marches_the_reference_photons_and_filters_by_the_pilot_pdf():
+    """``placement="uniform"``: the phase-2 photons are the reference's plane points with the
+    reference's power (weight 1), the weights the filter reads are ``1/p`` of the pilot pdf, and
+    the image keeps its mean."""
+    plain, flat = adaptive(), adaptive(placement="uniform")
+    a, b = image(plain), image(flat)
+    photons, weights = flat._cache["photon generation"][1]
+    light, box = flat.scene.lights[0], flat.scene.box
+    reference = s5.emit(light, box, SMALL["photons"] - SMALL["pilot_photons"], "hammersley", 0)
+    assert np.allclose(np.array(photons.origin), np.array(reference.origin), atol=1e-4)
+    assert np.allclose(np.array(photons.power), np.array(reference.power), rtol=1e-5)
+    w = np.array(weights)[np.array(reference.power).max(0) > 0]
+    pdf = plain.grids["pdf"][0]
+    assert np.isclose(w.min(), 1 / (pdf.max() * pdf.size), rtol=1e-4)
+    assert np.isclose(w.max(), 1 / (pdf.min() * pdf.size), rtol=1e-4)
+    assert flat.stats["steps"] < plain.stats["steps"]  # fewer photons cross the glass ball
     assert abs(b.mean() / a.mean() - 1) < 0.05

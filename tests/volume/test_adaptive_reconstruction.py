@@ -50,16 +50,17 @@ def numpy_weight_level(count, weight):
 
 
 def numpy_pyramid(C, D, count, weight):
+    """Levels (C, D, count, weight); D stays at level 0 (no direction pyramid)."""
     levels = [(C, D, count, weight)]
     for _ in range(mipmap.max_level(C.shape[0])):
-        c, d, cnt, w = levels[-1]
-        levels.append((numpy_gauss_level(c), numpy_gauss_level(d), *numpy_weight_level(cnt, w)))
+        c, _, cnt, w = levels[-1]
+        levels.append((numpy_gauss_level(c), D, *numpy_weight_level(cnt, w)))
     return levels
 
 
 def unpack(pyramid, level, what):
-    """Level ``level`` ≥ 1 of ``fields`` (4 channels) or ``colors`` (8) as a NumPy grid."""
-    k = 4 if what == "fields" else 8
+    """Level ``level`` ≥ 1 of ``fields`` or ``colors`` (4 channels each) as a NumPy grid."""
+    k = 4
     m, start = pyramid.sizes[level], pyramid.offsets[level]
     data = np.array(getattr(pyramid, what))[k * start : k * (start + m**3)]
     return data.reshape(m, m, m, k)
@@ -81,10 +82,9 @@ def test_pyramid_matches_numpy(n):
     reference = numpy_pyramid(*grids)
     assert pyramid.max_level == len(reference) - 1 == mipmap.max_level(n)
     for level in range(1, pyramid.max_level + 1):
-        c, d, count, weight = reference[level]
+        c, _, count, weight = reference[level]
         fields, colors = unpack(pyramid, level, "fields"), unpack(pyramid, level, "colors")
-        assert np.allclose(colors[..., :3], c, rtol=1e-5)
-        assert np.allclose(colors[..., 3:6], d, rtol=1e-4, atol=1e-5)
+        assert np.allclose(colors[..., :3], c, rtol=1e-5) and np.all(colors[..., 3] == 0)
         assert np.allclose(fields[..., 0], c.sum(-1), rtol=1e-5)
         assert np.array_equal(fields[..., 1], count)
         assert np.allclose(fields[..., 2], weight, rtol=1e-6)
@@ -141,9 +141,9 @@ def numpy_filter(levels, delta_weight):
             cur = np.where(going, nxt, cur)
             nxt = np.where(going, d[k + 1], nxt)
     level = np.minimum(w_level, cen)
-    colors = [np.concatenate([c, dd], -1) for c, dd, _, _ in levels]
-    out = np.stack([sample(colors[lvl], lvl) for lvl in range(top + 1)])
-    return level, np.take_along_axis(out, level[None, :, None], 0)[0]
+    out = np.stack([sample(levels[lvl][0], lvl) for lvl in range(top + 1)])
+    C = np.take_along_axis(out, level[None, :, None], 0)[0]
+    return level, np.concatenate([C, levels[0][1].reshape(-1, 3)], -1)
 
 
 @pytest.mark.parametrize("delta_weight", [0.2, 0.7, 1.2])
@@ -250,9 +250,9 @@ def numpy_block_filter(levels, delta_weight):
     block_level = np.minimum(w_level, cen).reshape(nb, nb, nb)
     level = block_level.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:n, :n, :n].ravel()
     v = np.indices((n, n, n)).reshape(3, -1) + 0.5
-    colors = [np.concatenate([c, dd], -1) for c, dd, _, _ in levels]
-    out = np.stack([sample(colors[lvl], lvl, v) for lvl in range(top + 1)])
-    return level, np.take_along_axis(out, level[None, :, None], 0)[0]
+    out = np.stack([sample(levels[lvl][0], lvl, v) for lvl in range(top + 1)])
+    C = np.take_along_axis(out, level[None, :, None], 0)[0]
+    return level, np.concatenate([C, levels[0][1].reshape(-1, 3)], -1)
 
 
 @pytest.mark.parametrize("n, delta_weight", [(32, 0.2), (32, 0.7), (32, 1.2), (33, 0.7)])

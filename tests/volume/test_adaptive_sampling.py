@@ -305,35 +305,6 @@ def test_circle_mass_matches_a_cell_by_cell_test(integer):
         assert np.array_equal(pilot.circle_mass(g, selected), brute_force_circles(g, selected))
 
 
-def test_pilot_cost_is_the_steps_of_each_origin_cell():
-    """The pilot march records the marching steps of the photon from each origin cell (row
-    order): photons through a 1-voxel-step region take more steps than through the open grid."""
-    side = 16
-    n = 32
-    ior = np.ones((n, n, n))
-    level = np.full((n, n, n), 5.0)
-    level[:, :, : n // 2] = 0  # left half: 1-voxel steps
-    medium = MarchGrids.build(
-        ior.astype(np.float32), np.zeros((n, n, n, 3), np.float32),
-        np.zeros((n, n, n, 3), np.float32), level.astype(np.float32),
-        np.full((n, n, n), np.inf, np.float32),
-    )  # fmt: skip
-    result = pilot.march_pilot(pilot.emit_pilot(DOWN, BOX, side * side, seed=1), medium)
-    assert result.cost.shape == (side, side) and result.cost.sum() == result.steps
-    assert np.all(result.cost[:, : side // 2] >= n - 1) and np.all(result.cost[:, side // 2 :] <= 2)
-
-
-def test_cost_aware_pdf_divides_by_the_root_cost():
-    g = synthetic_pilot()
-    g.cost = np.arange(64, dtype=float).reshape(8, 8)
-    pdf = pilot.importance_pdf(g, 0.5, 0.01)
-    out = pilot.cost_aware_pdf(pdf, g)
-    expected = pdf / np.sqrt(g.cost + pilot.PHOTON_COST)
-    assert np.allclose(out, expected / expected.sum()) and np.isclose(out.sum(), 1.0)
-    g.cost = None  # no cost recorded: the pdf unchanged
-    assert np.allclose(pilot.cost_aware_pdf(pdf, g), pdf)
-
-
 def test_filter_pdf_weights_and_unbiased_power():
     """A sampler of one pdf that reports another pdf's weights: the power is weighted by the
     sampled pdf (the deposited energy stays that of uniform emission), the returned weights are

@@ -46,8 +46,8 @@ class PlaneSampler:
     def build(pdf, filter_pdf=None) -> PlaneSampler:
         """Normalise ``pdf`` and build the CDFs; a negative, non-finite or all-zero pdf raises a
         :class:`ParameterError`. ``filter_pdf`` (default ``pdf``): the photon weights reported to
-        the photon-weight filter are ``1/p`` of this pdf (the cost-aware pdf samples by
-        ``pilot.cost_aware_pdf`` but filters by the importance pdf)."""
+        the photon-weight filter are ``1/p`` of this pdf (``placement="uniform"`` samples the plane
+        uniformly but filters by the importance pdf)."""
         if filter_pdf is not None:
             f = PlaneSampler.build(filter_pdf).pdf
             if f.shape != np.shape(pdf) or np.any((f > 0) != (np.asarray(pdf) > 0)):

@@ -44,7 +44,6 @@ PILOT_GRID = 16  # cells per axis of the pilot grid for a 128³ volume (Pfeuti �
 GRAD_PERCENTILE = 90.0  # automatic grad_threshold: this percentile of g over lit voxels
 RAD_PERCENTILE = 10.0  # automatic rad_threshold: this percentile of Y over lit voxels
 PDF_BLUR = (0.1117, 0.23648, 0.30364, 0.23648, 0.1117)  # 5 taps, σ² = 2 (spec A3)
-PHOTON_COST = 13.0  # cost_aware: per-photon cost independent of the steps, in steps (fitted)
 
 
 @dataclass
@@ -58,7 +57,6 @@ class PilotGrids:
     side: int
     entering: int  # pilot photons that entered the grid
     steps: int
-    cost: np.ndarray | None = None  # (s, s) [oy, ox] marching steps of each origin cell's pilot
 
 
 def pilot_side(count: int) -> int:
@@ -106,12 +104,9 @@ def march_pilot(
     side = math.isqrt(photons.generated)
     shift = pilot_shift(medium.n)
     m = coarse_size(medium.n, shift)
-    first, second, unit, steps, final = accumulate(
+    first, second, unit, steps, _ = accumulate(
         photons, medium, _origin_tally(side, photons.generated), shift, ds_min, fidelity=fidelity
     )
-    cost = np.zeros((side, side))
-    if final:
-        cost = np.asarray(final[3], dtype=np.float64).reshape(side, side)
     first = np.asarray(first, dtype=np.float64).T.reshape(m, m, m, 4)
     second = np.asarray(second, dtype=np.float64).T.reshape(m, m, m, 4)
     return PilotGrids(
@@ -122,7 +117,6 @@ def march_pilot(
         side=side,
         entering=photons.count,
         steps=steps,
-        cost=cost,
     )
 
 
@@ -191,16 +185,6 @@ def blur_pdf(grid: np.ndarray) -> np.ndarray:
     return grid
 
 
-def cost_factor(pilot: PilotGrids) -> np.ndarray:
-    """``1/√c`` per origin cell (Neyman allocation under per-photon cost, our extension): ``c`` =
-    the marching steps of the cell's pilot photon + :data:`PHOTON_COST` (a photon that misses the
-    grid still costs its generation), normalised to mean 1."""
-    if pilot.cost is None:
-        return np.ones((pilot.side, pilot.side))
-    factor = 1.0 / np.sqrt(np.asarray(pilot.cost, dtype=np.float64) + PHOTON_COST)
-    return factor / factor.mean()
-
-
 def importance_pdf(
     pilot: PilotGrids,
     grad_threshold: float = 0.0,
@@ -214,19 +198,3 @@ def importance_pdf(
         return np.full(circles.shape, 1.0 / circles.size)
     pdf = blur_pdf(circles + background * mass / ((1.0 - background) * circles.size))
     return pdf / pdf.sum()
-
-
-def cost_aware_pdf(pdf: np.ndarray, pilot: PilotGrids) -> np.ndarray:
-    """Our extension beyond Pfeuti (``cost_aware``): the A3 ``pdf`` divided by ``√c``, the square
-    root of the pilot's marching cost from each origin cell (:func:`cost_factor`), normalised.
-
-    Pfeuti's pdf places samples by importance alone (∝ an estimate of the per-photon spread σ);
-    when samples cost ``c`` each, the variance at a fixed total cost is smallest for ``n ∝ σ/√c``
-    (Neyman allocation under per-sample cost; Cochran, *Sampling Techniques*, §5.5). Photons
-    through the glass take 1-voxel octree steps and cost several times a photon through the fog.
-    The photon powers are weighted by ``1/p`` of this pdf, so the estimator stays unbiased; the
-    photon-weight filter (A7) keeps reading the weights of the importance pdf ``pdf``
-    (:class:`~photonmap.volume.adaptive.PlaneSampler`), so the cost does not change the blur.
-    """
-    out = np.asarray(pdf, dtype=np.float64) * cost_factor(pilot)
-    return out / out.sum()

@@ -54,6 +54,7 @@ from .voxelize import voxelize
 
 FIDELITY = ("physical", "paper")
 EMISSION = ("uniform", "adaptive")
+PLACEMENTS = ("importance", "uniform")  # emission="adaptive": where the phase-2 photons go
 STAGES = (
     "voxelization",
     "materials",
@@ -111,7 +112,8 @@ class VolumeParams:
     background: float = 0.75  # adaptive: share β of the pdf spread uniformly (spec A37: 0.25)
     delta_weight: float = 1.0  # adaptive: Δweight of the photon-weight filter at 16 photons per
     # voxel column (spec A7; mipmap.weight_step scales it with the budget)
-    cost_aware: bool = False  # adaptive: pdf × 1/√(pilot marching cost) (Neyman; False = Pfeuti)
+    placement: str = "importance"  # adaptive: photons placed by the pilot pdf (Pfeuti A4) or
+    # "uniform" (the reference's plane points; the filter still reads the pilot pdf's weights)
     mip_block: int = 2  # adaptive: filter level chosen per voxel (1, Pfeuti A7) or per 2×2×2 block
 
     def validate(self) -> None:
@@ -197,6 +199,12 @@ class VolumeParams:
             raise ParameterError(
                 f"background must lie in (0, 1) (the share of the photon-plane pdf spread "
                 f"uniformly; 0 would leave regions unsampled), got {self.background!r}"
+            )
+        if self.placement not in PLACEMENTS:
+            raise ParameterError(
+                f"placement must be one of {', '.join(PLACEMENTS)} (where the adaptive pipeline "
+                f"places its photons: by the pilot pdf, or uniformly with the pilot pdf steering "
+                f"only the reconstruction filter), got {self.placement!r}"
             )
         if self.mip_block not in a6.BLOCKS:
             raise ParameterError(
@@ -634,7 +642,7 @@ class VolumePipeline:
             pilot_march_key,
             lambda: [a1.march_pilot(b, march_grids, p.ds_min, p.fidelity) for b in pilots],
         )
-        pdf_key = (pilot_march_key, p.grad_threshold, p.rad_threshold, p.background, p.cost_aware)
+        pdf_key = (pilot_march_key, p.grad_threshold, p.rad_threshold, p.background, p.placement)
         samplers = self._stage(
             "photon distribution",
             pdf_key,
@@ -734,12 +742,13 @@ class VolumePipeline:
 
 
 def _sampler(pilot: a1.PilotGrids, p: VolumeParams) -> a4.PlaneSampler:
-    """A3–A4: the photon-plane sampler of one light; with ``cost_aware`` it samples the
-    cost-aware pdf and reports the importance pdf's weights to the filter."""
+    """A3–A4: the photon-plane sampler of one light. ``placement="uniform"`` samples the plane
+    uniformly (the reference's points, weight 1) and reports the importance pdf's weights ``1/p``
+    to the photon-weight filter, so the pilots steer the reconstruction only."""
     pdf = a1.importance_pdf(pilot, p.grad_threshold, p.rad_threshold, p.background)
-    if not p.cost_aware:
+    if p.placement == "importance":
         return a4.PlaneSampler.build(pdf)
-    return a4.PlaneSampler.build(a1.cost_aware_pdf(pdf, pilot), filter_pdf=pdf)
+    return a4.PlaneSampler.build(np.ones_like(pdf), filter_pdf=pdf)
 
 
 def _sensor_key(sensor) -> tuple:
