@@ -31,12 +31,15 @@ def test_quick_run_writes_json_markdown_and_plot(bench, tmp_path):
     data = json.loads(stem.with_suffix(".json").read_text())
     assert data == json.loads(json.dumps(result, default=str))
     assert set(data["headline"]) == {"SPHERE"}
-    assert set(data["headline"]["SPHERE"]) >= {"photon_ratio", "time_ratio"}
+    assert set(data["headline"]["SPHERE"]) >= {"photon_ratio", "time_ratio", "uniform_placement"}
     scene = data["scenes"]["SPHERE"]
-    for emission in ("uniform", "adaptive"):
-        rows = scene["sweep"][emission]
+    for variant in ("uniform", "adaptive", "adaptive_uniform_placement"):
+        rows = scene["sweep"][variant]
         assert [r["budget"] for r in rows] == data["settings"]["budgets"]
         for row in rows:
             assert math.isfinite(row["rmse"]) and row["rmse"] > 0 and row["wall_ms"] > 0
     assert "Pilot Photon Marching" in scene["sweep"]["adaptive"][0]["passes_ms"]
     assert len(scene["by_nominal"]) == len(data["settings"]["budgets"])
+    assert len(scene["by_nominal_uniform_placement"]) == len(data["settings"]["budgets"])
+    fit = scene["marching_fit"]
+    assert fit["ms_per_million_steps"] > 0 and math.isfinite(fit["fixed_ms"])

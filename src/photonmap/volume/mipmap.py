@@ -66,12 +66,17 @@ REFERENCE_DENSITY = 16  # photons per voxel column of the grid face: Pfeuti's 26
 def weight_step(delta_weight: float, photons: int, n: int) -> float:
     """Δweight for the weights ``w = 1/p`` of ``photons`` importance photons on an ``n³`` grid.
 
-    Pfeuti's weight ``1/(p·A·N)`` falls as the budget N grows, so the photon-weight filter picks
-    lower levels for more photons; spec A41's budget-free ``w = 1/p`` would keep the levels (and
-    their blur) at any budget. The user's Δweight holds at the reference density of
-    :data:`REFERENCE_DENSITY` photons per voxel column and scales with ``photons`` from there.
+    The user's Δweight holds at the reference density of :data:`REFERENCE_DENSITY` photons per
+    voxel column and scales with ``√photons`` from there. Pfeuti's weight ``1/(p·A·N)`` falls as
+    ``1/N`` (linear scaling here); spec A41's budget-free ``w = 1/p`` would keep the levels (and
+    their blur) at any budget. The photon noise of a voxel falls as ``1/√N`` while the bias of a
+    level's blur does not depend on N, so the weight at which a level pays grows as ``√N``.
+    Measured (``benchmarks/adaptive_vs_reference.py`` scenes, 128³): at half the reference density
+    √ scaling lowers the image RMSE of Pfeuti's integer filter on SPHERE / CUBE by 4% / 15% (MESH
+    +6%), and the blended filter's best Δweight is then 1.0–1.2 at 131072, 262144 and 524288
+    photons alike (it was 1.5–2 / 1 / < 1 with linear scaling).
     """
-    return delta_weight * photons / (REFERENCE_DENSITY * n * n)
+    return delta_weight * math.sqrt(photons / (REFERENCE_DENSITY * n * n))
 
 
 def max_level(n: int) -> int:
@@ -237,8 +242,17 @@ def _spread(fine_Y: list, fine_in: list):
     return spread
 
 
+def _filter_level(w, dw, top: int, blend: bool) -> mi.Float:
+    """The photon-weight filter's level of average weight ``w``: ``clamp(⌊w/Δweight⌋, 0, top)``
+    (Pfeuti A7) or, with ``blend``, ``clamp(w/Δweight − ½, 0, top)`` — the piecewise-linear
+    interpolation of Pfeuti's steps through their midpoints."""
+    if blend:
+        return dr.clip(w / dw - 0.5, 0.0, top)
+    return dr.clip(dr.floor(w / dw), 0.0, top)
+
+
 @dr.syntax
-def _levels(pyramid, centre, Y, spread, found, w_level, dw) -> mi.Int32:
+def _levels(pyramid, centre, Y, spread, found, w_level, dw, blend) -> mi.Float:
     """The Listing B.3 level loop (A7) from level 1 on, at ``centre`` (fine voxel units), given the
     level-0 state: ``Y`` (ΣRGB), ``found`` / ``w_level`` (photon-weight filter decided at level 0).
     With ``spread`` (:func:`_spread` of a block) the level-1 centre-surround difference is the mean
@@ -259,7 +273,7 @@ def _levels(pyramid, centre, Y, spread, found, w_level, dw) -> mi.Int32:
         f = trilinear_packed(pyramid.fields, m, 1, centre * scale, base)[0]
         # photon-weight filter: the weight of the lowest level that photons crossed
         take = ~found & ((f.y >= 1) | (level == top))
-        w_level = dr.select(take, dr.clip(mi.Int32(dr.floor(f.z / dw)), 0, top), w_level)
+        w_level = dr.select(take, _filter_level(f.z, dw, top, blend), w_level)
         found |= take
         # centre-surround filter: d = |Y_{level−1} − Y_level|; rise while d does not increase
         diff = dr.abs(Y - f.x)
@@ -271,16 +285,20 @@ def _levels(pyramid, centre, Y, spread, found, w_level, dw) -> mi.Int32:
         cur_diff = dr.select((level == 1) | moved, diff, cur_diff)
         Y = f.x
         level += 1
-        limit = dr.minimum(w_level, top - 2)
+        limit = dr.minimum(mi.Int32(dr.ceil(w_level)), top - 2)
         active = (level <= top) & (~found | (going & (level - 1 <= limit)))
-    return dr.minimum(w_level, cen)
+    return dr.minimum(w_level, mi.Float(cen))
 
 
-def select_levels(pyramid: Pyramid, delta_weight: float, block: int = 1) -> mi.Int32:
+def select_levels(
+    pyramid: Pyramid, delta_weight: float, block: int = 1, blend: bool = False
+) -> mi.Float:
     """A7: the mip level of every voxel (``block = 1``, flat [z, y, x]) or of every 2×2×2 block
     (``block = 2``, flat over the ``⌈n/2⌉³`` blocks): the minimum of the photon-weight and the
-    centre-surround filter. A voxel stops reading coarser levels as soon as both are decided
-    (its weight is found and the centre-surround level has stopped or reached ``wLevel``).
+    centre-surround filter, an integer, or with ``blend`` a fractional level (the photon-weight
+    level unquantised, :func:`_filter_level`). A voxel stops reading coarser levels as soon as both
+    are decided (its weight is found and the centre-surround level has stopped or reached
+    ``⌈wLevel⌉``).
 
     Per block (our extension, 8× fewer level loops): the levels are read at the block centre;
     the photon-weight filter is decided at level 0 if any of its voxels was crossed (``wLevel`` =
@@ -295,51 +313,62 @@ def select_levels(pyramid: Pyramid, delta_weight: float, block: int = 1) -> mi.I
     if block == 1:
         Y = dr.sum(dr.unravel(mi.Vector3f, pyramid.C.array))
         found = count >= 1
-        w_level = dr.select(found, dr.clip(mi.Int32(dr.floor(weight / dw)), 0, top), top)
-        return _levels(pyramid, _voxel_centres(n), Y, None, found, w_level, dw)
+        w_level = dr.select(found, _filter_level(weight, dw, top, blend), top)
+        return _levels(pyramid, _voxel_centres(n), Y, None, found, w_level, dw, blend)
     b, children = _children(n, block)
     size = dr.width(b.x)
     found = dr.zeros(mi.Bool, size)
-    w_level = dr.full(mi.Int32, top, size)
+    w_level = dr.full(mi.Float, top, size)
     fine_Y, fine_in, Y = [], [], dr.zeros(mi.Float, size)
     for idx, inside in children:
         y = dr.sum(dr.gather(mi.Vector3f, pyramid.C.array, idx))
         crossed = inside & (dr.gather(mi.Float, count, idx) >= 1)
-        own = dr.clip(mi.Int32(dr.floor(dr.gather(mi.Float, weight, idx) / dw)), 0, top)
+        own = _filter_level(dr.gather(mi.Float, weight, idx), dw, top, blend)
         w_level = dr.select(crossed, dr.minimum(w_level, own), w_level)
         found |= crossed
         fine_Y.append(y)
         fine_in.append(inside)
     centre = mi.Point3f(b) * block + 0.5 * block
     spread = _spread(fine_Y, fine_in)
-    return _levels(pyramid, centre, Y, spread, found, w_level, dw)
+    return _levels(pyramid, centre, Y, spread, found, w_level, dw, blend)
 
 
-def block_to_voxels(level: mi.Int32, n: int, block: int) -> mi.Int32:
+def block_to_voxels(level: mi.Float, n: int, block: int) -> mi.Float:
     """The level of every voxel (flat [z, y, x]) from the level of every ``block³`` block."""
     nb = (n + block - 1) // block
     voxel = dr.arange(mi.UInt32, n**3)
     x, y, z = voxel % n // block, voxel // n % n // block, voxel // (n * n) // block
-    return dr.gather(mi.Int32, level, (z * nb + y) * nb + x)
+    return dr.gather(mi.Float, level, (z * nb + y) * nb + x)
+
+
+def _colour(pyramid: Pyramid, level: mi.Int32, active: mi.Bool) -> mi.Vector3f:
+    """``C`` of mip level ``level`` ≥ 1 read at every voxel centre (trilinear, ``active`` lanes)."""
+    m = dr.gather(mi.Int32, mi.Int32(pyramid.sizes), level)
+    base = dr.gather(mi.UInt32, mi.UInt32(pyramid.offsets), level)
+    p = _voxel_centres(pyramid.sizes[0]) * dr.rcp(mi.Float(mi.Int32(1) << level))
+    a = trilinear_packed(pyramid.colors, m, 1, p, base, active)[0]
+    return mi.Vector3f(a.x, a.y, a.z)
 
 
 def reconstruct(
-    pyramid: Pyramid, delta_weight: float, block: int = 1
-) -> tuple[mi.TensorXf, mi.TensorXf, mi.Int32]:
+    pyramid: Pyramid, delta_weight: float, block: int = 1, blend: bool = False
+) -> tuple[mi.TensorXf, mi.TensorXf, mi.Float]:
     """A7: the filtered ``C``, the unnormalised level-0 ``D`` (n, n, n, 3) and the level of every
     voxel. ``block = 2`` selects one level per 2×2×2 block (:func:`select_levels`); every voxel is
-    then read at its block's level (trilinear at the voxel centre, as per voxel)."""
+    then read at its block's level (trilinear at the voxel centre, as per voxel). A fractional
+    level ``ℓ + t`` (``blend``) reads ``(1 − t)·C_ℓ + t·C_{ℓ+1}``, as a GPU's trilinear mipmap
+    lookup blends two levels."""
     n = pyramid.sizes[0]
-    level = select_levels(pyramid, delta_weight, block)
+    level = select_levels(pyramid, delta_weight, block, blend)
     if block > 1:
         level = block_to_voxels(level, n, block)
     dr.eval(level)
-    coarse = level >= 1
-    m = dr.gather(mi.Int32, mi.Int32(pyramid.sizes), level)
-    base = dr.gather(mi.UInt32, mi.UInt32(pyramid.offsets), level)
-    p = _voxel_centres(n) * dr.rcp(mi.Float(mi.Int32(1) << level))
-    a = trilinear_packed(pyramid.colors, m, 1, p, base, coarse)[0]
-    c0 = dr.unravel(mi.Vector3f, pyramid.C.array)
-    C = mi.TensorXf(dr.ravel(dr.select(coarse, mi.Vector3f(a.x, a.y, a.z), c0)), (n, n, n, 3))
+    lower = mi.Int32(dr.floor(level))
+    t = level - mi.Float(lower)
+    c = dr.unravel(mi.Vector3f, pyramid.C.array)
+    c = dr.select(lower >= 1, _colour(pyramid, lower, lower >= 1), c)
+    upper = _colour(pyramid, dr.minimum(lower + 1, pyramid.max_level), t > 0)
+    c = dr.select(t > 0, dr.lerp(c, upper, t), c)
+    C = mi.TensorXf(dr.ravel(c), (n, n, n, 3))
     dr.eval(C)
     return C, pyramid.D, level

@@ -111,10 +111,12 @@ class VolumeParams:
     rad_threshold: float = 0.0  # adaptive: pilot radiance threshold in (0, 1]; 0 = automatic
     background: float = 0.75  # adaptive: share β of the pdf spread uniformly (spec A37: 0.25)
     delta_weight: float = 1.0  # adaptive: Δweight of the photon-weight filter at 16 photons per
-    # voxel column (spec A7; mipmap.weight_step scales it with the budget)
+    # voxel column (spec A7; mipmap.weight_step scales it with √budget)
     placement: str = "importance"  # adaptive: photons placed by the pilot pdf (Pfeuti A4) or
     # "uniform" (the reference's plane points; the filter still reads the pilot pdf's weights)
-    mip_block: int = 2  # adaptive: filter level chosen per voxel (1, Pfeuti A7) or per 2×2×2 block
+    mip_block: int = 1  # adaptive: filter level chosen per voxel (1, Pfeuti A7) or per 2×2×2 block
+    mip_blend: bool = True  # adaptive: fractional photon-weight levels blending two mip levels
+    # (False: Pfeuti's integer levels ⌊w/Δweight⌋)
 
     def validate(self) -> None:
         """Raise :class:`ParameterError` saying what is wrong and which values are allowed."""
@@ -684,11 +686,11 @@ class VolumePipeline:
             return a6.build_pyramid(C, D, traced.count, traced.weight)
 
         pyramid = self._stage("mipmap generation", mip_key, mipmaps)
-        filter_key = (mip_key, p.delta_weight, p.mip_block)
+        filter_key = (mip_key, p.delta_weight, p.mip_block, p.mip_blend)
 
         def reconstruct():
             step = a6.weight_step(p.delta_weight, count, box.n)
-            C, D, level = a6.reconstruct(pyramid, step, p.mip_block)
+            C, D, level = a6.reconstruct(pyramid, step, p.mip_block, p.mip_blend)
             return (*smooth(C, D, enabled=False), level)
 
         C, D, _ = self._stage("filtering", filter_key, reconstruct)
