@@ -160,11 +160,17 @@ def numpy_filter(levels, delta_weight, blend=False):
     return level, read_levels(sample, levels, level)
 
 
+@pytest.mark.parametrize("empty", [False, True])
 @pytest.mark.parametrize("blend", [False, True])
 @pytest.mark.parametrize("delta_weight", [0.2, 0.7, 1.2])
-def test_filter_matches_numpy(delta_weight, blend):
+def test_filter_matches_numpy(delta_weight, blend, empty):
+    """Per voxel; ``empty``: a slab no photon crossed, whose voxels find their weight at a coarse
+    level (Listing B.3) and may still be read at a finer one."""
     n = 32
     grids = random_grids(n, seed=2)
+    if empty:
+        grids[2][:, :, n // 4 :] = 0
+        grids[3][:, :, n // 4 :] = 0
     C, D, level = mipmap.reconstruct(build(*grids), delta_weight, blend=blend)
     ref_level, ref = numpy_filter(numpy_pyramid(*grids), delta_weight, blend)
     level = np.array(level)
