@@ -15,16 +15,19 @@ Spec seed-000-002 §5.7 oracle 33 and §3.2 (Pfeuti Tables 4.2–4.4). Scenes SP
   A4); ``adaptive_uniform_placement`` places the reference's photons and lets the pilot pdf steer
   only the reconstruction filter (``placement="uniform"``).
 * **Equal RMSE**: the target is ``1.1 × RMSE(reference at N_R)``; each adaptive variant's budget
-  reaching it is interpolated log–log on the sweep, then rendered (and timed, interleaved with
-  the reference at ``N_R``) at that budget to report the per-pass times in the layout of Pfeuti
-  Tables 4.2–4.4. ``headline[scene]`` = photon and time ratios of the default variant against the
-  reference at ``N_R`` (``headline[scene]["uniform_placement"]``: the other variant's); the
-  targets are ≤ 0.5 and < 1.
+  reaching it is interpolated log–log on the sweep (refined by a geometric bisection if the
+  interpolated budget falls short, :func:`smallest_budget`), then rendered and timed at that
+  budget, interleaved with the reference at ``N_R``, to report the per-pass times in the layout
+  of Pfeuti Tables 4.2–4.4. ``headline[scene]`` = photon and time ratios of the default variant
+  against the reference at ``N_R`` (``headline[scene]["uniform_placement"]``: the other
+  variant's); the targets are ≤ 0.5 and < 1. ``by_nominal`` repeats the comparison for every
+  reference budget of the sweep, interpolated log–log on the sweep alone (no extra run; the
+  ground truth stays 16 × N_R).
+* **Ablation** at ``N_R/2`` and ``N_R``: the RMSE of the filter alone (uniform placement) and of
+  the placement alone (importance photons, every voxel at level 0), beside the full pipeline's.
 * **Marching cost**: the photon-tracing stage of the reference sweep is fitted as ``F + v·steps``
   — ``F`` (the accumulator's allocation, reduction and conversion) does not shrink with fewer
   photons, which bounds what a smaller budget can save.
-  ``by_nominal`` repeats the comparison for every reference budget of the sweep, interpolated
-  log–log on the sweep alone (no extra run; the ground truth stays 16 × N_R).
 
 Writes ``benchmarks/results/adaptive_vs_reference.{json,md,png}`` (``--quick``: ``*_quick.*``)
 and prints the markdown. ``python benchmarks/adaptive_vs_reference.py [--quick] [--runs N]``.
@@ -264,6 +267,7 @@ def run_scene(label, scene, args, log=_log) -> dict:
         for k in ("voxelization", "materials", "gradient", "octree", "march grids")
     }
     out["marching_fit"] = marching_fit(out["sweep"]["uniform"])
+    out["ablation"] = ablation(pipe, out["sweep"], truth, [nominal // 2, nominal])
     reference = next(r for r in out["sweep"]["uniform"] if r["budget"] == nominal)
     target = RMSE_TOLERANCE * reference["rmse"]
     out["target_rmse"] = target
@@ -276,13 +280,13 @@ def run_scene(label, scene, args, log=_log) -> dict:
             log(f"  {variant} never reaches RMSE {target:.5f} within the sweep")
             continue
         budget = max(int(round(budget)), 2 * pipe.params.pilot_photons)
-        # nudge up if the interpolation landed just short of the target (RMSE is not smooth)
-        for _ in range(4):
-            (probe,) = light_frames(pipe, [(variant, budget)], runs=0)
-            if rmse(probe["image"], truth) <= target:
-                break
-            budget = int(budget * 1.1)
-        budgets[variant] = budget
+        budgets[variant] = smallest_budget(
+            lambda b, v=variant: (
+                rmse(light_frames(pipe, [(v, b)], runs=0)[0]["image"], truth) <= target
+            ),
+            budget,
+            next(r["budget"] for r in out["sweep"][variant] if r["rmse"] <= target),
+        )
     # time each variant at its budget interleaved with the reference at the nominal budget
     configs = [("uniform", nominal), *budgets.items()]
     frames = light_frames(pipe, configs, args.runs)
@@ -298,6 +302,48 @@ def run_scene(label, scene, args, log=_log) -> dict:
             f"{equal['time_ratio']:.2f}"
         )
     return out
+
+
+def smallest_budget(reaches, guess: int, known: int, probes: int = 6) -> int:
+    """A budget near the smallest that ``reaches`` the target RMSE: ``guess`` (the log–log
+    interpolation) if it does, else a geometric bisection between ``guess`` and ``known`` (a sweep
+    budget that does) over ``probes`` renders. RMSE is not exactly monotone in the budget (the
+    point sets change), so this is the smallest budget found, not a proven minimum."""
+    if guess >= known or reaches(guess):
+        return min(guess, known)
+    lo, hi = guess, known
+    for _ in range(probes):
+        mid = int(round(math.sqrt(lo * hi)))
+        if mid in (lo, hi):
+            break
+        if reaches(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+ABLATION_COLUMNS = ("uniform", "adaptive", "adaptive_uniform_placement", "placement_only")
+PLACEMENT_ONLY = {"emission": "adaptive", "placement": "importance", "delta_weight": 1e9}
+
+
+def ablation(pipe, sweep: dict, truth: np.ndarray, budgets: Sequence[int]) -> list:
+    """Where the adaptive pipeline's gain comes from, per budget of the sweep: RMSE of the
+    reference, the full adaptive pipeline, the filter alone (uniform placement) and the placement
+    alone (importance photons, every voxel at level 0 — a Δweight no weight reaches)."""
+    from photonmap.volume.pipeline import VolumeParams
+
+    rows = []
+    for budget in budgets:
+        row = {"budget": budget}
+        for variant in VARIANTS:
+            found = [r["rmse"] for r in sweep[variant] if r["budget"] == budget]
+            row[variant] = found[0] if found else None
+        pipe.set_params(photons=budget, **PLACEMENT_ONLY)
+        row["placement_only"] = rmse(np.array(pipe.render()), truth)
+        rows.append(row)
+    pipe.set_params(delta_weight=VolumeParams().delta_weight)
+    return rows
 
 
 def ratios(equal: dict, reference: dict) -> dict:
@@ -490,6 +536,27 @@ def markdown(result: dict) -> str:
         ),  # fmt: skip
         "",
     ]
+    rows = [
+        [label, fmt(r["budget"]), *(fmt(r[k], 5) for k in ABLATION_COLUMNS)]
+        for label, sc in result["scenes"].items()
+        for r in sc.get("ablation", [])
+    ]
+    lines += [
+        "## Where the gain comes from (RMSE at equal photon budgets)",
+        "",
+        markdown_table(
+            [
+                "scene",
+                "budget",
+                "reference",
+                "adaptive",
+                "filter only (uniform placement)",
+                "placement only (level 0)",
+            ],
+            rows,
+        ),  # fmt: skip
+        "",
+    ]
     if result.get("analysis"):
         lines += ["## Why", "", result["analysis"], ""]
     lines.append(f"Benchmark wall time {result['elapsed_s']:.0f} s.")
@@ -635,7 +702,7 @@ def _ints(text: str) -> list[int]:
 def main(argv: Sequence[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke test: tiny grid and budgets")
-    parser.add_argument("--runs", type=int, default=3, help="timed frames per configuration")
+    parser.add_argument("--runs", type=int, default=5, help="timed frames per configuration")
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--width", type=int, default=480)
     parser.add_argument("--height", type=int, default=360)

@@ -41,5 +41,30 @@ def test_quick_run_writes_json_markdown_and_plot(bench, tmp_path):
     assert "Pilot Photon Marching" in scene["sweep"]["adaptive"][0]["passes_ms"]
     assert len(scene["by_nominal"]) == len(data["settings"]["budgets"])
     assert len(scene["by_nominal_uniform_placement"]) == len(data["settings"]["budgets"])
+    assert [r["budget"] for r in scene["ablation"]] == [2**13, 2**14]
+    assert all(r["placement_only"] > 0 and r["adaptive"] > 0 for r in scene["ablation"])
     fit = scene["marching_fit"]
-    assert fit["ms_per_million_steps"] > 0 and math.isfinite(fit["fixed_ms"])
+    assert math.isfinite(fit["ms_per_million_steps"]) and math.isfinite(
+        fit["fixed_ms"]
+    )  # noisy at 32³
+
+
+def test_smallest_budget_bisects_between_a_failing_guess_and_a_known_budget(bench):
+    probed = []
+
+    def reaches(budget):
+        probed.append(budget)
+        return budget >= 1000
+
+    assert bench.smallest_budget(reaches, 800, 1600) == pytest.approx(1000, rel=0.05)
+    assert all(800 < b < 1600 for b in probed[1:])
+    assert bench.smallest_budget(reaches, 1200, 1600) == 1200  # the guess reaches the target
+    assert bench.smallest_budget(reaches, 2000, 1600) == 1600  # a guess above the known budget
+
+
+def test_marching_fit_recovers_fixed_and_per_step_cost(bench):
+    rows = [
+        {"steps": s, "stages_ms": {"photon tracing": 80 + 50 * s / 1e6}} for s in (1e6, 2e6, 4e6)
+    ]
+    fit = bench.marching_fit(rows)
+    assert fit["fixed_ms"] == pytest.approx(80) and fit["ms_per_million_steps"] == pytest.approx(50)

@@ -53,7 +53,8 @@ CHANGES = {
     "delta_weight": (lambda p: p.set_params(delta_weight=0.5), PHOTON_STAGES[-3:]),
     "background": (lambda p: p.set_params(background=0.6), PHOTON_STAGES[2:]),
     "placement": (lambda p: p.set_params(placement="uniform"), PHOTON_STAGES[2:]),
-    "mip_block": (lambda p: p.set_params(mip_block=1), PHOTON_STAGES[-3:]),
+    "mip_block": (lambda p: p.set_params(mip_block=2), PHOTON_STAGES[-3:]),
+    "mip_blend": (lambda p: p.set_params(mip_blend=False), PHOTON_STAGES[-3:]),
     "photons": (lambda p: p.set_params(photons=8192), PHOTON_STAGES[3:]),
     "kappa": (
         lambda p: p.set_material("glass", sigma_a=[1.0, 0.2, 0.1]),
@@ -101,6 +102,7 @@ def test_same_seed_same_image_and_the_seed_moves_the_pilots():
         ({"pilot_photons": 128**2, "photons": 4096}, "must be smaller than photons"),
         ({"emission": "importance"}, "emission must be one of uniform, adaptive"),
         ({"mip_block": 4}, r"mip_block must be one of \(1, 2\).*got 4"),
+        ({"mip_blend": "yes"}, "mip_blend must be a bool"),
         ({"placement": "cost"}, "placement must be one of importance, uniform.*got 'cost'"),
         ({"placement": 1}, "placement must be a str"),
     ],
