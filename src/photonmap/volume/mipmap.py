@@ -10,9 +10,10 @@ for 128³, A45).
 
 The direction sums ``D`` get no pyramid (Pfeuti filters them like ``C``): every voxel keeps its
 level-0 (S8-smoothed) ``D``. ``D̂`` only orients the phase function and is smooth already; on the
-SPHERE / CUBE / MESH scenes at 131072 photons the image RMSE is 0.00604 / 0.01034 / 0.01266 with
-level-0 directions against 0.00606 / 0.01035 / 0.01267 with filtered ones, and the pyramid and the
-filter's colour reads halve (≈ 30 ms of ≈ 100 at 128³).
+SPHERE / CUBE / MESH scenes at 131072 photons (integer per-block levels, Δweight scaled linearly)
+the image RMSE is 0.00604 / 0.01034 / 0.01266 with level-0 directions against 0.00606 / 0.01035 /
+0.01267 with filtered ones, and the pyramid and the filter's colour reads halve (≈ 30 ms of ≈ 100
+at 128³).
 
 **A7 filter.** Every level is read at the voxel centres of the full grid with trilinear
 interpolation (A47). Per voxel:
