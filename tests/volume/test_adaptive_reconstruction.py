@@ -123,6 +123,20 @@ def read_levels(sample, levels, level):
     return np.concatenate([(1 - t) * c_lo + t * c_hi, levels[0][1].reshape(-1, 3)], -1)
 
 
+def centre_surround(d, top):
+    """Listing B.3's centre-surround level from the differences ``d[k] = |Y_k − Y_{k+1}|``: rise
+    from 0 to ``k`` while ``d[k] ≤ d[k−1]``, at most ``top − 2``."""
+    cen = np.zeros(len(d[0]), int)
+    if top >= 2:
+        cur, nxt, going = d[0], d[1], np.ones(len(d[0]), bool)
+        for k in range(1, top - 1):
+            going &= nxt <= cur
+            cen[going] = k
+            cur = np.where(going, nxt, cur)
+            nxt = np.where(going, d[k + 1], nxt)
+    return cen
+
+
 def numpy_filter(levels, delta_weight, blend=False):
     """Listing B.3 (as resolved in spec A7/A46) on NumPy levels read with trilinear interpolation
     at the voxel centres (scipy's map_coordinates, order 1, edges replicated)."""
@@ -148,14 +162,7 @@ def numpy_filter(levels, delta_weight, blend=False):
     w = np.take_along_axis(np.stack(weight), wl[None], 0)[0]
     w_level = filter_level(w, delta_weight, top, blend)
     d = [np.abs(Y[k] - Y[k + 1]) for k in range(top)]
-    cen = np.zeros(n**3, int)
-    if top >= 2:
-        cur, nxt, going = d[0], d[1], np.ones(n**3, bool)
-        for k in range(1, top - 1):
-            going &= nxt <= cur
-            cen[going] = k
-            cur = np.where(going, nxt, cur)
-            nxt = np.where(going, d[k + 1], nxt)
+    cen = centre_surround(d, top)
     level = np.minimum(w_level, cen)
     return level, read_levels(sample, levels, level)
 
@@ -263,14 +270,7 @@ def numpy_block_filter(levels, delta_weight, blend=False):
     Y1 = Y[1].reshape(nb, 1, nb, 1, nb, 1)
     spread = np.where(inside, np.abs(Y0 - Y1), 0).sum((1, 3, 5)) / inside.sum((1, 3, 5))
     d = [spread.ravel()] + [np.abs(Y[k] - Y[k + 1]) for k in range(1, top)]
-    cen = np.zeros(nb**3, int)
-    if top >= 2:
-        cur, nxt, going = d[0], d[1], np.ones(nb**3, bool)
-        for k in range(1, top - 1):
-            going &= nxt <= cur
-            cen[going] = k
-            cur = np.where(going, nxt, cur)
-            nxt = np.where(going, d[k + 1], nxt)
+    cen = centre_surround(d, top)
     block_level = np.minimum(w_level, cen).reshape(nb, nb, nb)
     level = block_level.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:n, :n, :n].ravel()
     v = np.indices((n, n, n)).reshape(3, -1) + 0.5
