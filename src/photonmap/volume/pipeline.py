@@ -95,7 +95,7 @@ class VolumeParams:
     ds_max: float = 8.0  # Δs_max where ε ≤ range < ε', voxels (Sun §5.3)
     supersample: int = 4  # voxelization supersampling (Sun §4.1)
     blur_all: bool = False  # also blur σ_s and κ (spec A3)
-    smoothing: bool = True  # 3×3×3 smoothing of C and D (S8)
+    smoothing: bool = True  # 3×3×3 smoothing of C and D (S8; emission="adaptive": C only)
     phase_k: float = 0.3  # Schlick k (spec A25)
     table: float = 0.0  # ρ_table of the reflective bottom layer; 0 = none (Pfeuti §3.1.6)
     iso_reflect: float = 0.04  # R_iso of the reflective isosurface (spec A29); 0 = none
@@ -679,11 +679,9 @@ class VolumePipeline:
         )
         mip_key = (march_key, p.smoothing)
 
-        def mipmaps():
-            C, D = traced.C, traced.D
-            if p.smoothing:
-                C, D = filter_separable(C, BINOMIAL), filter_separable(D, BINOMIAL)
-            return a6.build_pyramid(C, D, traced.count, traced.weight)
+        def mipmaps():  # S8 on C only: the directions stay as marched (mipmap.py notes)
+            C = filter_separable(traced.C, BINOMIAL) if p.smoothing else traced.C
+            return a6.build_pyramid(C, traced.D, traced.count, traced.weight)
 
         pyramid = self._stage("mipmap generation", mip_key, mipmaps)
         filter_key = (mip_key, p.delta_weight, p.mip_block, p.mip_blend)
