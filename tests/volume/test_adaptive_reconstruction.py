@@ -167,13 +167,14 @@ def numpy_filter(levels, delta_weight, blend=False):
     return level, read_levels(sample, levels, level)
 
 
+@pytest.mark.parametrize("n", [32, 64])
 @pytest.mark.parametrize("empty", [False, True])
 @pytest.mark.parametrize("blend", [False, True])
 @pytest.mark.parametrize("delta_weight", [0.2, 0.7, 1.2])
-def test_filter_matches_numpy(delta_weight, blend, empty):
+def test_filter_matches_numpy(delta_weight, blend, empty, n):
     """Per voxel; ``empty``: a slab no photon crossed, whose voxels find their weight at a coarse
-    level (Listing B.3) and may still be read at a finer one."""
-    n = 32
+    level (Listing B.3) and may still be read at a finer one. At 64³ (5 levels) most voxels take
+    the loop-free path (``mipmap._dense_levels``), the others the level loop."""
     grids = random_grids(n, seed=2)
     if empty:
         grids[2][:, :, n // 4 :] = 0

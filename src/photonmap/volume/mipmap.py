@@ -33,7 +33,10 @@ as soon as its level is decided — at once where photons of weight below Δweig
 (``wLevel = 0``), else when its weight is known and the centre-surround level has stopped or
 reached ``⌈wLevel⌉``. A second pass reads the colour of the chosen level(s) (levels ≥ 1 only;
 reading the colours inside the level loop instead was no faster at 128³, 72 ms either way: the
-loop's extra state costs what the second pass saves).
+loop's extra state costs what the second pass saves). Most voxels never take the loop: a crossed
+voxel with ``wLevel ≤ 2`` needs only levels 1–3, which :func:`_dense_levels` reads once for every
+voxel, their colours serving both the centre-surround test and the output (SPHERE, 131072 photons,
+128³: 74 → 53 ms for the filter, the same levels and colours).
 
 **Blended levels** (``blend``, the pipeline's default ``mip_blend``; our extension): the
 photon-weight level is not quantised, ``wLevel = clamp(w/Δweight − ½, 0, max_level)`` — the
@@ -215,8 +218,9 @@ def build_pyramid(
     return Pyramid(C, D, count, weight, fields, colors, offsets[: len(sizes)], sizes)
 
 
-def _voxel_centres(n: int) -> mi.Point3f:
-    voxel = dr.arange(mi.UInt32, n**3)
+def _voxel_centres(n: int, voxel: mi.UInt32 | None = None) -> mi.Point3f:
+    """The centres of the voxels with flat indices ``voxel`` (default: every voxel, in order)."""
+    voxel = dr.arange(mi.UInt32, n**3) if voxel is None else voxel
     return (
         mi.Point3f(mi.Float(voxel % n), mi.Float(voxel // n % n), mi.Float(voxel // (n * n))) + 0.5
     )
@@ -305,7 +309,11 @@ def _levels(pyramid, centre, Y, spread, found, w_level, dw, blend) -> mi.Float:
 
 
 def select_levels(
-    pyramid: Pyramid, delta_weight: float, block: int = 1, blend: bool = False
+    pyramid: Pyramid,
+    delta_weight: float,
+    block: int = 1,
+    blend: bool = False,
+    voxel: mi.UInt32 | None = None,
 ) -> mi.Float:
     """A7: the mip level of every voxel (``block = 1``, flat [z, y, x]) or of every 2×2×2 block
     (``block = 2``, flat over the ``⌈n/2⌉³`` blocks): the minimum of the photon-weight and the
@@ -318,6 +326,8 @@ def select_levels(
     the photon-weight filter is decided at level 0 if any of its voxels was crossed (``wLevel`` =
     the smallest of those voxels' levels, so a caustic voxel keeps the block sharp); the level-1
     centre-surround difference is the mean of the voxels' ``|Y_0(v) − Y_1|``.
+
+    ``voxel`` (per voxel only): the levels of the voxels with these flat indices.
     """
     if block not in BLOCKS:
         raise ParameterError(f"the reconstruction block must be one of {BLOCKS}, got {block!r}")
@@ -325,10 +335,12 @@ def select_levels(
     dw = dr.opaque(mi.Float, delta_weight)
     count, weight = pyramid.count.array, pyramid.weight.array
     if block == 1:
-        Y = dr.sum(dr.unravel(mi.Vector3f, pyramid.C.array))
-        found = count >= 1
-        w_level = dr.select(found, _filter_level(weight, dw, top, blend), top)
-        return _levels(pyramid, _voxel_centres(n), Y, None, found, w_level, dw, blend)
+        idx = dr.arange(mi.UInt32, n**3) if voxel is None else voxel
+        Y = dr.sum(dr.gather(mi.Vector3f, pyramid.C.array, idx))
+        found = dr.gather(mi.Float, count, idx) >= 1
+        w = _filter_level(dr.gather(mi.Float, weight, idx), dw, top, blend)
+        w_level = dr.select(found, w, top)
+        return _levels(pyramid, _voxel_centres(n, idx), Y, None, found, w_level, dw, blend)
     b, children = _children(n, block)
     size = dr.width(b.x)
     found = dr.zeros(mi.Bool, size)
@@ -355,13 +367,61 @@ def block_to_voxels(level: mi.Float, n: int, block: int) -> mi.Float:
     return dr.gather(mi.Float, level, (z * nb + y) * nb + x)
 
 
-def _colour(pyramid: Pyramid, level: mi.Int32, active: mi.Bool) -> mi.Vector3f:
-    """``C`` of mip level ``level`` ≥ 1 read at every voxel centre (trilinear, ``active`` lanes)."""
-    m = dr.gather(mi.Int32, mi.Int32(pyramid.sizes), level)
-    base = dr.gather(mi.UInt32, mi.UInt32(pyramid.offsets), level)
-    p = _voxel_centres(pyramid.sizes[0]) * dr.rcp(mi.Float(mi.Int32(1) << level))
+def _colour(pyramid: Pyramid, level, active=True, voxel: mi.UInt32 | None = None) -> mi.Vector3f:
+    """``C`` of mip level ``level`` ≥ 1 (a Python int, or one per lane) read at the centres of the
+    voxels ``voxel`` (flat indices, default all; trilinear, ``active`` lanes)."""
+    if isinstance(level, int):
+        m, base, scale = pyramid.sizes[level], pyramid.offsets[level], 0.5**level
+    else:
+        m = dr.gather(mi.Int32, mi.Int32(pyramid.sizes), level)
+        base = dr.gather(mi.UInt32, mi.UInt32(pyramid.offsets), level)
+        scale = dr.rcp(mi.Float(mi.Int32(1) << level))
+    p = _voxel_centres(pyramid.sizes[0], voxel) * scale
     a = trilinear_packed(pyramid.colors, m, 1, p, base, active)[0]
     return mi.Vector3f(a.x, a.y, a.z)
+
+
+def _read_colours(pyramid: Pyramid, voxel: mi.UInt32, level: mi.Float) -> mi.Vector3f:
+    """``C`` of the voxels ``voxel`` at their fractional levels ``ℓ + t``:
+    ``(1 − t)·C_ℓ + t·C_{ℓ+1}`` (level 0: the voxel's own ``C``)."""
+    lower = mi.Int32(dr.floor(level))
+    t = level - mi.Float(lower)
+    c = dr.gather(mi.Vector3f, pyramid.C.array, voxel)
+    c = dr.select(lower >= 1, _colour(pyramid, lower, lower >= 1, voxel), c)
+    upper = _colour(pyramid, dr.minimum(lower + 1, pyramid.max_level), t > 0, voxel)
+    return dr.select(t > 0, dr.lerp(c, upper, t), c)
+
+
+DENSE_TOP = 4  # the dense path needs levels 1–3 and Listing B.3's rise at level 3 (top ≥ 4)
+
+
+def _dense_levels(pyramid: Pyramid, dw, blend: bool):
+    """The per-voxel filter for the common voxels, without the level loop: ``(level, C, dense)``.
+
+    A voxel crossed by photons whose photon-weight level is ``w ≤ 2`` needs at most levels 1–3:
+    Listing B.3 moves ``cen`` to 1 at level 2 if ``d₂ ≤ d₁`` and to 2 at level 3 if also
+    ``d₃ ≤ d₂``, and the loop stops there (it reads no level above ``⌈w⌉ + 1``), so
+    ``level = min(w, cen)`` comes from ``C₁``, ``C₂`` read once for every voxel (they give both
+    ``Y`` and the output colours) and ``Y₃`` where it can matter. The other voxels (``dense``
+    false: not crossed, or ``w > 2``) take the loop (:func:`select_levels`)."""
+    top = pyramid.max_level
+    found = pyramid.count.array >= 1
+    w = dr.select(found, _filter_level(pyramid.weight.array, dw, top, blend), top)
+    dense = found & (w <= 2)
+    c0 = dr.unravel(mi.Vector3f, pyramid.C.array)
+    c1, c2 = _colour(pyramid, 1, dense & (w > 0)), _colour(pyramid, 2, dense & (w > 0))
+    y0, y1, y2 = dr.sum(c0), dr.sum(c1), dr.sum(c2)
+    d1, d2 = dr.abs(y0 - y1), dr.abs(y1 - y2)
+    rise1 = d2 <= d1
+    y3 = dr.sum(_colour(pyramid, 3, dense & rise1 & (w > 1)))
+    rise2 = rise1 & (dr.abs(y2 - y3) <= d2)
+    cen = dr.select(rise2, 2.0, dr.select(rise1, 1.0, 0.0))
+    level = dr.minimum(w, cen)
+    lower = dr.floor(level)
+    t = level - lower
+    c_low = dr.select(lower == 0, c0, dr.select(lower == 1, c1, c2))
+    c_high = dr.select(lower == 0, c1, c2)
+    return level, dr.select(t > 0, dr.lerp(c_low, c_high, t), c_low), dense
 
 
 def reconstruct(
@@ -373,16 +433,20 @@ def reconstruct(
     level ``ℓ + t`` (``blend``) reads ``(1 − t)·C_ℓ + t·C_{ℓ+1}``, as a GPU's trilinear mipmap
     lookup blends two levels."""
     n = pyramid.sizes[0]
-    level = select_levels(pyramid, delta_weight, block, blend)
-    if block > 1:
-        level = block_to_voxels(level, n, block)
+    if block == 1 and pyramid.max_level >= DENSE_TOP:
+        level, c, dense = _dense_levels(pyramid, dr.opaque(mi.Float, delta_weight), blend)
+        dr.eval(level, c, dense)
+        rest = dr.compress(~dense)  # the voxels the level loop decides
+        if dr.width(rest):
+            dr.scatter(level, select_levels(pyramid, delta_weight, 1, blend, rest), rest)
+    else:
+        level = select_levels(pyramid, delta_weight, block, blend)
+        if block > 1:
+            level = block_to_voxels(level, n, block)
+        c, rest = dr.zeros(mi.Vector3f, n**3), dr.arange(mi.UInt32, n**3)
     dr.eval(level)
-    lower = mi.Int32(dr.floor(level))
-    t = level - mi.Float(lower)
-    c = dr.unravel(mi.Vector3f, pyramid.C.array)
-    c = dr.select(lower >= 1, _colour(pyramid, lower, lower >= 1), c)
-    upper = _colour(pyramid, dr.minimum(lower + 1, pyramid.max_level), t > 0)
-    c = dr.select(t > 0, dr.lerp(c, upper, t), c)
+    if dr.width(rest):
+        dr.scatter(c, _read_colours(pyramid, rest, dr.gather(mi.Float, level, rest)), rest)
     C = mi.TensorXf(dr.ravel(c), (n, n, n, 3))
     dr.eval(C)
     return C, pyramid.D, level
