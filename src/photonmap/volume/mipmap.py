@@ -53,8 +53,8 @@ The block's photon-weight level is decided at level 0 by its crossed voxels (the
 levels, so a caustic voxel keeps its block sharp), its level-1 centre-surround difference is the
 mean of ``|Y_0(v) − Y_1|`` over its voxels; every voxel is then read at its block's level at its
 own centre, so the output stays trilinear. Measured as above with blended levels: the filter takes
-45–63 ms instead of 76–79 ms, but the image RMSE is 0.00560 / 0.00851 / 0.01257 against 0.00504 /
-0.00900 / 0.01189 per voxel (SPHERE / CUBE / MESH).
+≈ 48 ms instead of ≈ 56 ms per voxel (SPHERE, in the pipeline), but the image RMSE is 0.00560 /
+0.00851 / 0.01257 against 0.00504 / 0.00900 / 0.01189 per voxel (SPHERE / CUBE / MESH).
 """
 
 from __future__ import annotations
