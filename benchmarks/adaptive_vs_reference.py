@@ -8,7 +8,8 @@ Spec seed-000-002 §5.7 oracle 33 and §3.2 (Pfeuti Tables 4.2–4.4). Scenes SP
   Halton sequence (memory), the C and D sums averaged, then smoothed and viewed as usual.
 * **Sweep**: for each photon budget, both pipelines render light-change frames — every stage that
   depends on the light runs (reference S5–S9, adaptive A1–A7 + S9; the geometry stages are the
-  same for both and cached) — after one warm-up frame; wall time = median of ``runs`` frames;
+  same for both and cached) — after one warm-up frame; wall time = median of ``runs`` frames
+  (``final_runs`` at equal RMSE);
   RMSE of the linear-radiance image against the ground truth. Photon counts are the photons that
   entered the grid (pilots included), as in Pfeuti's tables.
 * **Variants**: ``adaptive`` is the pipeline's default (photons placed by the pilot pdf, Pfeuti
@@ -30,7 +31,8 @@ Spec seed-000-002 §5.7 oracle 33 and §3.2 (Pfeuti Tables 4.2–4.4). Scenes SP
   photons, which bounds what a smaller budget can save.
 
 Writes ``benchmarks/results/adaptive_vs_reference.{json,md,png}`` (``--quick``: ``*_quick.*``)
-and prints the markdown. ``python benchmarks/adaptive_vs_reference.py [--quick] [--runs N]``.
+and prints the markdown. ``python benchmarks/adaptive_vs_reference.py [--quick] [--runs N]
+[--final-runs N]``.
 """
 
 from __future__ import annotations
@@ -289,7 +291,7 @@ def run_scene(label, scene, args, log=_log) -> dict:
         )
     # time each variant at its budget interleaved with the reference at the nominal budget
     configs = [("uniform", nominal), *budgets.items()]
-    frames = light_frames(pipe, configs, args.runs)
+    frames = light_frames(pipe, configs, args.final_runs)
     out["reference"] = reference = _row(frames[0], nominal, truth)
     for (variant, budget), frame in zip(configs[1:], frames[1:], strict=True):
         equal = _row(frame, budget, truth)
@@ -392,7 +394,8 @@ def markdown(result: dict) -> str:
         f"{m['cpu_model']}, {m['cores']} cores, Mitsuba {m['mitsuba']}, Dr.Jit {m['drjit']}, "
         f"{m['date']}, load average at start {m.get('load_average')} (the machine was shared). "
         f"Ground truth: reference pipeline at {TRUTH_FACTOR}× {s['nominal']:,} photons. Times: "
-        f"median of {s['runs']} light-change frames (all light-dependent stages run) after a "
+        f"median of {s['runs']} light-change frames in the sweep, of {s.get('final_runs')} at equal "
+        "RMSE (all light-dependent stages run, configurations interleaved run by run) after a "
         "warm-up frame. Target RMSE = 1.1 × the reference's at the nominal budget. Adaptive "
         f"settings: {s.get('adaptive', {})}; load average at the end "
         f"{result.get('load_average_end')}.",
@@ -655,6 +658,7 @@ def run(args, log=_log) -> dict:
             "nominal": args.nominal,
             "budgets": list(args.budgets),
             "runs": args.runs,
+            "final_runs": args.final_runs,
             "truth_factor": TRUTH_FACTOR,
             "rmse_tolerance": RMSE_TOLERANCE,
             "targets": TARGETS,
@@ -702,7 +706,10 @@ def _ints(text: str) -> list[int]:
 def main(argv: Sequence[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="smoke test: tiny grid and budgets")
-    parser.add_argument("--runs", type=int, default=5, help="timed frames per configuration")
+    parser.add_argument("--runs", type=int, default=3, help="timed frames per sweep configuration")
+    parser.add_argument(
+        "--final-runs", type=int, default=9, help="timed frames per equal-RMSE configuration"
+    )
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--width", type=int, default=480)
     parser.add_argument("--height", type=int, default=360)
@@ -715,7 +722,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     args = parser.parse_args(argv)
     args.scenes = [s.strip().upper() for s in args.scenes.split(",") if s.strip()]
     if args.quick:
-        args.grid, args.width, args.height, args.runs = 32, 48, 36, 1
+        args.grid, args.width, args.height, args.runs, args.final_runs = 32, 48, 36, 1, 1
         args.nominal, args.budgets = 2**14, [2**12 * 3, 2**13, 2**14]
     args.budgets = sorted({*args.budgets, args.nominal})
     result = run(args)
