@@ -114,7 +114,7 @@ class MarchResult:
     C: mi.TensorXf  # (n, n, n, 3) deposited energy
     D: mi.TensorXf  # (n, n, n, 3) Σ (R+G+B)·direction, unnormalised
     steps: int  # photon marching steps taken (Sun Table 1 "millions of steps")
-    final: tuple = ()  # per photon (x, v, L̃) where it stopped (voxel units), steps taken
+    final: tuple = ()  # per photon (x, v, L̃) where it stopped (voxel units)
     count: mi.TensorXf | None = None  # (n, n, n) deposits per voxel (weighted march only)
     weight: mi.TensorXf | None = None  # (n, n, n) their average weight w̄ = Σw / cnt, 0 if none
 
@@ -278,7 +278,7 @@ def accumulate(
 ):
     """March ``photons`` and return ``(first, second, unit, steps, final)``: the two packets each
     voxel of the deposit grid received (``Vector4d`` raw fixed-point sums; energy channels times
-    ``unit`` are watts), the total step count and the per-photon final state ``(x, v, L̃, steps)``."""
+    ``unit`` are watts), the total step count and the per-photon final state ``(x, v, L̃)``."""
     n = medium.n
     m = coarse_size(n, shift)
     acc = dr.zeros(Int64, m**3 * CHANNELS)
@@ -301,7 +301,7 @@ def accumulate(
             shift,
         )
         dr.eval(acc, steps, x, v, L)
-        steps, final = int(dr.sum(Float64(steps))[0]), (x, v, L, steps)
+        steps, final = int(dr.sum(Float64(steps))[0]), (x, v, L)
     voxel = dr.arange(mi.UInt32, m**3) * 2
     first = Vector4d(dr.gather(Vector4i64, acc, voxel))
     second = Vector4d(dr.gather(Vector4i64, acc, voxel + 1))
@@ -340,6 +340,5 @@ def march(
         weight = mi.Float(second.w * 2.0**-WEIGHT_BITS / dr.maximum(second.z, 1.0))
         result.count = mi.TensorXf(count, (n, n, n))
         result.weight = mi.TensorXf(weight, (n, n, n))
-        dr.eval(result.count, result.weight)
-    dr.eval(C, D)
+    dr.eval(C, D, result.count, result.weight)  # one kernel reads the accumulator
     return result

@@ -658,10 +658,7 @@ class VolumePipeline:
                 a4.emit_importance(li, box, smp, count, p.sampler, p.seed, p.fidelity)
                 for li, smp in zip(lights, samplers, strict=True)
             ]
-            photons = _concat([b[0] for b in batches])
-            return photons, dr.concat([b[1] for b in batches]) if len(batches) > 1 else batches[0][
-                1
-            ]
+            return _concat([b[0] for b in batches]), dr.concat([b[1] for b in batches])
 
         photons, weights = self._stage("photon generation", gen_key, generate)
         march_key = (gen_key, octree_key, kappa_key, p.ds_min)
