@@ -30,6 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.camera import pixel_rays
 from ..core.grid import GridBox, pack, to_tensor, trilinear_packed
 from .emit import box_entry
 
@@ -180,23 +181,16 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
 
 def render_view(grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSettings) -> mi.TensorXf:
     """Render the image seen by ``sensor`` (a Mitsuba perspective sensor) — spec S9."""
-    film = sensor.film()
-    w, h = (int(c) for c in film.crop_size())
-    ox, oy = (int(c) for c in film.crop_offset())
-    full = film.size()
+    w, h = (int(c) for c in sensor.film().crop_size())
     pixels = w * h
     spp = max(int(settings.spp), 1)
     idx = dr.arange(mi.UInt32, pixels * spp)
-    pix = idx // spp
-    px = mi.Float(pix % w + ox)
-    py = mi.Float(pix // w + oy)
     if spp > 1:
         rng = mi.PCG32(pixels * spp, mi.UInt64(settings.seed), mi.UInt64(idx))
-        jx, jy = rng.next_float32(), rng.next_float32()
+        jitter = mi.Point2f(rng.next_float32(), rng.next_float32())
     else:
-        jx = jy = mi.Float(0.5)
-    pos = mi.Point2f((px + jx) / float(full[0]), (py + jy) / float(full[1]))
-    ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+        jitter = mi.Point2f(0.5)
+    ray, _ = pixel_rays(sensor, idx // spp, jitter)
     o = mi.Point3f((ray.o - mi.Point3f(*box.lo)) / box.h)
     d = mi.Vector3f(ray.d)
     L, inside = _march_rays(grids, o, d, env, settings)
