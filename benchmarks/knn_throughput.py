@@ -29,7 +29,7 @@ from common import (
     machine_info,
     markdown_table,
     summarize,
-    sync,
+    timed,
     write_json,
     write_text,
 )
@@ -77,16 +77,8 @@ def cell_order(queries: np.ndarray, cell: float) -> np.ndarray:
 
 def rate(gather, count: int, repeats: int) -> dict:
     """Gathers per second (millions) of ``gather()``: one warm-up call, then ``repeats`` timed."""
-    gather()
-    sync()
-    seconds = []
-    for _ in range(repeats):
-        sync()
-        start = time.perf_counter()
-        gather()
-        sync()
-        seconds.append(time.perf_counter() - start)
-    return summarize([count / s / 1e6 for s in seconds])
+    timed(gather)
+    return summarize([count / timed(gather)[0] / 1e6 for _ in range(repeats)])
 
 
 def main(argv=None) -> dict:

@@ -1,10 +1,12 @@
-"""Brute-force k-nearest-neighbour reference shared by the hash-grid and kd-tree tests: float32
-arithmetic in the kernels' order, ties broken by photon index (spec seed-001 O5)."""
+"""k-nearest-neighbour references shared by the hash-grid and kd-tree tests: a brute force in float32
+arithmetic in the kernels' order and a ``scipy.spatial.cKDTree`` one, ties broken by photon index
+(spec seed-001 O5)."""
 
 import math
 
 import mitsuba as mi
 import numpy as np
+from scipy.spatial import cKDTree
 
 from photonmap.core.hashgrid import COS_NORMAL, NO_PHOTON
 
@@ -50,6 +52,31 @@ def brute_force(
         index[q, : len(best)] = best
         count[q] = len(best)
         radius2[q] = d2[best[-1]] if len(best) else 0
+    return index, count, radius2
+
+
+def ckdtree_reference(points, queries, k, radius=math.inf, fixed_radius=False):
+    """The same result from cKDTree: ``query`` finds the k-th distance (a fixed-radius gather
+    takes the radius), ``query_ball_point`` every point at most that far, ordered by (d², index)."""
+    tree = cKDTree(points.astype(np.float64))
+    q64 = queries.astype(np.float64)
+    if fixed_radius:
+        reach = np.full(len(queries), radius)
+    else:
+        dist, _ = tree.query(q64, k=min(k, len(points)), distance_upper_bound=radius)
+        dist = dist.reshape(len(queries), -1)
+        reach = np.where(np.isfinite(dist), dist, -1.0).max(axis=1)  # -1: nothing in range
+        reach *= 1 + 1e-9  # keep the ties at the k-th distance (lattice distances differ more)
+    index = np.full((len(queries), k), NO_PHOTON, np.uint32)
+    count = np.zeros(len(queries), np.uint32)
+    radius2 = np.zeros(len(queries), np.float32)
+    for q in np.nonzero(reach >= 0)[0]:
+        near = np.array(tree.query_ball_point(q64[q], reach[q]), dtype=np.int64)
+        d2 = ((points[near].astype(np.float64) - q64[q]) ** 2).sum(axis=1)
+        order = np.lexsort((near, d2))[:k]
+        index[q, : len(order)] = near[order]
+        count[q] = len(order)
+        radius2[q] = d2[order[-1]] if len(order) else 0
     return index, count, radius2
 
 

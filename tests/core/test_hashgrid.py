@@ -11,9 +11,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
-from scipy.spatial import cKDTree
 
-from knn_reference import assert_same, brute_force, lattice, to_mi
+from knn_reference import assert_same, brute_force, ckdtree_reference, lattice, to_mi
 from photonmap.core.errors import ParameterError
 from photonmap.core.hashgrid import NO_PHOTON, HashGrid
 
@@ -37,31 +36,6 @@ def clustered_points(n, seed):
     p[box, rng.integers(0, 3, box.sum())] = 0.35
     p[n // 2 : n // 2 + n // 10] = p[: n // 10]  # duplicates
     return lattice(p)
-
-
-def ckdtree_reference(points, queries, k, radius=math.inf, fixed_radius=False):
-    """The same result from cKDTree: ``query`` finds the k-th distance (a fixed-radius gather
-    takes the radius), ``query_ball_point`` every point at most that far, ordered by (d², index)."""
-    tree = cKDTree(points.astype(np.float64))
-    q64 = queries.astype(np.float64)
-    if fixed_radius:
-        reach = np.full(len(queries), radius)
-    else:
-        dist, _ = tree.query(q64, k=min(k, len(points)), distance_upper_bound=radius)
-        dist = dist.reshape(len(queries), -1)
-        reach = np.where(np.isfinite(dist), dist, -1.0).max(axis=1)  # -1: nothing in range
-        reach *= 1 + 1e-9  # keep the ties at the k-th distance (lattice distances differ more)
-    index = np.full((len(queries), k), NO_PHOTON, np.uint32)
-    count = np.zeros(len(queries), np.uint32)
-    radius2 = np.zeros(len(queries), np.float32)
-    for q in np.nonzero(reach >= 0)[0]:
-        near = np.array(tree.query_ball_point(q64[q], reach[q]), dtype=np.int64)
-        d2 = ((points[near].astype(np.float64) - q64[q]) ** 2).sum(axis=1)
-        order = np.lexsort((near, d2))[:k]
-        index[q, : len(order)] = near[order]
-        count[q] = len(order)
-        radius2[q] = d2[order[-1]] if len(order) else 0
-    return index, count, radius2
 
 
 # ------------------------------------------------------------------------------ exact kNN

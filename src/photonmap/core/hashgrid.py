@@ -463,6 +463,20 @@ class HashGrid(PhotonSearch):
             bound = dr.minimum(bound, dr.minimum(gap_hi * gap_hi, gap_lo * gap_lo))
         return bound
 
+    def _candidate(self, j, query, number, radius2, query_normal, normals, directions, cos_normal):
+        """Stored photon ``j`` as a candidate of the cell numbered ``number`` for ``query`` (traced
+        inside the search loops): ``(d², original index, ok)``, ``ok`` where it lies within the
+        radius, in that cell (cells share slots of a hashed table) and passes the normal test
+        (``normals``/``directions``: stored records or None)."""
+        p, index = read_record(self.record, j)
+        d2 = squared_distance(p, query)
+        ok = d2 <= radius2
+        if self.hashed:
+            ok &= self._cell_number(self._cell(p)) == number
+        if query_normal is not None and (normals is not None or directions is not None):
+            ok &= normal_test(query_normal, normals, directions, j, cos_normal, ok)
+        return d2, index, ok
+
     @dr.syntax
     def _search(self, query, k, radius2, query_normal, normals, directions, cos_normal):
         lanes = dr.width(query)
@@ -507,13 +521,9 @@ class HashGrid(PhotonSearch):
             j_end = dr.gather(mi.UInt32, self.cell_start, slot + 1, visit)
             # ---- the photons of the cell
             while j < j_end:
-                p, index = read_record(self.record, j)
-                d2 = squared_distance(p, query)
-                ok = d2 <= radius2
-                if self.hashed:
-                    ok &= self._cell_number(self._cell(p)) == number
-                if query_normal is not None:
-                    ok &= normal_test(query_normal, normals, directions, j, cos_normal, ok)
+                d2, index, ok = self._candidate(
+                    j, query, number, radius2, query_normal, normals, directions, cos_normal
+                )
                 found = offer(heap, k, found, photon_key(d2, index), ok)
                 j += 1
             iterations += 1
@@ -569,13 +579,9 @@ class HashGrid(PhotonSearch):
             j = dr.gather(mi.UInt32, self.cell_start, slot, visit)
             j_end = dr.gather(mi.UInt32, self.cell_start, slot + 1, visit)
             while visit & (j < j_end):
-                p, index = read_record(self.record, j)
-                d2 = squared_distance(p, query)
-                ok = d2 <= radius2
-                if self.hashed:
-                    ok &= self._cell_number(self._cell(p)) == number
-                if normals is not None:
-                    ok &= normal_test(query_normal, normals, None, j, cos_normal, ok)
+                d2, index, ok = self._candidate(
+                    j, query, number, radius2, query_normal, normals, None, cos_normal
+                )
                 key = photon_key(d2, index)
                 better = ok & (key < best_key)
                 best_key = dr.select(better, key, best_key)

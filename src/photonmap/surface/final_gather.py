@@ -16,8 +16,9 @@ nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is o
 interaction at y is materialised in memory. A k-NN lookup runs its own kernels over the evaluated
 hits (``fused=False``).
 
-The rays are issued in explicit batches of photon-map queries — ``batch`` final-gather rays of
-every query point at a time (about 2²¹ rays per batch), the unit that gather reordering works on.
+The rays are issued in explicit batches of photon-map queries — as many final-gather rays of every
+query point at a time as fit in ``BATCH_RAYS`` (2²¹) rays per batch — the unit that gather
+reordering works on.
 """
 
 from __future__ import annotations

@@ -18,10 +18,6 @@ import mitsuba as mi
 from .photon_map import PhotonMap
 
 
-def _g3(cls, v, idx, active):
-    return cls(*[dr.gather(mi.Float, c, idx, active) for c in v])
-
-
 def radiance_estimate(
     pmap: PhotonMap,
     si: mi.SurfaceInteraction3f,
@@ -48,8 +44,8 @@ def _reflected(pmap, si, bsdf, k, nb, active):
     j = dr.zeros(mi.UInt32, count)
     while active & (j < nb.count):
         idx = dr.gather(mi.UInt32, nb.index, base + j)
-        power = _g3(mi.Color3f, pmap.photons.power, idx, active)
-        wo = si.to_local(-_g3(mi.Vector3f, pmap.photons.direction, idx, active))
+        power = dr.gather(mi.Color3f, pmap.photons.power, idx, active)
+        wo = si.to_local(-dr.gather(mi.Vector3f, pmap.photons.direction, idx, active))
         f = bsdf.eval(ctx, si, wo, active) / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
         L += f * power
         j += 1
@@ -69,7 +65,8 @@ def irradiance_estimate(
     E = dr.zeros(mi.Color3f, count)
     j = dr.zeros(mi.UInt32, count)
     while j < nb.count:
-        E += _g3(mi.Color3f, pmap.photons.power, dr.gather(mi.UInt32, nb.index, base + j), True)
+        idx = dr.gather(mi.UInt32, nb.index, base + j)
+        E += dr.gather(mi.Color3f, pmap.photons.power, idx)
         j += 1
     area = math.pi * nb.radius2
     return dr.select((nb.count > 0) & (area > 0), E / dr.maximum(area, 1e-30), 0.0)

@@ -19,12 +19,10 @@ parameters stay the same (Steinhurst §7.2.1: only the camera moves).
 
 from __future__ import annotations
 
-import dataclasses
-
 import mitsuba as mi
 import numpy as np
 
-from ..core.params import read_properties
+from ..core.params import read_properties, updated
 from .pipeline import SurfaceParams, SurfacePipeline
 
 
@@ -39,7 +37,7 @@ class PhotonMapperIntegrator(mi.SamplingIntegrator):
             "photon_mapper",
             ignore={"samples_per_pass", "hide_emitters", "timeout"},
         )
-        dataclasses.replace(SurfaceParams(), **self.params).validate()
+        updated(SurfaceParams(), self.params, "photon_mapper")
         self.pipeline: SurfacePipeline | None = None
         self._scene = None
 

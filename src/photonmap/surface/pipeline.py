@@ -119,7 +119,8 @@ class SurfacePipeline(MovableCamera):
         self.set_params(**{k: v for k, v in params.items() if k in defaults})
         self.timer = StageTimer()
         self.stats: dict[str, float] = {}
-        self._maps = None
+        self._maps = None  # (tracing key, (global map, caustic map))
+        self._extra = None  # (lookup key, irradiance or filtered map), for self._maps
 
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`SurfaceParams` fields)."""
@@ -139,40 +140,37 @@ class SurfacePipeline(MovableCamera):
 
     def photon_maps(self, progress=None):
         """Global map, caustic map and (for ``lookup="irradiance"``) the precomputed irradiance,
-        built once per parameter set."""
+        built once per parameter set: the maps are traced again only when a parameter of the
+        tracing changes, the derived lookup data when a lookup parameter or the maps change."""
         p = self.params
-        key = (
-            p.photons,
-            p.caustic_photons,
-            p.structure,
-            p.max_depth,
-            p.seed,
-            p.lookup,
-            p.k,
-            p.irradiance_every,
-            p.max_radius,
-        )
-        if self._maps is not None and self._maps[0] == key:
-            return self._maps[1]
-        _, r_global = self.radii()
-        if progress:
-            progress("photon maps")
-        with self.timer("photon maps"):
-            global_map, caustic_map = build_photon_maps(
-                self.scene, p.photons, p.caustic_photons, p.structure, p.max_depth, p.seed
-            )
-        extra = None
-        if p.lookup == "irradiance":
+        key = (p.photons, p.caustic_photons, p.structure, p.max_depth, p.seed)
+        if self._maps is None or self._maps[0] != key:
             if progress:
-                progress("irradiance")
-            with self.timer("irradiance"):
-                extra = precompute_irradiance(global_map, p.irradiance_every, p.k, r_global)
-        elif p.lookup == "direct":  # direct visualisation: only photons after a diffuse bounce
-            keep = (global_map.photons.depth > 1) & ~global_map.photons.caustic
-            extra = photon_map(global_map.photons.select(keep), p.structure)
-        self._maps = (key, (global_map, caustic_map, extra))
-        self.stats.update(global_photons=global_map.size, caustic_photons=caustic_map.size)
-        return self._maps[1]
+                progress("photon maps")
+            with self.timer("photon maps"):
+                maps = build_photon_maps(
+                    self.scene, p.photons, p.caustic_photons, p.structure, p.max_depth, p.seed
+                )
+            self._maps = (key, maps)
+            self._extra = None
+            self.stats.update(global_photons=maps[0].size, caustic_photons=maps[1].size)
+        global_map, caustic_map = self._maps[1]
+        extra_key = (p.lookup,)  # "direct" (the filtered map) and "knn" need only the maps
+        if p.lookup == "irradiance":
+            extra_key += (p.k, p.irradiance_every, p.max_radius)
+        if self._extra is None or self._extra[0] != extra_key:
+            extra = None
+            if p.lookup == "irradiance":
+                _, r_global = self.radii()
+                if progress:
+                    progress("irradiance")
+                with self.timer("irradiance"):
+                    extra = precompute_irradiance(global_map, p.irradiance_every, p.k, r_global)
+            elif p.lookup == "direct":  # direct visualisation: only photons after a diffuse bounce
+                keep = (global_map.photons.depth > 1) & ~global_map.photons.caustic
+                extra = photon_map(global_map.photons.select(keep), p.structure)
+            self._extra = (extra_key, extra)
+        return global_map, caustic_map, self._extra[1]
 
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance."""
