@@ -3,6 +3,7 @@ wavefront of pixel samples."""
 
 from __future__ import annotations
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -79,3 +80,10 @@ def pixel_rays(sensor, pixel: mi.UInt32, jitter: mi.Point2f) -> tuple[mi.Ray3f, 
     )
     ray, weight = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
     return ray, mi.Spectrum(weight)
+
+
+def pixel_means(L: mi.Spectrum, spp: int) -> mi.Spectrum:
+    """The mean of each pixel's ``spp`` adjacent samples. ``L`` is evaluated first: a block
+    reduction of each channel of a lazy ``L`` would rerun the kernel that computes it."""
+    dr.eval(L)
+    return mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, spp) for c in L]) / spp

@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.camera import MovableCamera, pixel_rays, scene_bounds
+from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
 from ..core.sampling import rng, rotated_hammersley
@@ -256,11 +256,6 @@ class SurfacePipeline(MovableCamera):
                 "textures and emitters for NaN"
             )
         return image
-
-
-def pixel_means(L: mi.Spectrum, spp: int) -> mi.Spectrum:
-    """The mean of each pixel's ``spp`` adjacent samples."""
-    return mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, spp) for c in L]) / spp
 
 
 def light_images(scene, sensor, emitted: mi.Spectrum, w: int, h: int, p) -> mi.Spectrum:

@@ -30,7 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.camera import pixel_rays
+from ..core.camera import pixel_means, pixel_rays
 from ..core.grid import GridBox, pack, to_tensor, trilinear_packed
 from .emit import box_entry
 
@@ -195,12 +195,6 @@ def render_view(grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSetti
     d = mi.Vector3f(ray.d)
     L, inside = _march_rays(grids, o, d, env, settings)
     L = dr.select(inside, L, environment(env, d))
-    image = mi.TensorXf(_average_samples(L, spp) if spp > 1 else dr.ravel(L), (h, w, 3))
+    image = mi.TensorXf(dr.ravel(pixel_means(L, spp) if spp > 1 else L), (h, w, 3))
     dr.eval(image)
     return image
-
-
-def _average_samples(L: mi.Color3f, spp: int) -> mi.Float:
-    """Mean of ``spp`` consecutive samples per pixel, as a flat RGB array."""
-    out = [dr.block_reduce(dr.ReduceOp.Add, c, spp) / spp for c in L]
-    return dr.ravel(mi.Color3f(*out))
