@@ -65,7 +65,9 @@ def render(
     ] = None,
     width: Annotated[int | None, typer.Option(help="image width (default: the scene's)")] = None,
     height: Annotated[int | None, typer.Option(help="image height")] = None,
-    spp: Annotated[int, typer.Option(help="camera samples per pixel")] = 1,
+    spp: Annotated[
+        int, typer.Option(help="camera samples per pixel (volume, surface; screen casts 1)")
+    ] = 1,
     seed: Annotated[int, typer.Option(help="random seed")] = 0,
     set_: Annotated[
         list[str] | None, typer.Option("--set", help="KEY=VALUE pipeline parameter")
@@ -109,7 +111,13 @@ def render(
             Pipeline, Params, extra = SurfacePipeline, SurfaceParams, {}
         fields = {f.name: getattr(Params(), f.name) for f in dataclasses.fields(Params)}
         params = _parse_sets(set_ or [], {**fields, **extra})
-        params.setdefault("spp", spp)
+        if "spp" in fields:
+            params.setdefault("spp", spp)
+        elif spp != 1:
+            raise PhotonmapError(
+                f"--spp does not apply to the {method} method: it casts one primary ray per "
+                f"pixel centre (got --spp {spp})"
+            )
         params.setdefault("seed", seed)
         with console.status(f"loading {scene}") if interactive() else nullcontext():
             pipe = Pipeline(scene, **params)

@@ -42,3 +42,16 @@ def test_scene_default_method_is_screen_and_bad_keys_exit_2(tmp_path):
     result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "subsample=1.5")
     assert result.exit_code == 2 and "cannot read '1.5' as int" in result.output
     assert "cornell_ispm" in run("scenes").stdout
+
+
+def test_spp_does_not_apply_to_the_screen_method(tmp_path):
+    """The screen pipeline casts one primary ray per pixel centre: --spp 1 is accepted, any other
+    count exits 2 with a clear error, and spp is no screen --set key."""
+    out = tmp_path / "x.png"
+    small = ["--width", 16, "--height", 12, "--set", "light_res=8"]
+    result = run("render", "cornell_ispm", "-o", out, "--spp", 4, *small)
+    assert result.exit_code == 2 and "--spp does not apply to the screen method" in result.output
+    assert not out.exists()
+    assert run("render", "cornell_ispm", "-o", out, "--spp", 1, *small).exit_code == 0
+    result = run("render", "cornell_ispm", "-o", out, "--set", "spp=1")
+    assert result.exit_code == 2 and "unknown --set key 'spp'" in result.output

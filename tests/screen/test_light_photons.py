@@ -70,8 +70,10 @@ def test_spot_frustum_solid_angle_and_point_sphere():
     assert np.allclose(total, 4 * math.pi * np.array([2.0, 1.0, 0.5]), rtol=1e-5)
     # outside the spot cone the flux is zero (A26)
     narrow = closed_box(light=_spot((0, 0.5, 0), cutoff=30.0, beam=30.0))
-    lgb = light_gbuffer(narrow, find_light(narrow), 64, 64)
-    d = np.array(lgb.w_in)
+    light = find_light(narrow)
+    lgb = light_gbuffer(narrow, light, 64, 64)
+    d = np.array(lgb.si.p) - light.position[:, None]  # the texel rays, from the light to the hit
+    d /= np.linalg.norm(d, axis=0)
     angle = np.degrees(np.arccos(np.clip(-d[1], -1, 1)))
     flux = np.array(lgb.flux)[0]
     assert np.all(flux[angle > 30.01] == 0) and np.all(flux[angle < 29.99] > 0)

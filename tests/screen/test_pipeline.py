@@ -1,13 +1,14 @@
 """ScreenPipeline: the stage graph (spec §7), the built-in scenes, the ``ispm`` plugin and bad
 input (issue 4 items 2–4, 7)."""
 
-import drjit as dr
+import math
+
 import mitsuba as mi
 import numpy as np
 import pytest
 
 import photonmap
-from photonmap import ParameterError, PhotonmapError, SceneError, ScreenPipeline
+from photonmap import ParameterError, SceneError, ScreenPipeline
 from photonmap.screen.pipeline import STAGES
 
 SMALL = {"width": 48, "height": 36}
@@ -21,14 +22,12 @@ def pipe():
     return p
 
 
-def test_first_render_runs_every_stage_and_is_finite(pipe):
+def test_first_render_runs_every_stage_and_is_finite():
     p = ScreenPipeline("cornell_ispm", **SMALL, **FAST)
     image = np.array(p.render())
     assert image.shape == (36, 48, 3)
     assert np.all(np.isfinite(image)) and image.max() > 0
-    assert p.recomputed == [s for s in STAGES if s != "glass"] + ["glass"] or set(
-        p.recomputed
-    ) == set(STAGES)
+    assert p.recomputed == list(STAGES)
     assert set(p.timer.ms) == set(STAGES)
     assert p.stats["photon_slots"] == 24 * 24 * 2
     assert 0 < p.stats["photons"] <= p.stats["photon_slots"]
@@ -71,7 +70,7 @@ def test_a_change_reruns_only_what_it_needs(change, kept):
     assert not np.array_equal(before, after)
 
 
-def test_two_bounces_add_light(pipe):
+def test_two_bounces_add_light():
     """O7: the B = 2 photon map holds the B = 1 map, so L_ind(B=2) ≥ L_ind(B=1) per pixel."""
     p = ScreenPipeline("cornell_ispm", **SMALL, **FAST, bounces=1)
     p.render()
@@ -95,11 +94,21 @@ def test_glass_sphere_caustic_and_eye_refraction():
     assert glass[specular].max() > 0 and np.all(glass[~specular] == 0)
 
 
+def test_glass_sphere_focus_lies_just_above_the_floor():
+    """The glass sphere's refractive caustic focuses 1.5 R below its centre (η = 1.5): 20 mm above
+    the floor (y = 0) of cornell_glass_sphere."""
+    ispm = photonmap.scenes.ispm
+    assert math.isclose(ispm.SPHERE_CENTER[1] - 1.5 * ispm.SPHERE_RADIUS, 0.02)
+
+
 def test_area_light_scene_and_mesh_scene():
     """Area lights by sampling (cornell_steinhurst's ceiling light, mirror and glass spheres) and
     the procedural-mesh Cornell box."""
     p = ScreenPipeline("cornell_steinhurst", width=32, height=32, light_res=16)
-    assert p.light.kind == "area" and p.light.radius > 0
+    assert p.light.kind == "area"
+    radiance = np.array(mi.traverse(p.light.emitter)["radiance.value"]).ravel()
+    area = np.array(p.light.emitter.get_shape().surface_area()).ravel()[0]
+    assert np.allclose(p.light.power, np.pi * radiance * area, rtol=1e-4)  # Φ_e = π L_e A
     image = np.array(p.render())
     assert np.all(np.isfinite(image)) and image.mean() > 0
     m = ScreenPipeline("cornell_mesh", triangles=2000, **SMALL, **FAST)
@@ -168,11 +177,6 @@ def test_light_inside_geometry():
     p = ScreenPipeline("cornell_ispm", **SMALL, **FAST)  # a light moved into a block: refused
     with pytest.raises(SceneError, match="lies inside geometry"):
         p.set_light(position=(0.37, 0.2, 0.35))  # inside the tall block
-
-
-def test_errors_are_photonmap_errors():
-    assert issubclass(SceneError, PhotonmapError) and issubclass(ParameterError, PhotonmapError)
-    assert dr.width(mi.Float(1)) == 1
 
 
 def test_light_intensity_scales_the_image_linearly():

@@ -82,9 +82,13 @@ def reference(gb, hard, d, D, L, diag, samples, sigma, fixed=None):
 
 
 def test_zero_light_size_is_the_hard_shadow():
-    """O15: L = 0 (and mode "hard") return V_h bitwise."""
+    """O15: L = 0 (and mode "hard", and a zero fixed blur radius) return V_h bitwise."""
     gb, hard, d, D, *_ = edge_scene(64, 48)
-    for kwargs in ({"light_radius": 0.0}, {"light_radius": 0.1, "mode": "hard"}):
+    for kwargs in (
+        {"radius": 0.0},
+        {"radius": 0.1, "mode": "hard"},
+        {"radius": 0.0, "mode": "fixed_radius"},
+    ):
         V = soft_visibility(gb, hard, d, D, scene_diag=3.0, **kwargs)
         np.testing.assert_array_equal(V.numpy(), hard.numpy())
 
@@ -132,13 +136,13 @@ def test_matches_numpy_reference_on_a_blob_shadow():
     d = np.where(hard == 0, 0.4 + 0.005 * xx.ravel(), 0)
     D = np.full(W * H, 1.5)
     args = [mi.Float(a.astype(np.float32)) for a in (hard, d, D)]
-    V = soft_visibility(gb, *args, light_radius=0.3, scene_diag=8.0, samples=(3, 4))
+    V = soft_visibility(gb, *args, radius=0.3, scene_diag=8.0, samples=(3, 4))
     ref = reference(gb, *args, L=0.3, diag=8.0, samples=(3, 4), sigma=0.05**2)
     assert np.count_nonzero((ref > 0) & (ref < 1)) > 300
-    selected = _boundary_pixels(gb, *args, 0.3 * f_px, 8e-4, "isg")
+    selected = _boundary_pixels(gb, *args, 0.3 * f_px, 8e-4, "soft")
     assert dr.width(selected) < W * H / 2  # the tile test skips most pixels
     np.testing.assert_allclose(V.numpy(), ref, atol=2e-5)
-    V = soft_visibility(gb, *args, 0.0, 8.0, mode="fixed_radius", fixed_radius=0.1)
+    V = soft_visibility(gb, *args, 0.1, 8.0, mode="fixed_radius")
     ref = reference(gb, *args, L=0.0, diag=8.0, samples=(4, 5), sigma=0.05**2, fixed=0.1)
     np.testing.assert_allclose(V.numpy(), ref, atol=2e-5)
 
@@ -168,17 +172,16 @@ def test_lattice_tap_counts():
 
 def test_bad_input_raises():
     gb, hard, d, D, *_ = edge_scene(16, 12)
-    ok = {"light_radius": 0.1, "scene_diag": 3.0}
+    ok = {"radius": 0.1, "scene_diag": 3.0}
     cases = [
         ({"samples": (0, 5)}, "samples must be two positive integers"),
         ({"samples": (4,)}, "samples must be two positive integers"),
         ({"samples": (4.0, 5)}, "samples must be two positive integers"),
-        ({"light_radius": -0.1}, "light_radius must be >= 0"),
-        ({"light_radius": math.nan}, "light_radius must be >= 0"),
+        ({"radius": -0.1}, "radius must be >= 0"),
+        ({"radius": math.nan}, "radius must be >= 0"),
         ({"scene_diag": 0.0}, "scene_diag must be positive"),
         ({"sigma": 0.0}, "sigma must be positive"),
         ({"mode": "pcss"}, "mode must be one of"),
-        ({"mode": "fixed_radius"}, "needs fixed_radius > 0"),
     ]
     for kwargs, message in cases:
         with pytest.raises(ParameterError, match=message):

@@ -15,8 +15,6 @@ aimed straight down (the thesis renders its Cornell box from a spot light's G-bu
 
 from __future__ import annotations
 
-import math
-
 import mitsuba as mi
 import numpy as np
 
@@ -90,6 +88,3 @@ def _block(base_mm, side_mm: float, height_mm: float, angle_deg: float) -> dict:
         .scale([side_mm * mm / 2, height_mm * mm / 2, side_mm * mm / 2])
     )
     return {"type": "cube", "to_world": to_world, "bsdf": cornell._diffuse(BLOCK_WHITE)}
-
-
-assert math.isclose(SPHERE_CENTER[1] - 1.5 * SPHERE_RADIUS, 0.02)  # the focus, 20 mm up

@@ -18,8 +18,9 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..surface.trace import is_specular
 from .direct import EPSILON, shade
-from .gbuffer import GBuffer, specular_mask
+from .gbuffer import GBuffer
 from .light_gbuffer import Light
 
 LEVELS = 4
@@ -41,7 +42,7 @@ def _chain(scene, light, si, throughput, active, first: float, levels: int, eps)
         si = scene.ray_intersect(ray, active)
         active &= si.is_valid()
         bsdf = si.bsdf(ray)
-        end = active & ~specular_mask(bsdf, active)
+        end = active & ~is_specular(bsdf, active)
         n = mi.Vector3f(si.sh_frame.n)
         n = dr.select(dr.dot(n, ray.d) > 0, -n, n)
         albedo = bsdf.eval_diffuse_reflectance(si, end)

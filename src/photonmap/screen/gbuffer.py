@@ -15,6 +15,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.camera import pixel_rays
+from ..surface.trace import is_specular
+
 
 @dataclass
 class GBuffer:
@@ -46,12 +49,6 @@ def focal_px(sensor: mi.Sensor) -> float:
     return 0.5 * width / math.tan(math.radians(fov_x) / 2)
 
 
-def specular_mask(bsdf: mi.BSDFPtr, active: mi.Bool) -> mi.Bool:
-    """Surfaces without a diffuse or glossy lobe (mirrors, glass): the ``screen`` pipeline shades
-    them by ray tracing (spec §2.9, A27) and never stores photons on them (A3)."""
-    return active & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-
-
 def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
     """The eye G-buffer of spec §2.1, one primary ray per pixel centre (Fig 3.1), and the mask of
     pixels that see a mirror or glass surface (their ``albedo`` is 0: no diffuse shading, no
@@ -59,21 +56,13 @@ def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
 
     ``depth`` is Z_eye = (s − e)·forward; normals are shading normals flipped to face the eye.
     """
-    film = sensor.film()
-    w, h = (int(c) for c in film.crop_size())
-    ox, oy = (int(c) for c in film.crop_offset())
-    full = film.size()
-    idx = dr.arange(mi.UInt32, w * h)
-    pos = mi.Point2f(
-        (mi.Float(idx % w + ox) + 0.5) / float(full[0]),
-        (mi.Float(idx // w + oy) + 0.5) / float(full[1]),
-    )
-    ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+    w, h = (int(c) for c in sensor.film().crop_size())
+    ray, _ = pixel_rays(sensor, dr.arange(mi.UInt32, w * h), mi.Point2f(0.5))
     flags = mi.RayFlags.Minimal | mi.RayFlags.UV | mi.RayFlags.ShadingFrame  # UV: textures
     si = scene.ray_intersect(ray, flags, True)
     valid = si.is_valid()
     bsdf = si.bsdf(ray)
-    specular = specular_mask(bsdf, valid)
+    specular = is_specular(bsdf, valid)  # mirrors, glass: ray-traced (spec §2.9, A27)
     albedo = dr.select(valid & ~specular, bsdf.eval_diffuse_reflectance(si, valid), 0.0)
     n = mi.Normal3f(si.sh_frame.n)
     n = dr.select(dr.dot(n, ray.d) > 0, -n, n)

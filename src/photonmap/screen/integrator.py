@@ -36,7 +36,6 @@ class ISPMIntegrator(mi.SamplingIntegrator):
     def __init__(self, props: mi.Properties):
         super().__init__(props)
         self.params = read_properties(props, ScreenParams, "ispm")
-        self.params.pop("spp", None)
         dataclasses.replace(ScreenParams(), **self.params).validate()
         self.pipeline: ScreenPipeline | None = None
         self._scene = None  # held, so that a new scene can never reuse its id

@@ -28,7 +28,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import SceneError
-from ..core.sampling import rng
+from ..core.photon_trace import emitter_powers
 
 KINDS = ("spot", "point", "area")
 MAX_FRUSTUM_DEG = 80.0  # spots wider than this emit over the sphere like a point light
@@ -38,39 +38,35 @@ MAX_FRUSTUM_DEG = 80.0  # spots wider than this emit over the sphere like a poin
 class Light:
     """One light of the scene as the ``screen`` pipeline sees it: ``kind`` (spot | point | area),
     the Mitsuba ``emitter``, its ``position`` (the centre for an area light), ``axis`` (spot axis
-    or area normal), ``cutoff`` (radians, spots) and ``radius`` (area lights: the radius of a disk
-    of the same area, the natural virtual light size; 0 otherwise)."""
+    or area normal), ``frame`` (spot and point lights) and ``cutoff`` (radians, spots)."""
 
     kind: str
     emitter: mi.Emitter
     position: np.ndarray
     axis: np.ndarray
-    frame: np.ndarray  # 3×3 columns: tangent, bitangent, axis
+    frame: np.ndarray | None  # 3×3 columns: tangent, bitangent, axis (None for area lights)
     cutoff: float = 0.0
-    radius: float = 0.0
     power: np.ndarray | None = None  # area lights: emitted RGB power Φ_e
 
 
 @dataclass
 class LightGBuffer:
     """Spec §2.2, per texel (row-major, ``width × height``): first hit ``si`` (a Mitsuba
-    SurfaceInteraction, kept for scattering), ``pos``, ``nrm`` (facing the light), incident power
-    ``flux`` (W), travel direction ``w_in`` and ``valid`` (a surface was hit with non-zero flux)."""
+    SurfaceInteraction, kept for scattering), incident power ``flux`` (W) and ``valid`` (a surface
+    was hit with non-zero flux)."""
 
     width: int
     height: int
     si: mi.SurfaceInteraction3f
-    pos: mi.Point3f
-    nrm: mi.Normal3f
     flux: mi.Color3f
-    w_in: mi.Vector3f
     valid: mi.Bool
 
 
 def find_light(scene: mi.Scene, index: int = 0) -> Light:
     """The ``index``-th spot, point or area emitter of ``scene`` as a :class:`Light`; raise a
     :class:`SceneError` if there is none."""
-    lights = [e for e in scene.emitters() if _kind(e) is not None]
+    indices = [i for i, e in enumerate(scene.emitters()) if _kind(e) is not None]
+    lights = [scene.emitters()[i] for i in indices]
     if not lights:
         names = ", ".join(e.class_name() for e in scene.emitters()) or "none"
         raise SceneError(
@@ -86,11 +82,8 @@ def find_light(scene: mi.Scene, index: int = 0) -> Light:
         ps = shape.sample_position(0.0, mi.Point2f(0.5, 0.5))
         position = np.array(shape.bbox().center()).ravel()
         axis = np.array(ps.n).ravel()
-        area = float(np.array(shape.surface_area()).ravel()[0])
-        power = _area_power(emitter)
-        return Light(
-            kind, emitter, position, axis, _frame(axis), 0.0, math.sqrt(area / math.pi), power
-        )
+        power = emitter_powers(scene, samples=1 << 14)[indices[index]]
+        return Light(kind, emitter, position, axis, None, power=power)
     params = mi.traverse(emitter)
     if "to_world" in params.keys():
         m = np.array(params["to_world"].matrix, dtype=np.float64)[..., 0]
@@ -114,27 +107,6 @@ def _kind(emitter: mi.Emitter) -> str | None:
     if name == "AreaLight" and emitter.get_shape() is not None:
         return "area"
     return None
-
-
-def _area_power(emitter: mi.Emitter, samples: int = 1 << 14) -> np.ndarray:
-    """Emitted RGB power Φ_e of an area light: the mean ``sample_ray`` weight (exact for uniform
-    radiance)."""
-    gen = rng(samples, 0, stream=7)
-    _, weight = emitter.sample_ray(
-        0.0,
-        gen.next_float32(),
-        mi.Point2f(gen.next_float32(), gen.next_float32()),
-        mi.Point2f(gen.next_float32(), gen.next_float32()),
-        True,
-    )
-    return np.array(dr.mean(mi.Color3f(weight), axis=1)).ravel()
-
-
-def _frame(axis: np.ndarray) -> np.ndarray:
-    a = np.array([1.0, 0, 0]) if abs(axis[0]) < 0.9 else np.array([0, 1.0, 0])
-    t = np.cross(axis, a)
-    t /= np.linalg.norm(t)
-    return np.stack([t, np.cross(axis, t), axis], 1)
 
 
 def intensity(light: Light, d: mi.Vector3f) -> mi.Color3f:
@@ -186,19 +158,8 @@ def light_gbuffer(
         flux = intensity(light, d) * solid
     si = scene.ray_intersect(ray, True)
     valid = si.is_valid() & (dr.max(flux) > 0)
-    n_s = mi.Normal3f(si.sh_frame.n)
-    nrm = dr.select(dr.dot(n_s, ray.d) > 0, -n_s, n_s)
-    lgb = LightGBuffer(
-        width,
-        height,
-        si,
-        dr.select(valid, si.p, 0.0),
-        dr.select(valid, nrm, 0.0),
-        dr.select(valid, flux, 0.0),
-        mi.Vector3f(ray.d),
-        valid,
-    )
-    dr.eval(lgb.si, lgb.pos, lgb.nrm, lgb.flux, lgb.valid)
+    lgb = LightGBuffer(width, height, si, dr.select(valid, flux, 0.0), valid)
+    dr.eval(lgb.si, lgb.flux, lgb.valid)
     _check_outside(scene, light, si, ray)
     return lgb
 

@@ -36,6 +36,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError, SceneError
+from ..surface.trace import is_specular
 from .light_gbuffer import LightGBuffer
 
 GLOSSY_MODES = ("yao_average", "bsdf")
@@ -113,7 +114,7 @@ def trace_photons(
         ray = si.spawn_ray(si.to_world(wo))
         si = scene.ray_intersect(ray, active)
         active &= si.is_valid()
-        store = active & mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Smooth)
+        store = active & ~is_specular(si.bsdf(), active)  # A3
         n_s = mi.Normal3f(si.sh_frame.n)
         nrm = dr.select(dr.dot(n_s, ray.d) > 0, -n_s, n_s)
         part = ScreenPhotons(

@@ -37,9 +37,10 @@ from .direct import direct_light
 from .gbuffer import eye_gbuffer
 from .light_gbuffer import check_light_outside, find_light, light_gbuffer
 from .light_photons import GLOSSY_MODES, random_map, trace_photons
+from .soft_shadow import MODES as SHADOWS
+from .soft_shadow import soft_visibility
 
 SPLATS = ("quad", "icosahedron")
-SHADOWS = ("soft", "hard", "fixed_radius")
 STAGES = (
     "eye G-buffer",
     "light G-buffer",
@@ -70,10 +71,9 @@ class ScreenParams:
     light_size: float = 0.02  # virtual area-light radius L, × scene diagonal (0 = hard shadow)
     glossy: str = "yao_average"  # glossy photon bounce: yao_average (A6) | bsdf
     seed: int = 0  # seed of the fixed random map (PRM)
-    spp: int = 1  # one primary ray per pixel centre (spec §2.1); kept for the CLI
 
     def validate(self) -> None:
-        for key in ("bounces", "light_res", "subsample", "seed", "spp"):
+        for key in ("bounces", "light_res", "subsample", "seed"):
             value = getattr(self, key)
             if not isinstance(value, int | np.integer) or isinstance(value, bool):
                 raise ParameterError(
@@ -110,11 +110,6 @@ class ScreenParams:
                     f"{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}"
                 )
         self.isg_pair()
-        if self.spp != 1:
-            raise ParameterError(
-                f"the screen pipeline casts one primary ray per pixel centre; spp must be 1, "
-                f"got {self.spp}"
-            )
         if self.seed < 0:
             raise ParameterError(f"seed must be >= 0, got {self.seed}")
 
@@ -255,7 +250,6 @@ class ScreenPipeline(MovableCamera):
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance. Every
         intermediate is in :attr:`outputs` (spec §7 testability)."""
-        from .soft_shadow import soft_visibility
         from .splat import splat_icosahedra, splat_quads
         from .upsample import subsample, upsample
 
@@ -289,12 +283,12 @@ class ScreenPipeline(MovableCamera):
         direct = self._stage(
             "direct + shadow rays", direct_key, lambda: direct_light(scene, gbuf, self.light, diag)
         )
-        mode = {"soft": "isg", "hard": "hard", "fixed_radius": "fixed_radius"}[p.shadows]
         light_radius = p.light_size * diag
-        shadow_key = (direct_key, mode, light_radius, p.isg_pair())
-
-        def shadows():
-            v = soft_visibility(
+        shadow_key = (direct_key, p.shadows, light_radius, p.isg_pair())
+        visibility = self._stage(
+            "soft shadows",
+            shadow_key,
+            lambda: soft_visibility(
                 gbuf,
                 direct.hard,
                 direct.occluder_dist,
@@ -302,34 +296,23 @@ class ScreenPipeline(MovableCamera):
                 light_radius,
                 diag,
                 samples=p.isg_pair(),
-                mode=mode,
-                fixed_radius=light_radius if mode == "fixed_radius" else None,
-            )
-            dr.eval(v)
-            return v
-
-        visibility = self._stage("soft shadows", shadow_key, shadows)
+                mode=p.shadows,
+            ),
+        )
         low_key = (cam_key, p.subsample)
-        low = self._stage("subsample", low_key, lambda: _evaluated(subsample(gbuf, p.subsample)))
+        low = self._stage("subsample", low_key, lambda: subsample(gbuf, p.subsample))
         splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
 
         def splat():
             if p.splat == "quad":
-                out = splat_quads(low, photons, p.radius * diag)
-            else:
-                out = splat_icosahedra(low, photons, p.radius * diag, p.compression)
-            dr.eval(out)
-            return out
+                return splat_quads(low, photons, p.radius * diag)
+            return splat_icosahedra(low, photons, p.radius * diag, p.compression)
 
         L_low, E_low = self._stage("splatting", splat_key, splat)
         up_key = splat_key
-
-        def up():
-            out = upsample(L_low, low, gbuf, p.subsample)
-            dr.eval(out)
-            return out
-
-        indirect = self._stage("upsampling", up_key, up)
+        indirect = self._stage(
+            "upsampling", up_key, lambda: upsample(L_low, low, gbuf, p.subsample)
+        )
         glass = self._stage(
             "glass", direct_key, lambda: glass_eye(scene, gbuf, specular, self.light, diag)
         )
@@ -368,8 +351,3 @@ class ScreenPipeline(MovableCamera):
         return image
 
     _progress = None
-
-
-def _evaluated(gbuf):
-    dr.eval(gbuf.pos, gbuf.nrm, gbuf.depth, gbuf.albedo, gbuf.valid)
-    return gbuf

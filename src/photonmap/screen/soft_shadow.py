@@ -18,7 +18,7 @@ profile by up to 0.04–0.06, the rotated one by ≤ 0.02.
 
 ``mode="fixed_radius"`` skips step 1 and blurs every pixel with R_g = f_px·r/Z_eye for a world
 radius r (Yao Ch. 5, "just apply blur in a certain radius alone the shadow edge"); ``"hard"``
-returns V_h. L = 0 gives V_h exactly.
+returns V_h. L = 0 (r = 0) gives V_h exactly.
 
 **Only pixels near a shadow boundary are gathered.** V_s ≠ V_h needs a shadowed and a lit pixel
 within reach, so the image is cut into tiles of :data:`TILE` pixels and a tile is worked on only if
@@ -39,7 +39,8 @@ import numpy as np
 from ..core.errors import ParameterError
 from .gbuffer import GBuffer
 
-MODES = ("isg", "hard", "fixed_radius")
+MODES = ("soft", "hard", "fixed_radius")
+"""``"soft"``: ISG, Eqs 2–5; ``"hard"``: V_h; ``"fixed_radius"``: a fixed world blur radius."""
 TILE = 8
 """Tile edge (pixels) of the boundary search."""
 LATTICE_ANGLE = 0.35
@@ -63,19 +64,18 @@ def soft_visibility(
     hard: mi.Float,
     occluder_dist: mi.Float,
     light_dist: mi.Float,
-    light_radius: float,
+    radius: float,
     scene_diag: float,
     samples: tuple[int, int] = (4, 5),
     sigma: float = 0.05**2,
-    mode: str = "isg",
-    fixed_radius: float | None = None,
+    mode: str = "soft",
 ) -> mi.Float:
     """Soft visibility V_s ∈ [0, 1] per pixel of ``gbuf`` (module docstring).
 
-    ``light_radius``: L, the world-space radius of the virtual area light (unused by
-    ``"fixed_radius"``); ``scene_diag``: the scene's bounding-box diagonal (unit of t);
-    ``samples``: (n₁, n₂) lattice steps of the two passes; ``sigma``: σ of γ in diagonal units²;
-    ``fixed_radius``: the world blur radius of ``"fixed_radius"``.
+    ``radius``: world-space radius — L, the virtual area light's (``"soft"``), or r, the blur's
+    (``"fixed_radius"``); 0 gives V_h; ``scene_diag``: the scene's bounding-box diagonal (unit of
+    t); ``samples``: (n₁, n₂) lattice steps of the two passes; ``sigma``: σ of γ in diagonal
+    units²; ``mode``: one of :data:`MODES`.
     """
     if mode not in MODES:
         raise ParameterError(f"soft-shadow mode must be one of {MODES}, got {mode!r}")
@@ -88,31 +88,23 @@ def soft_visibility(
         raise ParameterError(
             f"samples must be two positive integers (n1, n2), e.g. (4, 5), got {samples!r}"
         )
-    if not (math.isfinite(light_radius) and light_radius >= 0):
-        raise ParameterError(f"light_radius must be >= 0 (0 = hard shadows), got {light_radius!r}")
+    if not (math.isfinite(radius) and radius >= 0):
+        raise ParameterError(f"radius must be >= 0 (0 = hard shadows), got {radius!r}")
     if not (math.isfinite(scene_diag) and scene_diag > 0):
         raise ParameterError(f"scene_diag must be positive, got {scene_diag!r}")
     if not (math.isfinite(sigma) and sigma > 0):
         raise ParameterError(f"sigma must be positive (default 0.05**2), got {sigma!r}")
-    if mode == "fixed_radius" and not (
-        fixed_radius is not None and math.isfinite(fixed_radius) and fixed_radius > 0
-    ):
-        raise ParameterError(
-            f"mode='fixed_radius' needs fixed_radius > 0 (a world-space blur radius), got "
-            f"{fixed_radius!r}"
-        )
     W, H = gbuf.width, gbuf.height
     for name, a in (("hard", hard), ("occluder_dist", occluder_dist), ("light_dist", light_dist)):
         if dr.width(a) != W * H:
             raise ParameterError(f"{name} has {dr.width(a)} entries for a {W}×{H} G-buffer")
     hard = mi.Float(hard)
-    if mode == "hard" or (mode == "isg" and light_radius == 0):
+    if mode == "hard" or radius == 0:
         return hard
 
     f_px = gbuf.f_px
-    size = light_radius if mode == "isg" else fixed_radius
     gap = MIN_GAP * scene_diag
-    idx = _boundary_pixels(gbuf, hard, occluder_dist, light_dist, f_px * size, gap, mode)
+    idx = _boundary_pixels(gbuf, hard, occluder_dist, light_dist, f_px * radius, gap, mode)
     out = dr.copy(hard)
     if dr.width(idx) == 0:
         return out
@@ -125,10 +117,10 @@ def soft_visibility(
         idx, rec, gbuf.depth, light_dist, taps,
         [dr.opaque(mi.UInt32, len(lattice(n))) for n in samples],
         W, H,
-        dr.opaque(mi.Float, f_px * size),
+        dr.opaque(mi.Float, f_px * radius),
         dr.opaque(mi.Float, 1.0 / (sigma * scene_diag * scene_diag)),
         dr.opaque(mi.Float, gap),
-        mode == "isg",
+        mode == "soft",
     )  # fmt: skip
     dr.scatter(out, V, idx)
     dr.eval(out)
@@ -197,9 +189,9 @@ def _boundary_pixels(gbuf, hard, d, D, size_px, gap, mode) -> mi.UInt32:
         a.numpy().reshape(th, tw) for a in stats
     )
     shadow_t, lit_t = shadow_t > 0, lit_t > 0
-    reach_t = _tile_reach(size_px / z_min)  # R_p (isg) or the fixed R_g
+    reach_t = _tile_reach(size_px / z_min)  # R_p (soft) or the fixed R_g
     candidate = lit_t & _dilate(shadow_t, reach_t)
-    if mode == "isg":  # R_g ≤ size·d_near / ((D − d_near)·Z), d_near ≥ g of the tile's pixels
+    if mode == "soft":  # R_g ≤ size·d_near / ((D − d_near)·Z), d_near ≥ g of the tile's pixels
         d_near = _dilate(d_max, reach_t)
         bound = size_px * d_near / (np.maximum(D_min - d_near, gap) * z_min_shadowed)
         reach_t = _tile_reach(np.where(shadow_t, bound, 0))

@@ -8,19 +8,18 @@ with the normalized Jensen cone κ(ρ) = 3/(π r_p²) · max(0, 1 − ρ/r_p) (A
 radius r_p = clamp(r/√ρ_path, r/8, r) (A9). Photons that are invalid or face away from the eye,
 (e − s_p)·n_p ≤ 0, are culled (§2.5 step 1, A13). Where κ is evaluated:
 
-- quad, ``kernel_eval="gbuffer"`` (default, A15): Δ = s − s_p, h = Δ·n_p, ρ = ‖Δ − h n_p‖, and the
-  pixel is covered only if |h| ≤ τ r_p;
-- quad, ``kernel_eval="uv"`` (faithful): ρ = ‖x − s_p‖ at the point x where the pixel's eye ray
-  meets the quad plane, covered if that fragment passes the depth test |Z_quad − Z_eye| ≤ τ r_p.
-  The kernel is radial, so the quad's tangent frame (§2.5 step 2) does not change the result;
+- quad (A15): Δ = s − s_p, h = Δ·n_p, ρ = ‖Δ − h n_p‖, and the pixel is covered only if
+  |h| ≤ τ r_p (τ = :data:`TAU`). The kernel is radial, so the quad's tangent frame (§2.5 step 2)
+  does not change the result;
 - icosahedron (§2.6, A18) with normal compression c = 1: the 3D distance ρ = ‖Δ‖ (Yao's
   uncompressed volume); c < 1: the in-plane ρ with |h| ≤ c r_p (ISPM style).
 
 **Scatter as a gather** (§2.5 step 7): each pixel sums over the photons whose support contains its
 G-buffer point. The kept photons are sorted into a uniform grid of cells of edge half the reach
-R = max r_p (R grows by τ/cos θ in ``uv`` mode, where x may lie beside s along the eye ray). A pixel
-visits the cells overlapping the box s ± R as x-runs of consecutive cells, i.e. contiguous ranges of
-the sorted photons (outer loop over runs, inner loop over a run's photons).
+R = max r_p, times √(1 + τ²) (or √(1 + c²)) for the in-plane kernels, whose support reaches
+‖Δ‖ < r_p √(1 + τ²). A pixel visits the cells overlapping the box s ± R as x-runs of consecutive
+cells, i.e. contiguous ranges of the sorted photons (outer loop over runs, inner loop over a run's
+photons).
 """
 
 from __future__ import annotations
@@ -38,25 +37,18 @@ from .light_photons import ScreenPhotons
 
 MAX_CELLS = 1 << 21
 """Cells of the photon grid at most (the cell edge grows to fit)."""
-KERNEL_EVAL = ("gbuffer", "uv")
+TAU = 0.25
+"""Plane tolerance τ of the quads, in units of r_p (A15)."""
 
 
 def splat_quads(
-    gbuf: GBuffer,
-    photons: ScreenPhotons,
-    radius: float,
-    tau: float = 0.25,
-    kernel_eval: str = "gbuffer",
+    gbuf: GBuffer, photons: ScreenPhotons, radius: float
 ) -> tuple[mi.Color3f, mi.Color3f]:
     """Indirect radiance L_ind and irradiance E_ind per pixel of ``gbuf`` from photon quads.
 
-    ``radius``: the splat radius r in world units; ``tau``: plane (or depth) tolerance τ in units
-    of r_p; ``kernel_eval``: ``"gbuffer"`` or ``"uv"`` (module docstring). Invalid pixels get 0.
+    ``radius``: the splat radius r in world units (module docstring). Invalid pixels get 0.
     """
-    if kernel_eval not in KERNEL_EVAL:
-        raise ParameterError(f"kernel_eval must be one of {KERNEL_EVAL}, got {kernel_eval!r}")
-    _check_positive("tau", tau)
-    return _splat(gbuf, photons, radius, tau, mode=kernel_eval)
+    return _splat(gbuf, photons, radius, TAU, mode="gbuffer")
 
 
 def splat_icosahedra(
@@ -107,10 +99,8 @@ def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mod
 
     # ---- the grid over the kept photons, cell edge >= the farthest reach from a pixel's point
     reach = float(r_p.max())
-    if mode == "uv":
-        # fragment x on the eye ray within τ r_p / cos θ of s along the ray, θ = angle to forward
-        cos = dr.dot(dr.normalize(gbuf.pos - eye), mi.Vector3f(gbuf.forward))
-        reach *= 1 + tau / max(float(dr.min(dr.select(gbuf.valid, cos, 1))[0]), 0.05)
+    if mode == "gbuffer":  # ρ < r_p and |h| ≤ τ r_p: ‖Δ‖ < r_p √(1 + τ²)
+        reach *= math.sqrt(1 + tau * tau)
     lo = pos.min(axis=0)
     span = pos.max(axis=0) - lo
     cell = max(reach / 2, float(np.cbrt(np.prod(span + reach) / MAX_CELLS)))
@@ -145,8 +135,6 @@ def _gather(gbuf, rec, cell_start, origin, inv_cell, dims, reach, tau, mode):
     """Σ over photons of max(0, n_p·n) Φ_p κ per pixel (E_ind); see the module docstring."""
     pixels = dr.width(gbuf.pos)
     s, n = mi.Point3f(gbuf.pos), mi.Vector3f(gbuf.nrm)
-    eye = mi.Point3f(gbuf.eye)
-    ray_d, forward = dr.normalize(s - eye), mi.Vector3f(gbuf.forward)
     # the cells overlapping the box s ± reach, clipped to the grid
     top = mi.Point3f(dims - 1)
     lo = dr.floor((s - reach - origin) * inv_cell)
@@ -173,10 +161,6 @@ def _gather(gbuf, rec, cell_start, origin, inv_cell, dims, reach, tau, mode):
             if dr.hint(mode == "sphere", mode="scalar"):
                 rho = dr.norm(delta)
                 covered = rho < r
-            elif dr.hint(mode == "uv", mode="scalar"):
-                x = eye + dr.dot(s_p - eye, n_p) / dr.dot(ray_d, n_p) * ray_d  # ray ∩ quad plane
-                rho = dr.norm(x - s_p)
-                covered = (rho < r) & (dr.abs(dr.dot(x - s, forward)) <= tau * r)  # depth test
             else:
                 rho = dr.norm(delta - h * n_p)
                 covered = (rho < r) & (dr.abs(h) <= tau * r)
