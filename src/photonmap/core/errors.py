@@ -19,3 +19,8 @@ class ParameterError(PhotonmapError, ValueError):
 
 class BackendError(PhotonmapError):
     """The Dr.Jit / Mitsuba backend cannot run here (no suitable libLLVM, no CUDA, ...)."""
+
+
+class PhotonmapWarning(UserWarning):
+    """Something in the scene that the chosen method does not model (a medium in the surface or
+    screen method, ...): the image is rendered without it, and this says so."""

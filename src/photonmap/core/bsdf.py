@@ -1,0 +1,94 @@
+"""BSDF and visibility helpers shared by the pipelines.
+
+- :func:`is_specular` — a BSDF with only delta lobes (mirror, glass): eye and gather rays follow
+  it, photon maps store nothing on it (Steinhurst 2007 §7.3.2; spec seed-001 §2.1).
+- :func:`is_null` — a ``null`` BSDF: an index-matched boundary (a fog box, a medium's container)
+  that light crosses unchanged. Every method treats such a shape as invisible: photons, eye rays
+  and shadow rays pass straight through it (the shape only bounds a medium).
+- :func:`intersect_visible` and :func:`occluded` — closest hit and shadow test that skip ``null``
+  surfaces. They cost one extra ray per crossed null surface, and nothing when the scene has none
+  (:func:`has_null_shapes`).
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+
+# lobe bits of BSDFFlags (the side bits FrontSide/BackSide are not lobes)
+_LOBES = int(mi.BSDFFlags.All)
+MAX_NULL_CROSSINGS = 16  # iteration cap of the loops below (nested fog boxes: 2 per box)
+
+
+def is_specular(bsdf: mi.BSDFPtr, active) -> mi.Bool:
+    """True where the BSDF has only delta (perfectly specular) lobes (``null`` included)."""
+    return active & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+
+
+def is_null(bsdf: mi.BSDFPtr, active) -> mi.Bool:
+    """True where the BSDF is Mitsuba's ``null`` BSDF (its only lobe is the Null lobe)."""
+    lobes = mi.UInt32(bsdf.flags()) & _LOBES
+    return active & (bsdf != None) & (lobes == int(mi.BSDFFlags.Null))  # noqa: E711
+
+
+def has_null_shapes(scene: mi.Scene) -> bool:
+    """Whether any shape of ``scene`` has a ``null`` BSDF and no emitter (an invisible boundary)."""
+    return any(
+        s.bsdf() is not None and s.bsdf().flags() & _LOBES == int(mi.BSDFFlags.Null)
+        and not s.is_emitter()
+        for s in scene.shapes()
+    )
+
+
+def _passes(scene: mi.Scene, si: mi.SurfaceInteraction3f, ray: mi.Ray3f, active) -> mi.Bool:
+    """Lanes whose hit is a ``null``-BSDF surface that emits nothing: the ray goes on."""
+    hit = active & si.is_valid()
+    return is_null(si.bsdf(ray), hit) & (si.emitter(scene) == None)  # noqa: E711
+
+
+def intersect_visible(
+    scene: mi.Scene, ray: mi.Ray3f, active=True, null_shapes: bool | None = None
+) -> mi.SurfaceInteraction3f:
+    """``scene.ray_intersect`` that passes through ``null``-BSDF surfaces: the first hit whose
+    BSDF is not ``null`` (or that emits), or an invalid interaction. ``si.t`` is measured from
+    ``ray.o``. ``null_shapes`` (default: :func:`has_null_shapes`) skips the loop when False."""
+    active = mi.Bool(active)
+    si = scene.ray_intersect(ray, active)
+    if null_shapes is None:
+        null_shapes = has_null_shapes(scene)
+    return _through_null(scene, ray, si, active) if null_shapes else si
+
+
+@dr.syntax
+def _through_null(scene, ray, si, active):
+    ray = mi.Ray3f(ray)
+    travelled = dr.zeros(mi.Float, dr.width(si.t))
+    going = _passes(scene, si, ray, active)
+    crossings = dr.zeros(mi.UInt32, dr.width(si.t))
+    while going & (crossings < MAX_NULL_CROSSINGS):
+        travelled = dr.select(going, travelled + si.t, travelled)
+        nxt = si.spawn_ray(ray.d)
+        nxt.maxt = ray.maxt - si.t
+        ray = dr.select(going, nxt, ray)
+        si_next = scene.ray_intersect(ray, going)
+        si = dr.select(going, si_next, si)
+        going = _passes(scene, si, ray, going)
+        crossings += 1
+    si.t = dr.select(si.is_valid(), si.t + travelled, si.t)
+    return si
+
+
+def occluded(
+    scene: mi.Scene, ray: mi.Ray3f, active=True, null_shapes: bool | None = None
+) -> mi.Bool:
+    """``scene.ray_test`` that ignores ``null``-BSDF surfaces: True where something that is not
+    a ``null`` boundary lies on the ray within ``ray.maxt``. Rays that the any-hit test finds
+    blocked are traced again through the null surfaces (:func:`intersect_visible`)."""
+    active = mi.Bool(active)
+    blocked = scene.ray_test(ray, active)
+    if null_shapes is None:
+        null_shapes = has_null_shapes(scene)
+    if not null_shapes:
+        return blocked
+    si = intersect_visible(scene, ray, blocked, null_shapes=True)
+    return blocked & si.is_valid()

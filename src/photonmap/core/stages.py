@@ -1,0 +1,91 @@
+"""The keyed stage cache every pipeline keeps its stage outputs in (DESIGN.md "Data flow").
+
+A stage's output is stored under its name with a key made of exactly the inputs it depends on;
+asking again with an equal key returns the stored output, any other key recomputes it. So a
+camera move reruns only the stages whose keys hold the camera, and so on, without a dirty flag
+per input (spec seed-000-002 §4.1, seed-004 §7).
+
+>>> cache = StageCache(StageTimer())
+>>> grids = cache.stage("march", key=(light_key, photons), compute=lambda: march(...))
+>>> cache.recomputed        # the stages the last frame ran
+>>> cache.invalidate("march")   # the next frame reruns it (benchmarks time whole frames so)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from .timer import StageTimer
+
+
+def cache_key(value):
+    """A hashable key for parameters made of arrays, lists, dataclasses and scalars; other
+    objects (Mitsuba shapes, sensors) count by identity."""
+    if isinstance(value, np.ndarray):
+        return (value.shape, value.tobytes())
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return tuple(cache_key(getattr(value, f.name)) for f in dataclasses.fields(value))
+    if isinstance(value, list | tuple):
+        return tuple(cache_key(v) for v in value)
+    if isinstance(value, float | int | str | bool) or value is None:
+        return value
+    return id(value)
+
+
+class StageCache:
+    """Stage outputs by name, each with the key it was computed under.
+
+    ``timer`` records each computed stage's milliseconds; ``progress`` (set per frame by the
+    pipeline) is called with a stage's name as it starts; cached stages are skipped silently."""
+
+    def __init__(self, timer: StageTimer | None = None):
+        self.timer = timer if timer is not None else StageTimer()
+        self.recomputed: list[str] = []
+        self.progress: Callable[[str], None] | None = None
+        self._entries: dict[str, tuple] = {}
+
+    def new_frame(self, progress: Callable[[str], None] | None = None) -> None:
+        """Start a frame: reset the timer and :attr:`recomputed`, report stages to ``progress``."""
+        self.timer.reset()
+        self.recomputed = []
+        self.progress = progress
+
+    def stage(self, name: str, key, compute: Callable[[], object]):
+        """The output of stage ``name`` for ``key``: the stored one if its key equals ``key``,
+        else ``compute()`` (timed, reported, stored)."""
+        hit = self._entries.get(name)
+        if hit is not None and hit[0] == key:
+            return hit[1]
+        if self.progress is not None:
+            self.progress(name)
+        with self.timer(name):
+            value = compute()
+        self._entries[name] = (key, value)
+        self.recomputed.append(name)
+        return value
+
+    def get(self, name: str, default=None):
+        """The stored output of stage ``name`` (whatever its key), or ``default``."""
+        hit = self._entries.get(name)
+        return default if hit is None else hit[1]
+
+    def key(self, name: str, default=None):
+        """The key stage ``name`` was last computed under, or ``default``."""
+        hit = self._entries.get(name)
+        return default if hit is None else hit[0]
+
+    def invalidate(self, names: str | Iterable[str] | None = None, keep: Iterable[str] = ()) -> None:
+        """Forget the outputs of ``names`` (all stages when None, except those in ``keep``): the
+        next frame recomputes them."""
+        if names is None:
+            names = [n for n in self._entries if n not in set(keep)]
+        elif isinstance(names, str):
+            names = [names]
+        for name in list(names):
+            self._entries.pop(name, None)
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._entries
