@@ -1,11 +1,16 @@
-"""Pipeline parameter dataclasses: validated updates, and reading them from Mitsuba integrator
-properties."""
+"""The one validation path of pipeline parameters (CLI ``--set``, Python keywords, plugin
+properties): every ``*Params`` dataclass's ``validate()`` starts with :func:`check_fields` (types,
+seeds) and states its ranges with :func:`check_range` and :func:`check_choice`; :func:`updated`
+applies and validates changes; :func:`read_properties` reads Mitsuba plugin properties;
+:func:`parse_value` reads the CLI's ``KEY=VALUE`` strings as the field's type."""
 
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import mitsuba as mi
+import numpy as np
 
 from .errors import ParameterError
 
@@ -54,3 +59,83 @@ def read_properties(
             f"{', '.join(sorted(fields))}"
         )
     return {name: _convert(props[name], kind) for name, kind in fields.items() if name in names}
+
+
+TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
+
+
+def check_type(name: str, value, kind: type) -> None:
+    """``value`` must suit a field whose default has type ``kind`` (ints are accepted as floats;
+    bools are never taken for numbers; floats must be finite)."""
+    if kind is bool:
+        ok = isinstance(value, bool | np.bool_)
+    elif kind is int:
+        ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
+    elif kind is float:
+        ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+            value, bool
+        )
+        if ok and not math.isfinite(value):
+            raise ParameterError(f"{name} must be a finite number, got {value!r}")
+    else:
+        ok = isinstance(value, kind)
+    if not ok:
+        article = (
+            "an integer" if kind is int else f"a {'number' if kind is float else kind.__name__}"
+        )
+        raise ParameterError(f"{name} must be {article}, got {value!r} ({type(value).__name__})")
+
+
+def check_fields(params) -> None:
+    """Every field of the dataclass ``params`` has its default's type (:func:`check_type`);
+    a ``seed`` field is an integer in [0, 2³²)."""
+    for f in dataclasses.fields(params):
+        check_type(f.name, getattr(params, f.name), type(f.default))
+    if hasattr(params, "seed"):
+        check_range("seed", params.seed, 0, 2**32 - 1, "the seed of every random choice")
+
+
+def check_range(name: str, value, lo=None, hi=None, hint: str = "", lo_open=False, hi_open=False):
+    """``lo <= value <= hi`` (``<`` where open; None = unbounded), else a :class:`ParameterError`
+    naming the range and what the parameter means (``hint``)."""
+    low_ok = lo is None or (value > lo if lo_open else value >= lo)
+    high_ok = hi is None or (value < hi if hi_open else value <= hi)
+    if low_ok and high_ok and not (isinstance(value, float) and math.isnan(value)):
+        return
+    if lo is not None and hi is not None:
+        bounds = f"lie in {'(' if lo_open else '['}{lo}, {hi}{')' if hi_open else ']'}"
+    elif lo is not None:
+        bounds = f"be {'>' if lo_open else '>='} {lo}"
+    else:
+        bounds = f"be {'<' if hi_open else '<='} {hi}"
+    raise ParameterError(f"{name} must {bounds}, got {value!r}" + (f": {hint}" if hint else ""))
+
+
+def check_choice(name: str, value, allowed, hint: str = "") -> None:
+    """``value`` is one of ``allowed``, else a :class:`ParameterError` listing them."""
+    if value not in allowed:
+        raise ParameterError(
+            f"{name} must be one of {', '.join(map(str, allowed))}, got {value!r}"
+            + (f" ({hint})" if hint else "")
+        )
+
+
+def parse_value(key: str, text: str, kind: type):
+    """A CLI ``KEY=VALUE`` string as ``kind`` (bool: 1/true/yes/on, 0/false/no/off; int: also
+    ``1e6``; float: also ``nan`` and ``inf``, which validation then refuses)."""
+    try:
+        if kind is bool:
+            word = text.strip().lower()
+            if word not in TRUE + FALSE:
+                raise ValueError
+            return word in TRUE
+        if kind is int:
+            number = float(text) if "e" in text.lower() else int(text)
+            if isinstance(number, float) and not number.is_integer():
+                raise ValueError
+            return int(number)
+        if kind is float:
+            return float(text)
+        return kind(text)
+    except ValueError:
+        raise ParameterError(f"--set {key}: cannot read {text!r} as {kind.__name__}") from None
