@@ -146,10 +146,10 @@ def test_plugin_errors_are_photonmap_errors():
     cornell = mi.cornell_box()
     cornell["sensor"]["film"].update(width=8, height=8)
     scene = mi.load_dict(cornell)
-    with pytest.warns(UserWarning), pytest.raises(RuntimeError) as info:
+    with pytest.raises(RuntimeError) as info:
         mi.render(scene, integrator=integrator())
     assert isinstance(info.value.__cause__, SceneError)
-    assert "no refractive or medium-bearing shape" in str(info.value.__cause__)
+    assert "no fog" in str(info.value.__cause__)  # issue 10: refused, naming --method surface
     assert issubclass(ParameterError, PhotonmapError)
 
 

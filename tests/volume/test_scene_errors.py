@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from photonmap import mi
+from photonmap import VolumePipeline, mi
 from photonmap.core.errors import PhotonmapError, SceneError
 from photonmap.scenes import load_scene
 from photonmap.scenes.meshes import to_mitsuba_mesh, torus_knot
@@ -169,3 +169,24 @@ def test_different_exterior_media():
     }
     with pytest.raises(SceneError, match="same 'exterior' medium"):
         read(d)
+
+
+@pytest.mark.parametrize(
+    "scene",
+    [
+        scene_dict(glass={"type": "sphere", "radius": 0.25, "bsdf": {"type": "dielectric"}}),
+        "cornell_steinhurst",
+    ],
+    ids=["glass sphere without media", "cornell_steinhurst"],
+)
+def test_scene_without_fog_is_refused_naming_the_surface_method(scene):
+    """Issue 10 item 1: no participating medium → a SceneError naming the method to use, not a
+    black image (also through the plugin, where Mitsuba wraps the error)."""
+    with pytest.raises(SceneError, match="no fog.*--method surface.*SurfacePipeline"):
+        VolumePipeline(scene, grid=16, photons=64)
+    if isinstance(scene, dict):
+        mi_scene = load_scene(scene)[0]
+        plugin = mi.load_dict({"type": "volume_photon", "grid": 16, "photons": 64})
+        with pytest.raises(RuntimeError) as info:
+            mi.render(mi_scene, integrator=plugin)
+        assert isinstance(info.value.__cause__, SceneError), info.value

@@ -39,6 +39,7 @@ from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.grid import filter_separable
 from ..core.params import updated
+from ..core.scene_info import has_media
 from ..core.timer import StageTimer
 from . import adaptive as a4
 from . import emit as s5
@@ -365,6 +366,7 @@ class VolumePipeline:
                     f"grid, grid_bbox, {', '.join(sorted(valid))}{also if builtin else ''}"
                 )
         mi_scene, defaults = load_scene(scene, **scene_params)
+        check_has_fog(mi_scene, scene)
         self.params = VolumeParams()
         self.set_params(**{**defaults, **{k: v for k, v in params.items() if k in valid}})
         self.scene: VolumeScene = from_mitsuba(mi_scene, grid=grid, grid_bbox=grid_bbox)
@@ -385,6 +387,7 @@ class VolumePipeline:
         """Re-read lights, media, sensor and shapes from ``scene`` (a Mitsuba scene, possibly
         edited through ``mi.traverse``); cached stages whose inputs did not change are kept.
         Grids given by :meth:`set_volume` stay."""
+        check_has_fog(scene, scene)
         new = from_mitsuba(scene, grid=self.scene.box.n, grid_bbox=self._grid_bbox)
         new.grids = self.scene.grids
         self.scene = new
@@ -736,6 +739,21 @@ class VolumePipeline:
             elif name == "octree":
                 out.update(level=np.asarray(value.level), step_limit=np.asarray(value.step_limit))
         return out
+
+
+def check_has_fog(mi_scene: mi.Scene, source) -> None:
+    """Raise :class:`SceneError` unless ``mi_scene`` holds a participating medium: the volume
+    method renders single scattering in fog (spec seed-000-002 §0.1) and would write a black image
+    of a scene without (issue 10 item 1)."""
+    if has_media(mi_scene):
+        return
+    what = f"scene {source!r}" if isinstance(source, str) else "the scene"
+    raise SceneError(
+        f"{what} has no fog (no participating medium), so the volume method would render it "
+        "black: render it with --method surface (Python: photonmap.SurfacePipeline), or give "
+        "it fog (a 'homogeneous' medium as the exterior of its dielectric shapes, the sensor's "
+        "medium, or the interior of a 'null'-BSDF shape)"
+    )
 
 
 def _sampler(pilot: a1.PilotGrids, p: VolumeParams) -> a4.PlaneSampler:
