@@ -99,7 +99,7 @@ PASSES = (
 
 def light_stages(emission: str) -> tuple[str, ...]:
     """The stages a light change reruns (all after the octree and the march grids)."""
-    from photonmap.volume.pipeline import ADAPTIVE_STAGES, STAGES
+    from photonmap.volume.params import ADAPTIVE_STAGES, STAGES
 
     return (ADAPTIVE_STAGES if emission == "adaptive" else STAGES)[5:]
 
@@ -333,7 +333,7 @@ def ablation(pipe, sweep: dict, truth: np.ndarray, budgets: Sequence[int]) -> li
     """Where the adaptive pipeline's gain comes from, per budget of the sweep: RMSE of the
     reference, the full adaptive pipeline, the filter alone (uniform placement) and the placement
     alone (importance photons, every voxel at level 0 — a Δweight no weight reaches)."""
-    from photonmap.volume.pipeline import VolumeParams
+    from photonmap.volume.params import VolumeParams
 
     rows = []
     for budget in budgets:
@@ -645,7 +645,7 @@ def plot(result: dict, path: Path) -> None:
 # -------------------------------------------------------------------------------------- run
 def run(args, log=_log) -> dict:
     import photonmap  # noqa: F401 - selects the Mitsuba variant
-    from photonmap.volume.pipeline import VolumeParams
+    from photonmap.volume.params import VolumeParams
 
     started = time.perf_counter()
     result: dict = {

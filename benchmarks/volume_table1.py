@@ -618,7 +618,7 @@ def _photon_label(count: int) -> str:
 
 def markdown(result: dict) -> str:
     """The markdown report: Table 1 beside the paper, the headline and the profile."""
-    from photonmap.volume.pipeline import STAGES
+    from photonmap.volume.params import STAGES
 
     s, m = result["settings"], result["machine"]
     lines = [

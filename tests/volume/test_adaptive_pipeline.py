@@ -10,7 +10,7 @@ from photonmap import VolumePipeline
 from photonmap.cli import app
 from photonmap.core.errors import ParameterError
 from photonmap.volume import emit as s5
-from photonmap.volume.pipeline import ADAPTIVE_STAGES, STAGES
+from photonmap.volume.params import ADAPTIVE_STAGES, STAGES
 
 SMALL = {"grid": 32, "photons": 16384, "pilot_photons": 1024, "width": 16, "height": 12}
 PHOTON_STAGES = list(ADAPTIVE_STAGES[5:])

@@ -7,7 +7,7 @@ import pytest
 
 from photonmap import VolumePipeline
 from photonmap.core.errors import ParameterError, PhotonmapError
-from photonmap.volume.pipeline import (
+from photonmap.volume.params import (
     PHOTON_BYTES,
     VolumeParams,
     available_memory,

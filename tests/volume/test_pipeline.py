@@ -9,7 +9,7 @@ import pytest
 
 from photonmap import VolumePipeline, mi
 from photonmap.scenes import SCENES
-from photonmap.volume.pipeline import STAGES
+from photonmap.volume.params import STAGES
 
 GRID, PHOTONS = 32, 4096
 SIZE = {"width": 16, "height": 12}

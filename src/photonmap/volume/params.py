@@ -1,0 +1,372 @@
+"""Parameters of the volume pipeline and their validation (spec seed-000-002 §1 parameter table,
+§6 recommendations): :class:`VolumeParams` (the CLI's ``--set`` keys, the plugin's properties), the
+stage lists, the memory check of the N³ grids (:func:`check_grid`) and the checks of light and
+medium edits (:func:`check_light`, :func:`updated_medium`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+
+import drjit as dr
+import numpy as np
+
+from ..core import sampling
+from ..core.errors import ParameterError
+from . import mipmap, pilot
+from .scene import Light, Medium
+
+FIDELITY = ("physical", "paper")
+EMISSION = ("uniform", "adaptive")
+PLACEMENTS = ("importance", "uniform")  # emission="adaptive": where the phase-2 photons go
+STAGES = (
+    "voxelization",
+    "materials",
+    "gradient",
+    "octree",
+    "march grids",
+    "photon generation",
+    "photon tracing",
+    "smoothing",
+    "view grids",
+    "viewing",
+)  # in the order render() runs them (S1, S2, S3, S4, S6 input, S5, S6/S7, S8, S9 input, S9)
+ADAPTIVE_STAGES = (
+    *STAGES[:5],
+    "pilot photon generation",
+    "pilot photon marching",
+    "photon distribution",
+    "photon generation",
+    "photon tracing",
+    "mipmap generation",
+    "filtering",
+    "view grids",
+    "viewing",
+)  # emission="adaptive": A1, A2, A3, A4, A5, A6, A7 replace S5–S8 (Pfeuti Tables 4.2–4.4)
+
+
+@dataclasses.dataclass
+class VolumeParams:
+    """Pipeline parameters (the CLI's ``--set`` keys). Defaults: spec seed-000-002 §1 parameter
+    table and §6 recommendations."""
+
+    photons: int = 1024**2  # initial photons on the photon plane (Sun Table 2)
+    sampler: str = "hammersley"  # photon plane point set (Pfeuti §4.1)
+    seed: int = 0
+    eps: float = 0.005  # octree tolerance ε (Sun §5.3)
+    eps2: float = 0.02  # second tolerance ε' (Sun §5.3); = eps for the basic octree
+    ds_min: float = 1.0  # Δs_min, voxels (Sun §4.4)
+    ds_max: float = 8.0  # Δs_max where ε ≤ range < ε', voxels (Sun §5.3)
+    supersample: int = 4  # voxelization supersampling (Sun §4.1)
+    blur_all: bool = False  # also blur σ_s and κ (spec A3)
+    smoothing: bool = True  # 3×3×3 smoothing of C and D (S8; emission="adaptive": C only)
+    phase_k: float = 0.3  # Schlick k (spec A25)
+    table: float = 0.0  # ρ_table of the reflective bottom layer; 0 = none (Pfeuti §3.1.6)
+    iso_reflect: float = 0.04  # R_iso of the reflective isosurface (spec A29); 0 = none
+    iso_ior: float = 0.0  # n_iso; 0 = midway between the fog's and the densest object's n
+    ior_noise: float = 0.0  # Perlin amplitude on n inside objects (CUBE scene)
+    sigma_s_noise: float = 0.0  # relative Perlin amplitude on σ_s inside objects
+    noise_scale: float = 16.0  # Perlin feature size, voxels
+    fidelity: str = "physical"  # "paper": the papers' literal behaviour (spec §6)
+    spp: int = 1  # camera rays per pixel
+    emission: str = "uniform"  # "adaptive": Pfeuti's pilot + importance photons (§3.2)
+    pilot_photons: int = 64**2  # adaptive: pilot photons, s² on an s × s grid (Pfeuti §4.3)
+    grad_threshold: float = 0.0  # adaptive: pilot gradient threshold in (0, 1]; 0 = automatic
+    rad_threshold: float = 0.0  # adaptive: pilot radiance threshold in (0, 1]; 0 = automatic
+    background: float = 0.75  # adaptive: share β of the pdf spread uniformly (spec A37: 0.25)
+    delta_weight: float = 1.0  # adaptive: Δweight of the photon-weight filter at 16 photons per
+    # voxel column (spec A7; mipmap.weight_step scales it with √budget)
+    placement: str = "importance"  # adaptive: photons placed by the pilot pdf (Pfeuti A4) or
+    # "uniform" (the reference's plane points; the filter still reads the pilot pdf's weights)
+    mip_block: int = 1  # adaptive: filter level chosen per voxel (1, Pfeuti A7) or per 2×2×2 block
+    mip_blend: bool = True  # adaptive: fractional photon-weight levels blending two mip levels
+    # (False: Pfeuti's integer levels ⌊w/Δweight⌋)
+
+    def validate(self) -> None:
+        """Raise :class:`ParameterError` saying what is wrong and which values are allowed."""
+        for f in dataclasses.fields(self):
+            _check_type(f.name, getattr(self, f.name), type(f.default))
+        if not 1 <= self.photons <= 2**31:
+            raise ParameterError(
+                f"photons must be between 1 and 2**31, got {self.photons!r}: it is the number of "
+                "photons placed on each light's photon plane (e.g. photons=1048576 = 1024**2, "
+                "Sun Table 2)"
+            )
+        if self.sampler not in sampling.SAMPLERS:
+            raise ParameterError(
+                f"sampler must be one of {', '.join(sampling.SAMPLERS)}, got {self.sampler!r}"
+            )
+        if self.fidelity not in FIDELITY:
+            raise ParameterError(
+                f"fidelity must be one of {', '.join(FIDELITY)}, got {self.fidelity!r}"
+            )
+        for key in ("eps", "ds_min", "ds_max", "noise_scale"):
+            value = getattr(self, key)
+            if not (math.isfinite(value) and value > 0):
+                raise ParameterError(f"{key} must be positive and finite, got {value!r}")
+        if not (math.isfinite(self.eps2) and self.eps2 >= self.eps):
+            raise ParameterError(
+                f"eps2 must be finite and >= eps ({self.eps}), got {self.eps2!r}; "
+                "set eps2 = eps for the basic octree (Sun §5.3)"
+            )
+        if self.ds_max < self.ds_min:
+            raise ParameterError(
+                f"ds_max ({self.ds_max}) must be >= ds_min ({self.ds_min}): both are step lengths "
+                "in voxels"
+            )
+        if not -1 < self.phase_k < 1:
+            raise ParameterError(
+                f"phase_k must lie in (-1, 1), got {self.phase_k!r}: Schlick's k is 0 for "
+                "isotropic scattering, > 0 forward, < 0 backward"
+            )
+        for key in ("table", "iso_reflect"):
+            if not 0 <= getattr(self, key) <= 1:
+                raise ParameterError(
+                    f"{key} must lie in [0, 1] (a reflectance; 0 turns it off), "
+                    f"got {getattr(self, key)!r}"
+                )
+        for key in ("ior_noise", "sigma_s_noise"):
+            if not (math.isfinite(getattr(self, key)) and getattr(self, key) >= 0):
+                raise ParameterError(
+                    f"{key} must be finite and >= 0 (0 = no noise), got {getattr(self, key)!r}"
+                )
+        if not (math.isfinite(self.iso_ior) and (self.iso_ior == 0 or self.iso_ior >= 1)):
+            raise ParameterError(
+                f"iso_ior must be 0 (automatic) or a finite index >= 1, got {self.iso_ior!r}"
+            )
+        for key in ("spp", "supersample"):
+            if getattr(self, key) < 1:
+                raise ParameterError(f"{key} must be at least 1, got {getattr(self, key)!r}")
+        if self.seed < 0:
+            raise ParameterError(f"seed must be >= 0, got {self.seed!r}")
+        self._validate_adaptive()
+
+    def _validate_adaptive(self) -> None:
+        if self.emission not in EMISSION:
+            raise ParameterError(
+                f"emission must be one of {', '.join(EMISSION)}, got {self.emission!r}"
+            )
+        pilot.pilot_side(self.pilot_photons)
+        if self.emission == "adaptive" and self.pilot_photons >= self.photons:
+            raise ParameterError(
+                f"pilot_photons ({self.pilot_photons}) must be smaller than photons "
+                f"({self.photons}), the total budget of pilot and importance photons per light: "
+                "raise photons or lower pilot_photons (Pfeuti: 4096 pilots for 65536 importance "
+                "photons)"
+            )
+        for key in ("grad_threshold", "rad_threshold"):
+            value = getattr(self, key)
+            if not 0 <= value <= 1:
+                raise ParameterError(
+                    f"{key} must lie in [0, 1] (relative to the pilot maximum; 0 = automatic "
+                    f"from the pilot statistics), got {value!r}"
+                )
+        if not 0 < self.background < 1:
+            raise ParameterError(
+                f"background must lie in (0, 1) (the share of the photon-plane pdf spread "
+                f"uniformly; 0 would leave regions unsampled), got {self.background!r}"
+            )
+        if self.placement not in PLACEMENTS:
+            raise ParameterError(
+                f"placement must be one of {', '.join(PLACEMENTS)} (where the adaptive pipeline "
+                f"places its photons: by the pilot pdf, or uniformly with the pilot pdf steering "
+                f"only the reconstruction filter), got {self.placement!r}"
+            )
+        if self.mip_block not in mipmap.BLOCKS:
+            raise ParameterError(
+                f"mip_block must be one of {mipmap.BLOCKS} (the reconstruction filter picks one mip "
+                f"level per voxel, as Pfeuti does, or per 2×2×2 block), got {self.mip_block!r}"
+            )
+        if not (math.isfinite(self.delta_weight) and self.delta_weight > 0):
+            raise ParameterError(
+                f"delta_weight must be positive and finite (photon weight per mip level; 1 = "
+                f"level 1 at 16 uniform photons per voxel column), got {self.delta_weight!r}"
+            )
+
+
+def _check_type(name: str, value, kind: type) -> None:
+    """``value`` must suit a field whose default has type ``kind`` (ints are accepted as floats;
+    bools are never taken for numbers)."""
+    if kind is bool:
+        ok = isinstance(value, bool | np.bool_)
+    elif kind is int:
+        ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
+    elif kind is float:
+        ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
+            value, bool
+        )
+    else:
+        ok = isinstance(value, kind)
+    if not ok:
+        article = (
+            "an integer" if kind is int else f"a {'number' if kind is float else kind.__name__}"
+        )
+        raise ParameterError(f"{name} must be {article}, got {value!r} ({type(value).__name__})")
+
+
+# ------------------------------------------------------------------------------------------------
+# Memory
+
+DRJIT_MAX_ENTRIES = 2**32  # Dr.Jit arrays hold at most 2³² entries
+VIEW_CHANNELS = 16  # floats per voxel in the packed viewing grid, the widest N³ array
+PHOTON_BYTES = 128  # per photon: plane samples, entry point, direction, power, march state
+
+
+def memory_estimate(grid: int, objects: int = 1, photons: int = 0, threads: int | None = None):
+    """Bytes the pipeline needs for an ``grid``³ volume (a rough upper estimate), as
+    ``(total, per_voxel)``.
+
+    Per voxel, what stays cached: coverage (4 B per refractive object), material grids n, σ_s, κ
+    (28 B), ∇n (12 B), octree level and Δs_max (8 B), march grids (40 B), the traced and the
+    smoothed C, D (2 × 24 B), the packed viewing grid (64 B); and while photons are traced, the
+    64-bit fixed-point accumulator of 8 channels (64 B) with one more copy per Dr.Jit thread
+    (``ReduceMode.Expand``). Plus :data:`PHOTON_BYTES` per photon. Measured on this machine:
+    ≈ 360 B per voxel at 192³ with 2 threads, against 396 B estimated.
+    """
+    threads = dr.thread_count() if threads is None else threads
+    cached = 4 * objects + 28 + 12 + 8 + 40 + 2 * 24 + 4 * VIEW_CHANNELS
+    accumulator = 8 * 8 * (1 + max(int(threads), 1))
+    per_voxel = cached + accumulator
+    return per_voxel * int(grid) ** 3 + PHOTON_BYTES * int(photons), per_voxel
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to this process (``MemAvailable`` of /proc/meminfo, else the
+    physical memory), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _bytes(n: float) -> str:
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if n < 1024 or unit == "TB":
+            return f"{n:.1f} {unit}" if unit != "B" else f"{int(n)} B"
+        n /= 1024
+    return f"{n:.1f} TB"  # pragma: no cover
+
+
+def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None = None) -> None:
+    """Raise :class:`ParameterError` unless ``grid`` is an integer >= 4 whose N³ grids fit in
+    Dr.Jit's array limit and in ``available`` bytes (default: :func:`available_memory`)."""
+    if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 4:
+        raise ParameterError(
+            f"grid must be an integer >= 4 (the grid is grid³ voxels; the papers use 128), "
+            f"got {grid!r}"
+        )
+    need, per_voxel = memory_estimate(grid, objects, photons)
+    available = available_memory() if available is None else available
+    if available is not None and need > available:
+        fits = int((max(available - PHOTON_BYTES * photons, 0) / per_voxel) ** (1 / 3))
+        parts = (
+            f"{grid}³ voxels × {per_voxel} bytes for the material, octree, photon and view grids"
+        )
+        if photons:
+            parts += f" + {photons:,} photons × {PHOTON_BYTES} bytes"
+        raise ParameterError(
+            f"grid={grid} needs about {_bytes(need)} of memory ({parts}), but only "
+            f"{_bytes(available)} is available: use a smaller grid (grid <= {fits} fits)"
+            + (" or fewer photons" if photons else "")
+        )
+    if VIEW_CHANNELS * int(grid) ** 3 > DRJIT_MAX_ENTRIES:
+        largest = int((DRJIT_MAX_ENTRIES / VIEW_CHANNELS) ** (1 / 3))
+        raise ParameterError(
+            f"grid={grid} needs arrays of {VIEW_CHANNELS}·{grid}³ = {VIEW_CHANNELS * grid**3:,} "
+            f"entries, more than Dr.Jit's limit of 2³² entries per array: use grid <= {largest}"
+        )
+
+
+
+LIGHT_VECTORS = ("position", "direction", "intensity", "lobe_normal")
+
+
+def light_vector(name: str, value) -> np.ndarray:
+    """A light vector as float64 RGB/xyz; a scalar intensity is grey."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+        if name == "intensity" and a.ndim == 0:
+            a = np.repeat(a, 3)
+        if a.shape != (3,):
+            raise ValueError
+    except (TypeError, ValueError):
+        raise ParameterError(
+            f"light {name} must be 3 numbers (x, y, z{'' if name != 'intensity' else ' or RGB'}), "
+            f"got {value!r}"
+        ) from None
+    return a
+
+
+def check_light(light: Light) -> None:
+    if light.kind not in ("point", "spot", "directional"):
+        raise ParameterError(f"light kind must be point, spot or directional, got {light.kind!r}")
+    for name in ("intensity", "position", "direction"):
+        value = getattr(light, name)
+        if value is not None and not np.all(np.isfinite(value)):
+            raise ParameterError(
+                f"light {name} must be finite, got {np.asarray(value).tolist()}: pass finite numbers"
+            )
+    if np.any(np.asarray(light.intensity) < 0):
+        raise ParameterError(
+            f"light intensity must be >= 0 in every channel, got {np.asarray(light.intensity).tolist()}"
+        )
+    for name in ("cos_inner", "cos_outer"):
+        value = getattr(light, name)
+        if not (math.isfinite(value) and -1 <= value <= 1):
+            raise ParameterError(f"{name} must be a cosine in [-1, 1], got {value!r}")
+    if light.kind == "directional" and (
+        light.direction is None or np.linalg.norm(light.direction) == 0
+    ):
+        raise ParameterError("a directional light needs a non-zero direction (where light travels)")
+    if light.kind != "directional" and light.position is None:
+        raise ParameterError(f"a {light.kind} light needs a position (world units)")
+    if light.kind == "spot" and (light.direction is None or np.linalg.norm(light.direction) == 0):
+        raise ParameterError("a spot light needs a non-zero direction (its axis)")
+
+
+def updated_medium(medium: Medium, ior, sigma_s, sigma_a, where: str) -> Medium:
+    def rgb(name, value):
+        try:
+            return np.broadcast_to(np.asarray(value, dtype=np.float64), 3).copy()
+        except (TypeError, ValueError):
+            raise ParameterError(
+                f"{name} of {where} must be a number or 3 numbers (RGB, 1/world unit), "
+                f"got {value!r}"
+            ) from None
+
+    try:
+        n = float(medium.ior if ior is None else ior)
+    except (TypeError, ValueError):
+        raise ParameterError(f"n (ior) of {where} must be a number, got {ior!r}") from None
+    new = Medium(
+        sigma_s=rgb("sigma_s", medium.sigma_s if sigma_s is None else sigma_s),
+        sigma_a=rgb("sigma_a", medium.sigma_a if sigma_a is None else sigma_a),
+        ior=n,
+    )
+    for name, value in (("sigma_s", new.sigma_s), ("sigma_a", new.sigma_a), ("ior", new.ior)):
+        if not np.all(np.isfinite(value)):
+            raise ParameterError(
+                f"{name} of {where} must be finite, got {np.asarray(value).tolist()}: "
+                "pass finite coefficients (world units)"
+            )
+    for name, value in (("sigma_s", new.sigma_s), ("sigma_a", new.sigma_a)):
+        if np.any(value < 0):
+            raise ParameterError(
+                f"{name} of {where} must be >= 0, got {value.tolist()}: coefficients are "
+                "non-negative (kappa = sigma_s + sigma_a)"
+            )
+    if new.ior < 1:
+        raise ParameterError(
+            f"n (ior) of {where} must be >= 1, got {new.ior}: the volume pipeline needs objects "
+            "optically denser than the fog (n is relative to the fog)"
+        )
+    return new
