@@ -17,11 +17,12 @@ the BSDF is sampled in importance (adjoint) transport mode, ``Φ ← Φ · f_s |
 records form Jensen's global map (every non-specular hit, first-bounce "direct" photons included)
 and, through the ``caustic`` flag, the caustic map: hits that end an ``L S+ D`` path — at least one
 delta (specular) bounce and no smooth bounce before the hit (spec A5; Algorithm 2.4 as printed
-never records a caustic photon). Crossing a ``null`` interface is neither. Hits 1 … ``rr_depth``
-are reached without Russian roulette; from bounce ``rr_depth`` on a photon survives with
-probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its power is divided by ``q`` (as
-Mitsuba's path tracers do; no η² factor, since importance transport through a dielectric conserves
-power). A path ends after ``max_depth`` interactions, null interfaces included.
+never records a caustic photon). ``null``-BSDF shapes (fog boxes) are invisible: photons pass
+straight through them (:func:`~photonmap.core.bsdf.intersect_visible`), and crossing one is no
+interaction. Hits 1 … ``rr_depth`` are reached without Russian roulette; from bounce
+``rr_depth`` on a photon survives with probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its
+power is divided by ``q`` (as Mitsuba's path tracers do; no η² factor, since importance transport
+through a dielectric conserves power). A path ends after ``max_depth`` interactions.
 
 Mitsuba gives the shape of an area light without a BSDF a black ``diffuse`` BSDF, which is
 smooth: photons that reach such a light are recorded there and absorbed.
@@ -40,6 +41,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .bsdf import has_null_shapes, intersect_visible
 from .errors import ParameterError, SceneError
 from .sampling import rng
 
@@ -143,7 +145,14 @@ def trace_photons(
     power = weight / dr.gather(mi.Float, mi.Float(counts.astype(np.float32)), emitter)
     emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
     records = _trace(
-        scene, ray, power, rng(paths, seed, stream=1), max_depth, rr_depth, caustics_only
+        scene,
+        ray,
+        power,
+        rng(paths, seed, stream=1),
+        max_depth,
+        rr_depth,
+        caustics_only,
+        has_null_shapes(scene),
     )
     slot = dr.compress(records.pop("stored"))
     fields = {name: dr.gather(type(value), value, slot) for name, value in records.items()}
@@ -244,6 +253,7 @@ def _trace(
     max_depth: int,
     rr_depth: int,
     caustics_only: bool,
+    null_shapes: bool,
 ) -> dict:
     """The bounce loop; returns the record slots and the ``stored`` mask over them."""
     n = dr.width(power)
@@ -267,7 +277,7 @@ def _trace(
 
     # Every iteration either ends a path or adds one interaction, so depth < max_depth caps it.
     while active:
-        si = scene.ray_intersect(ray, active)
+        si = intersect_visible(scene, ray, active, null_shapes)
         active &= si.is_valid()
         depth[active] += 1
         bsdf = si.bsdf(ray)
@@ -296,7 +306,7 @@ def _trace(
         )
         throughput *= weight
         lobe = sample.sampled_type
-        null = mi.has_flag(lobe, mi.BSDFFlags.Null)  # passing a null interface is no bounce
+        null = mi.has_flag(lobe, mi.BSDFFlags.Null)  # a null-BSDF emitter's shape is no bounce
         specular_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Delta) & ~null
         smooth_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Smooth)
         ray = si.spawn_ray(si.to_world(sample.wo))

@@ -1,12 +1,18 @@
 """Direct lighting at the non-specular eye-ray hit: emitter sampling and BSDF sampling combined by
 multiple importance sampling (power heuristic) — the shadow rays of Steinhurst §7.3.2 ("area light
 sources ... accommodated using importance sampling"), written after Mitsuba's ``path`` integrator.
+
+``null``-BSDF shapes (fog boxes) are invisible to the shadow rays and to the BSDF-sampled rays
+(:func:`photonmap.core.bsdf.occluded`, :func:`~photonmap.core.bsdf.intersect_visible`), where
+Mitsuba's own visibility test would stop at them.
 """
 
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+
+from ..core.bsdf import intersect_visible, occluded
 
 
 def _power_heuristic(a, b):
@@ -21,15 +27,18 @@ def direct_lighting(
     u_light: mi.Point2f,
     gen: mi.PCG32,
     active: mi.Bool,
+    null_shapes: bool,
 ) -> mi.Spectrum:
     """Radiance reflected at ``si`` towards ``si.wi`` from light arriving straight from emitters;
     ``u_light`` picks the point on the emitters (stratified over a pixel's samples by the caller),
-    ``gen`` draws the BSDF sample."""
+    ``gen`` draws the BSDF sample; ``null_shapes``: whether the scene has ``null``-BSDF shapes
+    (:func:`~photonmap.core.bsdf.has_null_shapes`)."""
     ctx = mi.BSDFContext()
 
     # emitter sampling (shadow ray)
-    ds, em_weight = scene.sample_emitter_direction(si, u_light, True, active)
+    ds, em_weight = scene.sample_emitter_direction(si, u_light, False, active)
     lit = active & (ds.pdf != 0)
+    lit &= ~occluded(scene, si.spawn_ray_to(ds.p), lit, null_shapes)
     bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), lit)
     w_em = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
     L = dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
@@ -39,7 +48,7 @@ def direct_lighting(
         ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
     )
     ray = si.spawn_ray(si.to_world(bs.wo))
-    si_e = scene.ray_intersect(ray, active)
+    si_e = intersect_visible(scene, ray, active, null_shapes)
     emitter = si_e.emitter(scene)
     hits_light = active & (emitter != None) & (bs.pdf > 0)  # noqa: E711 (Dr.Jit pointer test)
     delta_lobe = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)

@@ -43,9 +43,12 @@ def final_gather(
     max_depth: int,
     sampling: str = "bsdf",
     fused: bool = True,
+    null_shapes: bool | None = None,
 ) -> mi.Spectrum:
     """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
-    returns the radiance leaving y towards x (lazily if ``fused``)."""
+    returns the radiance leaving y towards x (lazily if ``fused``). The rays pass through
+    ``null``-BSDF shapes (``null_shapes``: whether the scene has any, see
+    :func:`~photonmap.surface.trace.follow_specular`)."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
     smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
@@ -71,7 +74,14 @@ def final_gather(
             wo, ok = bs.wo, ok & (bs.pdf > 0)
         ray = x.spawn_ray(x.to_world(wo))
         si_y, throughput, _, found, _ = follow_specular(
-            scene, ray, dr.select(ok, weight, 0.0), ok, max_depth, gen, count_emission=False
+            scene,
+            ray,
+            dr.select(ok, weight, 0.0),
+            ok,
+            max_depth,
+            gen,
+            count_emission=False,
+            null_shapes=null_shapes,
         )
         if not fused:
             dr.eval(si_y, throughput, found)  # the k-NN gathers run several kernels over these

@@ -30,6 +30,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
@@ -115,6 +116,7 @@ class SurfacePipeline(MovableCamera):
         self.sensor = self.scene.sensors()[0] if self.scene.sensors() else None
         if self.sensor is None:
             raise ParameterError("the scene has no sensor (camera) to render from")
+        self.null_shapes = has_null_shapes(self.scene)  # invisible fog boxes (issue 10)
         self.params = SurfaceParams()
         self.set_params(**{k: v for k, v in params.items() if k in defaults})
         self.timer = StageTimer()
@@ -212,6 +214,7 @@ class SurfacePipeline(MovableCamera):
                 p.max_depth,
                 gen,
                 count_emission=True,
+                null_shapes=self.null_shapes,
             )
             bsdf = si.bsdf()
             dr.eval(si, beta, emitted, found, bounces)
@@ -219,7 +222,9 @@ class SurfacePipeline(MovableCamera):
         if progress:
             progress("direct lighting")
         with self.timer("direct lighting"):
-            L += beta * direct_lighting(self.scene, si, bsdf, u_light, gen, found)
+            L += beta * direct_lighting(
+                self.scene, si, bsdf, u_light, gen, found, self.null_shapes
+            )
             dr.eval(L)
         if progress:
             progress("caustics")
@@ -242,13 +247,16 @@ class SurfacePipeline(MovableCamera):
                     p.max_depth,
                     p.fg_sampling,
                     fused=p.lookup == "irradiance",
+                    null_shapes=self.null_shapes,
                 )
             dr.eval(L)
         image = pixel_means(L, p.spp)
         if progress:
             progress("light images")
         with self.timer("light images"):
-            image += light_images(self.scene, self.sensor, emitted, w, h, p)
+            image += light_images(
+                self.scene, self.sensor, emitted, w, h, p, self.null_shapes
+            )
         image = mi.TensorXf(dr.ravel(image), (h, w, 3))
         if not np.all(np.isfinite(np.asarray(image))):
             raise SceneError(
@@ -258,7 +266,9 @@ class SurfacePipeline(MovableCamera):
         return image
 
 
-def light_images(scene, sensor, emitted: mi.Spectrum, w: int, h: int, p) -> mi.Spectrum:
+def light_images(
+    scene, sensor, emitted: mi.Spectrum, w: int, h: int, p, null_shapes: bool
+) -> mi.Spectrum:
     """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
     eye samples' ``emitted``, except in the pixels where a sample saw a light (and their
     neighbours): there it is the mean of ``p.emitter_spp`` new samples of this term alone (a
@@ -287,7 +297,14 @@ def light_images(scene, sensor, emitted: mi.Spectrum, w: int, h: int, p) -> mi.S
     jitter = rotated_hammersley(p.emitter_spp, sample, dr.gather(mi.Point2f, shift, which))
     ray, weight = pixel_rays(sensor, pixel, jitter)
     _, _, extra, _, _ = follow_specular(
-        scene, ray, weight, dr.ones(mi.Bool, lanes), p.max_depth, rng(lanes, p.seed, 4), True
+        scene,
+        ray,
+        weight,
+        dr.ones(mi.Bool, lanes),
+        p.max_depth,
+        rng(lanes, p.seed, 4),
+        True,
+        null_shapes,
     )
     dr.scatter(image, pixel_means(extra, p.emitter_spp), flagged)
     return image

@@ -6,12 +6,17 @@ as non-specular (handled by the photon map and final gather) [Steinhurst §7.3.2
 A surface is *specular* here when its BSDF has no smooth (diffuse or glossy) component; a BSDF that
 mixes a delta lobe with a smooth one (e.g. Mitsuba's ``plastic``) is treated as non-specular and its
 delta lobe is not followed — use ``roughplastic`` for a glossy coating.
+
+``null``-BSDF shapes (the boundaries of a fog box) are invisible: rays pass straight through them
+(:func:`photonmap.core.bsdf.intersect_visible`) and crossing one is no bounce (issue 10).
 """
 
 from __future__ import annotations
 
 import drjit as dr
 import mitsuba as mi
+
+from ..core.bsdf import has_null_shapes, intersect_visible
 
 
 def is_specular(bsdf: mi.BSDFPtr, active) -> mi.Bool:
@@ -28,6 +33,7 @@ def follow_specular(
     max_depth: int,
     gen: mi.PCG32,
     count_emission: bool,
+    null_shapes: bool | None = None,
 ):
     """Trace ``ray`` through purely specular surfaces until the first non-specular hit.
 
@@ -35,7 +41,11 @@ def follow_specular(
     surface, the product of the specular weights on the way, the radiance emitted by emitters met
     on the way (``count_emission``; weighted by the throughput), whether a non-specular surface was
     found within ``max_depth`` bounces, and the number of specular bounces before it.
+    ``null_shapes``: whether the scene has ``null``-BSDF shapes to pass through
+    (:func:`~photonmap.core.bsdf.has_null_shapes`, computed here when None).
     """
+    if null_shapes is None:
+        null_shapes = has_null_shapes(scene)
     ctx = mi.BSDFContext()
     ray = mi.Ray3f(ray)
     throughput = mi.Spectrum(throughput)
@@ -46,7 +56,7 @@ def follow_specular(
     si = dr.zeros(mi.SurfaceInteraction3f, dr.width(throughput))
 
     while searching:
-        si = scene.ray_intersect(ray, searching)
+        si = intersect_visible(scene, ray, searching, null_shapes)
         if count_emission:
             emitted += dr.select(searching, throughput * si.emitter(scene).eval(si, searching), 0.0)
         bsdf = si.bsdf(ray)
