@@ -78,7 +78,7 @@ def test_unknown_set_key_lists_the_valid_keys(tmp_path):
         (["-o", "x.png", "--set", "grid"], "KEY=VALUE"),
         (["-o", "x.png", "--set", "photons=many"], "cannot read 'many' as int"),
         (["-o", "x.png", "--set", "smoothing=maybe"], "cannot read 'maybe' as bool"),
-        (["-o", "x.png", "--set", "photons=0"], "photons must be between 1"),
+        (["-o", "x.png", "--set", "photons=0"], "photons must lie in [1, "),
         (["-o", "x.png", "--set", "phase_k=1.5"], "phase_k must lie in (-1, 1)"),
         (["-o", "x.png", "--set", "grid=2048"], "needs about"),
         (["-o", "x.png", "--method", "nope"], "unknown --method 'nope'"),

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..core import sampling
 from ..core.errors import ParameterError
+from ..core.params import check_choice, check_fields, check_range
 from . import mipmap, pilot
 from .scene import Light, Medium
 
@@ -85,125 +86,120 @@ class VolumeParams:
     # (False: Pfeuti's integer levels ⌊w/Δweight⌋)
 
     def validate(self) -> None:
-        """Raise :class:`ParameterError` saying what is wrong and which values are allowed."""
-        for f in dataclasses.fields(self):
-            _check_type(f.name, getattr(self, f.name), type(f.default))
-        if not 1 <= self.photons <= 2**31:
-            raise ParameterError(
-                f"photons must be between 1 and 2**31, got {self.photons!r}: it is the number of "
-                "photons placed on each light's photon plane (e.g. photons=1048576 = 1024**2, "
-                "Sun Table 2)"
-            )
-        if self.sampler not in sampling.SAMPLERS:
-            raise ParameterError(
-                f"sampler must be one of {', '.join(sampling.SAMPLERS)}, got {self.sampler!r}"
-            )
-        if self.fidelity not in FIDELITY:
-            raise ParameterError(
-                f"fidelity must be one of {', '.join(FIDELITY)}, got {self.fidelity!r}"
-            )
-        for key in ("eps", "ds_min", "ds_max", "noise_scale"):
-            value = getattr(self, key)
-            if not (math.isfinite(value) and value > 0):
-                raise ParameterError(f"{key} must be positive and finite, got {value!r}")
-        if not (math.isfinite(self.eps2) and self.eps2 >= self.eps):
-            raise ParameterError(
-                f"eps2 must be finite and >= eps ({self.eps}), got {self.eps2!r}; "
-                "set eps2 = eps for the basic octree (Sun §5.3)"
-            )
-        if self.ds_max < self.ds_min:
-            raise ParameterError(
-                f"ds_max ({self.ds_max}) must be >= ds_min ({self.ds_min}): both are step lengths "
-                "in voxels"
-            )
-        if not -1 < self.phase_k < 1:
-            raise ParameterError(
-                f"phase_k must lie in (-1, 1), got {self.phase_k!r}: Schlick's k is 0 for "
-                "isotropic scattering, > 0 forward, < 0 backward"
-            )
+        """Raise :class:`ParameterError` saying what is wrong and which values are allowed: the
+        types (floats finite, seed in [0, 2³²)) by :func:`~photonmap.core.params.check_fields`,
+        then the ranges of spec seed-000-002 §1 and §A."""
+        check_fields(self)
+        check_range(
+            "photons",
+            self.photons,
+            1,
+            2**31,
+            "the number of photons placed on each light's photon plane (e.g. 1048576 = 1024**2, "
+            "Sun Table 2)",
+        )
+        check_choice("sampler", self.sampler, sampling.SAMPLERS, "the photon-plane point set")
+        check_choice("fidelity", self.fidelity, FIDELITY, "'paper': the papers' literal choices")
+        for key, hint in (
+            ("eps", "the octree tolerance ε of n's range (Sun §5.3)"),
+            ("ds_min", "the shortest photon march step, in voxels (Sun §4.4)"),
+            ("noise_scale", "the Perlin feature size, in voxels"),
+        ):
+            check_range(key, getattr(self, key), 0, None, hint, lo_open=True)
+        check_range(
+            "eps2",
+            self.eps2,
+            self.eps,
+            None,
+            "the second octree tolerance ε' must be >= eps; set eps2 = eps for the basic octree "
+            "(Sun §5.3)",
+        )
+        check_range(
+            "ds_max",
+            self.ds_max,
+            self.ds_min,
+            None,
+            "the longest march step must be >= ds_min (both in voxels, Sun §5.3)",
+        )
+        check_range(
+            "phase_k",
+            self.phase_k,
+            -1,
+            1,
+            "Schlick's k is 0 for isotropic scattering, > 0 forward, < 0 backward",
+            lo_open=True,
+            hi_open=True,
+        )
         for key in ("table", "iso_reflect"):
-            if not 0 <= getattr(self, key) <= 1:
-                raise ParameterError(
-                    f"{key} must lie in [0, 1] (a reflectance; 0 turns it off), "
-                    f"got {getattr(self, key)!r}"
-                )
+            check_range(key, getattr(self, key), 0, 1, "a reflectance; 0 turns it off")
         for key in ("ior_noise", "sigma_s_noise"):
-            if not (math.isfinite(getattr(self, key)) and getattr(self, key) >= 0):
-                raise ParameterError(
-                    f"{key} must be finite and >= 0 (0 = no noise), got {getattr(self, key)!r}"
-                )
-        if not (math.isfinite(self.iso_ior) and (self.iso_ior == 0 or self.iso_ior >= 1)):
-            raise ParameterError(
-                f"iso_ior must be 0 (automatic) or a finite index >= 1, got {self.iso_ior!r}"
+            check_range(key, getattr(self, key), 0, None, "a Perlin amplitude; 0 = no noise")
+        if self.iso_ior != 0:
+            check_range(
+                "iso_ior",
+                self.iso_ior,
+                1,
+                None,
+                "the isosurface's index; 0 = automatic (midway between fog and object)",
             )
         for key in ("spp", "supersample"):
-            if getattr(self, key) < 1:
-                raise ParameterError(f"{key} must be at least 1, got {getattr(self, key)!r}")
-        if self.seed < 0:
-            raise ParameterError(f"seed must be >= 0, got {self.seed!r}")
+            check_range(key, getattr(self, key), 1, None)
         self._validate_adaptive()
 
     def _validate_adaptive(self) -> None:
-        if self.emission not in EMISSION:
-            raise ParameterError(
-                f"emission must be one of {', '.join(EMISSION)}, got {self.emission!r}"
-            )
+        """The keys of ``emission="adaptive"`` (Pfeuti §3.2, spec §A)."""
+        check_choice("emission", self.emission, EMISSION)
         pilot.pilot_side(self.pilot_photons)
-        if self.emission == "adaptive" and self.pilot_photons >= self.photons:
-            raise ParameterError(
-                f"pilot_photons ({self.pilot_photons}) must be smaller than photons "
-                f"({self.photons}), the total budget of pilot and importance photons per light: "
-                "raise photons or lower pilot_photons (Pfeuti: 4096 pilots for 65536 importance "
-                "photons)"
+        if self.emission == "adaptive":
+            check_range(
+                "pilot_photons",
+                self.pilot_photons,
+                None,
+                self.photons,
+                f"the pilots are part of photons ({self.photons}), the budget of pilot and "
+                "importance photons per light: raise photons or lower pilot_photons (Pfeuti: "
+                "4096 pilots for 65536 importance photons)",
+                hi_open=True,
             )
         for key in ("grad_threshold", "rad_threshold"):
-            value = getattr(self, key)
-            if not 0 <= value <= 1:
-                raise ParameterError(
-                    f"{key} must lie in [0, 1] (relative to the pilot maximum; 0 = automatic "
-                    f"from the pilot statistics), got {value!r}"
-                )
-        if not 0 < self.background < 1:
-            raise ParameterError(
-                f"background must lie in (0, 1) (the share of the photon-plane pdf spread "
-                f"uniformly; 0 would leave regions unsampled), got {self.background!r}"
+            check_range(
+                key,
+                getattr(self, key),
+                0,
+                1,
+                "relative to the pilot maximum; 0 = automatic from the pilot statistics",
             )
-        if self.placement not in PLACEMENTS:
-            raise ParameterError(
-                f"placement must be one of {', '.join(PLACEMENTS)} (where the adaptive pipeline "
-                f"places its photons: by the pilot pdf, or uniformly with the pilot pdf steering "
-                f"only the reconstruction filter), got {self.placement!r}"
-            )
-        if self.mip_block not in mipmap.BLOCKS:
-            raise ParameterError(
-                f"mip_block must be one of {mipmap.BLOCKS} (the reconstruction filter picks one mip "
-                f"level per voxel, as Pfeuti does, or per 2×2×2 block), got {self.mip_block!r}"
-            )
-        if not (math.isfinite(self.delta_weight) and self.delta_weight > 0):
-            raise ParameterError(
-                f"delta_weight must be positive and finite (photon weight per mip level; 1 = "
-                f"level 1 at 16 uniform photons per voxel column), got {self.delta_weight!r}"
-            )
-
-
-def _check_type(name: str, value, kind: type) -> None:
-    """``value`` must suit a field whose default has type ``kind`` (ints are accepted as floats;
-    bools are never taken for numbers)."""
-    if kind is bool:
-        ok = isinstance(value, bool | np.bool_)
-    elif kind is int:
-        ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
-    elif kind is float:
-        ok = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
-            value, bool
+        check_range(
+            "background",
+            self.background,
+            0,
+            1,
+            "the share of the photon-plane pdf spread uniformly; 0 would leave regions unsampled",
+            lo_open=True,
+            hi_open=True,
         )
-    else:
-        ok = isinstance(value, kind)
-    if not ok:
-        article = (
-            "an integer" if kind is int else f"a {'number' if kind is float else kind.__name__}"
+        check_choice(
+            "placement",
+            self.placement,
+            PLACEMENTS,
+            "where the adaptive pipeline places its photons: by the pilot pdf, or uniformly with "
+            "the pilot pdf steering only the reconstruction filter",
         )
-        raise ParameterError(f"{name} must be {article}, got {value!r} ({type(value).__name__})")
+        check_choice(
+            "mip_block",
+            self.mip_block,
+            mipmap.BLOCKS,
+            "the reconstruction filter picks one mip level per voxel, as Pfeuti does, or per "
+            "2×2×2 block",
+        )
+        check_range(
+            "delta_weight",
+            self.delta_weight,
+            0,
+            None,
+            "photon weight per mip level; 1 = level 1 at 16 uniform photons per voxel column",
+            lo_open=True,
+        )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -284,7 +280,6 @@ def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None =
             f"grid={grid} needs arrays of {VIEW_CHANNELS}·{grid}³ = {VIEW_CHANNELS * grid**3:,} "
             f"entries, more than Dr.Jit's limit of 2³² entries per array: use grid <= {largest}"
         )
-
 
 
 LIGHT_VECTORS = ("position", "direction", "intensity", "lobe_normal")

@@ -375,7 +375,9 @@ class VolumePipeline:
         pilots = self._stage(
             "pilot photon generation",
             pilot_key,
-            lambda: [pilot.emit_pilot(li, box, p.pilot_photons, p.seed, p.fidelity) for li in lights],
+            lambda: [
+                pilot.emit_pilot(li, box, p.pilot_photons, p.seed, p.fidelity) for li in lights
+            ],
         )
         pilot_march_key = (pilot_key, octree_key, kappa_key, p.ds_min)
         pilot_grids = self._stage(
