@@ -19,6 +19,9 @@ non-specular surface x, where
 
 The photon maps are built once per scene and parameter set and reused for every render (a camera
 move re-renders without new photons, Steinhurst §7.2.1).
+
+Participating media are not modelled: a scene with fog gets one warning naming the media and is
+rendered as in vacuum, its ``null``-BSDF boundaries invisible to every ray (issue 10).
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
 from ..core.sampling import rng, rotated_hammersley
+from ..core.scene_info import warn_unmodelled_media
 from ..core.timer import StageTimer
 from .direct import direct_lighting
 from .final_gather import final_gather
@@ -116,6 +120,7 @@ class SurfacePipeline(MovableCamera):
         self.sensor = self.scene.sensors()[0] if self.scene.sensors() else None
         if self.sensor is None:
             raise ParameterError("the scene has no sensor (camera) to render from")
+        warn_unmodelled_media(self.scene, "surface")  # rendered as in vacuum (issue 10)
         self.null_shapes = has_null_shapes(self.scene)  # invisible fog boxes (issue 10)
         self.params = SurfaceParams()
         self.set_params(**{k: v for k, v in params.items() if k in defaults})
