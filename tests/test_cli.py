@@ -13,6 +13,7 @@ from photonmap.cli import app
 from photonmap.core.image import compare as compare_images
 from photonmap.core.image import write_image
 from photonmap.core.progress import stage_progress
+from photonmap.scenes import SCENES
 from photonmap.volume.pipeline import STAGES
 
 runner = CliRunner()
@@ -32,6 +33,7 @@ def test_scenes_lists_the_builtins():
 
 def test_render_png_and_exr_with_timings(tmp_path):
     png, exr = tmp_path / "x.png", tmp_path / "out" / "x.exr"
+    exr.parent.mkdir()
     result = run(
         "render", "glass_sphere_fog", "-o", png, "-o", exr, *SMALL,
         "--width", 64, "--height", 48, "--timings",
@@ -64,7 +66,7 @@ def test_render_png_and_exr_with_timings(tmp_path):
 def test_unknown_set_key_lists_the_valid_keys(tmp_path):
     result = run("render", "glass_sphere_fog", "-o", tmp_path / "x.png", "--set", "gird=32")
     assert result.exit_code == 2
-    assert "unknown --set key 'gird'" in result.output
+    assert "unknown --set key 'gird' for the volume method" in result.output
     for key in ("grid", "photons", "eps", "eps2", "ds_min", "ds_max", "phase_k", "sampler"):
         assert f" {key}," in result.output or f" {key}\n" in result.output
     assert "fidelity" in result.output
@@ -74,7 +76,7 @@ def test_unknown_set_key_lists_the_valid_keys(tmp_path):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["-o", "x.jpg"], "must end in .exr or .png"),
+        (["-o", "x.jpg"], "must end in .exr (linear) or .png"),
         (["-o", "x.png", "--set", "grid"], "KEY=VALUE"),
         (["-o", "x.png", "--set", "photons=many"], "cannot read 'many' as int"),
         (["-o", "x.png", "--set", "smoothing=maybe"], "cannot read 'maybe' as bool"),
@@ -135,3 +137,122 @@ def test_progress_bar_on_a_terminal_only():
         pipe.render(progress=lambda stage: (seen.append(stage), report(stage)))
     assert seen == list(STAGES)
     assert "rendering" in terminal.getvalue() and "10/10" in terminal.getvalue()
+
+
+S = "../shared/tools/scenes"  # plain Mitsuba scene files, as a user writes them
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--width", "0"], "--width must lie in 1 … 16384 pixels, got 0"),
+        (["--width", "-5"], "--width must lie in 1 … 16384 pixels, got -5"),
+        (["--height", "100000"], "--height must lie in 1 … 16384 pixels, got 100000"),
+        (["--seed", "-1"], "seed must lie in [0, 4294967295]"),
+        (["--spp", "0"], "--spp must be at least 1"),
+        (["--set", "photons=1.5"], "cannot read '1.5' as int"),
+        (["--set", "grid_bbox=0,0,1"], "expected six numbers"),
+        (["--set", "triangles=many"], "cannot read 'many' as int"),
+    ],
+)
+def test_bad_inputs_are_refused_before_any_work(tmp_path, args, message):
+    """Issue 10 item 3: each bad input is a one-line error, exit 2, and nothing is written."""
+    result = run("render", "mesh_in_fog", "-o", tmp_path / "x.png", *SMALL, *args)
+    assert result.exit_code == 2, result.output
+    assert message in result.output
+    assert "Traceback" not in result.output and len(result.output.strip().splitlines()) == 1
+    assert not (tmp_path / "x.png").exists()
+
+
+@pytest.mark.parametrize("method", ["volume", "surface", "screen"])
+def test_every_method_refuses_a_negative_seed(tmp_path, method):
+    result = run("render", f"{S}/cornell_box.xml", "--method", method, "-o", tmp_path / "x.exr",
+                 "--seed", "-1")  # fmt: skip
+    assert result.exit_code == 2 and "seed must lie in [0, 4294967295]" in result.output
+
+
+def test_output_paths_are_checked_before_rendering(tmp_path):
+    missing = run("render", "glass_sphere_fog", "-o", tmp_path / "no" / "x.png", *SMALL)
+    assert missing.exit_code == 2 and "does not exist; create it" in missing.output
+    assert not (tmp_path / "no").exists()  # -o no longer creates directories
+    folder = run("render", "glass_sphere_fog", "-o", tmp_path, *SMALL)
+    assert folder.exit_code == 2 and "must end in .exr" in folder.output
+    (tmp_path / "d.png").mkdir()
+    dirname = run("render", "glass_sphere_fog", "-o", tmp_path / "d.png", *SMALL)
+    assert dirname.exit_code == 2 and "is a directory" in dirname.output
+
+
+def test_image_memory_is_estimated_before_rendering():
+    from photonmap.core.errors import ParameterError
+    from photonmap.core.memory import check_image_memory
+
+    assert check_image_memory("surface", 64, 48, 2, available=1 << 30) > 64 * 48 * 2
+    with pytest.raises(ParameterError, match=r"16384×16384 image .* needs about .* GB"):
+        check_image_memory("volume", 16384, 16384, 1, available=8 << 30)
+
+
+def test_width_alone_keeps_the_aspect_ratio_and_scene_parameters_are_settable(tmp_path):
+    out = tmp_path / "x.exr"
+    result = run("render", "mesh_in_fog", "-o", out, *SMALL, "--width", 40,
+                 "--set", "triangles=400", "--set", "extent=0.5", "--set", "ior=1.3",
+                 "--set", "grid_bbox=0,0,0,1,1,1", "--no-timings")  # fmt: skip
+    assert result.exit_code == 0, result.output
+    film = SCENES["mesh_in_fog"].build()["sensor"]["film"]
+    assert tuple(mi.Bitmap(str(out)).size()) == (40, round(40 * film["height"] / film["width"]))
+
+
+def test_the_method_is_picked_from_the_scene_and_named(tmp_path):
+    box = run("render", f"{S}/cornell_box.xml", "-o", tmp_path / "a.exr", "--width", 16,
+              "--set", "photons=2000", "--set", "caustic_photons=2000", "--set", "fg_rays=1")
+    assert box.exit_code == 0, box.output
+    assert "method: surface (the scene holds no fog" in box.output
+    fog = run("render", f"{S}/glass_sphere_fog_box.xml", "-o", tmp_path / "b.exr", *SMALL,
+              "--width", 16)  # fmt: skip
+    assert fog.exit_code == 0, fog.output
+    assert "method: volume (the scene holds fog" in fog.output
+
+
+def test_compare_reports_block_errors_and_refuses_bad_images(tmp_path):
+    rng = np.random.default_rng(1)
+    ref = np.full((8, 8, 3), 0.5, np.float32)
+    noisy = ref + rng.choice([-0.1, 0.1], ref.shape).astype(np.float32)
+    m = compare_images(noisy, ref)
+    assert m["rel_rmse"] == pytest.approx(0.2)
+    assert m["block_rel_rmse"] < 0.5 * m["rel_rmse"]  # noise averages out in 4×4 blocks
+    biased = compare_images(ref * 1.1, ref)  # ... a bias does not
+    assert biased["block_rel_rmse"] == pytest.approx(0.1, rel=1e-5)
+    assert biased["brightness"] == pytest.approx(1.1, rel=1e-6)
+    write_image(str(tmp_path / "ref.exr"), ref)
+    write_image(str(tmp_path / "zero.exr"), 0 * ref)
+    (tmp_path / "notes.txt").write_text("not an image")
+    out = run("compare", tmp_path / "ref.exr", tmp_path / "ref.exr")
+    assert out.exit_code == 0 and "4x4-block relative RMSE 0 " in out.stdout
+    text = run("compare", tmp_path / "notes.txt", tmp_path / "ref.exr")
+    assert text.exit_code == 2 and "is not an image" in text.output
+    black = run("compare", tmp_path / "ref.exr", tmp_path / "zero.exr")
+    assert black.exit_code == 2 and "reference image is all zero" in black.output
+
+
+def test_reference_renders_mitsubas_own_integrator_in_passes(tmp_path, monkeypatch):
+    from photonmap.core import reference
+
+    out = tmp_path / "ref.exr"
+    result = run("reference", f"{S}/cornell_box.xml", "-o", out, "--spp", 8, "--width", 24)
+    assert result.exit_code == 0, result.output
+    assert "path: 8 spp" in result.output
+    img = np.array(mi.Bitmap(str(out)))
+    assert img.shape == (24, 24, 3) and img.mean() > 0.1
+    # passes bound the memory: 8 spp in passes of 2 give the mean of the passes
+    monkeypatch.setattr(reference, "PASS_MEMORY", reference.BYTES_PER_SAMPLE * 24 * 24 * 2)
+    scene = mi.load_file(f"{S}/cornell_box.xml")
+    params = mi.traverse(scene.sensors()[0])
+    params["film.size"] = params["film.crop_size"] = (24, 24)
+    params.update()
+    image, info = reference.render_reference(scene, spp=8, integrator="path")
+    assert info["passes"] == 4 and info["spp"] == 8
+    passes = [np.array(mi.render(scene, integrator=mi.load_dict(
+        {"type": "path", "max_depth": -1, "rr_depth": 5}), spp=2, seed=s))[..., :3]
+        for s in range(4)]  # fmt: skip
+    assert np.allclose(image, np.mean(passes, axis=0), atol=1e-5)
+    bad = run("reference", f"{S}/cornell_box.xml", "-o", out, "--integrator", "bdpt")
+    assert bad.exit_code == 2 and "unknown --integrator 'bdpt'" in bad.output

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 
 from .core import llvm
-from .core.errors import BackendError, ParameterError, PhotonmapError, SceneError
+from .core.errors import BackendError, ParameterError, PhotonmapError, PhotonmapWarning, SceneError
 
 llvm.configure()
 
@@ -48,17 +48,46 @@ def _register_plugins() -> None:
 
 set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
 
-from .screen.pipeline import ScreenPipeline  # noqa: E402
-from .surface.pipeline import SurfacePipeline  # noqa: E402
-from .volume.pipeline import VolumePipeline  # noqa: E402
+from typing import NamedTuple  # noqa: E402
+
+from .screen.pipeline import STAGES as SCREEN_STAGES  # noqa: E402
+from .screen.pipeline import ScreenParams, ScreenPipeline  # noqa: E402
+from .surface.pipeline import STAGES as SURFACE_STAGES  # noqa: E402
+from .surface.pipeline import SurfaceParams, SurfacePipeline  # noqa: E402
+from .volume.pipeline import STAGES as VOLUME_STAGES  # noqa: E402
+from .volume.pipeline import VolumeParams, VolumePipeline  # noqa: E402
+
+
+class Method(NamedTuple):
+    """A rendering method: its pipeline class, parameter dataclass and stage names."""
+
+    pipeline: type
+    params: type
+    stages: tuple[str, ...]
+
+
+METHODS = {
+    "volume": Method(VolumePipeline, VolumeParams, VOLUME_STAGES),
+    "surface": Method(SurfacePipeline, SurfaceParams, SURFACE_STAGES),
+    "screen": Method(ScreenPipeline, ScreenParams, SCREEN_STAGES),
+}
 
 __all__ = [
+    "METHODS",
+    "SCREEN_STAGES",
+    "SURFACE_STAGES",
+    "VOLUME_STAGES",
     "BackendError",
+    "Method",
     "ParameterError",
     "PhotonmapError",
+    "PhotonmapWarning",
     "SceneError",
+    "ScreenParams",
     "ScreenPipeline",
+    "SurfaceParams",
     "SurfacePipeline",
+    "VolumeParams",
     "VolumePipeline",
     "dr",
     "mi",

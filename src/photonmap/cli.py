@@ -1,8 +1,16 @@
-"""The ``photonmap`` command: render scenes, list the built-ins, compare images."""
+"""The ``photonmap`` command: render a scene with a method, render Mitsuba's own reference of the
+same scene, compare two images, list the built-in scenes.
+
+Every argument is checked before any work starts (output paths, image size and its memory, the
+``--set`` keys and values); each bad input is one line ``error: ...`` and exit status 2. The CLI
+goes through the package API only (:data:`photonmap.METHODS`).
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import os
+import warnings
 from contextlib import nullcontext
 from typing import Annotated
 
@@ -13,8 +21,6 @@ app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Photon mapping on Mitsuba 3 + Dr.Jit."
 )
 console = Console(stderr=True)
-METHODS = ("volume", "surface", "screen")
-TRUE, FALSE = ("1", "true", "yes", "on"), ("0", "false", "no", "off")
 
 
 def _error(exc) -> typer.Exit:
@@ -25,8 +31,12 @@ def _error(exc) -> typer.Exit:
     return typer.Exit(2)
 
 
-def _parse_sets(items: list[str], fields: dict) -> dict:
-    """``KEY=VALUE`` strings → typed parameters; unknown keys list the valid ones."""
+def _say(text: str) -> None:
+    console.print(text, soft_wrap=True, markup=False, highlight=False)
+
+
+def _split_sets(items: list[str]) -> dict[str, str]:
+    """``KEY=VALUE`` strings → {key: value text}."""
     from .core.errors import ParameterError
 
     out = {}
@@ -34,25 +44,87 @@ def _parse_sets(items: list[str], fields: dict) -> dict:
         if "=" not in item:
             raise ParameterError(f"--set expects KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
-        key = key.strip()
-        if key not in fields:
-            raise ParameterError(
-                f"unknown --set key {key!r}; valid keys: {', '.join(sorted(fields))}"
-            )
-        kind = type(fields[key])
-        try:
-            if kind is bool:
-                word = value.strip().lower()
-                if word not in TRUE + FALSE:
-                    raise ValueError
-                out[key] = word in TRUE
-            elif kind is int:
-                out[key] = int(float(value)) if "e" in value.lower() else int(value)
-            else:
-                out[key] = kind(value)
-        except ValueError:
-            raise ParameterError(f"--set {key}: cannot read {value!r} as {kind.__name__}") from None
+        out[key.strip()] = value
     return out
+
+
+def _parse_bbox(text: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    from .core.errors import ParameterError
+
+    try:
+        v = [float(x) for x in text.replace(";", ",").split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6:
+        raise ParameterError(
+            f"--set grid_bbox: expected six numbers 'xmin,ymin,zmin,xmax,ymax,zmax', got {text!r}"
+        )
+    return tuple(v[:3]), tuple(v[3:])
+
+
+def _load(scene: str, sets: dict[str, str]):
+    """``(mi_scene or None, builtin or None, remaining sets)``: a built-in is loaded by its
+    pipeline (with its defaults); an XML file is loaded here, its ``$name`` parameters taken
+    from ``sets``."""
+    from .core.errors import SceneError
+    from .scenes import SCENES, load_scene
+
+    if scene in SCENES:
+        return None, SCENES[scene], sets
+    if not os.path.isfile(scene):
+        raise SceneError(
+            f"no built-in scene or scene file named {scene!r}; built-in scenes: "
+            f"{', '.join(SCENES)} (or give the path of a Mitsuba 3 XML file)"
+        )
+    with open(scene, errors="replace") as f:
+        text = f.read()
+    xml = {k: v for k, v in sets.items() if f"${k}" in text}
+    mi_scene, _ = load_scene(scene, **xml)
+    return mi_scene, None, {k: v for k, v in sets.items() if k not in xml}
+
+
+def _typed_params(method: str, sets: dict[str, str], builtin) -> dict:
+    """The ``--set`` values as the types of the method's parameters (and, for a built-in, of
+    its scene parameters); unknown keys list the valid ones."""
+    from . import METHODS
+    from .core.errors import ParameterError
+    from .core.params import parse_value
+
+    params_type = METHODS[method].params
+    kinds = {f.name: type(f.default) for f in dataclasses.fields(params_type)}
+    if method == "volume":
+        kinds["grid"] = int
+    scene_kinds = {}
+    if builtin is not None:
+        scene_kinds = {
+            k: type(v) if v is not None else str
+            for k, v in builtin.params.items()
+            if k not in ("width", "height")  # --width and --height set the image size
+        }
+    out = {}
+    for key, text in sets.items():
+        if method == "volume" and key == "grid_bbox":
+            out[key] = _parse_bbox(text)
+        elif key in kinds or key in scene_kinds:
+            out[key] = parse_value(key, text, kinds.get(key) or scene_kinds[key])
+        else:
+            valid = sorted(kinds) + (["grid_bbox"] if method == "volume" else [])
+            also = f"; scene parameters: {', '.join(sorted(scene_kinds))}" if scene_kinds else ""
+            raise ParameterError(
+                f"unknown --set key {key!r} for the {method} method; valid keys: "
+                f"{', '.join(valid)}{also}"
+            )
+    return out
+
+
+def _image_size(width, height, film_size) -> tuple[int, int]:
+    """The image size: ``--width`` or ``--height`` alone keeps the scene's aspect ratio."""
+    w0, h0 = (int(c) for c in film_size)
+    if width and not height:
+        height = max(1, round(width * h0 / w0))
+    elif height and not width:
+        width = max(1, round(height * w0 / h0))
+    return int(width or w0), int(height or h0)
 
 
 @app.command()
@@ -61,56 +133,62 @@ def render(
     output: Annotated[list[str], typer.Option("-o", "--output", help=".exr or .png (repeatable)")],
     method: Annotated[
         str | None,
-        typer.Option(help="pipeline: volume | surface | screen (default: the scene's own)"),
+        typer.Option(
+            help="volume | surface | screen (default: a built-in's own; for a file, volume if "
+            "it holds fog, else surface)"
+        ),
     ] = None,
-    width: Annotated[int | None, typer.Option(help="image width (default: the scene's)")] = None,
-    height: Annotated[int | None, typer.Option(help="image height")] = None,
+    width: Annotated[
+        int | None, typer.Option(help="image width, 1…16384 (alone: keeps the aspect ratio)")
+    ] = None,
+    height: Annotated[int | None, typer.Option(help="image height, 1…16384")] = None,
     spp: Annotated[
         int, typer.Option(help="camera samples per pixel (volume, surface; screen casts 1)")
     ] = 1,
-    seed: Annotated[int, typer.Option(help="random seed")] = 0,
+    seed: Annotated[int, typer.Option(help="random seed, 0 … 2³²−1")] = 0,
     set_: Annotated[
-        list[str] | None, typer.Option("--set", help="KEY=VALUE pipeline parameter")
+        list[str] | None,
+        typer.Option("--set", help="KEY=VALUE: a method or scene parameter (repeatable)"),
     ] = None,
     timings: Annotated[
-        bool, typer.Option("--timings", help="print per-stage milliseconds")
+        bool, typer.Option("--timings/--no-timings", help="print per-stage milliseconds")
     ] = False,
 ):
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
 
-    Volume --set keys: grid, photons, eps, eps2, ds_min, ds_max, phase_k, sampler, fidelity, ...;
-    surface: photons, caustic_photons, k, max_radius, fg_rays, structure, max_depth, lookup, ...;
-    screen: bounces, light_res, radius, splat, subsample, shadows, isg_samples, light_size, ...
-    (an unknown key lists them all). On a terminal the pipeline stages show as a progress bar."""
-    from . import PhotonmapError
-    from .core.image import write_image
+    Volume --set keys: grid, grid_bbox, photons, eps, eps2, ds_min, ds_max, phase_k, sampler,
+    fidelity, ...; surface: photons, caustic_photons, k, max_radius, fg_rays, structure,
+    max_depth, lookup, ...; screen: bounces, light_res, radius, splat, subsample, shadows,
+    isg_samples, light_size, ...; a built-in scene's own parameters (photonmap scenes); an XML
+    file's $name parameters (an unknown key lists them all). On a terminal the pipeline stages
+    show as a progress bar."""
+    from . import METHODS, PhotonmapError
+    from .core.image import check_output, write_image
+    from .core.memory import check_image_memory, check_side
+    from .core.params import updated
+    from .core.progress import interactive, stage_progress
+    from .core.scene_info import pick_method
 
     try:
-        if method is None:
-            from .scenes import SCENES
-
-            method = SCENES[scene].pipeline if scene in SCENES else "volume"
-        if method not in METHODS:
-            raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
         for out in output:
-            if not out.lower().endswith((".exr", ".png")):
-                raise PhotonmapError(f"output {out!r} must end in .exr or .png")
-        from .core.progress import interactive, stage_progress
-
-        if method == "volume":
-            from .volume.pipeline import STAGES, VolumeParams, VolumePipeline
-
-            Pipeline, Params, extra = VolumePipeline, VolumeParams, {"grid": 128}
-        elif method == "screen":
-            from .screen.pipeline import STAGES, ScreenParams, ScreenPipeline
-
-            Pipeline, Params, extra = ScreenPipeline, ScreenParams, {}
-        else:
-            from .surface.pipeline import STAGES, SurfaceParams, SurfacePipeline
-
-            Pipeline, Params, extra = SurfacePipeline, SurfaceParams, {}
-        fields = {f.name: getattr(Params(), f.name) for f in dataclasses.fields(Params)}
-        params = _parse_sets(set_ or [], {**fields, **extra})
+            check_output(out)
+        check_side("--width", width)
+        check_side("--height", height)
+        if spp < 1:
+            raise PhotonmapError(f"--spp must be at least 1, got {spp}")
+        if method is not None and method not in METHODS:
+            raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
+        with console.status(f"loading {scene}") if interactive() else nullcontext():
+            mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
+        if method is None and builtin is not None:
+            method = builtin.pipeline  # the method the built-in scene is made for
+        elif method is None:
+            method = pick_method(mi_scene)
+            why = "the scene holds fog" if method == "volume" else "the scene holds no fog"
+            _say(f"method: {method} ({why}; choose with --method)")
+        Pipeline, Params, _ = METHODS[method]
+        params = _typed_params(method, sets, builtin)
+        fields = {f.name for f in dataclasses.fields(Params)}
         if "spp" in fields:
             params.setdefault("spp", spp)
         elif spp != 1:
@@ -119,22 +197,114 @@ def render(
                 f"pixel centre (got --spp {spp})"
             )
         params.setdefault("seed", seed)
-        with console.status(f"loading {scene}") if interactive() else nullcontext():
-            pipe = Pipeline(scene, **params)
-            if width or height:
-                pipe.set_camera(width=width, height=height)
-        stages = getattr(pipe, "stages", STAGES)  # the volume pipeline's depend on emission
-        with stage_progress(stages, f"rendering {scene}", console=console) as report:
-            image = pipe.render(progress=report)
+        updated(Params(), {k: v for k, v in params.items() if k in fields}, method)
+        if method == "volume":
+            from .volume.pipeline import check_grid
+
+            check_grid(params.setdefault("grid", 128))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with console.status(f"loading {scene}") if interactive() else nullcontext():
+                pipe = Pipeline(mi_scene if mi_scene is not None else scene, **params)
+            film = (pipe.sensor if hasattr(pipe, "sensor") else pipe.scene.sensor).film().size()
+            size = _image_size(width, height, film)
+            check_image_memory(method, *size, params.get("spp", 1))
+            if size != tuple(int(c) for c in film):
+                pipe.set_camera(width=size[0], height=size[1])
+            stages = getattr(pipe, "stages", METHODS[method].stages)
+            with stage_progress(stages, f"rendering {scene}", console=console) as report:
+                image = pipe.render(progress=report)
+        for w in {str(w.message): w for w in caught}.values():
+            _say(f"warning: {w.message}")
         for out in output:
             write_image(out, image)
-            console.print(f"wrote {out}", soft_wrap=True, markup=False, highlight=False)
+            _say(f"wrote {out}")
         if timings:  # a report the user asked for: on stdout
             out_console = Console()
             out_console.print(pipe.timer.table(f"{scene}: per-stage timings"))
             out_console.print(
                 ", ".join(f"{k.replace('_', ' ')} {v:,}" for k, v in pipe.stats.items())
             )
+    except PhotonmapError as exc:
+        raise _error(exc) from None
+
+
+@app.command()
+def reference(
+    scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
+    output: Annotated[list[str], typer.Option("-o", "--output", help=".exr or .png (repeatable)")],
+    spp: Annotated[int, typer.Option(help="samples per pixel")] = 1024,
+    time: Annotated[
+        float | None, typer.Option(help="stop after the pass that crosses S seconds")
+    ] = None,
+    integrator: Annotated[
+        str | None,
+        typer.Option(help="path | volpath | ptracer (default: volpath with fog, else path)"),
+    ] = None,
+    max_depth: Annotated[
+        int, typer.Option(help="Mitsuba's max_depth (-1 unbounded; 2 = direct light only)")
+    ] = -1,
+    width: Annotated[int | None, typer.Option(help="image width, 1…16384")] = None,
+    height: Annotated[int | None, typer.Option(help="image height, 1…16384")] = None,
+    seed: Annotated[int, typer.Option(help="seed of the first pass")] = 0,
+    set_: Annotated[
+        list[str] | None, typer.Option("--set", help="KEY=VALUE: a scene parameter")
+    ] = None,
+):
+    """Render SCENE with Mitsuba's own integrator, the ground truth for every method: the same
+    file, in passes that bound memory, with a progress bar on a terminal."""
+    from rich.progress import Progress
+
+    from . import PhotonmapError, mi
+    from .core.errors import ParameterError
+    from .core.image import check_output, write_image
+    from .core.memory import check_side
+    from .core.progress import interactive
+    from .core.reference import INTEGRATORS, render_reference
+    from .scenes import load_scene
+
+    try:
+        for out in output:
+            check_output(out)
+        check_side("--width", width)
+        check_side("--height", height)
+        if integrator is not None and integrator not in INTEGRATORS:
+            raise ParameterError(
+                f"unknown --integrator {integrator!r}; available: {', '.join(INTEGRATORS)}"
+            )
+        if spp < 1:
+            raise ParameterError(f"--spp must be at least 1, got {spp}")
+        if time is not None and not time > 0:
+            raise ParameterError(f"--time must be > 0 seconds, got {time}")
+        if not 0 <= seed < 2**32:
+            raise ParameterError(f"--seed must lie in 0 … 2³²−1, got {seed}")
+        sets = _split_sets(set_ or [])
+        mi_scene, builtin, rest = _load(scene, sets)
+        if builtin is not None:
+            mi_scene, _ = load_scene(scene, **_typed_params(builtin.pipeline, rest, builtin))
+        elif rest:
+            raise ParameterError(f"unknown --set key(s) {', '.join(rest)}: not $parameters of "
+                                 f"{scene}")
+        if not mi_scene.sensors():
+            raise ParameterError("the scene has no sensor (camera) to render from")
+        film = mi_scene.sensors()[0].film().size()
+        size = _image_size(width, height, film)
+        if size != tuple(int(c) for c in film):
+            params = mi.traverse(mi_scene.sensors()[0])
+            params["film.size"] = size
+            params["film.crop_size"] = size
+            params.update()
+        with Progress(console=console, disable=not interactive()) as bar:
+            task = bar.add_task(f"reference {scene}", total=spp)
+            image, info = render_reference(
+                mi_scene, spp, integrator, max_depth, time, seed,
+                progress=lambda done, total: bar.update(task, completed=done),
+            )  # fmt: skip
+        for out in output:
+            write_image(out, image)
+            _say(f"wrote {out}")
+        _say(f"{info['integrator']}: {info['spp']} spp in {info['seconds']:.1f} s "
+             f"({info['passes']} pass{'es' if info['passes'] > 1 else ''})")
     except PhotonmapError as exc:
         raise _error(exc) from None
 
@@ -148,15 +318,22 @@ def scenes():
 
     t = Table(title="built-in scenes")
     t.add_column("name")
+    t.add_column("method")
     t.add_column("description")
+    t.add_column("--set scene parameters")
     for name, builtin in SCENES.items():
-        t.add_row(name, builtin.description)
+        keys = [k for k in builtin.params if k not in ("width", "height")]
+        t.add_row(name, builtin.pipeline, builtin.description, ", ".join(keys))
     Console().print(t)
 
 
 @app.command()
-def compare(a: str, b: str):
-    """Print RMSE, relative RMSE and PSNR of image A against reference B."""
+def compare(
+    a: Annotated[str, typer.Argument(help="image to measure")],
+    b: Annotated[str, typer.Argument(help="reference image")],
+):
+    """Errors of image A against reference B: RMSE, relative RMSE, relative RMSE of 4×4-pixel
+    block means (noise averages out, bias does not), brightness ratio and PSNR."""
     from . import PhotonmapError
     from .core.image import compare as compare_images
     from .core.image import read_image
@@ -165,4 +342,8 @@ def compare(a: str, b: str):
         m = compare_images(read_image(a), read_image(b))
     except PhotonmapError as exc:
         raise _error(exc) from None
-    print(f"RMSE {m['rmse']:.6g}  relative RMSE {m['rel_rmse']:.6g}  PSNR {m['psnr']:.2f} dB")
+    print(
+        f"RMSE {m['rmse']:.6g}  relative RMSE {m['rel_rmse']:.6g}  "
+        f"4x4-block relative RMSE {m['block_rel_rmse']:.6g}  brightness {m['brightness']:.4f}  "
+        f"PSNR {m['psnr']:.2f} dB"
+    )

@@ -15,42 +15,23 @@
 
 The integrator keeps the :class:`ScreenPipeline` of the scene it rendered last, so rendering again
 from another sensor reuses the light G-buffer and the photons (spec §7: a camera move keeps the
-photons). One primary ray per pixel centre: the ``spp`` of ``mi.render`` is ignored. Errors are
-:class:`photonmap.PhotonmapError` (``mi.render`` wraps them in a ``RuntimeError`` whose
-``__cause__`` is the original error).
+photons); an edit of the scene through ``mi.traverse`` rebuilds it (:mod:`photonmap.core.plugin`).
+One primary ray per pixel centre: the ``spp`` of ``mi.render`` is ignored; its ``seed`` seeds the
+fixed random map.
 """
 
 from __future__ import annotations
 
-import dataclasses
-
 import mitsuba as mi
 
-from ..core.params import read_properties
+from ..core.plugin import PipelineIntegrator
 from .pipeline import ScreenParams, ScreenPipeline
 
 
-class ISPMIntegrator(mi.SamplingIntegrator):
+class ISPMIntegrator(PipelineIntegrator):
     """Mitsuba integrator running :class:`~photonmap.screen.pipeline.ScreenPipeline`."""
 
-    def __init__(self, props: mi.Properties):
-        super().__init__(props)
-        self.params = read_properties(props, ScreenParams, "ispm")
-        dataclasses.replace(ScreenParams(), **self.params).validate()
-        self.pipeline: ScreenPipeline | None = None
-        self._scene = None  # held, so that a new scene can never reuse its id
-
-    def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
-        if isinstance(sensor, int):
-            sensor = scene.sensors()[sensor]
-        if self.pipeline is None or self._scene is not scene:
-            self.pipeline = ScreenPipeline(scene, **self.params)
-            self._scene = scene
-        self.pipeline.set_camera(sensor=sensor)
-        return self.pipeline.render()
-
-    def to_string(self):
-        return f"ISPMIntegrator[{self.params}]"
+    pipeline_type, params_type, plugin_name = ScreenPipeline, ScreenParams, "ispm"
 
 
 def register() -> None:
