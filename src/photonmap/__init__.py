@@ -54,8 +54,9 @@ from .screen.pipeline import STAGES as SCREEN_STAGES  # noqa: E402
 from .screen.pipeline import ScreenParams, ScreenPipeline  # noqa: E402
 from .surface.pipeline import STAGES as SURFACE_STAGES  # noqa: E402
 from .surface.pipeline import SurfaceParams, SurfacePipeline  # noqa: E402
-from .volume.pipeline import STAGES as VOLUME_STAGES  # noqa: E402
-from .volume.pipeline import VolumeParams, VolumePipeline  # noqa: E402
+from .volume.params import STAGES as VOLUME_STAGES  # noqa: E402
+from .volume.params import VolumeParams  # noqa: E402
+from .volume.pipeline import VolumePipeline  # noqa: E402
 
 
 class Method(NamedTuple):

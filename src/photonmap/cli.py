@@ -199,7 +199,7 @@ def render(
         params.setdefault("seed", seed)
         updated(Params(), {k: v for k, v in params.items() if k in fields}, method)
         if method == "volume":
-            from .volume.pipeline import check_grid
+            from .volume.params import check_grid
 
             check_grid(params.setdefault("grid", 128))
         with warnings.catch_warnings(record=True) as caught:
