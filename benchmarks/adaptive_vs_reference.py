@@ -130,8 +130,7 @@ def light_frames(pipe, configs: Sequence[tuple[str, int]], runs: int) -> list[di
         for k, (variant, photons) in enumerate(configs):
             pipe.set_params(photons=photons, **VARIANTS[variant])
             stages = light_stages(VARIANTS[variant]["emission"])
-            for stage in stages:
-                pipe._cache.pop(stage, None)
+            pipe.invalidate(stages)
             start = time.perf_counter()
             images[k] = np.array(pipe.render())
             wall = 1e3 * (time.perf_counter() - start)
@@ -164,27 +163,23 @@ def ground_truth(pipe, photons: int, factor: int) -> np.ndarray:
     consecutive Halton points (one sequence), C and D averaged, then S8 and S9 as usual."""
     import drjit as dr
 
-    from photonmap.volume import emit as s5
-    from photonmap.volume import march as s6
+    from photonmap.volume import emit, march
     from photonmap.volume.smooth import smooth
 
     pipe.set_params(emission="uniform", photons=photons, sampler="halton")
     pipe.render()
     s, p = pipe.scene, pipe.params
-    grids = pipe._cache["march grids"][1]
+    grids = pipe.stage_output("march grids")
     C = D = None
     for batch in range(factor):
-        parts = [s5.emit(light, s.box, photons, "halton", batch * photons) for light in s.lights]
+        parts = [emit.emit(light, s.box, photons, "halton", batch * photons) for light in s.lights]
         for part in parts:
-            r = s6.march(part, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h)
+            r = march.march(part, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h)
             C = r.C if C is None else C + r.C
             D = r.D if D is None else D + r.D
         dr.eval(C, D)
     smoothed = smooth(C / factor, D / factor, p.smoothing)
-    key = pipe._cache["smoothing"][0]
-    pipe._cache["smoothing"] = (key, smoothed)  # the viewing stages read the averaged grids
-    for stage in ("view grids", "viewing"):
-        pipe._cache.pop(stage)
+    pipe.set_stage_output("smoothing", smoothed)  # the viewing stages read the averaged grids
     image = np.array(pipe.render())
     assert pipe.recomputed == ["view grids", "viewing"]
     pipe.set_params(sampler="hammersley")
@@ -261,7 +256,7 @@ def run_scene(label, scene, args, log=_log) -> dict:
                 f"{frame['wall_ms']:.0f} ms ({frame['photon_stages_ms']:.0f} photon stages)"
             )
     # geometry stages (identical for both pipelines) from one full render
-    pipe._cache.clear()
+    pipe.invalidate()
     pipe.set_params(emission="uniform", photons=nominal)
     pipe.render()
     out["geometry_ms"] = {

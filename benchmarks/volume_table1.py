@@ -128,7 +128,7 @@ def _frame(pipe, change: Callable[[], None] | None = None) -> dict:
         sync()
         start = time.perf_counter()
         if change is None:
-            pipe._cache.clear()
+            pipe.invalidate()
         else:
             change()
         pipe.render()
@@ -349,24 +349,24 @@ def profile_march(pipe, repeats: int = 1) -> dict:
     import drjit as dr
     import mitsuba as mi
 
-    from photonmap.volume import march as s6
+    from photonmap.volume import march
 
     out: dict = {}
     try:
-        photons = pipe._cache["photon generation"][1]
-        grids = pipe._cache["march grids"][1]
+        photons = pipe.stage_output("photon generation")
+        grids = pipe.stage_output("march grids")
         p, h = pipe.params, pipe.scene.box.h
 
-        def march():
-            return s6.march(photons, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=h)
+        def run():
+            return march.march(photons, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=h)
 
         def time_march():
-            march()  # warm-up (compiles this variant)
+            run()  # warm-up (compiles this variant)
             times, result = [], None
             for _ in range(repeats):
                 sync()
                 start = time.perf_counter()
-                result = march()
+                result = run()
                 sync()
                 times.append(time.perf_counter() - start)
             return median(times), result
@@ -374,12 +374,12 @@ def profile_march(pipe, repeats: int = 1) -> dict:
         full_s, result = time_march()
         out["with_deposits_s"] = full_s
         out["steps"] = int(result.steps)
-        original = s6.deposit_segment
-        s6.deposit_segment = lambda *args, **kwargs: None
+        original = march.deposit_segment
+        march.deposit_segment = lambda *args, **kwargs: None
         try:
             bare_s, bare = time_march()
         finally:
-            s6.deposit_segment = original
+            march.deposit_segment = original
         out["without_deposits_s"] = bare_s
         out["without_deposits_steps"] = int(bare.steps)
         out["deposition_share"] = max(0.0, 1.0 - bare_s / full_s) if full_s > 0 else math.nan
@@ -391,7 +391,7 @@ def profile_march(pipe, repeats: int = 1) -> dict:
 
     # deposits: count the lanes reaching the rasteriser's scatters
     proxy = _CountingDr(dr, dr.uint64_array_t(mi.Float), mi.UInt32)
-    original, real_dr = s6.deposit_segment, s6.dr
+    original, real_dr = march.deposit_segment, march.dr
 
     def counting(*args, **kwargs):
         proxy.armed = True
@@ -401,10 +401,10 @@ def profile_march(pipe, repeats: int = 1) -> dict:
             proxy.armed = False
 
     try:
-        if getattr(original, "__globals__", None) is not vars(s6):
+        if getattr(original, "__globals__", None) is not vars(march):
             raise RuntimeError("deposit_segment does not read drjit from the march module")
-        s6.dr, s6.deposit_segment = proxy, counting
-        march()
+        march.dr, march.deposit_segment = proxy, counting
+        run()
         counts = [int(c) for c in np.asarray(proxy.counter) if c > 0]
         if not counts or proxy.calls >= proxy.SLOTS:
             raise RuntimeError(f"cannot attribute the deposit counts ({proxy.calls} scatters)")
@@ -418,7 +418,7 @@ def profile_march(pipe, repeats: int = 1) -> dict:
     except Exception as exc:  # noqa: BLE001
         out["deposits_error"] = f"{type(exc).__name__}: {exc}"
     finally:
-        s6.dr, s6.deposit_segment = real_dr, original
+        march.dr, march.deposit_segment = real_dr, original
     return out
 
 

@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 from photonmap import VolumePipeline
 from photonmap.cli import app
 from photonmap.core.errors import ParameterError
-from photonmap.volume import emit as s5
+from photonmap.volume import emit
 from photonmap.volume.params import ADAPTIVE_STAGES, STAGES
 
 SMALL = {"grid": 32, "photons": 16384, "pilot_photons": 1024, "width": 16, "height": 12}
@@ -137,9 +137,9 @@ def test_uniform_placement_marches_the_reference_photons_and_filters_by_the_pilo
     the image keeps its mean."""
     plain, flat = adaptive(), adaptive(placement="uniform")
     a, b = image(plain), image(flat)
-    photons, weights = flat._cache["photon generation"][1]
+    photons, weights = flat.stage_output("photon generation")
     light, box = flat.scene.lights[0], flat.scene.box
-    reference = s5.emit(light, box, SMALL["photons"] - SMALL["pilot_photons"], "hammersley", 0)
+    reference = emit.emit(light, box, SMALL["photons"] - SMALL["pilot_photons"], "hammersley", 0)
     assert np.allclose(np.array(photons.origin), np.array(reference.origin), atol=1e-4)
     assert np.allclose(np.array(photons.power), np.array(reference.power), rtol=1e-5)
     w = np.array(weights)[np.array(reference.power).max(0) > 0]

@@ -30,6 +30,7 @@ from ..core import sampling
 from ..core.errors import ParameterError
 from ..core.grid import GridBox
 from .emit import Photons, emit_at
+from .pilot import PilotGrids, importance_pdf
 from .scene import Light
 
 
@@ -128,3 +129,20 @@ def emit_importance(
     weight = dr.select(dr.max(photons.power) > 0, dr.rcp(filter_density), 0.0)
     dr.eval(weight)
     return photons, weight
+
+
+def plane_sampler(
+    pilot_grids: PilotGrids,
+    grad_threshold: float,
+    rad_threshold: float,
+    background: float,
+    placement: str,
+) -> PlaneSampler:
+    """A3–A4: the photon-plane sampler of one light from its pilot grids (thresholds and
+    ``background`` as in :func:`~.pilot.importance_pdf`). ``placement="uniform"`` samples the plane
+    uniformly (the reference's points, weight 1) and reports the importance pdf's weights ``1/p``
+    to the photon-weight filter, so the pilots steer the reconstruction only."""
+    pdf = importance_pdf(pilot_grids, grad_threshold, rad_threshold, background)
+    if placement == "importance":
+        return PlaneSampler.build(pdf)
+    return PlaneSampler.build(np.ones_like(pdf), filter_pdf=pdf)

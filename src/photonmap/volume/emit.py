@@ -201,3 +201,29 @@ def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight
     dr.eval(photons.origin, photons.direction, photons.power)
     photons.entering = int(dr.count(keep)[0]) if count else 0
     return photons
+
+
+def emit_lights(
+    lights: list[Light], box: GridBox, count: int, sampler: str, seed: int, fidelity: str
+) -> Photons:
+    """S5 for every light (Sun §3: "a set of point or directional light sources"), ``count``
+    photons on each light's plane, concatenated."""
+    return concat([emit(light, box, count, sampler, seed, fidelity) for light in lights])
+
+
+def concat(batches: list[Photons]) -> Photons:
+    """One photon list from the lists of several lights."""
+    if len(batches) == 1:
+        return batches[0]
+
+    def cat(cls, field):
+        parts = [getattr(b, field) for b in batches]
+        return cls(*[dr.concat([part[i] for part in parts]) for i in range(3)])
+
+    return Photons(
+        origin=cat(mi.Point3f, "origin"),
+        direction=cat(mi.Vector3f, "direction"),
+        power=cat(mi.Color3f, "power"),
+        generated=sum(b.generated for b in batches),
+        entering=sum(b.count for b in batches),
+    )

@@ -15,13 +15,15 @@ Every stage's result is cached under a key made of exactly the inputs it depends
 reruns only what it must (spec seed-000-002 §4.1): a camera change reruns S9 only; a light change
 S5–S9 (adaptive: A1–A7 and S9); a change of σ_s that keeps κ reruns S9 only; a change of κ reruns
 S6–S9 (adaptive: A2–A7 and S9); a change of n reruns S2–S9; new geometry reruns everything.
-``recomputed`` lists the stages the last :meth:`render` ran and ``timer`` their milliseconds (the
-rows of Sun et al. Table 1). ``render(progress=f)`` calls ``f(stage)`` as each stage that must run
-starts (the CLI's progress bar).
+The stage outputs live in a :class:`~photonmap.core.stages.StageCache`: ``recomputed`` lists the
+stages the last :meth:`render` ran and ``timer`` their milliseconds (the rows of Sun et al.
+Table 1); :meth:`invalidate` forgets stages, :meth:`stage_output` reads one.
+``render(progress=f)`` calls ``f(stage)`` as each stage that must run starts (the CLI's progress
+bar).
 
 Before allocating anything the pipeline estimates the memory its N³ grids need
-(:func:`.params.memory_estimate`) and stops with a :class:`ParameterError` if that exceeds the available
-memory or Dr.Jit's 2³² entries per array.
+(:func:`.params.memory_estimate`) and stops with a :class:`ParameterError` if that exceeds the
+available memory or Dr.Jit's 2³² entries per array.
 """
 
 from __future__ import annotations
@@ -36,8 +38,7 @@ from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.grid import filter_separable
 from ..core.params import updated
-from ..core.scene_info import has_media
-from ..core.timer import StageTimer
+from ..core.stages import StageCache, cache_key
 from . import adaptive, emit, march, mipmap, pilot
 from .materials import MaterialGrids, from_arrays, gradient, material_grids
 from .octree import build_octree
@@ -51,23 +52,10 @@ from .params import (
     light_vector,
     updated_medium,
 )
-from .scene import Light, VolumeScene, from_mitsuba
+from .scene import Light, VolumeScene, check_has_fog, from_mitsuba
 from .smooth import BINOMIAL, smooth
-from .view import ViewGrids, ViewSettings, render_view
+from .view import ViewGrids, ViewSettings, render_view, sensor_key
 from .voxelize import voxelize
-
-
-def _key(value):
-    """A hashable cache key for parameters made of arrays, lists, dataclasses and scalars."""
-    if isinstance(value, np.ndarray):
-        return (value.shape, value.tobytes())
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        return tuple(_key(getattr(value, f.name)) for f in dataclasses.fields(value))
-    if isinstance(value, list | tuple):
-        return tuple(_key(v) for v in value)
-    if isinstance(value, float | int | str | bool) or value is None:
-        return value
-    return id(value)  # Mitsuba objects: identity
 
 
 class VolumePipeline:
@@ -111,13 +99,10 @@ class VolumePipeline:
             objects=len(self.scene.objects),
             photons=self.params.photons * len(self.scene.lights),
         )
-        self.timer = StageTimer()
-        self.recomputed: list[str] = []
+        self.cache = StageCache()
         self.stats: dict[str, float] = {}
-        self._cache: dict[str, tuple] = {}
         self._geometry_version = 0
         self._grid_bbox = grid_bbox
-        self._progress = None
 
     def reload(self, scene: mi.Scene) -> None:
         """Re-read lights, media, sensor and shapes from ``scene`` (a Mitsuba scene, possibly
@@ -215,17 +200,44 @@ class VolumePipeline:
         raise ParameterError(f"no refractive object {name!r}")
 
     # ------------------------------------------------------------------ stages
-    def _stage(self, name: str, key, compute):
-        hit = self._cache.get(name)
-        if hit is not None and hit[0] == key:
-            return hit[1]
-        if self._progress is not None:
-            self._progress(name)
-        with self.timer(name):
-            value = compute()
-        self._cache[name] = (key, value)
-        self.recomputed.append(name)
-        return value
+    @property
+    def timer(self):
+        """Milliseconds of each stage the last :meth:`render` ran (:class:`StageTimer`)."""
+        return self.cache.timer
+
+    @timer.setter
+    def timer(self, timer) -> None:
+        self.cache.timer = timer
+
+    @property
+    def recomputed(self) -> list[str]:
+        """The stages the last :meth:`render` ran, in order (the others were reused)."""
+        return self.cache.recomputed
+
+    def invalidate(self, names: str | list[str] | None = None) -> None:
+        """Forget the cached output of the stages ``names`` (all when None): the next
+        :meth:`render` recomputes them and whatever depends on them (benchmarks time full
+        frames so)."""
+        self.cache.invalidate(names)
+
+    def stage_output(self, name: str):
+        """The cached output of stage ``name`` (one of :attr:`stages`) from the last render,
+        e.g. ``"march grids"``, ``"photon generation"``, ``"smoothing"`` (C, D)."""
+        if name not in self.stages:
+            raise ParameterError(f"no stage {name!r}; the stages are {', '.join(self.stages)}")
+        if name not in self.cache:
+            raise ParameterError(f"stage {name!r} has not run yet: call render() first")
+        return self.cache.get(name)
+
+    def set_stage_output(self, name: str, value) -> None:
+        """Replace the cached output of stage ``name`` (computed before) by ``value``, keeping
+        its key, and forget the stages after it, so that the next :meth:`render` reruns those
+        from ``value`` (benchmarks: a reference whose C, D average several photon batches)."""
+        self.stage_output(name)  # checks the name
+        key = self.cache.key(name)
+        later = self.stages[self.stages.index(name) :]
+        self.cache.invalidate(later)
+        self.cache.stage(name, key, lambda: value)
 
     def _materials(self) -> tuple[MaterialGrids, tuple, tuple, tuple]:
         """S1 + S2 (cached); returns the grids and the cache keys of n, κ and σ_s separately."""
@@ -233,23 +245,23 @@ class VolumePipeline:
         box = s.box
         if s.grids is not None:
             # separate keys, so that painting σ_s with κ unchanged reruns S9 only (spec §4.1)
-            ior_key = ("grids", _key(s.grids["n"]), _key(box))
-            kappa_key = ("grids", _key(s.grids["kappa"]), _key(box))
-            key = (ior_key, kappa_key, _key(s.grids["sigma_s"]))
-            mats = self._stage("materials", key, lambda: from_arrays(s.grids, box))
+            ior_key = ("grids", cache_key(s.grids["n"]), cache_key(box))
+            kappa_key = ("grids", cache_key(s.grids["kappa"]), cache_key(box))
+            key = (ior_key, kappa_key, cache_key(s.grids["sigma_s"]))
+            mats = self.cache.stage("materials", key, lambda: from_arrays(s.grids, box))
             return mats, ior_key, kappa_key, key
         geo = (
             self._geometry_version,
             tuple(id(o.shape) for o in s.objects),
-            _key(box),
+            cache_key(box),
             p.supersample,
         )
-        covs = self._stage(
+        covs = self.cache.stage(
             "voxelization", geo, lambda: [voxelize(o.shape, box, p.supersample) for o in s.objects]
         )
         noise = (p.ior_noise, p.sigma_s_noise, p.noise_scale, p.seed)
-        key = (geo, _key(s.fog), _key([o.medium for o in s.objects]), p.blur_all, noise)
-        mats = self._stage(
+        key = (geo, cache_key(s.fog), cache_key([o.medium for o in s.objects]), p.blur_all, noise)
+        mats = self.cache.stage(
             "materials",
             key,
             lambda: material_grids(
@@ -273,8 +285,8 @@ class VolumePipeline:
         )
         kappa_key = (
             geo,
-            _key(s.fog.kappa),
-            _key([o.medium.kappa for o in s.objects]),
+            cache_key(s.fog.kappa),
+            cache_key([o.medium.kappa for o in s.objects]),
             p.blur_all,
             noise,
         )
@@ -286,25 +298,23 @@ class VolumePipeline:
         ``progress``, if given, is called with the name of each stage (one of :data:`STAGES`) as
         it starts; cached stages are skipped silently.
         """
-        self.timer.reset()
-        self.recomputed = []
-        self._progress = progress
+        self.cache.new_frame(progress)
         try:
             return self._render()
         finally:
-            self._progress = None
+            self.cache.progress = None
 
     def _render(self) -> mi.TensorXf:
         s, p = self.scene, self.params
         paper = p.fidelity == "paper"
 
         mats, ior_key, kappa_key, sigma_key = self._materials()
-        grad = self._stage("gradient", ior_key, lambda: gradient(mats.ior))
+        grad = self.cache.stage("gradient", ior_key, lambda: gradient(mats.ior))
         octree_key = (ior_key, p.eps, p.eps2, p.ds_max)
-        octree = self._stage(
+        octree = self.cache.stage(
             "octree", octree_key, lambda: build_octree(mats.ior, p.eps, p.eps2, p.ds_max)
         )
-        march_grids = self._stage(
+        march_grids = self.cache.stage(
             "march grids",
             (octree_key, kappa_key),
             lambda: march.MarchGrids.build(
@@ -316,7 +326,7 @@ class VolumePipeline:
             C, D, smooth_key = self._adaptive(march_grids, octree_key, kappa_key)
         else:
             C, D, smooth_key = self._uniform(march_grids, octree_key, kappa_key)
-        view_grids = self._stage(
+        view_grids = self.cache.stage(
             "view grids",
             (smooth_key, ior_key, kappa_key, sigma_key),
             lambda: ViewGrids.build(mats.ior, grad, mats.kappa, mats.sigma_s, C, D),
@@ -330,11 +340,11 @@ class VolumePipeline:
             spp=p.spp,
             seed=p.seed,
         )
-        image = self._stage(
+        image = self.cache.stage(
             "viewing",
             (
-                _key(settings),
-                _sensor_key(s.sensor),
+                cache_key(settings),
+                sensor_key(s.sensor),
                 id(s.environment),
                 view_grids is not None and id(view_grids),
             ),
@@ -347,10 +357,21 @@ class VolumePipeline:
     def _uniform(self, march_grids, octree_key, kappa_key):
         """S5–S8: uniform photons on the photon plane, marched and smoothed."""
         s, p = self.scene, self.params
-        light_key = (_key(s.lights), _key(s.box), p.photons, p.sampler, p.seed, p.fidelity)
-        photons = self._stage("photon generation", light_key, lambda: _emit_all(s, p))
+        light_key = (
+            cache_key(s.lights),
+            cache_key(s.box),
+            p.photons,
+            p.sampler,
+            p.seed,
+            p.fidelity,
+        )
+        photons = self.cache.stage(
+            "photon generation",
+            light_key,
+            lambda: emit.emit_lights(s.lights, s.box, p.photons, p.sampler, p.seed, p.fidelity),
+        )
         march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity)
-        traced = self._stage(
+        traced = self.cache.stage(
             "photon tracing",
             march_key,
             lambda: march.march(
@@ -358,7 +379,9 @@ class VolumePipeline:
             ),
         )
         smooth_key = (march_key, p.smoothing)
-        C, D = self._stage("smoothing", smooth_key, lambda: smooth(traced.C, traced.D, p.smoothing))
+        C, D = self.cache.stage(
+            "smoothing", smooth_key, lambda: smooth(traced.C, traced.D, p.smoothing)
+        )
         self.stats = {
             "photons_generated": len(s.lights) * p.photons,
             "photons_propagated": photons.count,
@@ -371,8 +394,8 @@ class VolumePipeline:
         marched with their weights → mipmaps → level-selecting filter."""
         s, p = self.scene, self.params
         box, lights = s.box, s.lights
-        pilot_key = (_key(lights), _key(box), p.pilot_photons, p.seed, p.fidelity)
-        pilots = self._stage(
+        pilot_key = (cache_key(lights), cache_key(box), p.pilot_photons, p.seed, p.fidelity)
+        pilots = self.cache.stage(
             "pilot photon generation",
             pilot_key,
             lambda: [
@@ -380,16 +403,21 @@ class VolumePipeline:
             ],
         )
         pilot_march_key = (pilot_key, octree_key, kappa_key, p.ds_min)
-        pilot_grids = self._stage(
+        pilot_grids = self.cache.stage(
             "pilot photon marching",
             pilot_march_key,
             lambda: [pilot.march_pilot(b, march_grids, p.ds_min, p.fidelity) for b in pilots],
         )
         pdf_key = (pilot_march_key, p.grad_threshold, p.rad_threshold, p.background, p.placement)
-        samplers = self._stage(
+        samplers = self.cache.stage(
             "photon distribution",
             pdf_key,
-            lambda: [_sampler(g, p) for g in pilot_grids],
+            lambda: [
+                adaptive.plane_sampler(
+                    g, p.grad_threshold, p.rad_threshold, p.background, p.placement
+                )
+                for g in pilot_grids
+            ],
         )
         gen_key = (pdf_key, p.photons, p.sampler)
         count = p.photons - p.pilot_photons
@@ -399,11 +427,11 @@ class VolumePipeline:
                 adaptive.emit_importance(li, box, smp, count, p.sampler, p.seed, p.fidelity)
                 for li, smp in zip(lights, samplers, strict=True)
             ]
-            return _concat([b[0] for b in batches]), dr.concat([b[1] for b in batches])
+            return emit.concat([b[0] for b in batches]), dr.concat([b[1] for b in batches])
 
-        photons, weights = self._stage("photon generation", gen_key, generate)
+        photons, weights = self.cache.stage("photon generation", gen_key, generate)
         march_key = (gen_key, octree_key, kappa_key, p.ds_min)
-        traced = self._stage(
+        traced = self.cache.stage(
             "photon tracing",
             march_key,
             lambda: march.march(
@@ -421,7 +449,7 @@ class VolumePipeline:
             C = filter_separable(traced.C, BINOMIAL) if p.smoothing else traced.C
             return mipmap.build_pyramid(C, traced.D, traced.count, traced.weight)
 
-        pyramid = self._stage("mipmap generation", mip_key, mipmaps)
+        pyramid = self.cache.stage("mipmap generation", mip_key, mipmaps)
         filter_key = (mip_key, p.delta_weight, p.mip_block, p.mip_blend)
 
         def reconstruct():
@@ -429,7 +457,7 @@ class VolumePipeline:
             C, D, level = mipmap.reconstruct(pyramid, step, p.mip_block, p.mip_blend)
             return (*smooth(C, D, enabled=False), level)
 
-        C, D, _ = self._stage("filtering", filter_key, reconstruct)
+        C, D, _ = self.cache.stage("filtering", filter_key, reconstruct)
         self.stats = {
             "photons_generated": len(lights) * p.photons,
             "photons_propagated": photons.count + sum(b.count for b in pilots),
@@ -457,9 +485,10 @@ class VolumePipeline:
     def grids(self) -> dict[str, np.ndarray]:
         """The cached intermediate grids of the last render, as NumPy arrays (for inspection)."""
         out = {}
-        for name, (_, value) in self._cache.items():
-            if name not in self.stages:
-                continue  # left over from the other emission
+        for name in self.stages:  # not what is left over from the other emission
+            value = self.cache.get(name)
+            if value is None:
+                continue
             if isinstance(value, MaterialGrids):
                 out.update(
                     ior=np.asarray(value.ior),
@@ -477,71 +506,3 @@ class VolumePipeline:
             elif name == "octree":
                 out.update(level=np.asarray(value.level), step_limit=np.asarray(value.step_limit))
         return out
-
-
-def check_has_fog(mi_scene: mi.Scene, source) -> None:
-    """Raise :class:`SceneError` unless ``mi_scene`` holds a participating medium: the volume
-    method renders single scattering in fog (spec seed-000-002 §0.1) and would write a black image
-    of a scene without (issue 10 item 1)."""
-    if has_media(mi_scene):
-        return
-    what = f"scene {source!r}" if isinstance(source, str) else "the scene"
-    raise SceneError(
-        f"{what} has no fog (no participating medium), so the volume method would render it "
-        "black: render it with --method surface (Python: photonmap.SurfacePipeline), or give "
-        "it fog (a 'homogeneous' medium as the exterior of its dielectric shapes, the sensor's "
-        "medium, or the interior of a 'null'-BSDF shape)"
-    )
-
-
-def _sampler(pilot_grids: pilot.PilotGrids, p: VolumeParams) -> adaptive.PlaneSampler:
-    """A3–A4: the photon-plane sampler of one light. ``placement="uniform"`` samples the plane
-    uniformly (the reference's points, weight 1) and reports the importance pdf's weights ``1/p``
-    to the photon-weight filter, so the pilots steer the reconstruction only."""
-    pdf = pilot.importance_pdf(pilot_grids, p.grad_threshold, p.rad_threshold, p.background)
-    if p.placement == "importance":
-        return adaptive.PlaneSampler.build(pdf)
-    return adaptive.PlaneSampler.build(np.ones_like(pdf), filter_pdf=pdf)
-
-
-def _sensor_key(sensor) -> tuple:
-    """The sensor and what can change in it in place (``mi.traverse``): pose, field of view,
-    film size and crop."""
-    film = sensor.film()
-    matrix = np.asarray(sensor.world_transform().matrix, dtype=np.float64)
-    fov = mi.traverse(sensor).get("x_fov")
-    return (
-        id(sensor),
-        matrix.tobytes(),
-        None if fov is None else float(np.asarray(fov).reshape(-1)[0]),
-        tuple(int(c) for c in film.size()),
-        tuple(int(c) for c in film.crop_size()),
-        tuple(int(c) for c in film.crop_offset()),
-    )
-
-
-def _emit_all(scene: VolumeScene, p: VolumeParams) -> emit.Photons:
-    """S5 for every light (Sun §3: "a set of point or directional light sources"), concatenated."""
-    batches = [
-        emit.emit(light, scene.box, p.photons, p.sampler, p.seed, p.fidelity)
-        for light in scene.lights
-    ]
-    return _concat(batches)
-
-
-def _concat(batches: list[emit.Photons]) -> emit.Photons:
-    """One photon list from the lists of several lights."""
-    if len(batches) == 1:
-        return batches[0]
-
-    def cat(cls, field):
-        parts = [getattr(b, field) for b in batches]
-        return cls(*[dr.concat([part[i] for part in parts]) for i in range(3)])
-
-    return emit.Photons(
-        origin=cat(mi.Point3f, "origin"),
-        direction=cat(mi.Vector3f, "direction"),
-        power=cat(mi.Color3f, "power"),
-        generated=sum(b.generated for b in batches),
-        entering=sum(b.count for b in batches),
-    )

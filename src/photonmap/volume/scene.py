@@ -23,6 +23,7 @@ import numpy as np
 
 from ..core.errors import SceneError
 from ..core.grid import GridBox
+from ..core.scene_info import has_media
 from .voxelize import check_closed
 
 LIGHT_KINDS = ("point", "spot", "directional")
@@ -320,3 +321,18 @@ def _area_lights(emitter) -> list[Light]:
         Light("point", i, position=x, lobe_normal=nn)
         for i, x, nn in zip(intensity, p, n, strict=True)
     ]
+
+
+def check_has_fog(mi_scene: mi.Scene, source) -> None:
+    """Raise :class:`SceneError` unless ``mi_scene`` holds a participating medium: the volume
+    method renders single scattering in fog (spec seed-000-002 §0.1) and would write a black image
+    of a scene without (issue 10 item 1); the message names the method to use."""
+    if has_media(mi_scene):
+        return
+    what = f"scene {source!r}" if isinstance(source, str) else "the scene"
+    raise SceneError(
+        f"{what} has no fog (no participating medium), so the volume method would render it "
+        "black: render it with --method surface (Python: photonmap.SurfacePipeline), or give "
+        "it fog (a 'homogeneous' medium as the exterior of its dielectric shapes, the sensor's "
+        "medium, or the interior of a 'null'-BSDF shape)"
+    )

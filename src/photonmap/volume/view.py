@@ -198,3 +198,19 @@ def render_view(grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSetti
     image = mi.TensorXf(dr.ravel(pixel_means(L, spp) if spp > 1 else L), (h, w, 3))
     dr.eval(image)
     return image
+
+
+def sensor_key(sensor) -> tuple:
+    """The cache key of S9's camera: the sensor and what can change in it in place
+    (``mi.traverse``): pose, field of view, film size and crop."""
+    film = sensor.film()
+    matrix = np.asarray(sensor.world_transform().matrix, dtype=np.float64)
+    fov = mi.traverse(sensor).get("x_fov")
+    return (
+        id(sensor),
+        matrix.tobytes(),
+        None if fov is None else float(np.asarray(fov).reshape(-1)[0]),
+        tuple(int(c) for c in film.size()),
+        tuple(int(c) for c in film.crop_size()),
+        tuple(int(c) for c in film.crop_offset()),
+    )
