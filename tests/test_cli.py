@@ -256,3 +256,10 @@ def test_reference_renders_mitsubas_own_integrator_in_passes(tmp_path, monkeypat
     assert np.allclose(image, np.mean(passes, axis=0), atol=1e-5)
     bad = run("reference", f"{S}/cornell_box.xml", "-o", out, "--integrator", "bdpt")
     assert bad.exit_code == 2 and "unknown --integrator 'bdpt'" in bad.output
+
+
+def test_timings_is_a_flag_pair_and_help_says_so():
+    """``--timings=false`` was refused while help showed ``<bool>``: help now shows the pair."""
+    help_text = run("render", "--help").output
+    line = next(x for x in help_text.splitlines() if "--timings" in x)
+    assert "--no-timings" in line and "<bool>" not in line

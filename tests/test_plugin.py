@@ -151,15 +151,3 @@ def test_plugin_errors_are_photonmap_errors():
     assert isinstance(info.value.__cause__, SceneError)
     assert "no fog" in str(info.value.__cause__)  # issue 10: refused, naming --method surface
     assert issubclass(ParameterError, PhotonmapError)
-
-
-def test_mitsuba_path_integrator_renders_the_cornell_box():
-    """Issue item 1: the Mitsuba backend (LLVM variant) works."""
-    assert mi.variant() == "llvm_ad_rgb"
-    cornell = mi.cornell_box()
-    cornell["sensor"]["film"].update(width=32, height=32)
-    img = np.array(
-        mi.render(mi.load_dict(cornell), integrator=mi.load_dict({"type": "path"}), spp=4)
-    )
-    assert img.shape == (32, 32, 3)
-    assert np.all(np.isfinite(img)) and img.mean() > 0.05

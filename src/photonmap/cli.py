@@ -151,7 +151,10 @@ def render(
         typer.Option("--set", help="KEY=VALUE: a method or scene parameter (repeatable)"),
     ] = None,
     timings: Annotated[
-        bool, typer.Option("--timings/--no-timings", help="print per-stage milliseconds")
+        bool,
+        typer.Option(
+            "--timings/--no-timings", metavar=" ", help="print per-stage milliseconds (a flag)"
+        ),
     ] = False,
 ):
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
