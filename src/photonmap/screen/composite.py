@@ -1,16 +1,21 @@
 """Final compositing and glass seen through eye-ray refraction (Yao 2011 §3.3, §3.5, Ch. 5; spec
 seed-004 §2.9, A27, ``glass_eye="raytrace"``).
 
-    L_out = V_s · L_direct + Up(L_ind)                           (diffuse / glossy pixels)
-    L_out = Σ_branches T · L_direct(hit)                          (mirror / glass pixels)
+    L_out = V_s · L_direct + Up(L_ind) + L_e                     (diffuse / glossy pixels)
+    L_out = Σ_branches T · (L_direct(hit) + L_e(hit))             (mirror / glass pixels)
+
+L_e is the radiance of an area light seen at the pixel (or at the chain's end: the light in a
+mirror or through glass). With ``shadows="sampled"`` V_s · L_direct is the sampled shadowed direct
+light of :mod:`.direct`.
 
 Glass and mirror pixels are ray-traced with direct light only at the end of the chain, as the
 thesis's environment map holds the scene "with direct light only": the refracted chain is followed
 through up to ``levels`` delta interfaces with throughput T = weight·pdf of the transmitted
 branch (1 − F; TIR reflects), plus the Fresnel-weighted reflection (F) at the front face, followed
 the same way. Both branches are deterministic (no noise); the shading at the diffuse end point uses
-the hard shadow of :func:`.direct.shade`. Mitsuba's dielectric gives F, Snell's law and the
-radiance scaling by η² across the interface.
+the hard shadow of :func:`.direct.shade` (spot and point lights) or the area light's sampled shadow
+rays. Mitsuba's dielectric gives F, Snell's law and the radiance scaling by η² across the
+interface. The chains pass through ``null``-BSDF shapes.
 """
 
 from __future__ import annotations
@@ -18,7 +23,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..surface.trace import is_specular
+from ..core.bsdf import has_null_shapes, intersect_visible, is_specular
 from .direct import EPSILON, shade
 from .gbuffer import GBuffer
 from .light_gbuffer import Light
@@ -27,9 +32,9 @@ LEVELS = 4
 REFLECT, TRANSMIT = 0.0, 1.0 - 1e-6  # dielectric sample1: below F reflects, above refracts
 
 
-def _chain(scene, light, si, throughput, active, first: float, levels: int, eps):
+def _chain(scene, light, si, throughput, active, first: float, levels: int, eps, null_shapes):
     """Follow delta interactions from ``si`` (first choice ``first``, then transmission) and
-    return the throughput-weighted direct light at the first non-delta surface."""
+    return the throughput-weighted direct light and emission at the first non-delta surface."""
     ctx = mi.BSDFContext(mi.TransportMode.Radiance)
     L = dr.zeros(mi.Color3f, dr.width(active))
     choice = first
@@ -39,15 +44,17 @@ def _chain(scene, light, si, throughput, active, first: float, levels: int, eps)
         throughput = throughput * weight * bs.pdf  # the branch's expected contribution
         active &= bs.pdf > 0
         ray = si.spawn_ray(si.to_world(bs.wo))
-        si = scene.ray_intersect(ray, active)
+        si = intersect_visible(scene, ray, active, null_shapes)
         active &= si.is_valid()
         bsdf = si.bsdf(ray)
         end = active & ~is_specular(bsdf, active)
         n = mi.Vector3f(si.sh_frame.n)
         n = dr.select(dr.dot(n, ray.d) > 0, -n, n)
         albedo = bsdf.eval_diffuse_reflectance(si, end)
-        radiance, hard, _, _ = shade(scene, light, si.p, n, albedo, end, eps, distances=False)
-        L += dr.select(end, throughput * radiance * hard, 0.0)
+        *_, lit = shade(scene, light, si.p, n, albedo, end, eps, distances=False, samples=True,
+                        null_shapes=null_shapes)  # fmt: skip
+        lit += si.emitter(scene).eval(si, end)
+        L += dr.select(end, throughput * lit, 0.0)
         active &= ~end
         choice = TRANSMIT
     return L
@@ -69,12 +76,13 @@ def glass_eye(
         return None  # no mirror or glass in view
     eye = mi.Point3f(*(dr.opaque(mi.Float, float(c)) for c in gbuf.eye))
     ray = mi.Ray3f(eye, dr.normalize(dr.gather(mi.Point3f, gbuf.pos, index) - eye))
-    si = scene.ray_intersect(ray, True)
+    null_shapes = has_null_shapes(scene)
+    si = intersect_visible(scene, ray, True, null_shapes)
     active = si.is_valid()
     one = dr.ones(mi.Color3f, dr.width(index))
-    L = _chain(scene, light, si, one, active, TRANSMIT, levels, eps)
+    L = _chain(scene, light, si, one, active, TRANSMIT, levels, eps, null_shapes)
     glass = active & mi.has_flag(si.bsdf(ray).flags(), mi.BSDFFlags.DeltaTransmission)
-    L += _chain(scene, light, si, one, glass, REFLECT, levels, eps)  # mirrors: chain 1 only
+    L += _chain(scene, light, si, one, glass, REFLECT, levels, eps, null_shapes)  # mirrors: 1
     out = dr.zeros(mi.Color3f, dr.width(specular))
     dr.scatter(out, L, index)
     dr.eval(out)
@@ -82,10 +90,17 @@ def glass_eye(
 
 
 def composite(
-    direct: mi.Color3f, visibility: mi.Float, indirect: mi.Color3f, glass: mi.Color3f | None
+    direct: mi.Color3f,
+    visibility: mi.Float | None,
+    indirect: mi.Color3f,
+    glass: mi.Color3f | None,
+    emission: mi.Color3f | None = None,
 ) -> mi.Color3f:
-    """L_out = V_s·L_direct + Up(L_ind) (+ the ray-traced specular pixels)."""
-    out = visibility * direct + indirect
+    """L_out = V_s·L_direct + Up(L_ind) + L_e (+ the ray-traced specular pixels);
+    ``visibility=None``: ``direct`` is already shadowed (``shadows="sampled"``)."""
+    out = (direct if visibility is None else visibility * direct) + indirect
+    if emission is not None:
+        out += emission
     if glass is not None:
         out += glass
     dr.eval(out)

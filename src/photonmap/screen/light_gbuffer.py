@@ -7,9 +7,11 @@ seed-004 §2.2, A25, A26, A31).
   Ω_ij = Δu Δv / (1 + u² + v²)^{3/2} — zero outside the cone, so photon emission matches direct light.
 - **Point light** ("emit photon from two hemisphere which cover the point light", §3.2): W_L·H_L
   stratified equal-area directions over the sphere, Ω = 4π/N each.
-- **Area light** (support by sampling): ``emitter.sample_ray`` at stratified points of the light,
-  Φ = weight/N. Direct light and shadows treat it as a point at its centre with the Lambertian
-  intensity I(ω) = Φ_e/π · max(0, n_L·ω) (A31: the virtual area light softens shadows only).
+- **Area light** (rectangle, disk, sphere, mesh; support by sampling): ``emitter.sample_ray`` at
+  stratified points of the light, Φ = weight/N (an unbiased estimate of the emitted power Φ_e).
+  Direct light samples points on the light (:mod:`.direct`), not its centre: the spec's A31 option
+  "consistent area light", which reference comparisons need. The virtual light radius of the soft
+  shadows is the light's own: :func:`light_radius` (``light_size`` is for spot and point lights).
 
 Every texel's first hit is direct light, which :mod:`.direct` shades; :mod:`.light_photons` scatters
 photons on from it. I(ω) of spot and point lights comes from Mitsuba's own ``sample_direction``, so
@@ -21,13 +23,15 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.errors import SceneError
+from ..core.bsdf import intersect_visible
+from ..core.errors import PhotonmapWarning, SceneError
 from ..core.photon_trace import emitter_powers
 
 KINDS = ("spot", "point", "area")
@@ -37,8 +41,10 @@ MAX_FRUSTUM_DEG = 80.0  # spots wider than this emit over the sphere like a poin
 @dataclass
 class Light:
     """One light of the scene as the ``screen`` pipeline sees it: ``kind`` (spot | point | area),
-    the Mitsuba ``emitter``, its ``position`` (the centre for an area light), ``axis`` (spot axis
-    or area normal), ``frame`` (spot and point lights) and ``cutoff`` (radians, spots)."""
+    the Mitsuba ``emitter``, its ``position`` (the bounding-box centre for an area light),
+    ``axis`` (spot axis or area normal), ``frame`` (spot and point lights), ``cutoff`` (radians,
+    spots) and, for area lights, the emitted ``power`` Φ_e, the ``shape`` and the virtual light
+    ``radius`` of the soft shadows (world units, :func:`light_radius`)."""
 
     kind: str
     emitter: mi.Emitter
@@ -47,6 +53,8 @@ class Light:
     frame: np.ndarray | None  # 3×3 columns: tangent, bitangent, axis (None for area lights)
     cutoff: float = 0.0
     power: np.ndarray | None = None  # area lights: emitted RGB power Φ_e
+    shape: mi.Shape | None = None  # area lights: the emitting shape
+    radius: float = 0.0  # area lights: virtual light radius L of Eqs 2–5 (world units)
 
 
 @dataclass
@@ -62,9 +70,11 @@ class LightGBuffer:
     valid: mi.Bool
 
 
-def find_light(scene: mi.Scene, index: int = 0) -> Light:
+def find_light(scene: mi.Scene, index: int = 0, warn: bool = False) -> Light:
     """The ``index``-th spot, point or area emitter of ``scene`` as a :class:`Light`; raise a
-    :class:`SceneError` if there is none."""
+    :class:`SceneError` if there is none. The pipeline lights the scene with this one light
+    (direct light, shadows, photons); ``warn=True`` issues a :class:`PhotonmapWarning` naming every
+    other emitter, whose light the image then lacks (area lights still show their emission)."""
     indices = [i for i, e in enumerate(scene.emitters()) if _kind(e) is not None]
     lights = [scene.emitters()[i] for i in indices]
     if not lights:
@@ -76,6 +86,14 @@ def find_light(scene: mi.Scene, index: int = 0) -> Light:
     if not 0 <= index < len(lights):
         raise SceneError(f"light index {index} out of range: the scene has {len(lights)} light(s)")
     emitter = lights[index]
+    if warn and len(scene.emitters()) > 1:
+        others = [_describe(e) for e in scene.emitters() if e is not emitter]
+        warnings.warn(
+            f"the screen method lights the scene with one light ({_describe(emitter)}, light "
+            f"index {index}) and ignores the light of: {'; '.join(others)}",
+            PhotonmapWarning,
+            stacklevel=3,
+        )
     kind = _kind(emitter)
     if kind == "area":
         shape = emitter.get_shape()
@@ -83,7 +101,10 @@ def find_light(scene: mi.Scene, index: int = 0) -> Light:
         position = np.array(shape.bbox().center()).ravel()
         axis = np.array(ps.n).ravel()
         power = emitter_powers(scene, samples=1 << 14)[indices[index]]
-        return Light(kind, emitter, position, axis, None, power=power)
+        return Light(
+            kind, emitter, position, axis, None, power=power, shape=shape,
+            radius=light_radius(shape),
+        )  # fmt: skip
     params = mi.traverse(emitter)
     if "to_world" in params.keys():
         m = np.array(params["to_world"].matrix, dtype=np.float64)[..., 0]
@@ -98,6 +119,26 @@ def find_light(scene: mi.Scene, index: int = 0) -> Light:
     return Light(kind, emitter, position, axis, frame, cutoff)
 
 
+def light_radius(shape: mi.Shape) -> float:
+    """The virtual light radius L (Eqs 2–5) of an area light: the radius of the disk with the
+    shape's mean projected area A_p, L = √(A_p/π). A flat shape (rectangle, disk, planar mesh: the
+    bounding box's thinnest side < 10⁻³ of its longest) faces the receivers with its whole area,
+    A_p = A (a disk light gets its own radius); a solid one (sphere, closed mesh) shows a quarter
+    of its area on average (Cauchy's formula for convex bodies), A_p = A/4 (a sphere: its
+    radius)."""
+    area = float(np.array(shape.surface_area()).ravel()[0])
+    extent = np.array(shape.bbox().extents()).ravel()
+    flat = extent.min() < 1e-3 * extent.max()
+    return math.sqrt(area / (1.0 if flat else 4.0) / math.pi)
+
+
+def _describe(emitter: mi.Emitter) -> str:
+    shape = emitter.get_shape() if hasattr(emitter, "get_shape") else None
+    where = f" on shape '{shape.id()}'" if shape is not None and shape.id() else ""
+    named = f" '{emitter.id()}'" if emitter.id() else ""
+    return f"{emitter.class_name()}{named}{where}"
+
+
 def _kind(emitter: mi.Emitter) -> str | None:
     name = emitter.class_name()
     if name == "SpotLight":
@@ -110,10 +151,8 @@ def _kind(emitter: mi.Emitter) -> str | None:
 
 
 def intensity(light: Light, d: mi.Vector3f) -> mi.Color3f:
-    """Radiant intensity I(ω) (W/sr, RGB) of ``light`` along unit world directions ``d``."""
-    if light.kind == "area":
-        cos = dr.maximum(dr.dot(d, mi.Vector3f(*light.axis.tolist())), 0.0)
-        return mi.Color3f(*(light.power / math.pi).tolist()) * cos
+    """Radiant intensity I(ω) (W/sr, RGB) of a spot or point ``light`` along unit world
+    directions ``d``."""
     it = dr.zeros(mi.Interaction3f, dr.width(d))
     it.p = mi.Point3f(*(dr.opaque(mi.Float, float(c)) for c in light.position)) + d
     ds, spec = light.emitter.sample_direction(it, mi.Point2f(0.5), True)
@@ -156,7 +195,7 @@ def light_gbuffer(
         )
         ray = mi.Ray3f(origin, d)
         flux = intensity(light, d) * solid
-    si = scene.ray_intersect(ray, True)
+    si = intersect_visible(scene, ray)  # null-BSDF shapes (fog boxes) are invisible
     valid = si.is_valid() & (dr.max(flux) > 0)
     lgb = LightGBuffer(width, height, si, dr.select(valid, flux, 0.0), valid)
     dr.eval(lgb.si, lgb.flux, lgb.valid)

@@ -23,7 +23,8 @@ scenes).
 Mitsuba's ``diffuse``, ``conductor`` and ``dielectric`` samplers are exactly these rules (the
 dielectric chooses reflection iff u < F). No Russian roulette (A8). Photons are stored only on
 surfaces with a diffuse or glossy lobe; a mirror or glass hit uses up its bounce and leaves its slot
-invalid (A3). ρ_path = Π h_k scales the splat radius (A9).
+invalid (A3). ρ_path = Π h_k scales the splat radius (A9). Photons pass through ``null``-BSDF
+shapes (fog boxes): crossing one is no bounce.
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.bsdf import has_null_shapes, intersect_visible, is_specular
 from ..core.errors import ParameterError, SceneError
-from ..surface.trace import is_specular
 from .light_gbuffer import LightGBuffer
 
 GLOSSY_MODES = ("yao_average", "bsdf")
@@ -92,6 +93,7 @@ def trace_photons(
     si, active = lgb.si, mi.Bool(lgb.valid)
     power = mi.Color3f(lgb.flux)
     density = dr.ones(mi.Float, n)
+    null_shapes = has_null_shapes(scene)
     parts = []
     for k in range(1, bounces + 1):  # B ≤ a few: one kernel per bounce, fixed slots
         bsdf = si.bsdf()
@@ -112,7 +114,7 @@ def trace_photons(
         density = density * h
         active &= (dr.max(power) > 0) & (bs.pdf > 0)
         ray = si.spawn_ray(si.to_world(wo))
-        si = scene.ray_intersect(ray, active)
+        si = intersect_visible(scene, ray, active, null_shapes)  # through null-BSDF shapes
         active &= si.is_valid()
         store = active & ~is_specular(si.bsdf(), active)  # A3
         n_s = mi.Normal3f(si.sh_frame.n)

@@ -37,10 +37,12 @@ from .direct import direct_light
 from .gbuffer import eye_gbuffer
 from .light_gbuffer import check_light_outside, find_light, light_gbuffer
 from .light_photons import GLOSSY_MODES, random_map, trace_photons
-from .soft_shadow import MODES as SHADOWS
-from .soft_shadow import soft_visibility
+from .soft_shadow import MODES, soft_visibility
 
 SPLATS = ("quad", "icosahedron")
+SHADOWS = (*MODES, "sampled")
+"""Shadow modes: those of :mod:`.soft_shadow` and ``"sampled"`` (area lights: each light sample's
+own shadow ray, :mod:`.direct`; spot and point lights: the hard shadow)."""
 STAGES = (
     "eye G-buffer",
     "light G-buffer",
@@ -66,9 +68,12 @@ class ScreenParams:
     splat: str = "quad"  # quad | icosahedron (Tab 2)
     compression: float = 1.0  # icosahedron normal compression c (A18; 1 = Yao's uncompressed)
     subsample: int = 4  # s: indirect light at (W/s)×(H/s) (Tab 1: 8, 4, 2)
-    shadows: str = "soft"  # soft (ISG, Eqs 2–5) | hard | fixed_radius (penumbra = light_size)
+    # soft (ISG, Eqs 2–5) | hard | fixed_radius (penumbra = light_size) | sampled (area lights)
+    shadows: str = "soft"
     isg_samples: str = "4+5"  # ISG radial sample steps, pass 1 + pass 2 (Tab 1: 4+5, 4+7)
-    light_size: float = 0.02  # virtual area-light radius L, × scene diagonal (0 = hard shadow)
+    # virtual light radius L of spot / point lights, × scene diagonal (0 = hard shadow); area
+    # lights use their own size (ScreenPipeline.shadow_radius)
+    light_size: float = 0.02
     glossy: str = "yao_average"  # glossy photon bounce: yao_average (A6) | bsdf
     seed: int = 0  # seed of the fixed random map (PRM)
 
@@ -229,6 +234,15 @@ class ScreenPipeline(MovableCamera):
         check_light_outside(self.scene, self.light)
         self._light_version += 1
 
+    def shadow_radius(self) -> float:
+        """The world-space radius of the soft shadows: an area light's own virtual radius
+        (:func:`.light_gbuffer.light_radius`) with ``shadows="soft"``, else ``light_size`` ×
+        the scene diagonal (the spot or point light's virtual size, or the ``fixed_radius``
+        blur)."""
+        if self.light.kind == "area" and self.params.shadows == "soft":
+            return self.light.radius
+        return self.params.light_size * self.diagonal
+
     def invalidate(self) -> None:
         """Forget every cached stage output except the random map: the next render is a full
         frame, as when both camera and light move (what :mod:`benchmarks.screen_table1` times)."""
@@ -279,12 +293,15 @@ class ScreenPipeline(MovableCamera):
             photon_key,
             lambda: trace_photons(scene, lgb, prm[1], p.bounces, p.glossy),
         )
+        sampled = p.shadows == "sampled"
         direct_key = (cam_key, light_key)
         direct = self._stage(
-            "direct + shadow rays", direct_key, lambda: direct_light(scene, gbuf, self.light, diag)
+            "direct + shadow rays",
+            (direct_key, sampled),
+            lambda: direct_light(scene, gbuf, self.light, diag, samples=sampled),
         )
-        light_radius = p.light_size * diag
-        shadow_key = (direct_key, p.shadows, light_radius, p.isg_pair())
+        light_radius = self.shadow_radius()
+        shadow_key = (direct_key, sampled, p.shadows, light_radius, p.isg_pair())
         visibility = self._stage(
             "soft shadows",
             shadow_key,
@@ -296,7 +313,7 @@ class ScreenPipeline(MovableCamera):
                 light_radius,
                 diag,
                 samples=p.isg_pair(),
-                mode=p.shadows,
+                mode="hard" if sampled else p.shadows,
             ),
         )
         low_key = (cam_key, p.subsample)
@@ -319,7 +336,13 @@ class ScreenPipeline(MovableCamera):
         out = self._stage(
             "composite",
             (shadow_key, up_key, direct_key),
-            lambda: composite(direct.L, visibility, indirect, glass),
+            lambda: composite(
+                direct.L_sampled if sampled else direct.L,
+                None if sampled else visibility,
+                indirect,
+                glass,
+                gbuf.emission,
+            ),
         )
         self.outputs = {
             "gbuffer": gbuf,
