@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from photonmap import VolumePipeline, mi
+from photonmap.core.errors import ParameterError
 from photonmap.scenes import SCENES
 from photonmap.volume.params import STAGES
 
@@ -249,3 +250,27 @@ def test_no_nan_image_for_any_builtin(name):
     assert np.all(np.isfinite(img)) and img.min() >= 0 and img.mean() > 0
     C = pipe.grids["C"]
     assert np.all(np.isfinite(C)) and C.max() > 0
+
+
+def test_public_stage_cache():
+    """invalidate(names) reruns exactly those stages, to the same image; stage_output reads a
+    stage's output; set_stage_output replaces it and reruns the stages after it from it."""
+    pipe = sphere()
+    first = image(pipe)
+    pipe.invalidate(["photon tracing", "viewing"])
+    assert np.array_equal(image(pipe), first)
+    assert pipe.recomputed == ["photon tracing", "viewing"]
+    pipe.invalidate()
+    assert np.array_equal(image(pipe), first) and pipe.recomputed == list(STAGES)
+
+    C, D = pipe.stage_output("smoothing")
+    assert np.array_equal(np.asarray(C), pipe.grids["C"])
+    pipe.set_stage_output("smoothing", (C * 2.0, D))
+    doubled = image(pipe)  # no environment: in-scattering and table are linear in C
+    assert pipe.recomputed == ["view grids", "viewing"]
+    np.testing.assert_allclose(doubled, 2 * first, rtol=1e-5, atol=1e-7)
+
+    with pytest.raises(ParameterError, match="no stage 'filtering'; the stages are voxel"):
+        pipe.stage_output("filtering")  # an adaptive stage, uniform emission
+    with pytest.raises(ParameterError, match="has not run yet: call render"):
+        sphere().stage_output("octree")

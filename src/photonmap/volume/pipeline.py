@@ -216,8 +216,9 @@ class VolumePipeline:
 
     def invalidate(self, names: str | list[str] | None = None) -> None:
         """Forget the cached output of the stages ``names`` (all when None): the next
-        :meth:`render` recomputes them and whatever depends on them (benchmarks time full
-        frames so)."""
+        :meth:`render` recomputes them. The other stages keep their outputs while their own
+        inputs are unchanged, so to time a light change name every stage it reruns (the
+        benchmarks do)."""
         self.cache.invalidate(names)
 
     def stage_output(self, name: str):
