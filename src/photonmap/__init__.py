@@ -50,6 +50,8 @@ set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
 
 from typing import NamedTuple  # noqa: E402
 
+from .core.image import compare  # noqa: E402
+from .core.reference import render_reference  # noqa: E402
 from .screen.pipeline import STAGES as SCREEN_STAGES  # noqa: E402
 from .screen.pipeline import ScreenParams, ScreenPipeline  # noqa: E402
 from .surface.pipeline import STAGES as SURFACE_STAGES  # noqa: E402
@@ -90,6 +92,8 @@ __all__ = [
     "SurfacePipeline",
     "VolumeParams",
     "VolumePipeline",
+    "compare",
+    "render_reference",
     "dr",
     "mi",
     "set_device",
