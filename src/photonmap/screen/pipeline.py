@@ -28,9 +28,11 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.camera import MovableCamera, scene_bounds
+from ..core.bsdf import is_null
+from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
 from ..core.params import updated
+from ..core.scene_info import warn_unmodelled_media
 from ..core.timer import StageTimer
 from .composite import composite, glass_eye
 from .direct import direct_light
@@ -141,6 +143,45 @@ def _positive(value) -> bool:
     return number and math.isfinite(value) and value > 0
 
 
+def visible_diagonal(scene: mi.Scene) -> float:
+    """The bounding-box diagonal of the shapes the method sees, the unit of ``radius`` and
+    ``light_size`` (A17): ``null``-BSDF shapes (a fog box around the scene) do not count, so that
+    they change nothing in the image."""
+    boxes = [s.bbox() for s in scene.shapes() if not _null(s)]
+    if not boxes:
+        return 0.0
+    lo = np.min([np.array(b.min, dtype=np.float64).ravel() for b in boxes], axis=0)
+    hi = np.max([np.array(b.max, dtype=np.float64).ravel() for b in boxes], axis=0)
+    return float(np.linalg.norm(hi - lo))
+
+
+def _null(shape: mi.Shape) -> bool:
+    bsdf = shape.bsdf()
+    return bsdf is not None and not shape.is_emitter() and bool(is_null(bsdf, True)[0])
+
+
+def check_dielectrics(scene: mi.Scene) -> None:
+    """Raise a :class:`SceneError` naming the shape if a BSDF's relative index of refraction
+    ``eta`` (a dielectric's ``int_ior / ext_ior``, nested BSDFs included) is not a finite positive
+    number: Snell's law and Fresnel would turn the glass pixels and caustic photons into NaN."""
+    for number, shape in enumerate(scene.shapes()):
+        bsdf = shape.bsdf()
+        if bsdf is None:
+            continue
+        params = mi.traverse(bsdf)
+        for key in params.keys():
+            if key.split(".")[-1] != "eta":
+                continue
+            eta = np.array(params[key], dtype=np.float64).ravel()
+            if not (np.all(np.isfinite(eta)) and np.all(eta > 0)):
+                name = f"'{shape.id()}'" if shape.id() else f"number {number}"
+                raise SceneError(
+                    f"shape {name} ({shape.class_name()}) has a {bsdf.class_name()} whose index "
+                    f"of refraction eta = {eta.tolist()} is not a finite positive number; set "
+                    "int_ior and ext_ior to finite values (e.g. 1.5 and 1.0 for glass in air)"
+                )
+
+
 def _sensor_key(sensor) -> tuple:
     m = np.array(sensor.world_transform().matrix, dtype=np.float64).ravel()
     fov = np.array(mi.traverse(sensor)["x_fov"]).ravel()
@@ -150,7 +191,13 @@ def _sensor_key(sensor) -> tuple:
 
 class ScreenPipeline(MovableCamera):
     """Image-space photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``) with
-    a spot, point or area light.
+    a spot, point or area light (rectangle, disk, sphere, mesh).
+
+    The scene is lit by one light (``light``: its index among the spot, point and area lights); a
+    :class:`~photonmap.core.errors.PhotonmapWarning` names every other emitter, whose light is
+    left out, and every participating medium (the method renders as in vacuum; ``null``-BSDF
+    shapes such as fog boxes are invisible to it). A dielectric with a non-finite ``eta`` is
+    refused (:func:`check_dielectrics`).
 
     >>> pipe = ScreenPipeline("cornell_ispm", bounces=2, subsample=8)
     >>> image = pipe.render()                  # mi.TensorXf (height, width, 3), linear radiance
@@ -169,8 +216,10 @@ class ScreenPipeline(MovableCamera):
         self.sensor = self.scene.sensors()[0]
         self.params = ScreenParams()
         self.set_params(**{k: v for k, v in params.items() if k in fields})
+        warn_unmodelled_media(self.scene, "screen")  # rendered as in vacuum (fog boxes: null)
+        check_dielectrics(self.scene)
         self.light_index = light
-        self.light = find_light(self.scene, light)
+        self.light = find_light(self.scene, light, warn=True)
         check_light_outside(self.scene, self.light)
         self._light_version = 0
         self.timer = StageTimer()
@@ -178,7 +227,7 @@ class ScreenPipeline(MovableCamera):
         self.recomputed: list[str] = []
         self._cache: dict[str, tuple] = {}
         self.outputs: dict[str, object] = {}
-        _, self.diagonal = scene_bounds(self.scene)
+        self.diagonal = visible_diagonal(self.scene)
         if not self.diagonal > 0:
             raise SceneError("the scene has no geometry (empty bounding box)")
 
