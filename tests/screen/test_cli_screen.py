@@ -36,7 +36,7 @@ def test_render_cornell_ispm_with_screen_keys(tmp_path):
 
 def test_scene_default_method_is_screen_and_bad_keys_exit_2(tmp_path):
     result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "radius=0")
-    assert result.exit_code == 2 and "radius must be a positive number" in result.output
+    assert result.exit_code == 2 and "radius must be > 0, got 0.0" in result.output
     result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "splat=disc")
     assert result.exit_code == 2 and "splat must be one of quad, icosahedron" in result.output
     result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "subsample=1.5")

@@ -2,6 +2,7 @@
 input (issue 4 items 2–4, 7)."""
 
 import math
+import re
 
 import mitsuba as mi
 import numpy as np
@@ -35,6 +36,25 @@ def test_first_render_runs_every_stage_and_is_finite():
         assert key in p.outputs
     again = np.array(p.render())
     assert p.recomputed == [] and np.array_equal(again, image)  # O12: deterministic
+
+
+def test_invalidate_and_stage_output():
+    """The public stage-cache interface (core.stages.StageCache): ``invalidate()`` makes the next
+    frame a full frame (the benchmark's), ``invalidate(name)`` reruns that stage only (its inputs
+    are unchanged, so the stages after it keep theirs), unknown names are refused."""
+    p = ScreenPipeline("cornell_ispm", **SMALL, **FAST)
+    image = np.array(p.render())
+    assert p.stages == STAGES
+    assert p.stage_output("composite") is p.outputs["image"]
+    p.invalidate()
+    assert np.array_equal(np.array(p.render()), image) and p.recomputed == list(STAGES)
+    p.invalidate("soft shadows")
+    p.render()
+    assert p.recomputed == ["soft shadows"]
+    with pytest.raises(ParameterError, match="no stage 'shadows'"):
+        p.invalidate("shadows")
+    with pytest.raises(ParameterError, match="has not run yet"):
+        ScreenPipeline("cornell_ispm", **SMALL, **FAST).stage_output("splatting")
 
 
 @pytest.mark.parametrize(
@@ -138,12 +158,16 @@ def _no_light_scene():
     ("params", "error", "message"),
     [
         ({"light_res": 0}, ParameterError, "light_res must be >= 1"),
-        ({"radius": 0.0}, ParameterError, "radius must be a positive number"),
-        ({"radius": -0.1}, ParameterError, "radius must be a positive number"),
-        ({"subsample": 0}, ParameterError, "subsample must be a positive integer"),
+        ({"radius": 0.0}, ParameterError, "radius must be > 0"),
+        ({"radius": -0.1}, ParameterError, "radius must be > 0"),
+        ({"radius": math.nan}, ParameterError, "radius must be a finite number"),
+        ({"radius": True}, ParameterError, "radius must be a number"),
+        ({"compression": 1.5}, ParameterError, "compression must lie in (0, 1]"),
+        ({"subsample": 0}, ParameterError, "subsample must be >= 1"),
         ({"subsample": 2.5}, ParameterError, "subsample must be an integer"),
         ({"subsample": "x"}, ParameterError, "subsample must be an integer"),
-        ({"bounces": 0}, ParameterError, "bounces must be between 1 and 8"),
+        ({"bounces": 0}, ParameterError, "bounces must lie in [1, 8]"),
+        ({"seed": -1}, ParameterError, "seed must lie in [0, 4294967295]"),
         ({"splat": "disk"}, ParameterError, "splat must be one of quad, icosahedron"),
         ({"shadows": "blurry"}, ParameterError, "shadows must be one of"),
         ({"isg_samples": "4"}, ParameterError, "isg_samples must be two positive integers"),
@@ -152,7 +176,7 @@ def _no_light_scene():
     ],
 )
 def test_bad_parameters(params, error, message):
-    with pytest.raises(error, match=message.replace("(", r"\(")):
+    with pytest.raises(error, match=re.escape(message)):
         ScreenPipeline("cornell_ispm", **SMALL, **params)
 
 

@@ -22,7 +22,6 @@ photon-per-kernel regime its Cornell box figure shows.
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import drjit as dr
 import mitsuba as mi
@@ -31,9 +30,9 @@ import numpy as np
 from ..core.bsdf import is_null
 from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
-from ..core.params import updated
+from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import warn_unmodelled_media
-from ..core.timer import StageTimer
+from ..core.stages import StageCache
 from .composite import composite, glass_eye
 from .direct import direct_light
 from .gbuffer import eye_gbuffer
@@ -80,45 +79,23 @@ class ScreenParams:
     seed: int = 0  # seed of the fixed random map (PRM)
 
     def validate(self) -> None:
-        for key in ("bounces", "light_res", "subsample", "seed"):
-            value = getattr(self, key)
-            if not isinstance(value, int | np.integer) or isinstance(value, bool):
-                raise ParameterError(
-                    f"{key} must be an integer, got {value!r} ({type(value).__name__})"
-                )
-        if not 1 <= self.bounces <= 8:
-            raise ParameterError(
-                f"bounces must be between 1 and 8 (the thesis uses 1–3), got {self.bounces}"
-            )
-        if self.light_res < 1:
-            raise ParameterError(
-                f"light_res must be >= 1, got {self.light_res}: it is the light G-buffer's side, "
-                "and light_res² · bounces photons are traced (light_res=100 gives 10k per bounce)"
-            )
-        if self.subsample < 1:
-            raise ParameterError(
-                f"subsample must be a positive integer (1, 2, 4, 8), got {self.subsample}"
-            )
-        if not _positive(self.radius):
-            raise ParameterError(
-                f"radius must be a positive number (× scene diagonal; default 0.045), "
-                f"got {self.radius!r}"
-            )
-        if not (_positive(self.compression) and self.compression <= 1):
-            raise ParameterError(f"compression must lie in (0, 1], got {self.compression!r}")
-        if not (_positive(self.light_size) or self.light_size == 0):
-            raise ParameterError(
-                f"light_size must be >= 0 (× scene diagonal; 0 = hard shadows), got "
-                f"{self.light_size!r}"
-            )
-        for key, allowed in (("splat", SPLATS), ("shadows", SHADOWS), ("glossy", GLOSSY_MODES)):
-            if getattr(self, key) not in allowed:
-                raise ParameterError(
-                    f"{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}"
-                )
+        """Types (:func:`~photonmap.core.params.check_fields`: integers, finite numbers, the
+        seed in [0, 2³²)), then ranges and choices."""
+        check_fields(self)
+        check_range("bounces", self.bounces, 1, 8, "recorded indirect bounces (the thesis: 1–3)")
+        check_range(
+            "light_res", self.light_res, 1, None,
+            "the light G-buffer's side; light_res² · bounces photons are traced (100 → 10k per "
+            "bounce)",
+        )  # fmt: skip
+        check_range("subsample", self.subsample, 1, None, "indirect light at 1/subsample (1, 2, 4, 8)")
+        check_range("radius", self.radius, 0, None, "× scene diagonal; default 0.045", lo_open=True)
+        check_range("compression", self.compression, 0, 1, "icosahedron normals", lo_open=True)
+        check_range("light_size", self.light_size, 0, None, "× scene diagonal; 0 = hard shadows")
+        check_choice("splat", self.splat, SPLATS)
+        check_choice("shadows", self.shadows, SHADOWS)
+        check_choice("glossy", self.glossy, GLOSSY_MODES)
         self.isg_pair()
-        if self.seed < 0:
-            raise ParameterError(f"seed must be >= 0, got {self.seed}")
 
     def isg_pair(self) -> tuple[int, int]:
         """``isg_samples`` "a+b" as the integer pair (a, b)."""
@@ -133,14 +110,6 @@ class ScreenParams:
                 f"got {self.isg_samples!r}"
             )
         return pair
-
-
-def _positive(value) -> bool:
-    """A finite number > 0 (bools are not numbers here)."""
-    number = isinstance(value, int | float | np.integer | np.floating) and not isinstance(
-        value, bool
-    )
-    return number and math.isfinite(value) and value > 0
 
 
 def visible_diagonal(scene: mi.Scene) -> float:
@@ -205,6 +174,8 @@ class ScreenPipeline(MovableCamera):
     >>> image = pipe.render()                  # photons kept
     """
 
+    stages = STAGES
+
     def __init__(self, scene, light: int = 0, **params):
         from ..scenes import load_scene
 
@@ -222,10 +193,9 @@ class ScreenPipeline(MovableCamera):
         self.light = find_light(self.scene, light, warn=True)
         check_light_outside(self.scene, self.light)
         self._light_version = 0
-        self.timer = StageTimer()
+        self.cache = StageCache()
+        self._prm: tuple = ((None,), None)  # (key, random map): made once, not a frame stage
         self.stats: dict[str, float] = {}
-        self.recomputed: list[str] = []
-        self._cache: dict[str, tuple] = {}
         self.outputs: dict[str, object] = {}
         self.diagonal = visible_diagonal(self.scene)
         if not self.diagonal > 0:
@@ -292,23 +262,41 @@ class ScreenPipeline(MovableCamera):
             return self.light.radius
         return self.params.light_size * self.diagonal
 
-    def invalidate(self) -> None:
-        """Forget every cached stage output except the random map: the next render is a full
-        frame, as when both camera and light move (what :mod:`benchmarks.screen_table1` times)."""
-        self._cache = {k: v for k, v in self._cache.items() if k == "prm"}
-
     # ------------------------------------------------------------------------------- stages
-    def _stage(self, name: str, key, compute):
-        hit = self._cache.get(name)
-        if hit is not None and hit[0] == key:
-            return hit[1]
-        if self._progress:
-            self._progress(name)
-        with self.timer(name):
-            value = compute()
-        self.recomputed.append(name)
-        self._cache[name] = (key, value)
-        return value
+    @property
+    def timer(self):
+        """Milliseconds of each stage the last :meth:`render` ran (:class:`StageTimer`)."""
+        return self.cache.timer
+
+    @timer.setter
+    def timer(self, timer) -> None:
+        self.cache.timer = timer
+
+    @property
+    def recomputed(self) -> list[str]:
+        """The stages the last :meth:`render` ran, in order (the others were reused)."""
+        return self.cache.recomputed
+
+    def invalidate(self, names: str | list[str] | None = None) -> None:
+        """Forget the cached output of the stages ``names`` (all when None; the random map is
+        kept, as it is made once): the next :meth:`render` recomputes them. ``invalidate()``
+        makes the next frame a full frame, as when both camera and light move (what
+        :mod:`benchmarks.screen_table1` times)."""
+        if names is not None:
+            for name in [names] if isinstance(names, str) else names:
+                self._check_stage(name)
+        self.cache.invalidate(names)
+
+    def stage_output(self, name: str):
+        """The cached output of stage ``name`` (one of :attr:`stages`) from the last render."""
+        self._check_stage(name)
+        if name not in self.cache:
+            raise ParameterError(f"stage {name!r} has not run yet: call render() first")
+        return self.cache.get(name)
+
+    def _check_stage(self, name: str) -> None:
+        if name not in self.stages:
+            raise ParameterError(f"no stage {name!r}; the stages are {', '.join(self.stages)}")
 
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance. Every
@@ -317,41 +305,39 @@ class ScreenPipeline(MovableCamera):
         from .upsample import subsample, upsample
 
         p, scene, diag = self.params, self.scene, self.diagonal
-        self._progress = progress
-        self.timer.reset()
-        self.recomputed = []
+        self.cache.new_frame(progress)
+        stage = self.cache.stage
         cam_key = _sensor_key(self.sensor)
         light_key = (self.light_index, self._light_version)
 
-        gbuf, specular = self._stage(
+        gbuf, specular = stage(
             "eye G-buffer", cam_key, lambda: eye_gbuffer(scene, self.sensor)
         )
         lgb_key = (light_key, p.light_res, p.seed)
-        lgb = self._stage(
+        lgb = stage(
             "light G-buffer",
             lgb_key,
             lambda: light_gbuffer(scene, self.light, p.light_res, p.light_res, p.seed),
         )
-        prm = self._cache.get("prm", ((None,), None))
-        if prm[0] != (p.light_res, p.seed):  # the PRM is made once (§2.4), not a frame stage
-            prm = ((p.light_res, p.seed), random_map(p.light_res, p.light_res, p.seed))
-            self._cache["prm"] = prm
+        if self._prm[0] != (p.light_res, p.seed):  # the PRM is made once (§2.4), not a stage
+            self._prm = ((p.light_res, p.seed), random_map(p.light_res, p.light_res, p.seed))
+        prm = self._prm
         photon_key = (lgb_key, p.bounces, p.glossy)
-        photons = self._stage(
+        photons = stage(
             "photon tracing",
             photon_key,
             lambda: trace_photons(scene, lgb, prm[1], p.bounces, p.glossy),
         )
         sampled = p.shadows == "sampled"
         direct_key = (cam_key, light_key)
-        direct = self._stage(
+        direct = stage(
             "direct + shadow rays",
             (direct_key, sampled),
             lambda: direct_light(scene, gbuf, self.light, diag, samples=sampled),
         )
         light_radius = self.shadow_radius()
         shadow_key = (direct_key, sampled, p.shadows, light_radius, p.isg_pair())
-        visibility = self._stage(
+        visibility = stage(
             "soft shadows",
             shadow_key,
             lambda: soft_visibility(
@@ -366,7 +352,7 @@ class ScreenPipeline(MovableCamera):
             ),
         )
         low_key = (cam_key, p.subsample)
-        low = self._stage("subsample", low_key, lambda: subsample(gbuf, p.subsample))
+        low = stage("subsample", low_key, lambda: subsample(gbuf, p.subsample))
         splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
 
         def splat():
@@ -374,15 +360,15 @@ class ScreenPipeline(MovableCamera):
                 return splat_quads(low, photons, p.radius * diag)
             return splat_icosahedra(low, photons, p.radius * diag, p.compression)
 
-        L_low, E_low = self._stage("splatting", splat_key, splat)
+        L_low, E_low = stage("splatting", splat_key, splat)
         up_key = splat_key
-        indirect = self._stage(
+        indirect = stage(
             "upsampling", up_key, lambda: upsample(L_low, low, gbuf, p.subsample)
         )
-        glass = self._stage(
+        glass = stage(
             "glass", direct_key, lambda: glass_eye(scene, gbuf, specular, self.light, diag)
         )
-        out = self._stage(
+        out = stage(
             "composite",
             (shadow_key, up_key, direct_key),
             lambda: composite(
@@ -413,7 +399,7 @@ class ScreenPipeline(MovableCamera):
             width=gbuf.width,
             height=gbuf.height,
         )
-        self._progress = None
+        self.cache.progress = None
         image = mi.TensorXf(dr.ravel(out), (gbuf.height, gbuf.width, 3))
         if not dr.all(dr.isfinite(dr.sum(out, axis=None))):
             raise SceneError(
@@ -421,5 +407,3 @@ class ScreenPipeline(MovableCamera):
                 "parameters and light intensity for NaN"
             )
         return image
-
-    _progress = None
