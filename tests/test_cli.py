@@ -2,6 +2,7 @@
 
 import io
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -139,7 +140,7 @@ def test_progress_bar_on_a_terminal_only():
     assert "rendering" in terminal.getvalue() and "10/10" in terminal.getvalue()
 
 
-S = "../shared/tools/scenes"  # plain Mitsuba scene files, as a user writes them
+S = Path(__file__).resolve().parents[1] / "examples"  # plain Mitsuba files, as a user writes them
 
 
 @pytest.mark.parametrize(
@@ -206,7 +207,7 @@ def test_the_method_is_picked_from_the_scene_and_named(tmp_path):
               "--set", "photons=2000", "--set", "caustic_photons=2000", "--set", "fg_rays=1")
     assert box.exit_code == 0, box.output
     assert "method: surface (the scene holds no fog" in box.output
-    fog = run("render", f"{S}/glass_sphere_fog_box.xml", "-o", tmp_path / "b.exr", *SMALL,
+    fog = run("render", f"{S}/fog_box.xml", "-o", tmp_path / "b.exr", *SMALL,
               "--width", 16)  # fmt: skip
     assert fog.exit_code == 0, fog.output
     assert "method: volume (the scene holds fog" in fog.output
