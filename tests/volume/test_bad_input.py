@@ -7,13 +7,8 @@ import pytest
 
 from photonmap import VolumePipeline
 from photonmap.core.errors import ParameterError, PhotonmapError
-from photonmap.volume.params import (
-    PHOTON_BYTES,
-    VolumeParams,
-    available_memory,
-    check_grid,
-    memory_estimate,
-)
+from photonmap.core.memory import available_memory
+from photonmap.volume.params import PHOTON_BYTES, VolumeParams, check_grid, memory_estimate
 
 NAN, INF = float("nan"), float("inf")
 

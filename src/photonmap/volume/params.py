@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 
 import drjit as dr
 import numpy as np
 
 from ..core import sampling
 from ..core.errors import ParameterError
+from ..core.memory import available_memory, human_bytes
 from ..core.params import check_choice, check_fields, check_range
 from . import mipmap, pilot
 from .scene import Light, Medium
@@ -228,30 +228,6 @@ def memory_estimate(grid: int, objects: int = 1, photons: int = 0, threads: int 
     return per_voxel * int(grid) ** 3 + PHOTON_BYTES * int(photons), per_voxel
 
 
-def available_memory() -> int | None:
-    """Bytes of memory available to this process (``MemAvailable`` of /proc/meminfo, else the
-    physical memory), or None if unknown."""
-    try:
-        with open("/proc/meminfo") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except OSError:
-        pass
-    try:
-        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def _bytes(n: float) -> str:
-    for unit in ("B", "KB", "MB", "GB", "TB"):
-        if n < 1024 or unit == "TB":
-            return f"{n:.1f} {unit}" if unit != "B" else f"{int(n)} B"
-        n /= 1024
-    return f"{n:.1f} TB"  # pragma: no cover
-
-
 def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None = None) -> None:
     """Raise :class:`ParameterError` unless ``grid`` is an integer >= 4 whose N³ grids fit in
     Dr.Jit's array limit and in ``available`` bytes (default: :func:`available_memory`)."""
@@ -270,8 +246,8 @@ def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None =
         if photons:
             parts += f" + {photons:,} photons × {PHOTON_BYTES} bytes"
         raise ParameterError(
-            f"grid={grid} needs about {_bytes(need)} of memory ({parts}), but only "
-            f"{_bytes(available)} is available: use a smaller grid (grid <= {fits} fits)"
+            f"grid={grid} needs about {human_bytes(need)} of memory ({parts}), but only "
+            f"{human_bytes(available)} is available: use a smaller grid (grid <= {fits} fits)"
             + (" or fewer photons" if photons else "")
         )
     if VIEW_CHANNELS * int(grid) ** 3 > DRJIT_MAX_ENTRIES:
