@@ -79,13 +79,29 @@ def test_the_light_is_seen_directly_and_in_a_mirror():
     seen = np.array(pipe.outputs["gbuffer"].emission).T.reshape(H, W, 3)
     full = np.all(np.isclose(seen, Le, rtol=1e-4), axis=-1)  # pixels wholly on the light
     assert full.sum() >= 2 and np.all(image[full] >= Le)
-    mirror = _cornell(back={**mi.cornell_box()["back"], "bsdf": {"type": "conductor",
-                                                                    "material": "none"}})  # fmt: skip
+    mirror_bsdf = {"type": "conductor", "material": "none"}
+    mirror = _cornell(back={**mi.cornell_box()["back"], "bsdf": mirror_bsdf})
     pipe, image = _render(mirror)
     specular = np.array(pipe.outputs["specular"]).reshape(H, W)
     glass = np.array(pipe.outputs["glass"]).T.reshape(H, W, 3)
     mirrored = specular & np.all(np.isclose(glass, Le, rtol=1e-3), axis=-1)
     assert mirrored.sum() >= 2  # the light's reflection, at the radiance Le
+
+
+def test_area_light_photons_carry_the_emitted_power():
+    """The light G-buffer of the Cornell box's light holds Φ_e = π Le A in all when a front wall
+    closes the box (every ray hits), and no first hit lies on the light itself."""
+    front = {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, 1])
+             .rotate([0, 1, 0], 180), "bsdf": {"type": "ref", "id": "white"}}  # fmt: skip
+    pipe = ScreenPipeline(_cornell(front=front), **FAST)
+    pipe.render()
+    lgb = pipe.outputs["light_gbuffer"]
+    radiance = np.array([18.387, 13.9873, 6.75357])
+    area = 0.46 * 0.38  # the rectangle's scale (0.23, 0.19)
+    assert np.allclose(np.array(lgb.flux).sum(axis=1), np.pi * radiance * area, rtol=1e-4)
+    assert np.all(np.array(lgb.valid))
+    light = mi.ShapePtr(pipe.light.shape)
+    assert not np.any(np.array(lgb.si.shape == light))
 
 
 def test_one_light_is_used_and_the_others_are_named():
