@@ -162,12 +162,18 @@ def test_lookup_modes_agree_with_the_default_on_average(lookup):
 @pytest.mark.parametrize(
     "params, message",
     [
-        ({"photons": 0}, "photons must be an integer >= 1"),
-        ({"k": 0}, "k must be an integer >= 1"),
+        ({"photons": 0}, r"photons must be >= 1, got 0: light paths"),
+        ({"k": 0}, "k must be >= 1"),
+        ({"k": 2.5}, "k must be an integer, got 2.5"),
+        ({"fg_rays": True}, "fg_rays must be an integer, got True"),
+        ({"caustic_photons": -1}, "caustic_photons must be >= 0"),
         ({"max_radius": -1.0}, "max_radius must be >= 0"),
-        ({"structure": "octree"}, "structure must be one of"),
+        ({"max_radius": float("nan")}, "max_radius must be a finite number"),
+        ({"seed": -1}, r"seed must lie in \[0, 4294967295\]"),
+        ({"seed": 2**32}, "seed must lie in"),
+        ({"structure": "octree"}, "structure must be one of hash, kdtree, got 'octree'"),
         ({"lookup": "magic"}, "lookup must be one of"),
-        ({"fg_rays": 0}, "fg_rays must be an integer >= 1"),
+        ({"fg_sampling": 3}, "fg_sampling must be a str"),
         ({"photonz": 3}, "unknown"),
     ],
 )

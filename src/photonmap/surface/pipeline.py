@@ -27,7 +27,6 @@ rendered as in vacuum, its ``null``-BSDF boundaries invisible to every ray (issu
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import drjit as dr
 import mitsuba as mi
@@ -36,7 +35,7 @@ import numpy as np
 from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
-from ..core.params import updated
+from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import warn_unmodelled_media
 from ..core.timer import StageTimer
@@ -81,27 +80,24 @@ class SurfaceParams:
     emitter_spp: int = 64  # extra samples of the lights' direct and specular images (0 = none)
 
     def validate(self) -> None:
-        for key in ("photons", "k", "fg_rays", "max_depth", "irradiance_every", "spp"):
-            value = getattr(self, key)
-            if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < 1:
-                raise ParameterError(f"{key} must be an integer >= 1, got {value!r}")
-        for key in ("caustic_photons", "emitter_spp"):
-            value = getattr(self, key)
-            if not isinstance(value, int | np.integer) or isinstance(value, bool) or value < 0:
-                raise ParameterError(f"{key} must be an integer >= 0, got {value!r}")
-        if not (math.isfinite(self.max_radius) and self.max_radius >= 0):
-            raise ParameterError(
-                f"max_radius must be >= 0 (0 = automatic), got {self.max_radius!r}"
-            )
-        for key, allowed in (
-            ("structure", tuple(STRUCTURES)),
-            ("lookup", LOOKUPS),
-            ("fg_sampling", FG_SAMPLING),
+        """Types (:func:`~photonmap.core.params.check_fields`: integers, finite numbers, the seed
+        in [0, 2³²)), then ranges and choices; a :class:`ParameterError` names what is wrong."""
+        check_fields(self)
+        for key, hint in (
+            ("photons", "light paths into the global map"),
+            ("k", "photons per gather (Steinhurst: 100)"),
+            ("fg_rays", "final-gather rays per eye-ray hit"),
+            ("max_depth", "bounces of photon paths and specular chains"),
+            ("irradiance_every", "irradiance precomputed at every m-th photon"),
+            ("spp", "eye rays per pixel"),
         ):
-            if getattr(self, key) not in allowed:
-                raise ParameterError(
-                    f"{key} must be one of {', '.join(allowed)}, got {getattr(self, key)!r}"
-                )
+            check_range(key, getattr(self, key), 1, None, hint)
+        check_range("caustic_photons", self.caustic_photons, 0, None, "0 = no caustic map")
+        check_range("emitter_spp", self.emitter_spp, 0, None, "0 = no extra light samples")
+        check_range("max_radius", self.max_radius, 0, None, "0 = automatic")
+        check_choice("structure", self.structure, tuple(STRUCTURES), "the photon search structure")
+        check_choice("lookup", self.lookup, LOOKUPS, "the final gather's secondary lookup")
+        check_choice("fg_sampling", self.fg_sampling, FG_SAMPLING, "final-gather directions")
 
 
 class SurfacePipeline(MovableCamera):

@@ -3,9 +3,10 @@
 "If the surface is highly specular (mirror/glass), reflect/refract and continue until a non-specular
 object is found", multiplying the specular reflectances into the path weight; glossy surfaces count
 as non-specular (handled by the photon map and final gather) [Steinhurst §7.3.2; spec seed-001 §2.1].
-A surface is *specular* here when its BSDF has no smooth (diffuse or glossy) component; a BSDF that
-mixes a delta lobe with a smooth one (e.g. Mitsuba's ``plastic``) is treated as non-specular and its
-delta lobe is not followed — use ``roughplastic`` for a glossy coating.
+A surface is *specular* here when its BSDF has no smooth (diffuse or glossy) component
+(:func:`photonmap.core.bsdf.is_specular`); a BSDF that mixes a delta lobe with a smooth one (e.g.
+Mitsuba's ``plastic``) is treated as non-specular and its delta lobe is not followed — use
+``roughplastic`` for a glossy coating.
 
 ``null``-BSDF shapes (the boundaries of a fog box) are invisible: rays pass straight through them
 (:func:`photonmap.core.bsdf.intersect_visible`) and crossing one is no bounce (issue 10).
@@ -16,12 +17,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.bsdf import has_null_shapes, intersect_visible
-
-
-def is_specular(bsdf: mi.BSDFPtr, active) -> mi.Bool:
-    """True where the BSDF has only delta (perfectly specular) lobes."""
-    return active & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+from ..core.bsdf import has_null_shapes, intersect_visible, is_specular
 
 
 @dr.syntax
