@@ -65,6 +65,28 @@ def test_sphere_light_direct_light_is_the_cap_irradiance():
     assert np.allclose(image[..., 0].ravel(), ref, rtol=0.012)  # no indirect light off one floor
 
 
+def test_soft_shadows_take_the_area_lights_own_size():
+    """The ISG virtual light radius of an area light is the radius of a disk of its mean projected
+    area: a sphere's own radius, √(A/π) for a rectangle; ``light_size`` sizes only spot and point
+    lights (and the fixed-radius blur)."""
+    pipe = ScreenPipeline(_sphere_light_scene(radius=0.5), **FAST)
+    assert pipe.light.radius == pytest.approx(0.5, rel=1e-5)
+    pipe = ScreenPipeline(_cornell(), **FAST, light_size=0.3)
+    assert pipe.light.radius == pytest.approx(math.sqrt(0.46 * 0.38 / math.pi), rel=1e-5)
+    assert pipe.shadow_radius() == pipe.light.radius
+    pipe.set_params(shadows="fixed_radius")
+    assert pipe.shadow_radius() == pytest.approx(0.3 * pipe.diagonal)
+    spot = ScreenPipeline("cornell_ispm", width=16, height=12, light_size=0.03, **FAST)
+    assert spot.shadow_radius() == pytest.approx(0.03 * spot.diagonal)
+
+
+def test_sampled_shadows_of_a_spot_are_its_hard_shadows():
+    spot = ScreenPipeline("cornell_ispm", width=32, height=24, shadows="hard", **FAST)
+    hard = np.array(spot.render())
+    spot.set_params(shadows="sampled")
+    assert np.array_equal(np.array(spot.render()), hard)
+
+
 def test_sampled_shadows_equal_the_unshadowed_light_where_nothing_blocks():
     pipe, image = _render(_sphere_light_scene(), shadows="sampled", bounces=1)
     direct = pipe.outputs["direct"]
