@@ -104,7 +104,7 @@ class ScreenParams:
             "the light G-buffer's side; light_res² · bounces photons are traced (100 → 10k per "
             "bounce)",
         )  # fmt: skip
-        check_range("subsample", self.subsample, 1, None, "indirect light at 1/subsample (1, 2, 4, 8)")
+        check_range("subsample", self.subsample, 1, None, "indirect light at 1/subsample (2, 4, 8)")
         check_range("radius", self.radius, 0, None, "× scene diagonal; default 0.045", lo_open=True)
         check_range("compression", self.compression, 0, 1, "icosahedron normals", lo_open=True)
         check_range("light_size", self.light_size, 0, None, "× scene diagonal; 0 = hard shadows")
