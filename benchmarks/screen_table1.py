@@ -121,11 +121,12 @@ def full_frame(pipe, i):
 
 
 def camera_move(pipe, i):
-    pipe.set_camera(origin=(0.278 + 0.01 * (i % 3), 0.273, -0.8))
+    # every frame moves the camera (frame 0 too: the headline frames leave it at x = 0.278)
+    pipe.set_camera(origin=(0.278 + 0.01 * (i % 3 + 1), 0.273, -0.8))
 
 
 def radius_change(pipe, i):
-    pipe.set_params(radius=0.045 + 0.001 * (i % 2))
+    pipe.set_params(radius=0.045 + 0.001 * (i % 2 + 1))  # never the headline's 0.045
 
 
 def write_images(folder: Path = common.REPO / "docs", width: int = 512, height: int = 384):
