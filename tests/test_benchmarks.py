@@ -16,19 +16,8 @@ def volume_table1():
     return benchmark("volume_table1")
 
 
-def _positive(value) -> bool:
-    return isinstance(value, int | float) and math.isfinite(value) and value > 0
-
-
-def test_paper_table_is_transcribed(volume_table1):
-    rows = volume_table1.PAPER_TABLE1
-    assert [r.number for r in rows] == list(range(1, 12))
-    assert [r.triangles for r in rows[:4]] == [10_000, 20_000, 40_000, 80_000]
-    assert [r.extent for r in rows[4:8]] == [64, 77, 90, 103]
-    assert [r.photons for r in rows[8:]] == [256**2, 512**2, 1024**2]
-    # spec §3.1 derived: total − voxelization − tracing ≈ 68–76 ms
-    hidden = [r.total_ms - r.voxelization_ms - r.tracing_ms for r in rows]
-    assert all(68 <= h <= 76 for h in hidden)
+def _number(value) -> bool:
+    return isinstance(value, int | float) and math.isfinite(value)
 
 
 def test_quick_run_writes_schema(volume_table1, tmp_path):
@@ -59,24 +48,33 @@ def test_quick_run_writes_schema(volume_table1, tmp_path):
         assert machine[key]
 
     headline = data["headline"]
-    assert _positive(headline["full_frame_s"]) and _positive(headline["view_only_s"])
     assert headline["photons"] == 4096 and headline["grid"] == 32
-    assert headline["view_only"]["recomputed"] == ["viewing"]
-    assert "viewing" in headline["light_change"]["recomputed"]
-    assert "voxelization" not in headline["light_change"]["recomputed"]
+    # the headline seconds are the medians of the frames it timed
+    view, light = headline["view_only"], headline["light_change"]
+    assert headline["full_frame_s"] == pytest.approx(1e-3 * light["wall_ms"]["median"])
+    assert headline["view_only_s"] == pytest.approx(1e-3 * view["wall_ms"]["median"])
+    # a camera change reruns the viewing pass only; a light change the photon stages, no setup
+    assert view["recomputed"] == list(view["stages_ms"]) == ["viewing"]
+    assert light["recomputed"] == list(light["stages_ms"]) == list(STAGES[5:])
+    assert headline["stats"]["photons_generated"] == 4096
+    assert 0 < headline["stats"]["photons_propagated"] <= 4096
     secondary = data["secondary"]
-    assert _positive(secondary["full_frame_s"]) and _positive(secondary["view_only_s"])
+    assert _number(secondary["full_frame_s"]) and _number(secondary["view_only_s"])
 
     assert [r["row"] for r in data["rows"]] == [5, 11]
     for row in data["rows"]:
         ours = row["ours"]
-        assert row["photons"] == 4096
-        for stage in STAGES:
-            assert _positive(ours["stages_ms"][stage]), stage
-        assert _positive(ours["total_ms"]) and ours["steps"] > 0
-        assert ours["photons_propagated"] > 0
-        assert len(ours["samples"]) == 1
-        assert _positive(row["paper"]["total_ms"])
+        assert row["photons"] == 4096 and ours["photons_generated"] == 4096
+        assert list(ours["stages_ms"]) == list(STAGES)
+        assert all(_number(ms) for ms in ours["stages_ms"].values())
+        (sample,) = ours["samples"]  # one timed render: its figures are the row's
+        assert sample["recomputed"] == list(STAGES)
+        assert ours["total_ms"] == pytest.approx(sum(ours["stages_ms"].values()))
+        assert ours["steps"] == sample["stats"]["steps"] > 0
+        assert 0 < ours["photons_propagated"] <= 4096
+        assert ours["steps_per_photon"] == pytest.approx(ours["steps"] / ours["photons_propagated"])
+        paper = volume_table1.PAPER_TABLE1[row["row"] - 1]
+        assert row["paper"]["total_ms"] == paper.total_ms and paper.number == row["row"]
 
     profile = data["profile"]
     assert profile["slowest_stage"] in profile["light_change_stage_share"]
@@ -113,6 +111,6 @@ def test_surface_benchmark_masks_the_light_and_its_specular_images():
         mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=16)
     )
     assert not mask[seen.max(-1) > 1.0].any()  # the light itself
-    assert 0.005 < 1 - mask.mean() < 0.05
+    assert 0.014 < 1 - mask.mean() < 0.03  # 0.0203 measured (83 of 4096 pixels)
     # its images in the spheres are masked: more masked pixels than the light alone covers
     assert (~mask).sum() > 2 * (seen.max(-1) > 0.01).sum()
