@@ -5,7 +5,8 @@ import pytest
 
 from photonmap import mi
 from photonmap.core.errors import ParameterError, SceneError
-from photonmap.scenes import SCENES, list_scenes, load_scene
+from photonmap.core.scene_info import pick_method
+from photonmap.scenes import SCENES, load_scene
 from photonmap.scenes.meshes import to_mitsuba_mesh, torus_knot
 from photonmap.scenes.volume_scenes import INTENSITY
 from photonmap.volume.scene import from_mitsuba
@@ -18,19 +19,16 @@ GLASS_SIGMA_A = np.array([0.004, 0.002, 0.001]) * V
 VOLUME_SCENES = [name for name, b in SCENES.items() if b.pipeline == "volume"]
 
 
-def test_registry():
-    names = [b.name for b in list_scenes()]
+def test_every_builtin_takes_its_parameters_and_picks_its_method():
+    """Every built-in loads with each scene parameter it advertises (issue 10 item 3) and returns
+    its pipeline defaults; the method picked from its content (``pick_method``) is volume exactly
+    for the fog scenes (the screen scenes have no medium: surface unless asked for)."""
+    for name, builtin in SCENES.items():
+        assert builtin.description
+        scene, defaults = load_scene(name, **{**builtin.params, **SMALL})
+        assert defaults == builtin.defaults
+        assert pick_method(scene) == ("volume" if builtin.pipeline == "volume" else "surface")
     assert VOLUME_SCENES == ["glass_sphere_fog", "perlin_cube", "mesh_in_fog"]
-    assert set(names) - set(VOLUME_SCENES) == {
-        "cornell_steinhurst",
-        "cornell_spot_indirect",
-        "cornell_glossy_floor",
-        "cornell_ispm",
-        "cornell_glass_sphere",
-        "cornell_mesh",
-    }
-    assert all(b.description for b in SCENES.values())
-    assert all(SCENES[name].defaults for name in VOLUME_SCENES)
     assert {"ior_noise", "sigma_s_noise", "noise_scale"} <= set(SCENES["perlin_cube"].defaults)
 
 
@@ -83,7 +81,7 @@ def test_cube_is_turned_and_inside_the_box():
 def test_mesh_scene_extent_and_triangles(extent):
     vs = from_mitsuba(load_scene("mesh_in_fog", triangles=10000, extent=extent, **SMALL)[0])
     mesh = vs.objects[0].shape
-    assert mesh.is_mesh() and abs(mesh.face_count() / 10000 - 1) < 0.1
+    assert mesh.is_mesh() and abs(mesh.face_count() / 10000 - 1) < 0.003  # 0.0012
     size = (np.array(mesh.bbox().max) - np.array(mesh.bbox().min)).ravel() * V
     assert size.max() == pytest.approx(extent, rel=1e-4)
 
@@ -91,7 +89,7 @@ def test_mesh_scene_extent_and_triangles(extent):
 @pytest.mark.parametrize("triangles", [2900, 10000, 20000, 40000, 80000])
 def test_torus_knot_watertight_outward(triangles):
     vertices, faces = torus_knot(triangles)
-    assert abs(len(faces) / triangles - 1) < 0.1
+    assert abs(len(faces) / triangles - 1) < 0.003  # at most 0.0014 measured
     # Every edge shared by exactly two faces, in opposite directions (closed, consistently oriented).
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     directed = {tuple(e) for e in edges.tolist()}
@@ -100,7 +98,7 @@ def test_torus_knot_watertight_outward(triangles):
     # Outward orientation: positive signed volume, close to the tube's π·a²·length.
     v0, v1, v2 = (vertices[faces[:, i]] for i in range(3))
     volume = np.einsum("ij,ij->", v0, np.cross(v1, v2)) / 6.0
-    assert volume > 0.9 * np.pi * 0.5**2 * 31.9
+    assert 0.9 < volume / (np.pi * 0.5**2 * 31.9) < 1.0  # 0.937 (2900) … 0.998 (80000)
 
 
 def test_to_mitsuba_mesh():
@@ -108,15 +106,6 @@ def test_to_mitsuba_mesh():
     mesh = to_mitsuba_mesh("knot", vertices, faces, bsdf=mi.load_dict({"type": "dielectric"}))
     assert mesh.face_count() == len(faces) and mesh.vertex_count() == len(vertices)
     assert mesh.bsdf().class_name() == "SmoothDielectric"
-
-
-def test_volpath_renders_sphere_scene():
-    scene, _ = load_scene("glass_sphere_fog", **SMALL)
-    image = np.array(
-        mi.render(scene, integrator=mi.load_dict({"type": "volpath", "max_depth": 16}), spp=4)
-    )
-    assert image.shape == (24, 32, 3)
-    assert np.all(np.isfinite(image)) and image.mean() > 0.01
 
 
 def test_area_lights():
