@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from photonmap import dr, mi
+from photonmap import SurfacePipeline, dr, mi
 from photonmap.core.photon_trace import emitter_powers, trace_photons
 from photonmap.scenes import SCENES, cornell, load_scene
 
@@ -19,14 +19,26 @@ def test_registered_for_the_surface_pipeline():
     assert {"roughness", "glossy"} <= set(SCENES["cornell_glossy_floor"].params)
 
 
+def block_means(image: np.ndarray) -> np.ndarray:
+    """Means of the 4 × 4-pixel blocks of a 32 × 32 image."""
+    return image.reshape(8, 4, 8, 4, -1).mean(axis=(1, 3))
+
+
 @pytest.mark.parametrize("name", CORNELL)
-def test_renders_with_mitsuba_path(name):
+def test_surface_method_matches_mitsuba_path(name):
+    """Our photon mapper (50k photons, 16 final-gather rays, 4 spp) on each built-in Cornell box
+    against Mitsuba ``path`` at 1024 spp on the same scene. Measured over seeds 0–2: mean within
+    2.1 % (the glass and mirror box; spot 1.0 %, glossy floor 1.0 %), relative RMSE of the 4 × 4
+    block means 0.013–0.067 (path's own 1024-spp noise: 0.012–0.017)."""
     scene, defaults = load_scene(name, **SMALL)
     assert defaults == {}
-    assert scene.integrator().class_name() == "PathIntegrator"
-    image = np.array(mi.render(scene, spp=4))
-    assert image.shape == (32, 32, 3)
-    assert np.all(np.isfinite(image)) and image.mean() > 0.01
+    path = mi.load_dict({"type": "path", "max_depth": 16})
+    ref = np.array(mi.render(scene, integrator=path, spp=1024))
+    ours = np.array(SurfacePipeline(scene, photons=50_000, fg_rays=16, spp=4).render())
+    assert ours.shape == (32, 32, 3) and np.all(np.isfinite(ours))
+    assert abs(ours.mean() / ref.mean() - 1) < 0.035
+    a, b = block_means(ours), block_means(ref)
+    assert np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b**2)) < 0.1
 
 
 @pytest.mark.parametrize("name", CORNELL)
@@ -83,7 +95,8 @@ def test_spot_variant_is_lit_only_indirectly():
     position = np.array(first.position)
     np.testing.assert_allclose(position[1], 0.5483, atol=1e-6)
     assert np.hypot(position[0] - 0.278, position[2] - 0.2796).max() < cornell.DISK_RADIUS
-    np.testing.assert_allclose(first.emitted_power, LIGHT_POWER, rtol=0.03)
+    # a Monte Carlo estimate (spot fall-off): 0.002 at seed 0, up to 0.013 over seeds 0-4
+    np.testing.assert_allclose(first.emitted_power, LIGHT_POWER, rtol=0.02)
 
 
 def test_glossy_floor_is_lambertian_plus_glossy():
