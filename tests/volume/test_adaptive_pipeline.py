@@ -40,7 +40,8 @@ def test_adaptive_runs_its_stages_and_matches_uniform_emission():
     uniform = VolumePipeline("glass_sphere_fog", **SMALL)
     reference = image(uniform)
     assert uniform.recomputed == list(STAGES) and "mip_level" not in uniform.grids
-    assert abs(first.mean() / reference.mean() - 1) < 0.05  # same scene, same light
+    # same scene, same light: 0.003 measured (0.013 at most over seeds 0-2)
+    assert abs(first.mean() / reference.mean() - 1) < 0.025
     assert image(pipe) is not None and pipe.recomputed == []
 
 
@@ -147,4 +148,4 @@ def test_uniform_placement_marches_the_reference_photons_and_filters_by_the_pilo
     assert np.isclose(w.min(), 1 / (pdf.max() * pdf.size), rtol=1e-4)
     assert np.isclose(w.max(), 1 / (pdf.min() * pdf.size), rtol=1e-4)
     assert flat.stats["steps"] < plain.stats["steps"]  # fewer photons cross the glass ball
-    assert abs(b.mean() / a.mean() - 1) < 0.05
+    assert abs(b.mean() / a.mean() - 1) < 0.015  # 0.008 measured, at most over seeds 0-2

@@ -201,7 +201,8 @@ def test_importance_pdf_is_normalised_blurred_and_has_a_background():
     assert pdf.min() > 0 and np.unravel_index(pdf.argmax(), pdf.shape) == (5, 2)
     assert np.isclose(sum(pilot.PDF_BLUR), 1.0, atol=1e-4)
     # background share: blur and normalisation keep the mass shares
-    assert np.isclose(pdf.min() * 64, 0.25 / (1 - 0.25) * 5 / (5 + 0.25 / 0.75 * 5), rtol=0.2)
+    share = 0.25 / (1 - 0.25) * 5 / (5 + 0.25 / 0.75 * 5)
+    assert np.isclose(pdf.min() * 64, share, rtol=0.06)  # 0.035 measured (the blur's tails)
     dark = synthetic_pilot()
     dark.count[:] = 0  # nothing lit, nothing selected: the uniform pdf
     assert np.allclose(pilot.importance_pdf(dark), 1 / 64)
@@ -235,8 +236,9 @@ def test_uniform_pdf_gives_hammersley_photons_with_unit_weight():
 
 def test_weighted_photons_are_unbiased():
     """Oracle 22: adaptive (any pdf, weights 1/p) and uniform emission deposit the same energy
-    in expectation: the totals agree within 2% at 2^16 photons, and so do the energies of the
-    8 × 8 × 8 blocks of the grid within their Monte Carlo error."""
+    in expectation: the totals agree within 5e-4 at 2^16 Hammersley photons, and so do the
+    energies of the 8 × 8 × 8 blocks (median 0.2%, 95th percentile 0.8%). Measured over the
+    random pdfs of seeds 2, 5, 11, 17: totals 2.5e-4, median 9e-4, 95th percentile 3.7e-3 at most."""
     light = Light("point", np.array([1.0, 0.8, 0.6]), position=np.array([0.45, 3.0, 0.55]))
     medium = sphere_medium()
     count = 2**16
@@ -245,11 +247,11 @@ def test_weighted_photons_are_unbiased():
     photons, weights = emit_importance(light, BOX, PlaneSampler.build(pdf), count)
     adaptive = march(photons, medium, weights=weights)
     a, u = np.array(adaptive.C), np.array(uniform.C)
-    assert np.allclose(a.sum((0, 1, 2)), u.sum((0, 1, 2)), rtol=0.02)
+    assert np.allclose(a.sum((0, 1, 2)), u.sum((0, 1, 2)), rtol=5e-4)
     blocks = [c.reshape(4, 8, 4, 8, 4, 8, 3).sum((1, 3, 5)) for c in (a, u)]
     lit = blocks[1] > 0.05 * blocks[1].max()
     ratio = blocks[0][lit] / blocks[1][lit]
-    assert np.median(np.abs(ratio - 1)) < 0.05 and np.percentile(np.abs(ratio - 1), 95) < 0.2
+    assert np.median(np.abs(ratio - 1)) < 0.002 and np.percentile(np.abs(ratio - 1), 95) < 0.008
 
 
 def test_weighted_march_counts_deposits_and_averages_weights():
@@ -327,7 +329,8 @@ def test_filter_pdf_weights_and_unbiased_power():
     adaptive = march(photons, medium, weights=weights)
     uniform = march(emit(light, BOX, count), medium)
     a, u = np.array(adaptive.C), np.array(uniform.C)
-    assert np.allclose(a.sum((0, 1, 2)), u.sum((0, 1, 2)), rtol=0.02)
+    # 1.1e-4 measured (3.1e-4 at most over the pdf seed pairs (3, 4), (6, 7), (8, 9))
+    assert np.allclose(a.sum((0, 1, 2)), u.sum((0, 1, 2)), rtol=6e-4)
 
 
 def test_filter_pdf_must_match_the_pdf():

@@ -67,12 +67,12 @@ def snell_field(n1, n2, n=64):
 
 
 @pytest.mark.parametrize(
-    "n1, n2, theta, step, tolerance",
+    "n1, n2, theta, step, tolerance",  # measured errors: 0.26°, 0.86°, 1.80°, 0.061°, 0.58°
     [
-        (1.0, 1.5, 30, 1.0, 2.0),
-        (1.0, 1.5, 60, 1.0, 2.0),
+        (1.0, 1.5, 30, 1.0, 0.5),
+        (1.0, 1.5, 60, 1.0, 1.5),
         (1.5, 1.0, 30, 1.0, 2.0),
-        (1.0, 1.5, 30, 0.25, 0.6),
+        (1.0, 1.5, 30, 0.25, 0.12),
         (1.5, 1.0, 30, 0.25, 0.6),
     ],
 )
@@ -97,8 +97,11 @@ def test_tangential_component_is_conserved_exactly():
     assert v[0] == pytest.approx(math.sin(t), abs=1e-6)
 
 
-@pytest.mark.parametrize("theta, step", [(45, 0.5), (45, 0.25), (55, 1.0)])
-def test_total_internal_reflection_turns_the_photon_back(theta, step):
+@pytest.mark.parametrize(
+    "theta, step, tolerance",  # measured: 1.79°, 0.98°, 5.25° off the mirror direction
+    [(45, 0.5, 3.0), (45, 0.25, 2.0), (55, 1.0, 6.0)],
+)
+def test_total_internal_reflection_turns_the_photon_back(theta, step, tolerance):
     # 1.5·sin 45° = 1.06 > 1. At Δs = 1 that marginal case grazes out along the interface
     # (the first-order scheme overshoots the turning point into the region where ∇n ≈ 0; the
     # spec's 138° at Δs = 1 came from a different prototype) — it turns back from Δs = 0.5 on,
@@ -109,7 +112,7 @@ def test_total_internal_reflection_turns_the_photon_back(theta, step):
     x, v = np.array(r.final[0])[:, 0], np.array(r.final[1])[:, 0]
     assert v[1] > 0 and x[1] > 32
     mirror = 180 - theta
-    assert abs(math.degrees(math.atan2(v[0], -v[1])) - mirror) < 6
+    assert abs(math.degrees(math.atan2(v[0], -v[1])) - mirror) < tolerance
 
 
 # ---- oracle 3: ball-lens focus ---------------------------------------------------------------
@@ -152,7 +155,7 @@ def test_ball_lens_spherical_aberration(ball_lens):
 def test_pfeuti_listing_update_focuses_short():
     eq5 = focus_distances(1.5, [0.05])[0]
     pfeuti = focus_distances(1.5, [0.05], pfeuti_update=True)[0]
-    assert pfeuti < 0.95 * eq5  # spec A13: v += h·n·∇n focuses ~11% short
+    assert 0.86 < pfeuti / eq5 < 0.90  # spec A13: v += h·n·∇n focuses ~11% short (12.2%)
 
 
 # ---- oracle 5: energy never increases; eq 6 --------------------------------------------------
@@ -263,9 +266,9 @@ def test_length_weighting_makes_deposits_direction_independent():
     d = np.array([1.0, -1.0, 0.0]) / math.sqrt(2)
     C = np.array(beam(d, count=4**7).C)[..., 0]
     lit = C[4:28, 4:28, 4:28]
-    assert lit.mean() == pytest.approx(1.0, rel=0.01)
+    assert lit.mean() == pytest.approx(1.0, rel=2e-4)  # 1.1e-4 measured
     C_paper = np.array(beam(d, count=4**7, fidelity="paper").C)[..., 0]
-    assert C_paper[4:28, 4:28, 4:28].mean() == pytest.approx(1 / math.sqrt(2), rel=0.01)
+    assert C_paper[4:28, 4:28, 4:28].mean() == pytest.approx(1 / math.sqrt(2), rel=2e-4)
 
 
 def test_attenuation_along_a_beam_is_exact_with_geometric_interpolation():
@@ -276,4 +279,4 @@ def test_attenuation_along_a_beam_is_exact_with_geometric_interpolation():
     assert np.allclose(profile, np.exp(-kappa * xc), rtol=1e-4)
     paper = np.array(beam([1.0, 0.0, 0.0], n=n, kappa=kappa, count=4**7, fidelity="paper").C)
     mid = paper[n // 2, n // 2, 64, 0]
-    assert mid / math.exp(-kappa * 64.5) == pytest.approx(1.213, abs=0.01)  # A20: +21.3%
+    assert mid / math.exp(-kappa * 64.5) == pytest.approx(1.213, abs=1e-3)  # A20: +21.3%

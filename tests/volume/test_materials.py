@@ -161,7 +161,7 @@ def test_sphere_range_and_mass_after_blur():
     mass = np.sum(ior.astype(np.float64) - 1.0)
     assert abs(mass - 0.5 * cov.numpy().sum()) < 1e-5 * mass
     volume = 4.0 / 3.0 * np.pi * (r / box.h) ** 3
-    assert abs(mass - 0.5 * volume) < 0.005 * 0.5 * volume
+    assert abs(mass - 0.5 * volume) < 1e-4 * 0.5 * volume  # 5.1e-5 measured
 
 
 def test_from_arrays_converts_to_voxel_units():

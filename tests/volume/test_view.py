@@ -158,7 +158,7 @@ def test_isosurface_bisection_and_normal():
     t, normal = isosurface_hit(g, mi.Point3f(*x_old.T), mi.Point3f(*x_new.T), iso)
     hit = x_old + np.array(t)[:, None] * (x_new - x_old)
     # the n = n_iso isosurface of the trilinearly sampled field, found by dense NumPy search
-    assert np.all(np.abs(np.linalg.norm(hit - 64, axis=1) - radius) < 0.1)
+    assert np.all(np.abs(np.linalg.norm(hit - 64, axis=1) - radius) < 0.02)  # 0.012 measured
     normal = np.array(normal).T
     angle = np.degrees(np.arccos(np.clip(np.sum(normal * d, 1), -1, 1)))
     assert np.all(angle < 2.0)
@@ -186,7 +186,10 @@ def test_isosurface_reflects_the_environment():
             ViewSettings(iso_ior=1.25, iso_reflect=0.04),
         )
     )
-    assert 0.04 < value[0] < 1.0
+    # κ = 0.01 everywhere: R_iso·T at the hit (24 voxels in) + (1 − R_iso)·T over the 128-voxel
+    # chord (the axial ray is not bent); 9e-4 measured (the hit found between unit steps)
+    expected = 0.04 * math.exp(-0.01 * 24) + 0.96 * math.exp(-0.01 * 128)
+    assert value == pytest.approx(expected, rel=2e-3)
 
 
 def test_camera_samples_are_deterministic_per_seed():
