@@ -58,7 +58,10 @@ def test_samplers_fill_the_unit_square_and_are_deterministic(name):
     u, w = _np(sampling.points(name, 4096, seed=3))
     assert len(u) == 4096 and np.all((u >= 0) & (u < 1) & (w >= 0) & (w < 1))
     hist, _, _ = np.histogram2d(u, w, bins=4, range=[[0, 1], [0, 1]])
-    assert np.all(np.abs(hist - 256) < 64), hist  # roughly uniform in every quadrant cell
+    # 256 ± 1 points in each of the 4 × 4 cells for the stratified samplers (0 or 1 measured);
+    # ± 4σ (σ = 16) for the random one (41 at most measured over seeds 3-5)
+    bound = 64 if name == "random" else 2
+    assert np.all(np.abs(hist - 256) < bound), hist
     u2, w2 = _np(sampling.points(name, 4096, seed=3))
     assert np.array_equal(u, u2) and np.array_equal(w, w2)
 
