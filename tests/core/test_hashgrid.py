@@ -7,7 +7,6 @@ two references agree bit for bit) and ties are frequent: the tie-break by photon
 
 import math
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -195,18 +194,6 @@ def test_bad_construction_raises():
         grid.within(to_mi(uniform_points(2, 13)), -0.5)
     with pytest.raises(ParameterError):
         grid.knn(to_mi(uniform_points(2, 13)), normals=to_mi(uniform_points(10, 12)))
-
-
-def test_queries_are_a_batch_in_any_order(uniform_case):
-    """Reordering a batch of gathers permutes the results and changes nothing else (spec O1/O2)."""
-    _, queries, grid = uniform_case
-    permutation = np.random.default_rng(14).permutation(len(queries))
-    index, count, radius2 = grid.knn(to_mi(queries), k=10).numpy()
-    index_p, count_p, radius2_p = grid.knn(to_mi(queries[permutation]), k=10).numpy()
-    np.testing.assert_array_equal(index_p, index[permutation])
-    np.testing.assert_array_equal(count_p, count[permutation])
-    np.testing.assert_array_equal(radius2_p, radius2[permutation])
-    assert dr.width(grid.knn(to_mi(queries), k=10).index) == 10 * len(queries)
 
 
 @pytest.mark.parametrize("cell_size", [0.03, 0.07, 0.25])

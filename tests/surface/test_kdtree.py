@@ -8,7 +8,6 @@ are frequent: the tie-break by photon index is tested.
 
 import math
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
@@ -182,12 +181,3 @@ def test_bad_input_raises(kwargs):
         tree.within(to_mi(clustered_points(3, 6)), radius=-1.0)
     with pytest.raises(ParameterError):
         KDTree(to_mi([[0.0, 0.0, math.inf]]))
-
-
-def test_results_are_independent_of_the_batch_order(case):
-    _, queries, tree = case
-    permutation = np.random.default_rng(7).permutation(len(queries))
-    index, _, _ = tree.knn(to_mi(queries), k=10).numpy()
-    index_p, _, _ = tree.knn(to_mi(queries[permutation]), k=10).numpy()
-    np.testing.assert_array_equal(index_p, index[permutation])
-    assert dr.width(tree.knn(to_mi(queries), k=10).count) == len(queries)
