@@ -12,13 +12,6 @@ SMALL = {"width": 32, "height": 32}
 LIGHT_POWER = np.pi * np.array(cornell.LIGHT_RADIANCE) * 0.130 * 0.105  # Φ = π L A, W
 
 
-def test_registered_for_the_surface_pipeline():
-    for name in CORNELL:
-        assert SCENES[name].pipeline == "surface" and SCENES[name].description
-    assert SCENES["glass_sphere_fog"].pipeline == "volume"
-    assert {"roughness", "glossy"} <= set(SCENES["cornell_glossy_floor"].params)
-
-
 def block_means(image: np.ndarray) -> np.ndarray:
     """Means of the 4 × 4-pixel blocks of a 32 × 32 image."""
     return image.reshape(8, 4, 8, 4, -1).mean(axis=(1, 3))
