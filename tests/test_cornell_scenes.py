@@ -5,7 +5,7 @@ import pytest
 
 from photonmap import SurfacePipeline, dr, mi
 from photonmap.core.photon_trace import emitter_powers, trace_photons
-from photonmap.scenes import SCENES, cornell, load_scene
+from photonmap.scenes import cornell, load_scene
 
 CORNELL = ["cornell_steinhurst", "cornell_spot_indirect", "cornell_glossy_floor"]
 SMALL = {"width": 32, "height": 32}
