@@ -187,7 +187,7 @@ def test_isosurface_reflects_the_environment():
         )
     )
     # κ = 0.01 everywhere: R_iso·T at the hit (24 voxels in) + (1 − R_iso)·T over the 128-voxel
-    # chord (the axial ray is not bent); 9e-4 measured (the hit found between unit steps)
+    # chord (the axial ray is not bent); 1.0e-3 measured (the hit found between unit steps)
     expected = 0.04 * math.exp(-0.01 * 24) + 0.96 * math.exp(-0.01 * 128)
     assert value == pytest.approx(expected, rel=2e-3)
 
