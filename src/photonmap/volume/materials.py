@@ -4,9 +4,12 @@ Sun et al. 2008 §4.1 (convert coverage to refractive index and smooth it), Pfeu
 ("the refraction index voxel grid is then filtered", "we build the gradient array from the
 refraction indices"); spec seed-000-002 S2, S3 and A3–A6.
 
-**Mapping (S2, A5).** Linear in coverage, from the fog's values to each object's, objects applied in
-turn: ``q(v) ← q(v) + cov(v)·(q_obj(v) − q(v))`` for ``q ∈ {n, σ_s, κ}`` (RGB for σ_s and κ).
-Coefficients are stored in **voxel units**: ``σ_vox = σ_world · h``.
+**Mapping (S2, A5).** Linear in coverage, from the surrounding medium's values to each object's,
+objects applied in turn: ``q(v) ← q(v) + cov(v)·(q_obj(v) − q(v))`` for ``q ∈ {n, σ_s, κ}`` (RGB
+for σ_s and κ). Bounded fog (issue 11 item 1: the interior of a ``null``/``thindielectric`` shape)
+is applied the same way before the objects, to σ_s and κ only (index-matched: n unchanged), so
+that outside its shape σ is the surrounding medium's (vacuum: 0) and on its border the coverage
+fraction of it. Coefficients are stored in **voxel units**: ``σ_vox = σ_world · h``.
 
 **Perturbation** (the CUBE scene of spec §3.3, [Pf Fig 4.9]): inside objects, at voxel centres
 ``v``, ``n_obj(v) = n_obj + a_n·perlin(v/s)`` and
@@ -65,6 +68,11 @@ def _check_material(ior, sigma_s, kappa, where: str) -> None:
         )
 
 
+def _check_coverage(coverage: mi.TensorXf, n: int, what: str) -> None:
+    if tuple(coverage.shape[:3]) != (n, n, n) or dr.width(coverage.array) != n**3:
+        raise ParameterError(f"{what} has shape {coverage.shape}, expected {(n,) * 3}")
+
+
 def _voxel_centres(n: int) -> mi.Point3f:
     index = dr.arange(mi.UInt32, n**3)
     return mi.Point3f(index % n, (index // n) % n, index // (n * n)) + 0.5
@@ -83,8 +91,10 @@ def material_grids(
     sigma_s_noise: float = 0.0,
     noise_scale: float = 16.0,
     noise_seed: int = 0,
+    media: list[tuple[mi.TensorXf, Medium]] = (),
 ) -> MaterialGrids:
-    """Map each object's coverage (n, n, n) to n, σ_s and κ over the fog, then blur n."""
+    """Map coverages (n, n, n) to n, σ_s and κ, then blur n: ``fog`` everywhere, then each fog
+    volume of ``media`` (σ_s and κ only), then each object of ``coverages``."""
     n, h = box.n, box.h
     _check_material(fog.ior, fog.sigma_s, fog.kappa, "the fog")
     if not (np.isfinite(noise_scale) and noise_scale > 0):
@@ -102,9 +112,14 @@ def material_grids(
         noise_n = dr.opaque(mi.Float, ior_noise) * perlin3(p, noise_seed)
     if sigma_s_noise:
         noise_s = dr.opaque(mi.Float, sigma_s_noise) * perlin3(p, noise_seed + 1)
+    for i, (coverage, medium) in enumerate(media):
+        _check_coverage(coverage, n, f"fog volume {i}")
+        _check_material(1.0, medium.sigma_s, medium.kappa, f"fog volume {i}")
+        cov = coverage.array
+        sigma_s = dr.lerp(sigma_s, opaque_color(medium.sigma_s), cov)
+        kappa = dr.lerp(kappa, opaque_color(medium.kappa), cov)
     for i, (coverage, medium) in enumerate(coverages):
-        if tuple(coverage.shape[:3]) != (n, n, n) or dr.width(coverage.array) != n**3:
-            raise ParameterError(f"coverage {i} has shape {coverage.shape}, expected {(n,) * 3}")
+        _check_coverage(coverage, n, f"coverage {i}")
         _check_material(medium.ior, medium.sigma_s, medium.kappa, f"object {i}")
         ior_obj = dr.opaque(mi.Float, medium.ior) + noise_n
         sigma_s_obj = opaque_color(medium.sigma_s) * dr.maximum(1.0 + noise_s, 0.0)

@@ -156,16 +156,28 @@ class VolumePipeline:
         self.scene.lights[index] = new
 
     def set_material(self, name: str | None = None, ior=None, sigma_s=None, sigma_a=None) -> None:
-        """Change the medium of the refractive object ``name`` (all objects if None; ``"fog"`` for
-        the surrounding medium). World units. Changing only σ_s while keeping κ = σ_s + σ_a reruns
-        S9 alone; κ reruns S6–S9; n reruns S2–S9."""
-        targets = [o for o in self.scene.objects if name in (None, o.name)]
+        """Change the medium of the refractive object ``name`` (all objects if None), of the fog
+        volume ``name`` (a ``null``-BSDF shape's interior), or with ``"fog"`` of the fog wherever
+        it is (:attr:`~.scene.VolumeScene.fog`). World units. Changing only σ_s while keeping
+        κ = σ_s + σ_a reruns S9 alone; κ reruns S6–S9; n reruns S2–S9."""
+        s = self.scene
         if name == "fog":
-            self.scene.fog = updated_medium(self.scene.fog, ior, sigma_s, sigma_a, "fog")
+            s.replace_medium(s.fog, updated_medium(s.fog, ior, sigma_s, sigma_a, "fog"))
             return
-        if not targets:
-            names = [o.name for o in self.scene.objects]
-            raise ParameterError(f"no refractive object {name!r}; objects: {names} or 'fog'")
+        volumes = [v for v in s.fog_volumes if name is not None and v.name == name]
+        if volumes and ior is not None:
+            raise ParameterError(
+                f"fog volume {name!r} is index-matched (its boundary does not refract): change "
+                "its sigma_s and sigma_a only"
+            )
+        for volume in volumes:
+            volume.medium = updated_medium(volume.medium, None, sigma_s, sigma_a, name)
+        targets = [o for o in s.objects if name in (None, o.name)]
+        if not targets and not volumes:
+            raise ParameterError(
+                f"no refractive object {name!r}; objects: {[o.name for o in s.objects]}, fog "
+                f"volumes: {[v.name for v in s.fog_volumes]} or 'fog'"
+            )
         for obj in targets:
             obj.medium = updated_medium(obj.medium, ior, sigma_s, sigma_a, obj.name)
 
@@ -251,34 +263,45 @@ class VolumePipeline:
             key = (ior_key, kappa_key, cache_key(s.grids["sigma_s"]))
             mats = self.cache.stage("materials", key, lambda: from_arrays(s.grids, box))
             return mats, ior_key, kappa_key, key
+        shapes = [o.shape for o in s.objects] + [v.shape for v in s.fog_volumes]
         geo = (
             self._geometry_version,
-            tuple(id(o.shape) for o in s.objects),
+            tuple(id(shape) for shape in shapes),
             cache_key(box),
             p.supersample,
         )
         covs = self.cache.stage(
-            "voxelization", geo, lambda: [voxelize(o.shape, box, p.supersample) for o in s.objects]
+            "voxelization", geo, lambda: [voxelize(shape, box, p.supersample) for shape in shapes]
         )
+        k = len(s.objects)
+        surrounding, fog_media = s.surrounding, [v.medium for v in s.fog_volumes]
         noise = (p.ior_noise, p.sigma_s_noise, p.noise_scale, p.seed)
-        key = (geo, cache_key(s.fog), cache_key([o.medium for o in s.objects]), p.blur_all, noise)
+        key = (
+            geo,
+            cache_key(surrounding),
+            cache_key(fog_media),
+            cache_key([o.medium for o in s.objects]),
+            p.blur_all,
+            noise,
+        )
         mats = self.cache.stage(
             "materials",
             key,
             lambda: material_grids(
-                list(zip(covs, [o.medium for o in s.objects], strict=True)),
-                s.fog,
+                list(zip(covs[:k], [o.medium for o in s.objects], strict=True)),
+                surrounding,
                 box,
                 blur_all=p.blur_all,
                 ior_noise=p.ior_noise,
                 sigma_s_noise=p.sigma_s_noise,
                 noise_scale=p.noise_scale,
                 noise_seed=p.seed,
+                media=list(zip(covs[k:], fog_media, strict=True)),
             ),
         )
         ior_key = (
             geo,
-            s.fog.ior,
+            surrounding.ior,
             tuple(o.medium.ior for o in s.objects),
             p.ior_noise,
             p.noise_scale,
@@ -286,12 +309,27 @@ class VolumePipeline:
         )
         kappa_key = (
             geo,
-            cache_key(s.fog.kappa),
+            cache_key(surrounding.kappa),
+            cache_key([m.kappa for m in fog_media]),
             cache_key([o.medium.kappa for o in s.objects]),
             p.blur_all,
             noise,
         )
         return mats, ior_key, kappa_key, key
+
+    def _fog_boundaries(self) -> mi.TensorXf | None:
+        """The coverages of the fog volumes (n, n, n, V) from the cached voxelization, for the
+        octree (which splits its nodes at their boundaries); None without fog volumes."""
+        s = self.scene
+        if s.grids is not None or not s.fog_volumes:
+            return None
+        covs = self.cache.get("voxelization")[len(s.objects) :]
+        n, count = s.box.n, len(covs)
+        out = dr.zeros(mi.Float, n**3 * count)
+        index = dr.arange(mi.UInt32, n**3) * count
+        for c, coverage in enumerate(covs):
+            dr.scatter(out, coverage.array, index + c)
+        return mi.TensorXf(out, (n, n, n, count))
 
     def render(self, progress=None) -> mi.TensorXf:
         """Run (or reuse) every stage and return the image (height, width, 3), linear radiance.
@@ -313,7 +351,11 @@ class VolumePipeline:
         grad = self.cache.stage("gradient", ior_key, lambda: gradient(mats.ior))
         octree_key = (ior_key, p.eps, p.eps2, p.ds_max)
         octree = self.cache.stage(
-            "octree", octree_key, lambda: build_octree(mats.ior, p.eps, p.eps2, p.ds_max)
+            "octree",
+            octree_key,
+            lambda: build_octree(
+                mats.ior, p.eps, p.eps2, p.ds_max, boundaries=self._fog_boundaries()
+            ),
         )
         march_grids = self.cache.stage(
             "march grids",
@@ -480,7 +522,7 @@ class VolumePipeline:
             return p.iso_ior
         if not s.objects:
             return None
-        return 0.5 * (s.fog.ior + max(o.medium.ior for o in s.objects))
+        return 0.5 * (s.surrounding.ior + max(o.medium.ior for o in s.objects))
 
     @property
     def grids(self) -> dict[str, np.ndarray]:

@@ -5,7 +5,9 @@ units (``σ_vox = σ_world · h``). It is built from a Mitsuba scene by :func:`f
 
 - every closed shape with a ``dielectric`` BSDF is a :class:`RefractiveObject` (``int_ior/ext_ior``
   → n; its interior ``homogeneous`` medium → σ_s, σ_a);
-- the exterior medium of those shapes, or of the sensor, is the fog;
+- every closed shape with a ``null`` or ``thindielectric`` BSDF and an interior medium is a
+  :class:`FogVolume`: the fog is inside it and nowhere else (issue 11 item 1);
+- the sensor's medium fills the rest of the grid (:attr:`VolumeScene.outside`);
 - the grid box is the cube around the medium-bearing shapes (or an explicit ``grid_bbox``);
 - point, spot, directional and area emitters are :class:`Light` s; a ``constant`` or ``envmap``
   emitter is the background;
@@ -56,6 +58,17 @@ class RefractiveObject:
 
 
 @dataclass
+class FogVolume:
+    """A closed shape bounding a medium (issue 11 item 1): a ``null`` or ``thindielectric`` BSDF
+    with an interior medium. Index-matched: it does not change n (the pipeline refracts only
+    through ∇n, spec seed-000-002 §0.1), and a thin dielectric's reflection is not rendered."""
+
+    name: str
+    shape: object  # mi.Shape: voxelized like the refractive objects (stage S1)
+    medium: Medium
+
+
+@dataclass
 class Light:
     """A light in world units.
 
@@ -81,13 +94,30 @@ class VolumeScene:
     """Everything the volume pipeline needs, in world units."""
 
     box: GridBox
-    fog: Medium
+    fog: Medium  # the scene's fog: what ``set_material("fog")`` edits, wherever it is
     lights: list[Light]
     sensor: object  # mi.Sensor (perspective): the camera; S9 asks it for primary rays
     objects: list[RefractiveObject] = field(default_factory=list)
     environment: object | None = None  # mi.Emitter (constant / envmap) seen by escaping rays
     grids: dict | None = None  # {"n", "sigma_s", "kappa"}: NumPy (n, n, n[, 3]), world units;
     #                            given, they bypass voxelization (S1) and material mapping (S2)
+    fog_volumes: list[FogVolume] = field(default_factory=list)  # bounded media, in scene order
+    outside: Medium | None = None  # fills the grid outside the fog volumes; None: ``fog``
+
+    @property
+    def surrounding(self) -> Medium:
+        """The medium outside every fog volume and object (:attr:`outside`, else :attr:`fog`)."""
+        return self.fog if self.outside is None else self.outside
+
+    def replace_medium(self, old: Medium, new: Medium) -> None:
+        """Put ``new`` wherever ``old`` is: the fog, the outside and the fog volumes."""
+        if self.fog is old:
+            self.fog = new
+        if self.outside is old:
+            self.outside = new
+        for volume in self.fog_volumes:
+            if volume.medium is old:
+                volume.medium = new
 
 
 # ------------------------------------------------------------------------------------------------
@@ -104,14 +134,24 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     - **Refractive objects**: closed shapes (a sphere or a watertight mesh) with a ``dielectric``
       BSDF. ``medium.ior`` is Mitsuba's relative index ``int_ior / ext_ior`` (the BSDF keeps only
       this ratio; the ray equation is unchanged when n is scaled, so the fog has n = 1). The
-      interior ``homogeneous`` medium gives ``σ_s = scale·albedo·σ_t`` and
-      ``σ_a = scale·σ_t − σ_s``; no interior medium means clear glass (σ = 0).
-    - **Fog**: the exterior medium of the refractive objects, else the sensor's medium, else the
-      interior medium of a ``null``-BSDF shape, else none (σ = 0). The pipeline fills the whole grid
-      box with it.
+      interior medium (none: clear glass, σ = 0) gives the object's σ_s and σ_a.
+    - **Fog volumes** (issue 11 item 1): closed shapes with a ``null`` or ``thindielectric`` BSDF
+      and an interior medium, several allowed, each with its own medium; the medium is inside the
+      shape only (S1 voxelizes it, S2 maps its coverage to σ_s and κ). They are index-matched (n
+      unchanged); a thin dielectric's reflection is left to the surface methods.
+    - **Outside** the fog volumes the grid holds the sensor's medium; else the exterior medium of
+      the refractive objects when no fog volume bounds it (it is then taken to fill the grid, with
+      a warning); else vacuum. An object's exterior medium that is the interior of a fog volume is
+      fog only inside that volume.
+    - **Media** are read as Mitsuba defines them: ``homogeneous`` with ``sigma_t``, ``albedo``
+      and ``scale`` (RGB): ``σ_s = scale·albedo·σ_t``, ``σ_a = scale·σ_t − σ_s``. Other media
+      (``heterogeneous`` grid volumes) are refused.
+    - **Fog** (:attr:`VolumeScene.fog`, the medium ``set_material("fog")`` edits): the exterior
+      medium of the refractive objects, else the sensor's medium, else the interior medium of the
+      first fog volume, else vacuum.
     - **Grid box** (``grid³`` voxels): ``grid_bbox = (min, max)`` if given, else the cube around the
-      ``null``-BSDF medium shapes with no margin when they enclose every refractive object (the fog
-      box is the domain), else the cube around all medium-bearing shapes with ``MARGIN`` voxels.
+      fog volumes with no margin when they enclose every refractive object (the fog box is the
+      domain), else the cube around all medium-bearing shapes with ``MARGIN`` voxels.
     - **Lights**: point, spot (``cutoff_angle`` → ``cos_outer``, ``beam_width`` → ``cos_inner``),
       directional and area emitters (``AREA_LIGHT_SAMPLES²`` stratified point lights with a cosine
       lobe, intensity ``L / (pdf · M)``); a ``constant``/``envmap`` emitter is the ``environment``.
@@ -121,36 +161,43 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     Raises :class:`SceneError` saying what to fix for anything the pipeline cannot render.
     """
     sensor = _camera(scene)
-    objects, fog_shapes, exteriors = [], [], []
+    media = _Media(_np3(scene.bbox().center()))
+    objects, fog_volumes, exteriors = [], [], []
     for shape in scene.shapes():
         bsdf = shape.bsdf()
         kind = bsdf.class_name() if bsdf is not None else "none"
         if kind == "SmoothDielectric":
-            objects.append(_refractive_object(shape, bsdf))
+            objects.append(_refractive_object(shape, bsdf, media))
             if shape.exterior_medium() is not None:
-                exteriors.append(shape.exterior_medium())
-        elif kind in ("RoughDielectric", "ThinDielectric"):
+                exteriors.append((shape.id(), shape.exterior_medium()))
+        elif kind == "RoughDielectric":
             raise SceneError(
                 f"shape '{shape.id()}' has a {kind} BSDF; the volume pipeline refracts only "
-                "through smooth 'dielectric' objects: change its BSDF type to 'dielectric'"
+                "through smooth 'dielectric' objects: change its BSDF type to 'dielectric', or "
+                "render the scene with --method surface (Python: photonmap.SurfacePipeline)"
             )
-        elif kind == "Null" and shape.interior_medium() is not None:
-            fog_shapes.append(shape)
+        elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
+            name = shape.id()
+            check_closed(shape, name)
+            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'")
+            fog_volumes.append(FogVolume(name, shape, medium))
         elif not shape.is_emitter():
             warnings.warn(
                 f"shape '{shape.id()}' ({shape.class_name()} with a {kind} BSDF) is not seen by "
                 "the volume pipeline, which renders dielectric objects and media only",
                 stacklevel=2,
             )
-    if not objects and not fog_shapes:
+    if not objects and not fog_volumes:
         raise SceneError(
             "the scene has no refractive or medium-bearing shape: give a closed shape a "
             "'dielectric' BSDF, or a 'null' BSDF with an interior 'homogeneous' medium (the fog)"
         )
-    fog = _fog(scene, sensor, exteriors, fog_shapes)
-    box = _grid_box(objects, fog_shapes, grid, grid_bbox)
+    fog, outside = _fog(sensor, exteriors, fog_volumes, media)
+    box = _grid_box(objects, [v.shape for v in fog_volumes], grid, grid_bbox)
     lights, environment = _lights(scene, box.center)
-    return VolumeScene(box, fog, lights, sensor, objects, environment)
+    return VolumeScene(
+        box, fog, lights, sensor, objects, environment, fog_volumes=fog_volumes, outside=outside
+    )
 
 
 def _rgb(value) -> np.ndarray:
@@ -176,7 +223,7 @@ def _camera(scene: mi.Scene):
     return sensor
 
 
-def _refractive_object(shape, bsdf) -> RefractiveObject:
+def _refractive_object(shape, bsdf, media: _Media) -> RefractiveObject:
     name = shape.id()
     check_closed(shape, name)
     eta = float(np.asarray(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
@@ -186,20 +233,39 @@ def _refractive_object(shape, bsdf) -> RefractiveObject:
             "pipeline needs a finite n >= 1 (an object optically denser than the fog): fix its "
             "int_ior/ext_ior"
         )
-    center = _np3(shape.bbox().center())
-    medium = _medium(shape.interior_medium(), f"the interior medium of '{name}'", center)
+    medium = _medium(shape.interior_medium(), f"the interior medium of '{name}'", media.at)
     medium.ior = eta
     return RefractiveObject(name, shape, medium)
 
 
+class _Media:
+    """One :class:`Medium` per Mitsuba medium, so that the fog volumes, the outside and
+    :attr:`VolumeScene.fog` sharing a Mitsuba medium share the object ``set_material`` replaces."""
+
+    def __init__(self, at):
+        self.at = at
+        self._read: list[tuple[object, Medium]] = []
+
+    def read(self, medium, what: str) -> Medium:
+        if medium is None:
+            return Medium()
+        for known, ours in self._read:
+            if known is medium:
+                return ours
+        ours = _medium(medium, what, self.at)
+        self._read.append((medium, ours))
+        return ours
+
+
 def _medium(medium, what: str, at) -> Medium:
-    """Coefficients of a homogeneous Mitsuba medium (None → vacuum), checked."""
+    """Coefficients of a homogeneous Mitsuba medium (None → vacuum), checked: Mitsuba's own
+    ``get_scattering_coefficients`` (``σ_t·scale`` and ``albedo·σ_t·scale``, RGB)."""
     if medium is None:
         return Medium()
     if not medium.is_homogeneous():
         raise SceneError(
             f"{what} is a {medium.class_name()}; the volume pipeline reads 'homogeneous' media "
-            "only: pass varying coefficients as NumPy grids instead"
+            "only: pass varying coefficients as NumPy grids instead (VolumePipeline.set_volume)"
         )
     mei = dr.zeros(mi.MediumInteraction3f)
     mei.p = mi.Point3f(*(float(c) for c in at))
@@ -216,15 +282,41 @@ def _medium(medium, what: str, at) -> Medium:
     return Medium(sigma_s, np.maximum(sigma_a, 0.0))
 
 
-def _fog(scene, sensor, exteriors, fog_shapes) -> Medium:
-    if any(m != exteriors[0] for m in exteriors):
+def _fog(sensor, exteriors, fog_volumes, media: _Media) -> tuple[Medium, Medium | None]:
+    """(the fog, the medium outside the fog volumes: None when there is none, the fog filling
+    the grid); see :func:`from_mitsuba`."""
+    bounded = [v.shape.interior_medium() for v in fog_volumes]
+    camera = sensor.get_medium()
+    unbounded = [(name, m) for name, m in exteriors if all(m is not b for b in bounded)]
+    if any(m is not unbounded[0][1] for _, m in unbounded):
         raise SceneError(
-            "the refractive objects have different exterior media; the volume pipeline has one "
-            "fog: give every dielectric shape the same 'exterior' medium"
+            "the refractive objects have different exterior media and no 'null'-BSDF shape bounds "
+            "them; the volume pipeline fills the space outside the fog shapes with one medium: "
+            "give every dielectric shape the same 'exterior' medium, or put each medium inside a "
+            "closed 'null'-BSDF shape (its 'interior')"
         )
-    candidates = [*exteriors, sensor.get_medium(), *(s.interior_medium() for s in fog_shapes)]
-    medium = next((m for m in candidates if m is not None), None)
-    return _medium(medium, "the fog (exterior medium)", _np3(scene.bbox().center()))
+    if unbounded and camera is not None and unbounded[0][1] is not camera:
+        raise SceneError(
+            f"the exterior medium of '{unbounded[0][0]}' is neither the sensor's medium nor inside "
+            "a 'null'-BSDF shape: make it the sensor's medium, or the interior medium of a closed "
+            "'null'-BSDF shape around the object"
+        )
+    outside = camera
+    if outside is None and unbounded:
+        outside = unbounded[0][1]
+        if fog_volumes:
+            warnings.warn(
+                f"the exterior medium of '{unbounded[0][0]}' is bounded by no shape and the sensor "
+                "is not in it: the volume pipeline fills the grid outside the fog shapes with it. "
+                "Make it the interior medium of a closed 'null'-BSDF shape or the sensor's medium",
+                stacklevel=3,
+            )
+    candidates = [*(m for _, m in exteriors), camera, *bounded]
+    first = next((m for m in candidates if m is not None), None)
+    fog = media.read(first, "the fog (exterior medium)")
+    if not fog_volumes:
+        return fog, None
+    return fog, media.read(outside, "the fog outside the fog shapes (exterior medium)")
 
 
 def _grid_box(objects, fog_shapes, grid: int, grid_bbox) -> GridBox:

@@ -49,8 +49,8 @@ def check_closed(shape: mi.Shape, name: str) -> None:
         return
     if kind != mi.ShapeType.Mesh:
         raise SceneError(
-            f"shape {name!r} is a {kind.name}, an open surface: refractive objects must be closed "
-            "(a 'sphere' or a watertight mesh)"
+            f"shape {name!r} is a {kind.name}, an open surface: refractive objects and the shapes "
+            "bounding a medium must be closed (a 'sphere', a 'cube' or a watertight mesh)"
         )
     positions = shape.vertex_positions_buffer().numpy().reshape(-1, 3)
     faces = shape.faces_buffer().numpy().reshape(-1, 3)
