@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 from scipy.spatial import cKDTree
 
-from photonmap.core.hashgrid import COS_NORMAL, NO_PHOTON
+from photonmap.core.knn import COS_NORMAL, NO_PHOTON
 
 
 def lattice(values):

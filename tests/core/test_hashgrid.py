@@ -13,7 +13,8 @@ import pytest
 
 from knn_reference import assert_same, brute_force, ckdtree_reference, lattice, to_mi
 from photonmap.core.errors import ParameterError
-from photonmap.core.hashgrid import NO_PHOTON, HashGrid
+from photonmap.core.hashgrid import HashGrid
+from photonmap.core.knn import NO_PHOTON
 
 
 def uniform_points(n, seed):

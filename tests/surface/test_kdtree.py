@@ -15,7 +15,8 @@ from scipy.spatial import cKDTree
 
 from knn_reference import assert_same, brute_force, ckdtree_reference, lattice, to_mi
 from photonmap.core.errors import ParameterError
-from photonmap.core.hashgrid import NO_PHOTON, HashGrid
+from photonmap.core.hashgrid import HashGrid
+from photonmap.core.knn import NO_PHOTON
 from photonmap.surface.kdtree import KDTree, left_balanced_order
 
 

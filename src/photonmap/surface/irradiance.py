@@ -19,7 +19,8 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..core.hashgrid import NO_PHOTON, HashGrid
+from ..core.hashgrid import HashGrid
+from ..core.knn import NO_PHOTON
 from ..core.order import morton3_order
 from .gather import irradiance_estimate
 from .photon_map import PhotonMap

@@ -2,8 +2,8 @@
 
 Spec seed-001 §2.3 (photon record, heap layout), §2.4 (kNN gather with maximum radius and normal
 test), §2.8 (the kd-tree, the structure the dissertation's bandwidth model assumes), oracle O5. Same
-interface and same results as :class:`photonmap.core.hashgrid.HashGrid`, whose docstring defines
-the result (ties broken by photon index), the normal test and the k-best heap.
+interface and same results as :class:`photonmap.core.hashgrid.HashGrid`; :mod:`photonmap.core.knn`
+defines the result (ties broken by photon index), the normal test and the k-best heap.
 
 **Tree.** ``N`` photons fill heap slots ``1..N`` exactly: slot ``i`` has children ``2i`` and
 ``2i + 1`` (a slot > N does not exist), so no pointers are stored (the "priority heap" of [DOC
@@ -45,12 +45,12 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError
-from ..core.hashgrid import (
+from ..core.knn import (
     PhotonSearch,
+    accept,
     finish,
     heap_bound2,
     new_heap,
-    normal_test,
     offer,
     pack_records,
     photon_key,
@@ -150,9 +150,7 @@ class KDTree(PhotonSearch):
                 # ---- visit: offer the node's photon, go to the near child, push the far child
                 p, flag = read_record(self.record, node - 1)
                 d2 = squared_distance(p, query)
-                ok = d2 <= radius2
-                if query_normal is not None:
-                    ok &= normal_test(query_normal, normals, directions, node - 1, cos_normal, ok)
+                ok = accept(d2, radius2, query_normal, normals, directions, node - 1, cos_normal)
                 found = offer(heap, k, found, photon_key(d2, flag & INDEX_MASK), ok)
                 axis = flag >> 30
                 delta = dr.select(
