@@ -1,6 +1,6 @@
-"""Contracts shared by the two photon search structures — the hash grid
-(:mod:`photonmap.core.hashgrid`) and the kd-tree (:mod:`photonmap.surface.kdtree`) — tested once
-over both (spec seed-001 §2.4, §2.8, O1/O2, O5)."""
+"""Contracts of the k-NN kit (:mod:`photonmap.core.knn`) shared by the two photon search
+structures — the hash grid (:mod:`photonmap.core.hashgrid`) and the kd-tree
+(:mod:`photonmap.surface.kdtree`) — tested once over both (spec seed-001 §2.4, §2.8, O1/O2, O5)."""
 
 import drjit as dr
 import numpy as np
