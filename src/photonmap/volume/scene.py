@@ -177,7 +177,7 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
                 "render the scene with --method surface (Python: photonmap.SurfacePipeline)"
             )
         elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
-            name = shape.id()
+            name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
             check_closed(shape, name)
             medium = media.read(shape.interior_medium(), f"the fog inside '{name}'")
             fog_volumes.append(FogVolume(name, shape, medium))
