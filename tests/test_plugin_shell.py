@@ -52,3 +52,13 @@ def test_the_fingerprint_sees_shapes_and_emitters_not_sensors():
     params[key] = params[key] * 0.5
     params.update()
     assert scene_fingerprint(scene) != first
+
+
+def test_every_method_is_exported_with_its_stages():
+    import photonmap
+
+    for name, method in photonmap.METHODS.items():
+        assert method.params in (photonmap.VolumeParams, photonmap.SurfaceParams,
+                                 photonmap.ScreenParams)  # fmt: skip
+        assert hasattr(method.pipeline, "stages"), name
+    assert photonmap.SurfacePipeline.stages == photonmap.SURFACE_STAGES

@@ -214,8 +214,7 @@ def render(
             check_image_memory(method, *size, params.get("spp", 1))
             if size != tuple(int(c) for c in film):
                 pipe.set_camera(width=size[0], height=size[1])
-            stages = getattr(pipe, "stages", METHODS[method].stages)
-            with stage_progress(stages, f"rendering {scene}", console=console) as report:
+            with stage_progress(pipe.stages, f"rendering {scene}", console=console) as report:
                 image = pipe.render(progress=report)
         for w in {str(w.message): w for w in caught}.values():
             _say(f"warning: {w.message}")

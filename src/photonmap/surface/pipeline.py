@@ -107,6 +107,8 @@ class SurfacePipeline(MovableCamera):
     >>> image = pipe.render()           # mi.TensorXf (height, width, 3)
     """
 
+    stages = STAGES  # the names render() reports to its progress callback, in order
+
     def __init__(self, scene, **params):
         from ..scenes import load_scene
 
