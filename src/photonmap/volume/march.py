@@ -41,7 +41,9 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..core.errors import ParameterError
 from ..core.grid import pack, to_tensor, trilinear_packed
+from . import scatter
 from .emit import Photons
 
 OVERSHOOT = 1e-3  # δ, voxels (A10)
@@ -86,16 +88,21 @@ def weight_tally(weight: mi.Float):
 class MarchGrids:
     """What the marcher reads, packed for vector gathers (voxel units, layout [z, y, x, c]):
     ``medium`` = (n, ∂n/∂x, ∂n/∂y, ∂n/∂z, κ_r, κ_g, κ_b, 0) per voxel (trilinear), ``octree`` =
-    (level, Δs_max, 0, 0) per voxel (nearest)."""
+    (level, Δs_max, 0, 0) per voxel (nearest); for multiple scattering ``scatter`` =
+    (σ_s,r, σ_s,g, σ_s,b, 0) per voxel (trilinear)."""
 
     n: int
     medium: mi.Float
     octree: mi.Float
+    scatter: mi.Float | None = None
 
     @staticmethod
-    def build(ior, grad, kappa, level, step_limit) -> MarchGrids:
+    def build(ior, grad, kappa, level, step_limit, sigma_s=None) -> MarchGrids:
         n = int(to_tensor(ior).shape[0])
-        return MarchGrids(n, pack([ior, grad, kappa], n), pack([level, step_limit], n))
+        scattering = None if sigma_s is None else pack([sigma_s], n)
+        return MarchGrids(
+            n, pack([ior, grad, kappa], n), pack([level, step_limit], n), scattering
+        )
 
 
 def sample_medium(grids: MarchGrids, p: mi.Point3f):
@@ -117,6 +124,47 @@ class MarchResult:
     final: tuple = ()  # per photon (x, v, L̃) where it stopped (voxel units)
     count: mi.TensorXf | None = None  # (n, n, n) deposits per voxel (weighted march only)
     weight: mi.TensorXf | None = None  # (n, n, n) their average weight w̄ = Σw / cnt, 0 if none
+    scatterings: int = 0  # scattering events of all photons (multiple scattering)
+
+
+@dataclass(frozen=True)
+class Scattering:
+    """Multiple scattering's settings (``scatter.py``): Schlick's ``k`` of the phase function and
+    the seed of the photons' random streams."""
+
+    phase_k: float = 0.0
+    seed: int = 0
+
+
+def _advance(medium: MarchGrids, x, v, L, ds_min, size: float, pfeuti_update: bool):
+    """S6: one curved-ray step (eqs 4–6) from ``x`` with ``v = n dx/ds`` and energy ``L``, to the
+    face of the octree node holding ``x`` (+δ), clamped to ``[Δs_min, Δs_max]`` and clipped at the
+    grid's exit face. Returns ``(x', v', L', v̂, v̂', κ(x), t, leaving)``."""
+    n = medium.n
+    n_x, grad, kappa = sample_medium(medium, x)
+    vox = voxel_index(x, n)
+    oct_idx = mi.UInt32((vox.z * n + vox.y) * n + vox.x)
+    node_info = dr.gather(mi.Vector4f, medium.octree, oct_idx)
+    level, limit = mi.Int32(node_info.x), node_info.y
+    node = mi.Float(mi.Int32(1) << level)
+    lo = mi.Point3f((vox >> level) << level)
+    dir_ = dr.normalize(v)
+    t_face = dr.select(dir_ > 0, (lo + node - x) / dir_, (lo - x) / dir_)
+    t_face = dr.select(dir_ == 0, dr.inf, t_face)
+    t = dr.clip(dr.min(t_face) + OVERSHOOT, ds_min, limit)
+
+    # the step leaves the grid: clip it at the exit face and finish after depositing
+    t_exit = dr.min(
+        dr.select(dir_ > 0, (size - x) / dir_, dr.select(dir_ < 0, -x / dir_, dr.inf))
+    )
+    leaving = t >= t_exit
+    t = dr.select(leaving, dr.maximum(t_exit, 0.0), t)
+
+    ds = t * n_x / dr.norm(v)  # A12: Δs for the target displacement t
+    x_new = mi.Point3f(x + (ds / n_x) * v)  # (4)
+    v_new = v + dr.select(pfeuti_update, ds * n_x, ds) * grad  # (5); A13 Pfeuti variant
+    L_new = L * dr.exp(-kappa * t)  # (6), ‖x_{i+1} − x_i‖ = t
+    return x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving
 
 
 @dr.syntax
@@ -144,32 +192,9 @@ def _march(
     size = float(n)
 
     while active:
-        # ---- S6: one curved-ray step (eqs 4–6) --------------------------------------------
-        n_x, grad, kappa = sample_medium(medium, x)
-        vox = voxel_index(x, n)
-        oct_idx = mi.UInt32((vox.z * n + vox.y) * n + vox.x)
-        node_info = dr.gather(mi.Vector4f, medium.octree, oct_idx)
-        level, limit = mi.Int32(node_info.x), node_info.y
-        node = mi.Float(mi.Int32(1) << level)
-        lo = mi.Point3f((vox >> level) << level)
-        dir_ = dr.normalize(v)
-        t_face = dr.select(dir_ > 0, (lo + node - x) / dir_, (lo - x) / dir_)
-        t_face = dr.select(dir_ == 0, dr.inf, t_face)
-        t = dr.clip(dr.min(t_face) + OVERSHOOT, ds_min, limit)
-
-        # the step leaves the grid: clip it at the exit face and finish after depositing
-        t_exit = dr.min(
-            dr.select(dir_ > 0, (size - x) / dir_, dr.select(dir_ < 0, -x / dir_, dr.inf))
+        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving = _advance(
+            medium, x, v, L, ds_min, size, pfeuti_update
         )
-        leaving = t >= t_exit
-        t = dr.select(leaving, dr.maximum(t_exit, 0.0), t)
-
-        ds = t * n_x / dr.norm(v)  # A12: Δs for the target displacement t
-        x_new = mi.Point3f(x + (ds / n_x) * v)  # (4)
-        v_new = v + dr.select(pfeuti_update, ds * n_x, ds) * grad  # (5); A13 Pfeuti variant
-        L_new = L * dr.exp(-kappa * t)  # (6), ‖x_{i+1} − x_i‖ = t
-        dir_new = dr.normalize(v_new)
-
         # ---- S7: rasterise the segment x → x_new ------------------------------------------
         deposit_segment(
             acc, n, x, x_new, L, kappa * t, dir_, dir_new, scale, paper, tally=tally, shift=shift
@@ -179,6 +204,87 @@ def _march(
         steps += 1
         active = ~leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
     return steps, x, v, L
+
+
+@dr.syntax
+def _march_multiple(
+    acc: Int64,
+    medium: MarchGrids,
+    x: mi.Point3f,
+    d: mi.Vector3f,
+    L: mi.Color3f,
+    ds_min: mi.Float,
+    max_steps: int,
+    scale: mi.Float,
+    paper: bool,
+    pfeuti_update: bool,
+    phase_k: mi.Float,
+    seed: int,
+    tally=radiance_tally,
+    shift: int = 0,
+):
+    """:func:`_march` with multiple scattering (``scatter.py``, beyond-seeds §5): every order is
+    marched and deposited as in :func:`_march`; a collision sampled on the way (against κ of the
+    step, constant over it as in eq (6)) starts the next order there, in a Schlick-sampled
+    direction, with the weight of :func:`.scatter.collision_weight` (σ_s read at the step's
+    start, like κ) and Russian roulette. Photon ``i`` draws from PCG32 stream ``i`` of ``seed``.
+    Returns :func:`_march`'s results and the scattering events per photon."""
+    n = medium.n
+    count = dr.width(L)
+    size = float(n)
+    rng = mi.PCG32(count, dr.opaque(mi.UInt64, seed), dr.arange(mi.UInt64, count))
+    v = sample_medium(medium, x)[0] * d  # v₀ = n(x₀)·d₀
+    start = dr.max(L)  # the photon's emitted power, Russian roulette's reference
+    W = mi.Color3f(L)  # energy at the start of the current order
+    L_kill = start * KILL_FRACTION
+    active = start > 0  # photons that miss the grid carry no power
+    target, channel = scatter.free_flight(rng, active)
+    depth = dr.zeros(mi.Color3f, count)  # optical depth since the order's start (RGB)
+    found = dr.zeros(mi.Bool, count)  # a collision was sampled in this order
+    x_c, d_c, W_c = dr.zeros(mi.Point3f, count), dr.zeros(mi.Vector3f, count), mi.Color3f(W)
+    steps = dr.zeros(mi.UInt32, count)
+    order_steps = dr.zeros(mi.UInt32, count)
+    orders = dr.zeros(mi.UInt32, count)
+
+    while active:
+        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving = _advance(
+            medium, x, v, L, ds_min, size, pfeuti_update
+        )
+        depth_new = depth + kappa * t
+        before, after = scatter.channel_of(depth, channel), scatter.channel_of(depth_new, channel)
+        if ~found & (after >= target) & (after > before):
+            f = (target - before) / (after - before)  # where in the step the collision is
+            sigma_s = mi.Color3f(trilinear_packed(medium.scatter, n, 1, x)[0].xyz)
+            x_c = dr.lerp(x, x_new, f)
+            d_c = dr.normalize(dr.lerp(dir_, dir_new, f))
+            W_c = W * scatter.collision_weight(sigma_s, kappa, depth + kappa * (f * t))
+            found = mi.Bool(True)
+        deposit_segment(
+            acc, n, x, x_new, L, kappa * t, dir_, dir_new, scale, paper, tally=tally, shift=shift
+        )
+        x, v, L, depth = x_new, v_new, L_new, depth_new
+        steps += 1
+        order_steps += 1
+        ended = leaving | (dr.max(L) < L_kill) | (order_steps >= max_steps)
+        if ended & found & (orders < scatter.MAX_ORDERS):
+            # the next order starts at the collision (beyond-seeds §5)
+            survives, W = scatter.roulette(W_c, start, orders, rng.next_float32())
+            omega = scatter.schlick_direction(
+                phase_k, d_c, mi.Point2f(rng.next_float32(), rng.next_float32())
+            )
+            x = mi.Point3f(x_c)
+            v = sample_medium(medium, x)[0] * omega
+            L = mi.Color3f(W)
+            L_kill = dr.max(W) * KILL_FRACTION
+            target, channel = scatter.free_flight(rng)
+            depth = dr.zeros(mi.Color3f, count)
+            found = mi.Bool(False)
+            order_steps = dr.zeros(mi.UInt32, count)
+            orders += 1
+            active = survives & (dr.max(W) > 0)
+        else:
+            active = ~ended
+    return steps, x, v, L, orders
 
 
 @dr.syntax
@@ -275,10 +381,12 @@ def accumulate(
     max_steps: int | None = None,
     fidelity: str = "physical",
     pfeuti_update: bool = False,
+    scattering: Scattering | None = None,
 ):
     """March ``photons`` and return ``(first, second, unit, steps, final)``: the two packets each
     voxel of the deposit grid received (``Vector4d`` raw fixed-point sums; energy channels times
-    ``unit`` are watts), the total step count and the per-photon final state ``(x, v, L̃)``."""
+    ``unit`` are watts), the total step count and the per-photon final state ``(x, v, L̃)``, with
+    multiple ``scattering`` ``(x, v, L̃, scattering events)``."""
     n = medium.n
     m = coarse_size(n, shift)
     acc = dr.zeros(Int64, m**3 * CHANNELS)
@@ -286,7 +394,7 @@ def accumulate(
     steps, final = 0, ()
     if phi_max > 0:
         scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
-        steps, x, v, L = _march(
+        args = (
             acc,
             medium,
             mi.Point3f(photons.origin),
@@ -297,11 +405,14 @@ def accumulate(
             scale,
             fidelity == "paper",
             pfeuti_update,
-            tally,
-            shift,
         )
-        dr.eval(acc, steps, x, v, L)
-        steps, final = int(dr.sum(Float64(steps))[0]), (x, v, L)
+        if scattering is None:
+            steps, *final = _march(*args, tally, shift)
+        else:
+            k = dr.opaque(mi.Float, scattering.phase_k)
+            steps, *final = _march_multiple(*args, k, scattering.seed, tally, shift)
+        dr.eval(acc, steps, *final)
+        steps, final = int(dr.sum(Float64(steps))[0]), tuple(final)
     voxel = dr.arange(mi.UInt32, m**3) * 2
     first = Vector4d(dr.gather(Vector4i64, acc, voxel))
     second = Vector4d(dr.gather(Vector4i64, acc, voxel + 1))
@@ -317,24 +428,32 @@ def march(
     pfeuti_update: bool = False,
     voxel_size: float = 1.0,
     weights: mi.Float | None = None,
+    scattering: Scattering | None = None,
 ) -> MarchResult:
     """March ``photons`` through ``medium`` and return the deposited C, D grids (spec S6/S7).
 
     ``C`` is returned divided by ``voxel_size²`` (the voxel edge h in world units), i.e. as fluence
     in world units (spec §2.6: ``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
     per-photon ``weights`` (``1/p`` of importance sampling, Pfeuti §3.2.3) the result also holds
-    the deposit count and average weight per voxel.
+    the deposit count and average weight per voxel. With ``scattering`` (needs ``medium.scatter``)
+    the photons scatter (beyond-seeds §5), and C, D hold the fluence of all orders.
     """
     n = medium.n
+    if scattering is not None and medium.scatter is None:
+        raise ParameterError(
+            "multiple scattering needs σ_s in the march grids: build them with "
+            "MarchGrids.build(..., sigma_s=...)"
+        )
     tally = radiance_tally if weights is None else weight_tally(weights)
     first, second, unit, steps, final = accumulate(
-        photons, medium, tally, 0, ds_min, max_steps, fidelity, pfeuti_update
+        photons, medium, tally, 0, ds_min, max_steps, fidelity, pfeuti_update, scattering
     )
     unit /= voxel_size**2
     energy, flux = mi.Vector4f(first * unit), mi.Vector4f(second * unit)
     C = mi.TensorXf(dr.ravel(mi.Vector3f(energy.x, energy.y, energy.z)), (n, n, n, 3))
     D = mi.TensorXf(dr.ravel(mi.Vector3f(energy.w, flux.x, flux.y)), (n, n, n, 3))
-    result = MarchResult(C, D, steps, final)
+    events = int(dr.sum(Float64(final[3]))[0]) if len(final) > 3 else 0
+    result = MarchResult(C, D, steps, final, scatterings=events)
     if weights is not None:
         count = mi.Float(second.z)
         weight = mi.Float(second.w * 2.0**-WEIGHT_BITS / dr.maximum(second.z, 1.0))

@@ -18,6 +18,7 @@ from ..core.memory import available_memory, human_bytes
 from ..core.params import check_choice, check_fields, check_range
 from . import mipmap, pilot
 from .scene import Light, Medium
+from .scatter import SCATTERING
 
 FIDELITY = ("physical", "paper")
 EMISSION = ("uniform", "adaptive")
@@ -73,6 +74,7 @@ class VolumeParams:
     fidelity: str = "physical"  # "paper": the papers' literal behaviour (spec §6)
     spp: int = 1  # camera rays per pixel
     emission: str = "uniform"  # "adaptive": Pfeuti's pilot + importance photons (§3.2)
+    scattering: str = "single"  # "multiple": photons scatter in the fog (beyond-seeds §5)
     pilot_photons: int = 64**2  # adaptive: pilot photons, s² on an s × s grid (Pfeuti §4.3)
     grad_threshold: float = 0.0  # adaptive: pilot gradient threshold in (0, 1]; 0 = automatic
     rad_threshold: float = 0.0  # adaptive: pilot radiance threshold in (0, 1]; 0 = automatic
@@ -100,6 +102,12 @@ class VolumeParams:
         )
         check_choice("sampler", self.sampler, sampling.SAMPLERS, "the photon-plane point set")
         check_choice("fidelity", self.fidelity, FIDELITY, "'paper': the papers' literal choices")
+        check_choice(
+            "scattering",
+            self.scattering,
+            SCATTERING,
+            "'multiple': photons scatter in the fog (all orders); 'single': Sun's single scattering",
+        )
         for key, hint in (
             ("eps", "the octree tolerance ε of n's range (Sun §5.3)"),
             ("ds_min", "the shortest photon march step, in voxels (Sun §4.4)"),

@@ -357,18 +357,27 @@ class VolumePipeline:
                 mats.ior, p.eps, p.eps2, p.ds_max, boundaries=self._fog_boundaries()
             ),
         )
+        # multiple scattering: σ_s and the phase function steer the photons too (beyond-seeds §5)
+        scatter = march.Scattering(p.phase_k, p.seed) if p.scattering == "multiple" else None
+        if scatter is not None:
+            kappa_key = (kappa_key, sigma_key, cache_key(scatter))
         march_grids = self.cache.stage(
             "march grids",
             (octree_key, kappa_key),
             lambda: march.MarchGrids.build(
-                mats.ior, grad, mats.kappa, octree.level, octree.step_limit
+                mats.ior,
+                grad,
+                mats.kappa,
+                octree.level,
+                octree.step_limit,
+                sigma_s=None if scatter is None else mats.sigma_s,
             ),
         )
 
         if p.emission == "adaptive":
-            C, D, smooth_key = self._adaptive(march_grids, octree_key, kappa_key)
+            C, D, smooth_key = self._adaptive(march_grids, octree_key, kappa_key, scatter)
         else:
-            C, D, smooth_key = self._uniform(march_grids, octree_key, kappa_key)
+            C, D, smooth_key = self._uniform(march_grids, octree_key, kappa_key, scatter)
         view_grids = self.cache.stage(
             "view grids",
             (smooth_key, ior_key, kappa_key, sigma_key),
@@ -397,7 +406,7 @@ class VolumePipeline:
             raise SceneError("the render produced NaN or infinite values; please report this scene")
         return image
 
-    def _uniform(self, march_grids, octree_key, kappa_key):
+    def _uniform(self, march_grids, octree_key, kappa_key, scatter=None):
         """S5–S8: uniform photons on the photon plane, marched and smoothed."""
         s, p = self.scene, self.params
         light_key = (
@@ -418,7 +427,12 @@ class VolumePipeline:
             "photon tracing",
             march_key,
             lambda: march.march(
-                photons, march_grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h
+                photons,
+                march_grids,
+                ds_min=p.ds_min,
+                fidelity=p.fidelity,
+                voxel_size=s.box.h,
+                scattering=scatter,
             ),
         )
         smooth_key = (march_key, p.smoothing)
@@ -429,10 +443,11 @@ class VolumePipeline:
             "photons_generated": len(s.lights) * p.photons,
             "photons_propagated": photons.count,
             "steps": traced.steps,
+            "scatterings": traced.scatterings,
         }
         return C, D, smooth_key
 
-    def _adaptive(self, march_grids, octree_key, kappa_key):
+    def _adaptive(self, march_grids, octree_key, kappa_key, scatter=None):
         """A1–A7 (Pfeuti §3.2): pilot photons → photon-plane pdf per light → importance photons
         marched with their weights → mipmaps → level-selecting filter."""
         s, p = self.scene, self.params
@@ -484,6 +499,7 @@ class VolumePipeline:
                 fidelity=p.fidelity,
                 voxel_size=box.h,
                 weights=weights,
+                scattering=scatter,
             ),
         )
         mip_key = (march_key, p.smoothing)
@@ -506,6 +522,7 @@ class VolumePipeline:
             "photons_propagated": photons.count + sum(b.count for b in pilots),
             "pilot_photons_propagated": sum(b.count for b in pilots),
             "steps": traced.steps + sum(g.steps for g in pilot_grids),
+            "scatterings": traced.scatterings,
         }
         return C, D, filter_key
 

@@ -1,0 +1,72 @@
+"""Multiple scattering in the voxel radiance grid (spec beyond-seeds §5, our extension of Sun et
+al. 2008): the sampling pieces the marcher (``march.py``) uses between its curved-ray steps.
+
+Each photon order is marched as Sun marches it (S6/S7: deposits of the attenuated energy
+``L̃ = W·T`` along the whole curved path, the expected-value estimator of that order's fluence);
+on the way a **collision** is sampled against σ_t = κ with the density ``p̄(s) = ⅓ Σ_c κ_c T_c(s)``
+(one channel chosen uniformly, its optical depth compared with ``−ln(1 − ξ)``: the spectral-MIS
+free-flight sampling of Mitsuba's ``volpath`` for RGB media). When the order has left the grid
+(or faded below ``10⁻³`` of its start, or hit the step cap), the photon restarts at the collision
+with the phase-sampled direction and the weight
+
+    W' = W ⊙ σ_s(x_c) ⊙ T(x_c) / p̄(x_c)        (= W·σ_s/σ_t in a grey medium)
+
+— the collision density of the next order, estimated without bias. Orders beyond
+:data:`RR_DEPTH` continue with Russian roulette on ``q = min(1, max W' / max W₀)`` (survivors
+divide by ``q``). A photon stops after :data:`MAX_ORDERS` scattering events.
+"""
+
+from __future__ import annotations
+
+import math
+
+import drjit as dr
+import mitsuba as mi
+
+SCATTERING = ("single", "multiple")
+RR_DEPTH = 3  # scattering events before Russian roulette starts (the weights decay by albedo)
+MAX_ORDERS = 256  # cap on scattering events per photon (iteration cap, DESIGN.md)
+
+
+def schlick_cosine(k, xi):
+    """Sample ``μ = cos θ`` between the incoming and the scattered propagation directions from the
+    Schlick phase function ``p(μ) = (1 − k²) / (4π (1 − kμ)²)`` (Pfeuti §2.1.3) by inverting its
+    CDF ``F(μ) = (1 − k²)/(2k) · (1/(1 − kμ) − 1/(1 + k))``: ``μ = (2ξ + k − 1)/(2kξ − k + 1)``
+    (no division by k: isotropic ``μ = 2ξ − 1`` at k = 0)."""
+    return dr.clip((2.0 * xi + k - 1.0) / (2.0 * k * xi - k + 1.0), -1.0, 1.0)
+
+
+def schlick_direction(k, d: mi.Vector3f, xi: mi.Point2f) -> mi.Vector3f:
+    """A direction scattered from the propagation direction ``d`` (unit) by Schlick's ``k``."""
+    mu = schlick_cosine(k, xi.x)
+    sin_theta = dr.safe_sqrt(1.0 - mu * mu)
+    s, c = dr.sincos(2.0 * math.pi * xi.y)
+    return mi.Frame3f(d).to_world(mi.Vector3f(sin_theta * c, sin_theta * s, mu))
+
+
+def channel_of(value: mi.Color3f, channel: mi.UInt32) -> mi.Float:
+    """``value[channel]`` per lane (channel ∈ {0, 1, 2})."""
+    return dr.select(channel == 0, value.x, dr.select(channel == 1, value.y, value.z))
+
+
+def free_flight(rng: mi.PCG32, active=True) -> tuple[mi.Float, mi.UInt32]:
+    """The optical depth ``−ln(1 − ξ)`` at which the next collision happens, in the colour
+    channel returned with it (uniform over R, G, B)."""
+    depth = -dr.log(1.0 - rng.next_float32(active))
+    channel = dr.minimum(mi.UInt32(rng.next_float32(active) * 3.0), 2)
+    return depth, channel
+
+
+def collision_weight(sigma_s: mi.Color3f, kappa: mi.Color3f, depth: mi.Color3f) -> mi.Color3f:
+    """``σ_s ⊙ T / p̄`` with ``T = exp(−depth)`` and ``p̄ = ⅓ Σ_c κ_c T_c`` (the pdf of the
+    collision distance sampled by :func:`free_flight`), 0 where ``p̄ = 0``."""
+    T = dr.exp(-depth)
+    pdf = (kappa.x * T.x + kappa.y * T.y + kappa.z * T.z) / 3.0
+    return dr.select(pdf > 0, sigma_s * T / dr.maximum(pdf, 1e-30), 0.0)
+
+
+def roulette(weight: mi.Color3f, start: mi.Float, order: mi.UInt32, xi: mi.Float):
+    """Russian roulette after :data:`RR_DEPTH` scattering events: survive with
+    ``q = min(1, max weight / start)`` and return ``(survives, weight / q)``."""
+    q = dr.select(order >= RR_DEPTH, dr.minimum(dr.max(weight) / start, 1.0), 1.0)
+    return (xi < q) & (q > 0), weight / dr.maximum(q, 1e-30)
