@@ -100,9 +100,7 @@ class MarchGrids:
     def build(ior, grad, kappa, level, step_limit, sigma_s=None) -> MarchGrids:
         n = int(to_tensor(ior).shape[0])
         scattering = None if sigma_s is None else pack([sigma_s], n)
-        return MarchGrids(
-            n, pack([ior, grad, kappa], n), pack([level, step_limit], n), scattering
-        )
+        return MarchGrids(n, pack([ior, grad, kappa], n), pack([level, step_limit], n), scattering)
 
 
 def sample_medium(grids: MarchGrids, p: mi.Point3f):
@@ -154,9 +152,7 @@ def _advance(medium: MarchGrids, x, v, L, ds_min, size: float, pfeuti_update: bo
     t = dr.clip(dr.min(t_face) + OVERSHOOT, ds_min, limit)
 
     # the step leaves the grid: clip it at the exit face and finish after depositing
-    t_exit = dr.min(
-        dr.select(dir_ > 0, (size - x) / dir_, dr.select(dir_ < 0, -x / dir_, dr.inf))
-    )
+    t_exit = dr.min(dr.select(dir_ > 0, (size - x) / dir_, dr.select(dir_ < 0, -x / dir_, dr.inf)))
     leaving = t >= t_exit
     t = dr.select(leaving, dr.maximum(t_exit, 0.0), t)
 

@@ -17,8 +17,8 @@ from ..core.errors import ParameterError
 from ..core.memory import available_memory, human_bytes
 from ..core.params import check_choice, check_fields, check_range
 from . import mipmap, pilot
-from .scene import Light, Medium
 from .scatter import SCATTERING
+from .scene import Light, Medium
 
 FIDELITY = ("physical", "paper")
 EMISSION = ("uniform", "adaptive")
