@@ -92,8 +92,9 @@ def test_index_below_one_or_nan(bsdf):
 def test_no_light():
     with pytest.raises(SceneError, match="no light"):
         read(scene_dict(light=None))
-    with pytest.raises(SceneError, match="no light"):  # a background alone lights nothing
-        read(scene_dict(light={"type": "constant"}))
+    # an environment alone lights the scene (issue 11 item 3: photons through the grid's faces)
+    (sky,) = read(scene_dict(light={"type": "constant"})).lights
+    assert sky.kind == "environment"
 
 
 def test_no_refractive_or_medium_shape():

@@ -1,29 +1,51 @@
-"""S5 — photon generation on the photon plane (Pfeuti 2009 §3.1.4, Listing A.3; Sun et al. 2008 §4.3).
+"""S5 — photon generation (Pfeuti 2009 §3.1.4, Listing A.3; Sun et al. 2008 §4.3; issue 11 item 3).
 
-A square "photon plane" between the light and the grid covers the whole grid as seen from the light.
-Photon ``i`` starts at plane point ``Q_i`` given by a 2D point set (Hammersley by default, Pfeuti
-§4.1 Table 4.1), travels along ``d₀ = normalize(Q_i − P_L)`` (point/spot) or the light direction
-(directional) and enters the grid at the slab-test entry point ``x₀``; photons that miss the grid
-carry no power (spec S5, oracle 17). Photons are listed in Morton order of their plane position so
-that neighbouring SIMD lanes deposit into neighbouring voxels (the deposited sums are exact and do
-not depend on the order).
+How a light's photons are made depends on the light (:func:`emission_mode`):
 
-Energy (spec S5, A14, physically normalised — the default):
+- ``"plane"`` — a point or spot light with the whole grid in front of it, and every directional
+  light: the **photon plane**. A square between the light and the grid covers the whole grid as
+  seen from the light; photon ``i`` starts at plane point ``Q_i`` of a 2D point set (Hammersley
+  by default, Pfeuti §4.1 Table 4.1), travels along ``d₀ = normalize(Q_i − P_L)`` (point/spot) or
+  the light direction (directional) and enters the grid at the slab-test entry point ``x₀``.
+  Energy (spec S5, A14, physically normalised — the default): ``Φ_i = I(d₀)·(A/N)·cos³θ_i/d²``
+  for point/spot lights — the solid angle of the photon's plane cell, so ``Σ Φ_i → I·Ω_plane``
+  (oracle 16) — and ``Φ_i = E·A/N`` for a directional light (``A`` in world units);
+  ``fidelity="paper"``: Pfeuti's constant ``Φ_i = I·(A/N)/d²`` (no cosine, a vignetted image).
+- ``"cone"`` (ours) — a point or spot light **inside the grid**, or beside it where no plane in
+  front of the light covers the grid (spec A49): photons start at the light with stratified
+  directions in a cone (axis ``c``, half-angle ``θ_max``): the whole sphere for a point light,
+  the cutoff cone for a spot light. The 2D point ``(u, w)`` maps to
+  ``cos θ = 1 − u(1 − cos θ_max)``, ``φ = 2πw``, an area-preserving map, so every photon
+  carries the same solid angle ``Ω/N`` with ``Ω = 2π(1 − cos θ_max)`` and
+  ``Φ_i = I(d_i)·Ω/N`` (``Σ Φ_i → 4πI`` for a point light).
+- ``"area"`` (ours) — an area emitter (sphere, rectangle, mesh) is sampled on its surface:
+  ``p`` from the shape's ``sample_position`` (density ``p_A``), and the direction by cosine
+  about the normal (density ``cos θ_e/π``, what Mitsuba's ``AreaLight.sample_ray`` does) where
+  ``p`` lies inside the grid's bounding sphere, else uniformly in the cone of that sphere seen
+  from ``p`` (density ``1/Ω_p``, so that distant lights waste few photons). Either way
+  ``Φ = L_e(p, ω)·cos θ_e / (p_A · p_ω · N)``: ``π·L_e/(p_A N)`` — Mitsuba's ``sample_ray``
+  weight over N — or ``L_e·cos θ_e·Ω_p/(p_A N)``.
+- ``"environment"`` (ours) — a ``constant`` or ``envmap`` emitter lights the grid through its
+  faces. The radiance arriving along ``ω`` crosses the box through the faces facing ``−ω``,
+  whose projected area is ``A_⊥(ω) = Σ_a A_a |ω_a|`` (``A_a`` the area of the face normal to
+  axis ``a``), so the power entering is ``∫ L(ω) A_⊥(ω) dω``. The direction is drawn by the
+  emitter's own ``sample_direction`` (density ``p(ω)``, importance sampling an envmap), the face
+  with probability ``A_a|ω_a|/A_⊥`` and the point uniformly on it:
+  ``Φ = L(ω)·A_⊥(ω)/(p(ω)·N)``. (For a constant ``L``: ``Σ Φ → L·4π·A_total/4 = πL·A_total``.)
 
-- point / spot / area-derived point light with intensity ``I(d₀)`` (W/sr):
-  ``Φ_i = I(d₀) · (A/N) · cos³θ_i / d²`` — the solid angle of the photon's plane cell, so
-  ``Σ Φ_i → I · Ω_plane`` (oracle 16);
-- directional light with irradiance ``E``: ``Φ_i = E · A / N`` (``A`` in world units);
-- ``fidelity="paper"``: the constant per-photon energy of Pfeuti's listing, ``Φ_i = I · (A/N) / d²``
-  for point lights (no cosine term, so the image is vignetted).
-
-Spot lights (spec A16): ``I(θ_s) = I₀ · smoothstep(cos θ_outer, cos θ_inner, d₀ · a_spot)``. Area
-emitters arrive as several point lights with a cosine lobe (see :class:`~.scene.Light`).
-All positions here are in **voxel units** of the grid (spec §0.2).
+Photons that start outside the grid move to where they enter it (slab test); photons that miss
+it carry no power (spec S5, oracle 17), and the marcher never activates them. Photons from 2D
+point sets are listed in Morton order of the point so that neighbouring SIMD lanes deposit into
+neighbouring voxels (the deposited sums are exact and do not depend on the order); area and
+environment photons use the Hammersley set of 4 and 5 dimensions (``(i+½)/N, Φ₂(i), Φ₃(i), …``,
+Cranley–Patterson-shifted by the seed). A spot light's intensity falls off as Mitsuba's ``spot``
+plugin's (:func:`spot_falloff`; spec A16 proposed a smoothstep). All positions here are in
+**voxel units** of the grid (spec §0.2); powers in watts.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
@@ -33,7 +55,7 @@ import numpy as np
 from ..core import sampling
 from ..core.errors import SceneError
 from ..core.grid import GridBox
-from .scene import Light
+from .scene import EMITTER_KINDS, Light
 
 PLANE_DISTANCE = (
     1.0  # d: the plane's distance from a point light (any d > 0 gives the same photons)
@@ -79,9 +101,38 @@ def _corners(n: int) -> np.ndarray:
     return np.array([[x, y, z] for x in (0, n) for y in (0, n) for z in (0, n)], dtype=np.float64)
 
 
+def in_front(light: Light, box: GridBox) -> bool:
+    """Whether the whole grid lies in front of the point or spot ``light`` (every corner at a
+    positive depth along the axis towards the grid's centre), as the photon plane needs."""
+    p = box.to_voxel(light.position)
+    c = np.full(3, box.n / 2.0) - p
+    if np.linalg.norm(c) == 0:
+        return False
+    return bool(np.all((_corners(box.n) - p) @ (c / np.linalg.norm(c)) > 0))
+
+
+def emission_mode(light: Light, box: GridBox) -> str:
+    """How S5 makes the photons of ``light`` (module docstring): ``"plane"``, ``"cone"``,
+    ``"area"`` or ``"environment"``."""
+    if light.kind in EMITTER_KINDS:
+        return light.kind
+    if light.kind == "directional" or in_front(light, box):
+        return "plane"
+    return "cone"
+
+
 def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
-    """The square photon plane that covers the grid as seen from ``light`` (spec S5)."""
+    """The square photon plane that covers the grid as seen from ``light`` (spec S5).
+
+    Raises :class:`SceneError` for a light that has none (the plane-based ``emission="adaptive"``
+    cannot use it; ``emission="uniform"`` emits such lights from the light itself)."""
     corners = _corners(box.n)
+    if light.kind in EMITTER_KINDS:
+        raise SceneError(
+            f"the scene's {light.kind} light has no photon plane: emission='adaptive' places its "
+            "photons on a plane in front of point, spot and directional lights outside the grid. "
+            "Use emission='uniform', which samples area and environment lights themselves"
+        )
     if light.kind == "directional":
         c = np.asarray(light.direction, dtype=np.float64)
         c = c / np.linalg.norm(c)
@@ -93,18 +144,19 @@ def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
         origin = centre - depth * c
         return PhotonPlane(origin - a * e1 - a * e2, e1, e2, 2 * a, c)
 
+    if not in_front(light, box):
+        raise SceneError(
+            f"the {light.kind} light at {np.round(light.position, 4).tolist()} lies inside or beside "
+            "the volume grid; the photon plane of emission='adaptive' needs the whole grid in front "
+            "of the light (spec A49). Use emission='uniform' (it emits such a light's photons from "
+            "its position), or move the light outside the grid box (grid_bbox)"
+        )
     p = box.to_voxel(light.position)
     c = np.full(3, box.n / 2.0) - p
-    c = c / np.linalg.norm(c) if np.linalg.norm(c) > 0 else np.array([0.0, -1.0, 0.0])
+    c = c / np.linalg.norm(c)
     e1, e2 = _basis(c)
     rel = corners - p
     depth = rel @ c
-    if not np.all(depth > 0):
-        raise SceneError(
-            f"the {light.kind} light at {np.round(light.position, 4).tolist()} lies inside or beside "
-            "the volume grid; the photon plane needs the whole grid in front of the light (spec A49). "
-            "Move the light outside the grid box or enlarge/shift the box (grid_bbox)."
-        )
     d = PLANE_DISTANCE
     a = float(np.max(np.maximum(np.abs(rel @ e1), np.abs(rel @ e2)) * d / depth))
     centre = p + d * c
@@ -130,9 +182,13 @@ def box_entry(o: mi.Point3f, d: mi.Vector3f, n: int):
     return t_near < t_far, t_near, t_far
 
 
-def _smoothstep(e0, e1, x):
-    t = dr.clip((x - e0) / dr.maximum(e1 - e0, 1e-12), 0.0, 1.0)
-    return dr.select(e1 > e0, t * t * (3.0 - 2.0 * t), dr.select(x >= e0, 1.0, 0.0))
+def spot_falloff(cos_theta, cos_inner: float, cos_outer: float):
+    """Mitsuba's ``spot`` profile: 1 inside the beam (``cos θ ≥ cos_inner``), then linear in the
+    angle, ``(θ_cutoff − θ)/(θ_cutoff − θ_beam)``, and 0 from the cutoff (``cos θ ≤ cos_outer``)."""
+    cutoff, beam = math.acos(cos_outer), math.acos(min(cos_inner, 1.0))
+    angle = dr.acos(dr.clip(cos_theta, -1.0, 1.0))
+    ramp = (_s(cutoff) - angle) * _s(1.0 / max(cutoff - beam, 1e-12))
+    return dr.select(cos_theta > cos_outer, dr.select(cos_theta >= cos_inner, 1.0, ramp), 0.0)
 
 
 def plane_photons(light: Light, box: GridBox, plane: PhotonPlane, u, w, fidelity="physical"):
@@ -155,11 +211,107 @@ def plane_photons(light: Light, box: GridBox, plane: PhotonPlane, u, w, fidelity
     else:
         scale = cell * dr.dot(d, _v(plane.normal)) ** 3  # the cell's solid angle, dA·cos³θ/d²
     if light.kind == "spot":
-        axis = _v(np.asarray(light.direction) / np.linalg.norm(light.direction))
-        scale *= _smoothstep(_s(light.cos_outer), _s(light.cos_inner), dr.dot(d, axis))
-    if light.lobe_normal is not None:
-        scale *= dr.maximum(dr.dot(d, _v(light.lobe_normal)), 0.0)
+        scale *= _spot(light, d)
     return p + dr.zeros(mi.Point3f, count), d, intensity * scale
+
+
+def _spot(light: Light, d: mi.Vector3f) -> mi.Float:
+    axis = _v(np.asarray(light.direction) / np.linalg.norm(light.direction))
+    return spot_falloff(dr.dot(d, axis), light.cos_inner, light.cos_outer)
+
+
+def _cone(light: Light) -> tuple[np.ndarray, float]:
+    """Axis and ``cos θ_max`` of the cone of directions that carry the light's photons: the spot's
+    cutoff cone, or the whole sphere (``cos θ_max = −1``) for a point light — in ``"cone"`` mode
+    it is inside the grid or beside it, where the grid's corners span a hemisphere or more."""
+    if light.kind == "spot":
+        axis = np.asarray(light.direction, dtype=np.float64)
+        return axis / np.linalg.norm(axis), float(light.cos_outer)
+    return np.array([0.0, 0.0, 1.0]), -1.0
+
+
+def cone_photons(light: Light, box: GridBox, u, w):
+    """Start point, direction and power of a point or spot light's photons emitted from its
+    position (mode ``"cone"``, module docstring), before the grid test: ``Φ_i = I(d_i)·Ω/N``."""
+    count = dr.width(u)
+    axis, cos_max = _cone(light)
+    e1, e2 = _basis(axis)
+    cos_t = 1.0 - u * _s(1.0 - cos_max)
+    sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+    sin_p, cos_p = dr.sincos(2.0 * math.pi * w)
+    d = (sin_t * cos_p) * _v(e1) + (sin_t * sin_p) * _v(e2) + cos_t * _v(axis)
+    scale = _s(2.0 * math.pi * (1.0 - cos_max) / count) + dr.zeros(mi.Float, count)
+    if light.kind == "spot":
+        scale *= _spot(light, d)
+    p = _v(box.to_voxel(light.position)) + dr.zeros(mi.Point3f, count)
+    return p, d, mi.Color3f(_v(light.intensity)) * scale
+
+
+def hammersley_nd(count: int, dims: int, seed: int) -> list[mi.Float]:
+    """The ``dims``-dimensional Hammersley set ``((i+½)/N, Φ₂(i), Φ₃(i), Φ₅(i), …)``, every
+    dimension but the first shifted modulo 1 by a random offset drawn from ``seed``
+    (Cranley–Patterson rotation: each point uniform, the set stratified)."""
+    i = dr.arange(mi.UInt32, count)
+    shift = np.random.default_rng(seed).random(dims)
+    radical = mi.RadicalInverse()
+    out = [(mi.Float(i) + 0.5) / count]
+    for k in range(dims - 1):
+        x = radical.eval(k, mi.UInt64(i)) + _s(shift[k])
+        out.append(x - dr.floor(x))
+    return out
+
+
+def area_photons(light: Light, box: GridBox, count: int, seed: int = 0):
+    """Start point (voxel units), direction and power of an area emitter's photons (mode
+    ``"area"``, module docstring), before the grid test."""
+    emitter = light.emitter
+    u = hammersley_nd(count, 4, seed)
+    ps = emitter.get_shape().sample_position(0.0, mi.Point2f(u[0], u[1]))
+    si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
+    radius = 0.5 * math.sqrt(3.0) * box.size  # the grid's bounding sphere
+    to_centre = _v(box.center) - ps.p
+    dist = dr.norm(to_centre)
+    far = dist > radius
+    cos_max = dr.safe_sqrt(1.0 - dr.square(radius / dist))
+    cos_t = 1.0 - u[2] * (1.0 - cos_max)
+    sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
+    sin_p, cos_p = dr.sincos(2.0 * math.pi * u[3])
+    in_cone = mi.Frame3f(to_centre / dist).to_world(
+        mi.Vector3f(sin_t * cos_p, sin_t * sin_p, cos_t)
+    )
+    cosine = si.sh_frame.to_world(mi.warp.square_to_cosine_hemisphere(mi.Point2f(u[2], u[3])))
+    d = dr.select(far, in_cone, cosine)
+    si.wi = si.to_local(d)
+    solid = 2.0 * math.pi * (1.0 - cos_max)
+    weight = dr.select(far, dr.maximum(dr.dot(d, ps.n), 0.0) * solid, math.pi)
+    power = emitter.eval(si) * weight / (ps.pdf * count)
+    origin = mi.Point3f((ps.p - _v(box.lo)) / _s(box.h))
+    return origin, d, mi.Color3f(power) * mi.Color3f(_v(light.intensity))
+
+
+def environment_photons(light: Light, box: GridBox, count: int, seed: int = 0):
+    """Start point on the grid's faces (voxel units), direction and power of an environment's
+    photons (mode ``"environment"``, module docstring)."""
+    u = hammersley_nd(count, 5, seed)
+    it = dr.zeros(mi.Interaction3f, count)
+    it.p = _v(box.center) + dr.zeros(mi.Point3f, count)
+    ds, weight = light.emitter.sample_direction(it, mi.Point2f(u[0], u[1]))  # L(ω)/p(ω)
+    d = -ds.d
+    face = _s(box.size**2)  # world area of each face (cubic grid)
+    a = dr.abs(d) * face
+    projected = a.x + a.y + a.z  # A_⊥(ω)
+    pick = u[2] * projected
+    n = _s(float(box.n))
+    enter = dr.select(d > 0, 0.0, n)  # the entry face's coordinate on each axis
+    along_x, along_y = pick < a.x, (pick >= a.x) & (pick < a.x + a.y)
+    s, t = u[3] * n, u[4] * n
+    origin = mi.Point3f(
+        dr.select(along_x, enter.x, s),
+        dr.select(along_x, s, dr.select(along_y, enter.y, t)),
+        dr.select(along_x | along_y, t, enter.z),
+    )
+    power = mi.Color3f(weight) * projected / count * mi.Color3f(_v(light.intensity))
+    return origin, d, dr.select(ds.pdf > 0, power, 0.0)
 
 
 def emit(
@@ -170,27 +322,30 @@ def emit(
     seed: int = 0,
     fidelity: str = "physical",
 ) -> Photons:
-    """Generate ``count`` photons on the light's photon plane, started where they enter the grid.
+    """Generate ``count`` photons of ``light`` (by its :func:`emission_mode`), started where they
+    enter the grid (or where they are, inside it).
 
     Photons that miss the grid (or leave a spot light's cone) keep zero power: the marcher never
-    activates them, and since the photons are in Morton order such photons fill whole SIMD
-    packets, which cost nothing, so no compaction pass is needed.
+    activates them, and since the plane and cone photons are in Morton order such photons fill
+    whole SIMD packets, which cost nothing, so no compaction pass is needed. ``sampler`` is the 2D
+    point set of the plane and cone modes; ``fidelity="paper"`` changes the plane's energies only.
     """
+    mode = emission_mode(light, box)
+    if mode == "area":
+        return enter_grid(*area_photons(light, box, count, seed), box.n)
+    if mode == "environment":
+        return enter_grid(*environment_photons(light, box, count, seed), box.n)
     u, w = sampling.coherent_points(sampler, count, seed)
+    if mode == "cone":
+        return enter_grid(*cone_photons(light, box, u, w), box.n)
     return emit_at(light, box, u, w, fidelity)
 
 
-def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight=None) -> Photons:
-    """Photons at the plane points ``(u, w) ∈ [0,1]²``, in the given order, entering the grid.
-
-    ``weight`` (per photon, optional) multiplies the power: ``1/p(u, w)`` for points drawn from a
-    density ``p`` on the plane (Pfeuti §3.2.3, spec A4), so that the estimator stays unbiased.
-    """
-    count = dr.width(u)
-    o, d, power = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
-    if weight is not None:
-        power *= weight
-    hit, t_near, _ = box_entry(o, d, box.n)
+def enter_grid(o: mi.Point3f, d: mi.Vector3f, power: mi.Color3f, n: int) -> Photons:
+    """Photons from ``o`` along ``d`` (voxel units) moved to where they enter the grid ``[0, n]³``
+    (unchanged inside it); those that miss it, or carry no power, get zero power."""
+    count = dr.width(power)
+    hit, t_near, _ = box_entry(o, d, n)
     keep = hit & (dr.max(power) > 0.0)
     photons = Photons(
         origin=dr.select(keep, o + t_near * d, 0.0),
@@ -203,11 +358,24 @@ def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight
     return photons
 
 
+def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight=None) -> Photons:
+    """Photons at the photon-plane points ``(u, w) ∈ [0,1]²``, in the given order, entering the
+    grid.
+
+    ``weight`` (per photon, optional) multiplies the power: ``1/p(u, w)`` for points drawn from a
+    density ``p`` on the plane (Pfeuti §3.2.3, spec A4), so that the estimator stays unbiased.
+    """
+    o, d, power = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
+    if weight is not None:
+        power *= weight
+    return enter_grid(o, d, power, box.n)
+
+
 def emit_lights(
     lights: list[Light], box: GridBox, count: int, sampler: str, seed: int, fidelity: str
 ) -> Photons:
     """S5 for every light (Sun §3: "a set of point or directional light sources"), ``count``
-    photons on each light's plane, concatenated."""
+    photons of each light (:func:`emit`), concatenated."""
     return concat([emit(light, box, count, sampler, seed, fidelity) for light in lights])
 
 

@@ -18,7 +18,7 @@ from ..core.memory import available_memory, human_bytes
 from ..core.params import check_choice, check_fields, check_range
 from . import mipmap, pilot
 from .scatter import SCATTERING
-from .scene import Light, Medium
+from .scene import EMITTER_KINDS, LIGHT_KINDS, Light, Medium
 
 FIDELITY = ("physical", "paper")
 EMISSION = ("uniform", "adaptive")
@@ -266,7 +266,7 @@ def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None =
         )
 
 
-LIGHT_VECTORS = ("position", "direction", "intensity", "lobe_normal")
+LIGHT_VECTORS = ("position", "direction", "intensity")
 
 
 def light_vector(name: str, value) -> np.ndarray:
@@ -286,7 +286,14 @@ def light_vector(name: str, value) -> np.ndarray:
 
 
 def check_light(light: Light) -> None:
-    if light.kind not in ("point", "spot", "directional"):
+    if light.kind in EMITTER_KINDS:
+        if light.emitter is None or light.position is not None or light.direction is not None:
+            raise ParameterError(
+                f"an {light.kind} light is the scene's own Mitsuba emitter: set_light changes only "
+                "its intensity (an RGB factor on its radiance); edit the emitter itself through "
+                "mi.traverse and call reload()"
+            )
+    elif light.kind not in LIGHT_KINDS:
         raise ParameterError(f"light kind must be point, spot or directional, got {light.kind!r}")
     for name in ("intensity", "position", "direction"):
         value = getattr(light, name)
@@ -306,7 +313,7 @@ def check_light(light: Light) -> None:
         light.direction is None or np.linalg.norm(light.direction) == 0
     ):
         raise ParameterError("a directional light needs a non-zero direction (where light travels)")
-    if light.kind != "directional" and light.position is None:
+    if light.kind in ("point", "spot") and light.position is None:
         raise ParameterError(f"a {light.kind} light needs a position (world units)")
     if light.kind == "spot" and (light.direction is None or np.linalg.norm(light.direction) == 0):
         raise ParameterError("a spot light needs a non-zero direction (its axis)")

@@ -10,12 +10,13 @@ units (``σ_vox = σ_world · h``). It is built from a Mitsuba scene by :func:`f
 - the sensor's medium fills the rest of the grid (:attr:`VolumeScene.outside`);
 - the grid box is the cube around the medium-bearing shapes (or an explicit ``grid_bbox``);
 - point, spot, directional and area emitters are :class:`Light` s; a ``constant`` or ``envmap``
-  emitter is the background;
+  emitter is the background and a light too (photons through the grid's faces, issue 11 item 3);
 - the perspective sensor is the camera.
 """
 
 from __future__ import annotations
 
+import hashlib
 import warnings
 from dataclasses import dataclass, field
 
@@ -28,7 +29,8 @@ from ..core.grid import GridBox
 from ..core.scene_info import has_media
 from .voxelize import check_closed
 
-LIGHT_KINDS = ("point", "spot", "directional")
+LIGHT_KINDS = ("point", "spot", "directional")  # lights set_light can make
+EMITTER_KINDS = ("area", "environment")  # lights that are the scene's own Mitsuba emitters
 
 
 @dataclass
@@ -73,11 +75,15 @@ class Light:
     """A light in world units.
 
     ``point`` and ``spot``: ``position`` and RGB ``intensity`` (W/sr). A spot light's axis is
-    ``direction`` and its intensity falls off as ``smoothstep(cos_outer, cos_inner, cos θ)`` (spec
-    A16). An area emitter becomes several point lights whose intensity has a cosine lobe about
-    ``lobe_normal`` (``I(ω) = intensity · max(0, lobe_normal · ω)``).
+    ``direction``; its intensity falls off as Mitsuba's ``spot`` does: 1 within the beam
+    (``cos θ ≥ cos_inner``), linearly in the angle θ to 0 at the cutoff ``cos_outer``.
     ``directional``: propagation ``direction`` and RGB ``irradiance`` (W/m² normal to the beam),
     stored in ``intensity``.
+    ``area`` and ``environment`` (issue 11 item 3): the scene's Mitsuba ``emitter`` itself (an
+    area emitter on a sphere, rectangle or mesh; a ``constant`` or ``envmap`` environment), sampled
+    by S5 (``emit.py``); ``intensity`` is an RGB factor on its radiance (1: as in the scene) and
+    ``fingerprint`` a digest of its parameters and its shape's, so that an edited emitter re-keys
+    the cached photon stages.
     """
 
     kind: str
@@ -86,7 +92,8 @@ class Light:
     direction: np.ndarray | None = None
     cos_inner: float = 1.0
     cos_outer: float = 1.0
-    lobe_normal: np.ndarray | None = None
+    emitter: object | None = None  # mi.Emitter of an area / environment light
+    fingerprint: str = ""
 
 
 @dataclass
@@ -123,9 +130,8 @@ class VolumeScene:
 # ------------------------------------------------------------------------------------------------
 # Reading a Mitsuba scene
 
-AREA_LIGHT_SAMPLES = 4  # an area emitter becomes 4 × 4 stratified point lights
 MARGIN = 6.0  # voxels left around refractive objects when no fog box bounds the grid (spec A4)
-EMITTERS = "point, spot, directional and area emitters (plus one constant or envmap background)"
+EMITTERS = "point, spot, directional and area emitters, or a constant or envmap environment"
 
 
 def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScene:
@@ -152,9 +158,11 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     - **Grid box** (``grid³`` voxels): ``grid_bbox = (min, max)`` if given, else the cube around the
       fog volumes with no margin when they enclose every refractive object (the fog box is the
       domain), else the cube around all medium-bearing shapes with ``MARGIN`` voxels.
-    - **Lights**: point, spot (``cutoff_angle`` → ``cos_outer``, ``beam_width`` → ``cos_inner``),
-      directional and area emitters (``AREA_LIGHT_SAMPLES²`` stratified point lights with a cosine
-      lobe, intensity ``L / (pdf · M)``); a ``constant``/``envmap`` emitter is the ``environment``.
+    - **Lights** (anywhere, issue 11 item 3): point, spot (``cutoff_angle`` → ``cos_outer``,
+      ``beam_width`` → ``cos_inner``), directional, and area emitters (kept as Mitsuba emitters,
+      sampled on their surface by S5); a ``constant``/``envmap`` emitter is the ``environment``
+      (the background of the viewing pass) and also a light whose photons enter through the
+      grid's faces.
     - **Camera**: the first sensor, which must be ``perspective``.
 
     Other shapes are not seen by the volume pipeline: they are skipped with a warning.
@@ -355,6 +363,8 @@ def _lights(scene, center) -> tuple[list[Light], object]:
         kind, name = emitter.class_name(), emitter.id()
         if emitter.is_environment():
             environment = emitter
+            digest = _digest(emitter)
+            lights.append(Light("environment", np.ones(3), emitter=emitter, fingerprint=digest))
         elif kind == "PointLight":
             position = _np3(mi.traverse(emitter)["position"])
             _, spec, dist = _probe(emitter, position - [0.0, 1.0, 0.0])
@@ -382,7 +392,8 @@ def _lights(scene, center) -> tuple[list[Light], object]:
             to_light, irradiance, _ = _probe(emitter, center)
             lights.append(Light("directional", irradiance, direction=-to_light))
         elif kind == "AreaLight":
-            lights.extend(_area_lights(emitter))
+            digest = _digest(emitter, emitter.get_shape())
+            lights.append(Light("area", np.ones(3), emitter=emitter, fingerprint=digest))
         else:
             raise SceneError(
                 f"emitter '{name}' is a {kind}, which the volume pipeline cannot use; it supports "
@@ -393,26 +404,21 @@ def _lights(scene, center) -> tuple[list[Light], object]:
     return lights, environment
 
 
-def _area_lights(emitter) -> list[Light]:
-    """An area emitter as M = AREA_LIGHT_SAMPLES² stratified point lights with cosine lobes."""
-    k = AREA_LIGHT_SAMPLES
-    u, v = np.meshgrid((np.arange(k) + 0.5) / k, (np.arange(k) + 0.5) / k, indexing="ij")
-    ps = emitter.get_shape().sample_position(0.0, mi.Point2f(u.ravel(), v.ravel()))
-    si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
-    si.wi = mi.Vector3f(0, 0, 1)
-    m = k * k
-
-    def rows(x, channels):  # a Dr.Jit array (possibly width 1) → NumPy (m, channels)
-        return np.broadcast_to(
-            np.asarray(x, dtype=np.float64).reshape(channels, -1).T, (m, channels)
-        )
-
-    p, n, radiance = rows(ps.p, 3), rows(ps.n, 3), rows(emitter.eval(si), 3)
-    intensity = radiance / (rows(ps.pdf, 1) * m)
-    return [
-        Light("point", i, position=x, lobe_normal=nn)
-        for i, x, nn in zip(intensity, p, n, strict=True)
-    ]
+def _digest(*objects) -> str:
+    """A digest of the parameters of Mitsuba objects (``mi.traverse``): an emitter edited through
+    ``mi.traverse`` and re-read by ``reload`` changes its light's cache key."""
+    h = hashlib.sha1()
+    for obj in objects:
+        params = mi.traverse(obj)
+        for key in sorted(params.keys()):
+            try:
+                value = params[key]
+                value = np.asarray(getattr(value, "matrix", value), dtype=np.float64)
+            except (TypeError, ValueError):
+                continue
+            h.update(key.encode())
+            h.update(value.tobytes())
+    return h.hexdigest()
 
 
 def check_has_fog(mi_scene: mi.Scene, source) -> None:
