@@ -119,7 +119,7 @@ class MarchResult:
     C: mi.TensorXf  # (n, n, n, 3) deposited energy
     D: mi.TensorXf  # (n, n, n, 3) Σ (R+G+B)·direction, unnormalised
     steps: int  # photon marching steps taken (Sun Table 1 "millions of steps")
-    final: tuple = ()  # per photon (x, v, L̃) where it stopped (voxel units)
+    final: tuple = ()  # per photon (x, v, L̃) where it stopped (voxel units) [+ its scatterings]
     count: mi.TensorXf | None = None  # (n, n, n) deposits per voxel (weighted march only)
     weight: mi.TensorXf | None = None  # (n, n, n) their average weight w̄ = Σw / cnt, 0 if none
     scatterings: int = 0  # scattering events of all photons (multiple scattering)
@@ -276,8 +276,8 @@ def _march_multiple(
             depth = dr.zeros(mi.Color3f, count)
             found = mi.Bool(False)
             order_steps = dr.zeros(mi.UInt32, count)
-            orders += 1
-            active = survives & (dr.max(W) > 0)
+            active = survives & (dr.max(W) > 0)  # absorbed (σ_s = 0) or lost in the roulette
+            orders += dr.select(active, 1, 0)
         else:
             active = ~ended
     return steps, x, v, L, orders
