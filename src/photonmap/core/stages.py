@@ -18,6 +18,7 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
+from .errors import ParameterError
 from .timer import StageTimer
 
 
@@ -89,3 +90,46 @@ class StageCache:
 
     def __contains__(self, name: str) -> bool:
         return name in self._entries
+
+
+class StagedPipeline:
+    """The stage-cache interface of a pipeline holding a :class:`StageCache` in ``cache`` and
+    its stage names in ``stages``: per-stage timings, the stages the last frame ran, forgetting
+    stages, and reading a stage's output."""
+
+    cache: StageCache
+    stages: tuple[str, ...]
+
+    @property
+    def timer(self) -> StageTimer:
+        """Milliseconds of each stage the last ``render`` ran."""
+        return self.cache.timer
+
+    @timer.setter
+    def timer(self, timer: StageTimer) -> None:
+        self.cache.timer = timer
+
+    @property
+    def recomputed(self) -> list[str]:
+        """The stages the last ``render`` ran, in order (the others were reused)."""
+        return self.cache.recomputed
+
+    def invalidate(self, names: str | Iterable[str] | None = None) -> None:
+        """Forget the cached output of the stages ``names`` (all when None): the next
+        ``render`` recomputes them. The other stages keep their outputs while their own inputs
+        are unchanged, so to time a whole frame invalidate every stage (the benchmarks do)."""
+        if names is not None:
+            for name in [names] if isinstance(names, str) else names:
+                self._check_stage(name)
+        self.cache.invalidate(names)
+
+    def stage_output(self, name: str):
+        """The cached output of stage ``name`` (one of :attr:`stages`) from the last render."""
+        self._check_stage(name)
+        if name not in self.cache:
+            raise ParameterError(f"stage {name!r} has not run yet: call render() first")
+        return self.cache.get(name)
+
+    def _check_stage(self, name: str) -> None:
+        if name not in self.stages:
+            raise ParameterError(f"no stage {name!r}; the stages are {', '.join(self.stages)}")

@@ -48,7 +48,7 @@ from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import warn_unmodelled_media
-from ..core.stages import StageCache
+from ..core.stages import StageCache, StagedPipeline
 from .composite import composite, glass_eye
 from .direct import direct_light
 from .gbuffer import eye_gbuffer
@@ -174,7 +174,7 @@ def _sensor_key(sensor) -> tuple:
     return (tuple(m.round(9)), tuple(fov), size, tuple(int(c) for c in sensor.film().size()))
 
 
-class ScreenPipeline(MovableCamera):
+class ScreenPipeline(MovableCamera, StagedPipeline):
     """Image-space photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``) with
     a spot, point or area light (rectangle, disk, sphere, mesh).
 
@@ -279,41 +279,6 @@ class ScreenPipeline(MovableCamera):
         return self.params.light_size * self.diagonal
 
     # ------------------------------------------------------------------------------- stages
-    @property
-    def timer(self):
-        """Milliseconds of each stage the last :meth:`render` ran (:class:`StageTimer`)."""
-        return self.cache.timer
-
-    @timer.setter
-    def timer(self, timer) -> None:
-        self.cache.timer = timer
-
-    @property
-    def recomputed(self) -> list[str]:
-        """The stages the last :meth:`render` ran, in order (the others were reused)."""
-        return self.cache.recomputed
-
-    def invalidate(self, names: str | list[str] | None = None) -> None:
-        """Forget the cached output of the stages ``names`` (all when None; the random map is
-        kept, as it is made once): the next :meth:`render` recomputes them. ``invalidate()``
-        makes the next frame a full frame, as when both camera and light move (what
-        :mod:`benchmarks.screen_table1` times)."""
-        if names is not None:
-            for name in [names] if isinstance(names, str) else names:
-                self._check_stage(name)
-        self.cache.invalidate(names)
-
-    def stage_output(self, name: str):
-        """The cached output of stage ``name`` (one of :attr:`stages`) from the last render."""
-        self._check_stage(name)
-        if name not in self.cache:
-            raise ParameterError(f"stage {name!r} has not run yet: call render() first")
-        return self.cache.get(name)
-
-    def _check_stage(self, name: str) -> None:
-        if name not in self.stages:
-            raise ParameterError(f"no stage {name!r}; the stages are {', '.join(self.stages)}")
-
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance. Every
         intermediate is in :attr:`outputs` (spec §7 testability)."""

@@ -38,7 +38,7 @@ from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.grid import filter_separable
 from ..core.params import updated
-from ..core.stages import StageCache, cache_key
+from ..core.stages import StageCache, StagedPipeline, cache_key
 from . import adaptive, emit, march, mipmap, pilot
 from .materials import MaterialGrids, from_arrays, gradient, material_grids
 from .octree import build_octree
@@ -58,7 +58,7 @@ from .view import ViewGrids, ViewSettings, render_view, sensor_key
 from .voxelize import voxelize
 
 
-class VolumePipeline:
+class VolumePipeline(StagedPipeline):
     """Voxel photon tracing through refractive participating media, relightable.
 
     ``scene`` is a Mitsuba scene (``mi.Scene``), a scene dict, an XML path or a built-in name
@@ -212,36 +212,6 @@ class VolumePipeline:
         raise ParameterError(f"no refractive object {name!r}")
 
     # ------------------------------------------------------------------ stages
-    @property
-    def timer(self):
-        """Milliseconds of each stage the last :meth:`render` ran (:class:`StageTimer`)."""
-        return self.cache.timer
-
-    @timer.setter
-    def timer(self, timer) -> None:
-        self.cache.timer = timer
-
-    @property
-    def recomputed(self) -> list[str]:
-        """The stages the last :meth:`render` ran, in order (the others were reused)."""
-        return self.cache.recomputed
-
-    def invalidate(self, names: str | list[str] | None = None) -> None:
-        """Forget the cached output of the stages ``names`` (all when None): the next
-        :meth:`render` recomputes them. The other stages keep their outputs while their own
-        inputs are unchanged, so to time a light change name every stage it reruns (the
-        benchmarks do)."""
-        self.cache.invalidate(names)
-
-    def stage_output(self, name: str):
-        """The cached output of stage ``name`` (one of :attr:`stages`) from the last render,
-        e.g. ``"march grids"``, ``"photon generation"``, ``"smoothing"`` (C, D)."""
-        if name not in self.stages:
-            raise ParameterError(f"no stage {name!r}; the stages are {', '.join(self.stages)}")
-        if name not in self.cache:
-            raise ParameterError(f"stage {name!r} has not run yet: call render() first")
-        return self.cache.get(name)
-
     def set_stage_output(self, name: str, value) -> None:
         """Replace the cached output of stage ``name`` (computed before) by ``value``, keeping
         its key, and forget the stages after it, so that the next :meth:`render` reruns those
