@@ -266,7 +266,7 @@ def area_photons(light: Light, box: GridBox, count: int, seed: int = 0):
     ``"area"``, module docstring), before the grid test."""
     emitter = light.emitter
     u = hammersley_nd(count, 4, seed)
-    ps = emitter.get_shape().sample_position(0.0, mi.Point2f(u[0], u[1]))
+    ps = light.shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
     si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
     radius = 0.5 * math.sqrt(3.0) * box.size  # the grid's bounding sphere
     to_centre = _v(box.center) - ps.p

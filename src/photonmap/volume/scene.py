@@ -93,6 +93,8 @@ class Light:
     cos_inner: float = 1.0
     cos_outer: float = 1.0
     emitter: object | None = None  # mi.Emitter of an area / environment light
+    shape: object | None = None  # an area emitter's mi.Shape: held here, as the emitter's own
+    #                              pointer to it does not keep it alive once the scene is freed
     fingerprint: str = ""
 
 
@@ -392,8 +394,11 @@ def _lights(scene, center) -> tuple[list[Light], object]:
             to_light, irradiance, _ = _probe(emitter, center)
             lights.append(Light("directional", irradiance, direction=-to_light))
         elif kind == "AreaLight":
-            digest = _digest(emitter, emitter.get_shape())
-            lights.append(Light("area", np.ones(3), emitter=emitter, fingerprint=digest))
+            shape = emitter.get_shape()
+            digest = _digest(emitter, shape)
+            lights.append(
+                Light("area", np.ones(3), emitter=emitter, shape=shape, fingerprint=digest)
+            )
         else:
             raise SceneError(
                 f"emitter '{name}' is a {kind}, which the volume pipeline cannot use; it supports "
