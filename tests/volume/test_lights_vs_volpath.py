@@ -1,0 +1,166 @@
+"""Lights anywhere (issue 11 item 3) against Mitsuba ``volpath``: one fog box, one light of each
+kind, single scattering.
+
+The fog is a 4 × 2 × 2 box (σ_t 0.5, albedo 0.9, isotropic) in vacuum, in a grid cube of side 4
+(grid 32); the lights: a point light and a spot light inside the fog, a spherical area emitter
+inside the fog, a rectangle emitter above the grid (outside it, facing down), and a constant
+environment (the background too). ``volpath`` at ``max_depth = 2`` is direct light plus single
+scattering here (Mitsuba does not count the crossings of a ``null`` boundary;
+tests/volume/test_bounded_fog.py), what the volume method computes with ``scattering="single"``,
+``phase_k = 0`` and no table. Pixels whose camera ray meets the spherical emitter are left out
+of both images (the viewing pass does not see emitter shapes, volpath does).
+
+Metrics (64 × 48, ours 128² photons per light and 4 spp, volpath 256 spp): the brightness
+ratio mean(ours)/mean(volpath) and the relative RMSE of 4 × 4-block means. Measured values and
+bounds (~1.5-2x) are at ``CASES``.
+"""
+
+import numpy as np
+import pytest
+
+from photonmap import VolumePipeline, mi
+
+WIDTH, HEIGHT = 64, 48
+SPHERE = (np.array([-1.0, 0.55, 0.2]), 0.15)
+SPOT = [0.5, 0.6, 0.0]
+
+
+def camera() -> dict:
+    return {
+        "type": "perspective",
+        "fov": 45.0,
+        "to_world": mi.ScalarTransform4f().look_at(
+            origin=[0, 1.5, 9], target=[0, 0, 0], up=[0, 1, 0]
+        ),
+        "film": {"type": "hdrfilm", "width": WIDTH, "height": HEIGHT, "rfilter": {"type": "box"}},
+    }
+
+
+LIGHTS = {
+    "point": {"type": "point", "position": [0.7, 0.3, 0.1], "intensity": 4.0},
+    "spot": {
+        "type": "spot",
+        "intensity": 12.0,
+        "cutoff_angle": 50.0,
+        "beam_width": 30.0,
+        "to_world": mi.ScalarTransform4f().look_at(
+            origin=SPOT, target=[0.3, -1.0, 0.2], up=[0, 0, 1]
+        ),
+    },
+    "sphere": {
+        "type": "sphere",
+        "center": SPHERE[0].tolist(),
+        "radius": SPHERE[1],
+        "emitter": {"type": "area", "radiance": 40.0},
+    },
+    "rectangle": {
+        "type": "rectangle",
+        "to_world": mi.ScalarTransform4f()
+        .translate([0.8, 4.0, 0.0])
+        .rotate([1, 0, 0], 90)
+        .scale(0.75),
+        "emitter": {"type": "area", "radiance": 6.0},
+    },
+    "environment": {"type": "constant", "radiance": 0.3},
+}
+
+
+def fog_box(light: str) -> dict:
+    return {
+        "type": "scene",
+        "fog": {"type": "homogeneous", "sigma_t": 0.5, "albedo": 0.9},
+        "fog_box": {
+            "type": "cube",
+            "to_world": mi.ScalarTransform4f().scale([2, 1, 1]),
+            "bsdf": {"type": "null"},
+            "interior": {"type": "ref", "id": "fog"},
+        },
+        "light": LIGHTS[light],
+        "sensor": camera(),
+    }
+
+
+def block_means(image: np.ndarray, k: int = 4) -> np.ndarray:
+    h, w = image.shape[0] // k * k, image.shape[1] // k * k
+    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
+
+
+def near_blocks(point, radius: float) -> np.ndarray:
+    """The 4 × 4 blocks with a pixel whose camera ray (through its corners or centre) passes
+    within ``radius`` of ``point``."""
+    sensor = mi.load_dict(camera())
+    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
+    near = np.zeros((HEIGHT, WIDTH), bool)
+    for dx, dy in ((0.5, 0.5), (0, 0), (1, 0), (0, 1), (1, 1)):
+        pos = mi.Point2f(((x + dx) / WIDTH).ravel(), ((y + dy) / HEIGHT).ravel())
+        ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
+        o, d = np.array(ray.o).T, np.array(ray.d).T
+        rel = np.asarray(point) - o
+        along = np.sum(rel * d, axis=1)
+        miss = np.linalg.norm(rel - along[:, None] * d, axis=1)
+        near |= (miss < radius).reshape(HEIGHT, WIDTH)
+    return block_means(near[..., None].astype(float))[..., 0] > 0
+
+
+def compare(light: str, seed: int = 0) -> tuple[float, float]:
+    """(brightness ratio, 4 × 4-block relative RMSE) of ours against volpath (``seed``)."""
+    grid, spp, centre, radius = SETUP[light]
+    scene = fog_box(light)
+    integrator = mi.load_dict({"type": "volpath", "max_depth": 2})
+    image = mi.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed)
+    reference = np.array(image)[..., :3]
+    pipe = VolumePipeline(
+        scene, grid=grid, photons=128**2, phase_k=0.0, table=0.0, spp=4, scattering="single"
+    )
+    ours = np.array(pipe.render())
+    a, b = block_means(ours), block_means(reference)
+    keep = ~near_blocks(centre, radius) if radius > 0 else np.ones(a.shape[:2], bool)
+    a, b = a[keep], b[keep]
+    return a.mean() / b.mean(), np.sqrt(np.mean((a - b) ** 2)) / b.mean()
+
+
+# light: grid, volpath spp, centre and radius of the left-out region (radius 0: none)
+SETUP = {
+    "point": (32, 1024, LIGHTS["point"]["position"], 0.3),
+    "spot": (48, 1024, SPOT, 0.3),
+    "sphere": (32, 1024, SPHERE[0], SPHERE[1] + 0.3),
+    "rectangle": (32, 256, None, 0.0),
+    "environment": (32, 256, None, 0.0),
+}
+# light: (ratio bound |r − 1|, block-error bound); measured over volpath seeds 0-2 (the test
+# uses seed 0), ours deterministic:
+#   point        ratio 1.000-1.012  error 0.084-0.115
+#   spot         ratio 0.985-0.988  error 0.140-0.168  (grid 48: 0.27 at grid 32, 0.13 at 64 —
+#                the resolution of the cone's edges and apex; the ratio stays 0.98-0.99)
+#   sphere       ratio 1.008-1.009  error 0.083-0.091
+#   rectangle    ratio 1.010-1.014  error 0.058-0.072
+#   environment  ratio 0.9997-0.9999 error 0.0056-0.0067
+# The blocks left out around the point light, the spot's apex and the sphere hold the 1/r
+# singularity of the in-scattered radiance near a small light, which a voxel grid cannot resolve
+# (and volpath's own noise there is 0.16-2.3 in block error between 1024 and 4096 spp).
+# Mutations (emit.py, by hand, then reverted): Φ halved fails every kind (ratio 0.49-0.51);
+# an environment's photons started on their exit faces 0.92 / 0.15; its projected area without
+# the |ω_a| 1.04 / 0.084; a distant emitter's cone weight without cos θ_e (rectangle) 1.09 /
+# 0.23. Not caught here, at this resolution, and caught by test_lights_anywhere.py instead:
+# spec A16's smoothstep spot profile (1.018 / 0.127), an area emitter's directions uniform over
+# the hemisphere instead of its cosine lobe (sphere 0.996 / 0.094).
+CASES = {
+    "point": (0.025, 0.2),
+    "spot": (0.03, 0.27),
+    "sphere": (0.02, 0.15),
+    "rectangle": (0.025, 0.12),
+    "environment": (6e-4, 0.012),
+}
+
+
+@pytest.mark.parametrize("light", list(CASES))
+def test_light_kind_matches_volpath_single_scattering(light):
+    ratio, error = compare(light)
+    ratio_bound, error_bound = CASES[light]
+    assert abs(ratio - 1) < ratio_bound, ratio
+    assert error < error_bound, error
+
+
+if __name__ == "__main__":
+    for name in CASES:
+        print(name, [np.round(compare(name, seed), 4).tolist() for seed in range(3)])
