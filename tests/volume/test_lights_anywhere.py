@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from photonmap import VolumePipeline, mi
+from photonmap.core.errors import ParameterError, SceneError
 from photonmap.core.grid import GridBox
 from photonmap.volume.emit import emission_mode, emit
 from photonmap.volume.scene import Light, from_mitsuba
@@ -418,3 +419,46 @@ def test_constant_environment_fluence_in_absorbing_fog():
             for a, b in ((1, 3), (3, 6), (6, 10), (10, 16))
         ]
         assert np.all(np.abs(np.array(ratios) - 1) < 0.025), ratios
+
+
+# ------------------------------------------------------------------------------------------------
+# Edits and refusals
+
+
+def test_an_edited_area_emitter_reruns_the_photon_stages():
+    """The light's fingerprint re-keys S5: radiance × 2 through mi.traverse + reload → C × 2
+    (without the fingerprint the cached photons would be reused: ratio 1)."""
+    scene = mi.load_dict(fog_cube(light=sphere_light(POINT, 0.3, 2.0)))
+    pipe = VolumePipeline(scene, grid=16, grid_bbox=([0, 0, 0], [SIZE] * 3), photons=32**2)
+    pipe.render()
+    before = np.array(pipe.stage_output("photon tracing").C).sum()
+    params = mi.traverse(scene)
+    params["light.emitter.radiance.value"] = mi.Color3f(4.0, 4.0, 4.0)
+    params.update()
+    pipe.reload(scene)
+    pipe.render()
+    assert "photon generation" in pipe.recomputed
+    after = np.array(pipe.stage_output("photon tracing").C).sum()
+    assert after / before == pytest.approx(2.0, rel=1e-5)
+    with pytest.raises(ParameterError, match="scene's own Mitsuba emitter.*reload"):
+        pipe.set_light(0, position=[1, 1, 1])
+
+
+@pytest.mark.parametrize(
+    "light, match",
+    [
+        (sphere_light(POINT, 0.3, 2.0), "area light has no photon plane.*emission='uniform'"),
+        ({"type": "point", "position": POINT.tolist()}, "inside or beside.*emission='uniform'"),
+    ],
+)
+def test_adaptive_emission_names_uniform_for_lights_without_a_photon_plane(light, match):
+    pipe = VolumePipeline(
+        fog_cube(light=light),
+        grid=16,
+        grid_bbox=([0, 0, 0], [SIZE] * 3),
+        photons=64**2,
+        pilot_photons=16**2,
+        emission="adaptive",
+    )
+    with pytest.raises(SceneError, match=match):
+        pipe.render()
