@@ -1,6 +1,6 @@
-"""A scene with fog (issue 10): the surface method does not model participating media, says so once
-with a warning naming the medium, and renders the scene as in vacuum — its ``null``-BSDF fog box
-invisible to photons, eye rays, shadow rays and final-gather rays (core.bsdf)."""
+"""A glass ball and a diffuse floor inside a box of fog (issue 11 item 5): the surface method
+models the medium (volumetric photon mapping, Jensen & Christensen 1998) and agrees with Mitsuba's
+``volpath`` on the same scene — with no warning: the fog is no longer ignored."""
 
 import warnings
 
@@ -19,7 +19,7 @@ def fog_box_scene(fog: bool) -> mi.Scene:
     """/work/shared/tools/scenes/glass_sphere_fog_box.xml's fog box (a null-BSDF cube holding a
     homogeneous medium) and glass ball, with a diffuse floor inside the box and a spherical area
     light above it: every light path and shadow ray to the floor crosses the box. Without
-    ``fog`` the box and its medium are left out (Mitsuba's reference)."""
+    ``fog`` the box and its medium are left out."""
     scene = {
         "type": "scene",
         "sensor": {
@@ -64,26 +64,24 @@ def blocks(image, k=4):
 
 @pytest.fixture(scope="module")
 def reference():
-    """Mitsuba ``path`` on the scene without the fog box."""
-    path = mi.load_dict({"type": "path", "max_depth": 8})
-    return np.array(mi.render(fog_box_scene(False), integrator=path, spp=1024, seed=5))
+    """Mitsuba ``volpath`` on the scene with the fog box."""
+    volpath = mi.load_dict({"type": "volpath", "max_depth": 32})
+    return np.array(mi.render(fog_box_scene(True), integrator=volpath, spp=1024, seed=5))
 
 
-def test_fog_box_scene_renders_as_in_vacuum_with_one_warning(reference):
+def test_fog_box_scene_agrees_with_volpath_without_warning(reference):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         pipe = SurfacePipeline(
             fog_box_scene(True), photons=100_000, caustic_photons=200_000, fg_rays=16, spp=4
         )
         image = np.array(pipe.render())
-    ours = [w for w in caught if issubclass(w.category, PhotonmapWarning)]
-    assert len(ours) == 1
-    assert "surface method" in str(ours[0].message) and "'fog'" in str(ours[0].message)
+    assert not [w for w in caught if issubclass(w.category, PhotonmapWarning)]
+    assert pipe.stats["volume_photons"] > 0
     assert np.all(np.isfinite(image))
     mean = reference.mean()
     ratio = image.mean() / mean
     error = np.sqrt(np.mean((blocks(image) - blocks(reference)) ** 2)) / mean
-    # measured over seeds 0-5: ratio 1.000-1.017, 4x4 block error 0.12-0.15 (the 1024-spp
-    # reference alone: 0.04); a box that stops the shadow rays gives ratio 0.34
-    assert abs(ratio - 1) < 0.03, ratio
-    assert error < 0.22, error
+    # provisional (measured seeds 0-1: ratio 0.968-0.975, 4x4 block error 0.079-0.092)
+    assert abs(ratio - 1) < 0.05, ratio
+    assert error < 0.16, error

@@ -43,6 +43,7 @@ import numpy as np
 
 from .bsdf import has_null_shapes, intersect_visible
 from .errors import ParameterError, SceneError
+from .media import VolumePhotons, channel, enter, free_flight
 from .sampling import rng
 
 
@@ -139,11 +140,7 @@ def trace_photons(
             f"max_depth and rr_depth must be at least 1, got max_depth={max_depth}, "
             f"rr_depth={rr_depth}"
         )
-    counts = split_paths(_checked_powers(scene, seed), paths)
-    emitter = mi.UInt32(np.repeat(np.arange(len(counts), dtype=np.uint32), counts))
-    ray, weight = _sample_rays(scene, emitter, seed)
-    power = weight / dr.gather(mi.Float, mi.Float(counts.astype(np.float32)), emitter)
-    emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
+    emitter, ray, power, emitted = _emission(scene, paths, seed)
     records = _trace(
         scene,
         ray,
@@ -160,6 +157,61 @@ def trace_photons(
     result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
     _check_power(result)
     return result
+
+
+def trace_photons_media(
+    scene: mi.Scene,
+    paths: int,
+    max_depth: int = 8,
+    rr_depth: int = 3,
+    seed: int = 0,
+    caustics_only: bool = False,
+) -> tuple[PhotonRecords, VolumePhotons]:
+    """:func:`trace_photons` through participating media (Jensen & Christensen 1998; spec
+    beyond-seeds §4): the surface records as there, and the volume photons.
+
+    Each photon starts in its emitter's medium and flies by :func:`~photonmap.core.media.
+    free_flight` (``medium.sample_interaction`` in a colour channel drawn per path, delta tracking
+    in heterogeneous media, media switched at ``null``, dielectric and other medium-transition
+    boundaries), so the transmittance on the way is in the sampling. At a real scattering event
+    it is stored as a volume photon with the power it scatters, ``Φ·σ_s T/p`` (``Φ`` times the
+    albedo for a grey medium), ``direct`` when nothing but ``null`` boundaries lay between it and
+    its emitter; it then goes on with probability ``q = min(1, max_c σ_s T/p)`` (the albedo:
+    Russian roulette) with its power divided by ``q`` — a grey medium keeps the photon's power —
+    in a direction sampled from the medium's phase function. A medium event counts as an
+    interaction (``depth``, ``max_depth``) and as a smooth bounce: photons scattered by the medium
+    are never caustic, and ``caustics_only`` paths end at their first medium event unstored."""
+    if paths < 1:
+        raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
+    if max_depth < 1 or rr_depth < 1:
+        raise ParameterError(
+            f"max_depth and rr_depth must be at least 1, got max_depth={max_depth}, "
+            f"rr_depth={rr_depth}"
+        )
+    emitter, ray, power, emitted = _emission(scene, paths, seed)
+    medium = dr.gather(mi.EmitterPtr, scene.emitters_dr(), emitter).get_medium()
+    surface, volume = _trace_media(
+        scene, ray, medium, power, rng(paths, seed, stream=1), max_depth, rr_depth, caustics_only
+    )
+    slot = dr.compress(surface.pop("stored"))
+    fields = {name: dr.gather(type(value), value, slot) for name, value in surface.items()}
+    slot = dr.compress(volume.pop("stored"))
+    vfields = {name: dr.gather(type(value), value, slot) for name, value in volume.items()}
+    dr.eval(fields, vfields)
+    result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
+    _check_power(result)
+    return result, VolumePhotons(**vfields)
+
+
+def _emission(scene: mi.Scene, paths: int, seed: int):
+    """The emitter index, ray and power ``Φ_i = weight_i / N_e`` of each of ``paths`` photon
+    paths, and the total emitted power (RGB) — the emission of spec §2.2."""
+    counts = split_paths(_checked_powers(scene, seed), paths)
+    emitter = mi.UInt32(np.repeat(np.arange(len(counts), dtype=np.uint32), counts))
+    ray, weight = _sample_rays(scene, emitter, seed)
+    power = weight / dr.gather(mi.Float, mi.Float(counts.astype(np.float32)), emitter)
+    emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
+    return emitter, ray, power, emitted
 
 
 def _checked_powers(scene: mi.Scene, seed: int) -> np.ndarray:
@@ -321,3 +373,122 @@ def _trace(
         active &= (dr.max(throughput) > 0) & (depth < max_depth)
 
     return records
+
+
+@dr.syntax
+def _trace_media(
+    scene: mi.Scene,
+    ray: mi.Ray3f,
+    medium: mi.MediumPtr,
+    power: mi.Color3f,
+    rng: mi.PCG32,
+    max_depth: int,
+    rr_depth: int,
+    caustics_only: bool,
+) -> tuple[dict, dict]:
+    """The bounce loop of :func:`trace_photons_media`: surface and volume record slots, each with
+    its ``stored`` mask."""
+    n = dr.width(power)
+    slots = n if caustics_only else n * max_depth
+    records = {
+        "position": dr.zeros(mi.Point3f, slots),
+        "power": dr.zeros(mi.Color3f, slots),
+        "direction": dr.zeros(mi.Vector3f, slots),
+        "normal": dr.zeros(mi.Vector3f, slots),
+        "depth": dr.zeros(mi.UInt32, slots),
+        "caustic": dr.zeros(mi.Bool, slots),
+        "stored": dr.zeros(mi.Bool, slots),
+    }
+    vslots = 1 if caustics_only else n * max_depth
+    volume = {
+        "position": dr.zeros(mi.Point3f, vslots),
+        "direction": dr.zeros(mi.Vector3f, vslots),
+        "power": dr.zeros(mi.Color3f, vslots),
+        "direct": dr.zeros(mi.Bool, vslots),
+        "stored": dr.zeros(mi.Bool, vslots),
+    }
+    ctx = mi.BSDFContext(mi.TransportMode.Importance)
+    phase_ctx = mi.PhaseFunctionContext(None, mi.TransportMode.Importance)
+    path = dr.arange(mi.UInt32, n)
+    depth = dr.zeros(mi.UInt32, n)
+    throughput = dr.full(mi.Color3f, 1.0, n)  # Φ / Φ₀ per channel
+    medium = mi.MediumPtr(medium)
+    ch = channel(rng)
+    specular_bounce = dr.zeros(mi.Bool, n)
+    smooth_bounce = dr.zeros(mi.Bool, n)  # a diffuse, glossy or medium scattering on the way
+    active = dr.max(power) > 0
+
+    # Every iteration either ends a path or adds one interaction, so depth < max_depth caps it.
+    while active:
+        flight = free_flight(scene, ray, medium, rng, ch, active)
+        si, mei = flight.si, flight.mei
+        in_medium = active & flight.scattered
+        on_surface = active & ~flight.scattered & si.is_valid()
+        active = in_medium | on_surface
+        depth[active] += 1
+        throughput[active] *= flight.weight
+        direct = ~specular_bounce & ~smooth_bounce
+
+        if not caustics_only:
+            vslot = (depth - 1) * n + path
+            dr.scatter(volume["position"], mei.p, vslot, in_medium)
+            dr.scatter(volume["direction"], ray.d, vslot, in_medium)
+            dr.scatter(volume["power"], power * throughput, vslot, in_medium)
+            dr.scatter(volume["direct"], direct, vslot, in_medium)
+            dr.scatter(volume["stored"], True, vslot, in_medium)
+
+        bsdf = si.bsdf(ray)
+        store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        caustic = specular_bounce & ~smooth_bounce
+        if caustics_only:
+            store &= caustic
+            slot = mi.UInt32(path)
+        else:
+            slot = (depth - 1) * n + path
+        dr.scatter(records["position"], si.p, slot, store)
+        dr.scatter(records["power"], power * throughput, slot, store)
+        dr.scatter(records["direction"], ray.d, slot, store)
+        dr.scatter(records["normal"], mi.Vector3f(si.sh_frame.n), slot, store)
+        dr.scatter(records["depth"], depth, slot, store)
+        dr.scatter(records["caustic"], caustic, slot, store)
+        dr.scatter(records["stored"], True, slot, store)
+
+        sample, weight = bsdf.sample(
+            ctx,
+            si,
+            rng.next_float32(),
+            mi.Point2f(rng.next_float32(), rng.next_float32()),
+            on_surface,
+        )
+        wo, phase_weight, _ = mei.medium.phase_function().sample(
+            phase_ctx,
+            mei,
+            rng.next_float32(),
+            mi.Point2f(rng.next_float32(), rng.next_float32()),
+            in_medium,
+        )
+        throughput[on_surface] *= weight
+        throughput[in_medium] *= phase_weight
+        lobe = sample.sampled_type
+        null = mi.has_flag(lobe, mi.BSDFFlags.Null)
+        specular_bounce |= on_surface & mi.has_flag(lobe, mi.BSDFFlags.Delta) & ~null
+        smooth_bounce |= in_medium | (on_surface & mi.has_flag(lobe, mi.BSDFFlags.Smooth))
+        d_surface = si.to_world(sample.wo)
+        medium = dr.select(in_medium, mei.medium, enter(si, d_surface, flight.medium, on_surface))
+        ray = dr.select(in_medium, mei.spawn_ray(wo), si.spawn_ray(d_surface))
+        if caustics_only:
+            active &= ~smooth_bounce
+
+        # Russian roulette: at a medium event survive with the albedo q (Jensen & Christensen),
+        # at a surface from rr_depth on with q = min(0.95, max Φ/Φ₀); the power is divided by q.
+        survival = dr.select(
+            in_medium,
+            dr.minimum(dr.max(flight.weight), 1.0),
+            dr.minimum(dr.max(throughput), 0.95),
+        )
+        roulette = in_medium | (on_surface & (depth >= rr_depth))
+        throughput[roulette] /= dr.maximum(survival, 1e-30)
+        active &= ~roulette | (rng.next_float32() < survival)
+        active &= (dr.max(throughput) > 0) & (depth < max_depth)
+
+    return records, volume

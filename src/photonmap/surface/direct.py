@@ -5,6 +5,10 @@ sources ... accommodated using importance sampling"), written after Mitsuba's ``
 ``null``-BSDF shapes (fog boxes) are invisible to the shadow rays and to the BSDF-sampled rays
 (:func:`photonmap.core.bsdf.occluded`, :func:`~photonmap.core.bsdf.intersect_visible`), where
 Mitsuba's own visibility test would stop at them.
+
+In a scene with participating media (``medium`` given: the medium the eye ray reached ``si`` in),
+both rays carry the transmittance to the emitter (:func:`photonmap.core.media.transmittance`)
+instead of the binary visibility (Jensen & Christensen 1998: attenuated shadow rays).
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.bsdf import intersect_visible, occluded
+from ..core.media import channel, enter, transmittance
 
 
 def _power_heuristic(a, b):
@@ -28,17 +33,23 @@ def direct_lighting(
     gen: mi.PCG32,
     active: mi.Bool,
     null_shapes: bool,
+    medium: mi.MediumPtr | None = None,
 ) -> mi.Spectrum:
     """Radiance reflected at ``si`` towards ``si.wi`` from light arriving straight from emitters;
     ``u_light`` picks the point on the emitters (stratified over a pixel's samples by the caller),
     ``gen`` draws the BSDF sample; ``null_shapes``: whether the scene has ``null``-BSDF shapes
-    (:func:`~photonmap.core.bsdf.has_null_shapes`)."""
+    (:func:`~photonmap.core.bsdf.has_null_shapes`); ``medium``: see the module docstring."""
     ctx = mi.BSDFContext()
+    ch = channel(gen) if medium is not None else None
 
     # emitter sampling (shadow ray)
     ds, em_weight = scene.sample_emitter_direction(si, u_light, False, active)
     lit = active & (ds.pdf != 0)
-    lit &= ~occluded(scene, si.spawn_ray_to(ds.p), lit, null_shapes)
+    if medium is None:
+        lit &= ~occluded(scene, si.spawn_ray_to(ds.p), lit, null_shapes)
+    else:
+        shadow = si.spawn_ray_to(ds.p)
+        em_weight *= transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, ch, lit)
     bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), lit)
     w_em = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
     L = dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
@@ -55,5 +66,10 @@ def direct_lighting(
     ds_e = mi.DirectionSample3f(scene, si_e, si)
     pdf_em = scene.pdf_emitter_direction(si, ds_e, hits_light & ~delta_lobe)
     w_bsdf = dr.select(delta_lobe, 1.0, _power_heuristic(bs.pdf, pdf_em))
+    if medium is not None:
+        to_light = mi.Ray3f(ray)
+        to_light.maxt = si_e.t * (1.0 - mi.math.ShadowEpsilon)
+        medium_ray = enter(si, ray.d, medium, hits_light)
+        bsdf_weight *= transmittance(scene, to_light, medium_ray, gen, ch, hits_light)
     L += dr.select(hits_light, w_bsdf * bsdf_weight * emitter.eval(si_e, hits_light), 0.0)
     return L

@@ -26,8 +26,9 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..core.media import Inscatter, enter
 from ..core.sampling import rng, rotated_hammersley
-from .trace import follow_specular
+from .trace import follow_specular, follow_specular_media
 
 FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
 BATCH_RAYS = 1 << 21  # final-gather rays traced per batch
@@ -44,11 +45,16 @@ def final_gather(
     sampling: str = "bsdf",
     fused: bool = True,
     null_shapes: bool | None = None,
+    medium: mi.MediumPtr | None = None,
+    inscatter: Inscatter | None = None,
 ) -> mi.Spectrum:
     """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
     returns the radiance leaving y towards x (lazily if ``fused``). The rays pass through
     ``null``-BSDF shapes (``null_shapes``: whether the scene has any, see
-    :func:`~photonmap.surface.trace.follow_specular`)."""
+    :func:`~photonmap.surface.trace.follow_specular`). In a scene with participating media
+    (``medium``: the medium at each ``si``; ``inscatter``: the eye pass's in-scattered light) the
+    rays fly through the media by free-flight sampling and a ray that scatters reads the
+    in-scattered radiance there (:func:`~photonmap.surface.trace.follow_specular_media`)."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
     smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
@@ -73,19 +79,35 @@ def final_gather(
             bs, weight = bsdf.sample(smooth, x, gen.next_float32(), u, ok)
             wo, ok = bs.wo, ok & (bs.pdf > 0)
         ray = x.spawn_ray(x.to_world(wo))
-        si_y, throughput, _, found, _ = follow_specular(
-            scene,
-            ray,
-            dr.select(ok, weight, 0.0),
-            ok,
-            max_depth,
-            gen,
-            count_emission=False,
-            null_shapes=null_shapes,
-        )
+        if medium is None:
+            si_y, throughput, _, found, _ = follow_specular(
+                scene,
+                ray,
+                dr.select(ok, weight, 0.0),
+                ok,
+                max_depth,
+                gen,
+                count_emission=False,
+                null_shapes=null_shapes,
+            )
+            L_medium = 0.0
+        else:
+            medium_x = enter(x, ray.d, dr.gather(mi.MediumPtr, medium, query), ok)
+            si_y, throughput, _, found, _, _, L_medium = follow_specular_media(
+                scene,
+                ray,
+                dr.select(ok, weight, 0.0),
+                medium_x,
+                ok,
+                max_depth,
+                gen,
+                False,
+                inscatter,
+                march=False,
+            )
         if not fused:
             dr.eval(si_y, throughput, found)  # the k-NN gathers run several kernels over these
-        L = dr.select(found, throughput * lookup(si_y, si_y.bsdf(), found), 0.0)
+        L = dr.select(found, throughput * lookup(si_y, si_y.bsdf(), found), 0.0) + L_medium
         dr.eval(L)  # once: each channel's block sum below would otherwise rerun the kernel
         total += mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, m) for c in L])
         dr.eval(total)

@@ -20,8 +20,16 @@ non-specular surface x, where
 The photon maps are built once per scene and parameter set and reused for every render (a camera
 move re-renders without new photons, Steinhurst §7.2.1).
 
-Participating media are not modelled: a scene with fog gets one warning naming the media and is
-rendered as in vacuum, its ``null``-BSDF boundaries invisible to every ray (issue 10).
+Participating media (Jensen & Christensen 1998; spec beyond-seeds §4; issue 11 item 5): in a scene
+with fog (homogeneous or ``heterogeneous`` Mitsuba media, bounded by ``null``, dielectric or any
+medium-transition shapes, around the sensor or the emitters) the photons fly through the media and
+a third map holds the volume photons (:func:`~.photon_map.build_media_maps`). Eye rays march
+through the media (:func:`~.trace.follow_specular_media`): transmittance to the surface they
+reach, plus the in-scattered light of every step — single scattering of direct light by a
+transmittance shadow ray, the rest from the volume map's k-NN estimate
+(:class:`~photonmap.core.media.Inscatter`, ``volume_k`` photons within ``volume_radius``, steps of
+``march_step``). Shadow rays of the direct light carry the transmittance; final-gather rays sample
+free flights and read the in-scattered light where they scatter.
 """
 
 from __future__ import annotations
@@ -35,16 +43,17 @@ import numpy as np
 from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
+from ..core.media import Inscatter, ScatteredDensity, VolumeMap, broadcast, isotropic
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
-from ..core.scene_info import warn_unmodelled_media
+from ..core.scene_info import has_media
 from ..core.timer import StageTimer
 from .direct import direct_lighting
 from .final_gather import final_gather
 from .gather import radiance_estimate
 from .irradiance import lookup_radiance, precompute_irradiance
-from .photon_map import STRUCTURES, build_photon_maps, photon_map
-from .trace import follow_specular
+from .photon_map import STRUCTURES, build_media_maps, build_photon_maps, photon_map
+from .trace import follow_specular, follow_specular_media
 
 LOOKUPS = ("irradiance", "knn", "direct")
 FG_SAMPLING = ("bsdf", "cosine")
@@ -59,6 +68,8 @@ STAGES = (
 )
 CAUSTIC_RADIUS = 0.05  # automatic caustic gather radius, × scene diagonal (spec A12)
 GLOBAL_RADIUS = 0.1  # automatic global gather radius, × scene diagonal (A12 says unbounded)
+VOLUME_RADIUS = 0.1  # automatic volume gather radius, × scene diagonal
+STEP_SAMPLES = 4096  # volume photons whose k-NN radius sets the automatic march step
 
 
 @dataclasses.dataclass
@@ -78,6 +89,9 @@ class SurfaceParams:
     irradiance_every: int = 4  # precompute irradiance at every m-th photon (Christensen 1999)
     spp: int = 1  # eye rays per pixel
     emitter_spp: int = 64  # extra samples of the lights' direct and specular images (0 = none)
+    volume_k: int = 50  # volume photons per in-scattering estimate (scenes with media)
+    volume_radius: float = 0.0  # maximum volume gather radius; 0 = automatic
+    march_step: float = 0.0  # ray-marching step in media; 0 = half the median k-NN radius
 
     def validate(self) -> None:
         """Types (:func:`~photonmap.core.params.check_fields`: integers, finite numbers, the seed
@@ -90,11 +104,14 @@ class SurfaceParams:
             ("max_depth", "bounces of photon paths and specular chains"),
             ("irradiance_every", "irradiance precomputed at every m-th photon"),
             ("spp", "eye rays per pixel"),
+            ("volume_k", "volume photons per in-scattering estimate"),
         ):
             check_range(key, getattr(self, key), 1, None, hint)
         check_range("caustic_photons", self.caustic_photons, 0, None, "0 = no caustic map")
         check_range("emitter_spp", self.emitter_spp, 0, None, "0 = no extra light samples")
         check_range("max_radius", self.max_radius, 0, None, "0 = automatic")
+        check_range("volume_radius", self.volume_radius, 0, None, "0 = automatic")
+        check_range("march_step", self.march_step, 0, None, "0 = automatic")
         check_choice("structure", self.structure, tuple(STRUCTURES), "the photon search structure")
         check_choice("lookup", self.lookup, LOOKUPS, "the final gather's secondary lookup")
         check_choice("fg_sampling", self.fg_sampling, FG_SAMPLING, "final-gather directions")
@@ -118,7 +135,7 @@ class SurfacePipeline(MovableCamera):
         self.sensor = self.scene.sensors()[0] if self.scene.sensors() else None
         if self.sensor is None:
             raise ParameterError("the scene has no sensor (camera) to render from")
-        warn_unmodelled_media(self.scene, "surface")  # rendered as in vacuum (issue 10)
+        self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
         self.null_shapes = has_null_shapes(self.scene)  # invisible fog boxes (issue 10)
         self.params = SurfaceParams()
         self.set_params(**{k: v for k, v in params.items() if k in defaults})
@@ -126,6 +143,8 @@ class SurfacePipeline(MovableCamera):
         self.stats: dict[str, float] = {}
         self._maps = None  # (tracing key, (global map, caustic map))
         self._extra = None  # (lookup key, irradiance or filtered map), for self._maps
+        self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
+        self._step = None  # (volume key, automatic march step, precomputed density or None)
 
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`SurfaceParams` fields)."""
@@ -153,11 +172,16 @@ class SurfacePipeline(MovableCamera):
             if progress:
                 progress("photon maps")
             with self.timer("photon maps"):
-                maps = build_photon_maps(
+                build = build_media_maps if self.media else build_photon_maps
+                maps = build(
                     self.scene, p.photons, p.caustic_photons, p.structure, p.max_depth, p.seed
                 )
-            self._maps = (key, maps)
+            if self.media:
+                *maps, self._volume = maps
+                self.stats.update(volume_photons=self._volume.size)
+            self._maps = (key, tuple(maps))
             self._extra = None
+            self._step = None
             self.stats.update(global_photons=maps[0].size, caustic_photons=maps[1].size)
         global_map, caustic_map = self._maps[1]
         extra_key = (p.lookup,)  # "direct" (the filtered map) and "knn" need only the maps
@@ -176,6 +200,33 @@ class SurfacePipeline(MovableCamera):
                 extra = photon_map(global_map.photons.select(keep), p.structure)
             self._extra = (extra_key, extra)
         return global_map, caustic_map, self._extra[1]
+
+    def inscatter(self) -> Inscatter:
+        """The eye pass's in-scattered light for the current volume map: the automatic gather
+        radius is ``VOLUME_RADIUS`` × the scene diagonal, the automatic march step half the
+        median distance of the ``volume_k``-th nearest photon over up to ``STEP_SAMPLES`` volume
+        photons (the step follows the photon density, as the radius of the estimate does)."""
+        p = self.params
+        radius = p.volume_radius if p.volume_radius > 0 else VOLUME_RADIUS * self.diagonal
+        key = (p.volume_k, radius, p.irradiance_every)
+        if self._step is None or self._step[0] != key:
+            density = None
+            if isotropic(self.scene) and self._volume.size:
+                density = ScatteredDensity.build(self._volume, p.irradiance_every, p.volume_k, radius)
+            self._step = (key, self._automatic_step(p.volume_k, radius), density)
+        step = p.march_step if p.march_step > 0 else self._step[1]
+        return Inscatter(self.scene, self._volume, p.volume_k, radius, step, self._step[2], p.seed)
+
+    def _automatic_step(self, k: int, radius: float) -> float:
+        vmap = self._volume
+        if vmap.size == 0:
+            return radius
+        every = max(1, vmap.size // STEP_SAMPLES)
+        index = dr.arange(mi.UInt32, 0, vmap.size, every)
+        at = dr.gather(mi.Point3f, vmap.photons.position, index)
+        found = vmap.grid.knn(at, k=k, max_radius=radius)
+        r2 = dr.select(found.count < k, radius**2, found.radius2)
+        return 0.5 * float(np.sqrt(np.median(r2.numpy())))
 
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance."""
@@ -209,24 +260,39 @@ class SurfacePipeline(MovableCamera):
             progress("eye pass")
         with self.timer("eye pass"):
             ray, ray_weight = pixel_rays(self.sensor, pixel, jitter)
-            si, beta, emitted, found, bounces = follow_specular(
-                self.scene,
-                ray,
-                ray_weight,
-                dr.ones(mi.Bool, lanes),
-                p.max_depth,
-                gen,
-                count_emission=True,
-                null_shapes=self.null_shapes,
-            )
+            medium, inscatter = None, None
+            L = dr.zeros(mi.Spectrum, lanes)  # light at the eye-path ends and from the media
+            if self.media:
+                inscatter = self.inscatter()
+                si, beta, emitted, found, bounces, medium, L = follow_specular_media(
+                    self.scene,
+                    ray,
+                    ray_weight,
+                    broadcast(self.sensor.get_medium(), lanes),
+                    dr.ones(mi.Bool, lanes),
+                    p.max_depth,
+                    gen,
+                    True,
+                    inscatter,
+                )
+            else:
+                si, beta, emitted, found, bounces = follow_specular(
+                    self.scene,
+                    ray,
+                    ray_weight,
+                    dr.ones(mi.Bool, lanes),
+                    p.max_depth,
+                    gen,
+                    count_emission=True,
+                    null_shapes=self.null_shapes,
+                )
             bsdf = si.bsdf()
-            dr.eval(si, beta, emitted, found, bounces)
-        L = dr.zeros(mi.Spectrum, lanes)  # reflected light at the eye-path ends
+            dr.eval(si, beta, emitted, found, bounces, medium, L)
         if progress:
             progress("direct lighting")
         with self.timer("direct lighting"):
             L += beta * direct_lighting(
-                self.scene, si, bsdf, u_light, gen, found, self.null_shapes
+                self.scene, si, bsdf, u_light, gen, found, self.null_shapes, medium
             )
             dr.eval(L)
         if progress:
@@ -251,6 +317,8 @@ class SurfacePipeline(MovableCamera):
                     p.fg_sampling,
                     fused=p.lookup == "irradiance",
                     null_shapes=self.null_shapes,
+                    medium=medium,
+                    inscatter=inscatter,
                 )
             dr.eval(L)
         image = pixel_means(L, p.spp)
@@ -258,7 +326,7 @@ class SurfacePipeline(MovableCamera):
             progress("light images")
         with self.timer("light images"):
             image += light_images(
-                self.scene, self.sensor, emitted, w, h, p, self.null_shapes
+                self.scene, self.sensor, emitted, w, h, p, self.null_shapes, self.media
             )
         image = mi.TensorXf(dr.ravel(image), (h, w, 3))
         if not np.all(np.isfinite(np.asarray(image))):
@@ -270,7 +338,7 @@ class SurfacePipeline(MovableCamera):
 
 
 def light_images(
-    scene, sensor, emitted: mi.Spectrum, w: int, h: int, p, null_shapes: bool
+    scene, sensor, emitted: mi.Spectrum, w: int, h: int, p, null_shapes: bool, media: bool = False
 ) -> mi.Spectrum:
     """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
     eye samples' ``emitted``, except in the pixels where a sample saw a light (and their
@@ -299,16 +367,29 @@ def light_images(
     sample = dr.arange(mi.UInt32, lanes) % p.emitter_spp
     jitter = rotated_hammersley(p.emitter_spp, sample, dr.gather(mi.Point2f, shift, which))
     ray, weight = pixel_rays(sensor, pixel, jitter)
-    _, _, extra, _, _ = follow_specular(
-        scene,
-        ray,
-        weight,
-        dr.ones(mi.Bool, lanes),
-        p.max_depth,
-        rng(lanes, p.seed, 4),
-        True,
-        null_shapes,
-    )
+    if media:  # the lights seen through the media: attenuated by their transmittance
+        _, _, extra, _, _, _, _ = follow_specular_media(
+            scene,
+            ray,
+            weight,
+            broadcast(sensor.get_medium(), lanes),
+            dr.ones(mi.Bool, lanes),
+            p.max_depth,
+            rng(lanes, p.seed, 4),
+            True,
+            None,
+        )
+    else:
+        _, _, extra, _, _ = follow_specular(
+            scene,
+            ray,
+            weight,
+            dr.ones(mi.Bool, lanes),
+            p.max_depth,
+            rng(lanes, p.seed, 4),
+            True,
+            null_shapes,
+        )
     dr.scatter(image, pixel_means(extra, p.emitter_spp), flagged)
     return image
 
