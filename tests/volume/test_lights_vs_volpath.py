@@ -3,12 +3,13 @@ kind, single scattering.
 
 The fog is a 4 × 2 × 2 box (σ_t 0.5, albedo 0.9, isotropic) in vacuum, in a grid cube of side 4
 (grid 32); the lights: a point light and a spot light inside the fog, a spherical area emitter
-inside the fog, a rectangle emitter above the grid (outside it, facing down), and a constant
-environment (the background too). ``volpath`` at ``max_depth = 2`` is direct light plus single
-scattering here (Mitsuba does not count the crossings of a ``null`` boundary;
-tests/volume/test_bounded_fog.py), what the volume method computes with ``scattering="single"``,
-``phase_k = 0`` and no table. Pixels whose camera ray meets the spherical emitter are left out
-of both images (the viewing pass does not see emitter shapes, volpath does).
+inside the fog, a rectangle emitter above the grid (outside it, facing down), a constant
+environment and an envmap with a bright patch (the background too). ``volpath`` at
+``max_depth = 2`` is direct light plus single scattering here (Mitsuba does not count the
+crossings of a ``null`` boundary; tests/volume/test_bounded_fog.py), what the volume method
+computes with ``scattering="single"``, ``phase_k = 0`` and no table. Pixels whose camera ray
+meets the spherical emitter are left out of both images (the viewing pass does not see emitter
+shapes, volpath does).
 
 Metrics (64 × 48, ours 128² photons per light and 4 spp, volpath 256 spp): the brightness
 ratio mean(ours)/mean(volpath) and the relative RMSE of 4 × 4-block means. Measured values and
@@ -65,6 +66,17 @@ LIGHTS = {
 }
 
 
+def sky_bitmap(width=64, height=32) -> mi.Bitmap:
+    """A dim sky with a bright patch above and to one side (a flipped direction convention
+    would light the fog from below and the other side)."""
+    v, u = np.meshgrid(
+        (np.arange(height) + 0.5) / height, (np.arange(width) + 0.5) / width, indexing="ij"
+    )
+    patch = np.exp(-((u - 0.15) ** 2 + (v - 0.25) ** 2) / 0.01)
+    image = np.stack([0.05 + 6 * patch, 0.05 + 4 * patch, 0.08 + 2 * patch], axis=-1)
+    return mi.Bitmap(image.astype(np.float32))
+
+
 def fog_box(light: str) -> dict:
     return {
         "type": "scene",
@@ -75,7 +87,7 @@ def fog_box(light: str) -> dict:
             "bsdf": {"type": "null"},
             "interior": {"type": "ref", "id": "fog"},
         },
-        "light": LIGHTS[light],
+        "light": LIGHTS[light] if light != "envmap" else {"type": "envmap", "bitmap": sky_bitmap()},
         "sensor": camera(),
     }
 
@@ -126,6 +138,7 @@ SETUP = {
     "sphere": (32, 1024, SPHERE[0], SPHERE[1] + 0.3),
     "rectangle": (32, 256, None, 0.0),
     "environment": (32, 256, None, 0.0),
+    "envmap": (32, 256, None, 0.0),
 }
 # light: (ratio bound |r − 1|, block-error bound); measured over volpath seeds 0-2 (the test
 # uses seed 0), ours deterministic:
@@ -135,21 +148,26 @@ SETUP = {
 #   sphere       ratio 1.008-1.009  error 0.083-0.091
 #   rectangle    ratio 1.010-1.014  error 0.058-0.072
 #   environment  ratio 0.9997-0.9999 error 0.0056-0.0067
+#   envmap       ratio 0.9999-1.0009 error 0.013-0.015
 # The blocks left out around the point light, the spot's apex and the sphere hold the 1/r
 # singularity of the in-scattered radiance near a small light, which a voxel grid cannot resolve
 # (and volpath's own noise there is 0.16-2.3 in block error between 1024 and 4096 spp).
-# Mutations (emit.py, by hand, then reverted): Φ halved fails every kind (ratio 0.49-0.51);
-# an environment's photons started on their exit faces 0.92 / 0.15; its projected area without
-# the |ω_a| 1.04 / 0.084; a distant emitter's cone weight without cos θ_e (rectangle) 1.09 /
-# 0.23. Not caught here, at this resolution, and caught by test_lights_anywhere.py instead:
-# spec A16's smoothstep spot profile (1.018 / 0.127), an area emitter's directions uniform over
-# the hemisphere instead of its cosine lobe (sphere 0.996 / 0.094).
+# Mutations (emit.py, by hand, then reverted), ratio / error: Φ halved gives 0.49-0.51 for the
+# point, spot and area lights, 0.96 / 0.077 and 0.90 / 0.22 for the environments (whose
+# background stays); an environment's photons started on their exit faces 0.92 / 0.15; its
+# projected area without the |ω_a| 1.04 / 0.084; the envmap's photons sent towards the bright
+# patch instead of from it (the direction convention, which a constant environment cannot
+# show) 1.012 / 0.136; a distant emitter's cone weight without cos θ_e (rectangle) 1.09 / 0.23.
+# Not caught here, at this resolution, and caught by test_lights_anywhere.py instead: spec
+# A16's smoothstep spot profile (1.018 / 0.127), an area emitter's directions uniform over the
+# hemisphere instead of its cosine lobe (sphere 0.996 / 0.094).
 CASES = {
     "point": (0.025, 0.2),
     "spot": (0.03, 0.27),
     "sphere": (0.02, 0.15),
     "rectangle": (0.025, 0.12),
     "environment": (6e-4, 0.012),
+    "envmap": (0.002, 0.03),
 }
 
 
