@@ -461,7 +461,8 @@ def test_constant_environment_fluence_in_absorbing_fog():
 
 def test_an_edited_area_emitter_reruns_the_photon_stages():
     """The light's fingerprint re-keys S5: radiance × 2 through mi.traverse + reload → C × 2
-    (without the fingerprint the cached photons would be reused: ratio 1)."""
+    (without the fingerprint the cached photons are reused: the test fails); set_light's
+    intensity scales an area light's radiance."""
     scene = mi.load_dict(fog_cube(light=sphere_light(POINT, 0.3, 2.0)))
     pipe = VolumePipeline(scene, grid=16, grid_bbox=([0, 0, 0], [SIZE] * 3), photons=32**2)
     pipe.render()
@@ -474,6 +475,10 @@ def test_an_edited_area_emitter_reruns_the_photon_stages():
     assert "photon generation" in pipe.recomputed
     after = np.array(pipe.stage_output("photon tracing").C).sum()
     assert after / before == pytest.approx(2.0, rel=1e-5)
+    pipe.set_light(0, intensity=[3.0, 3.0, 3.0])  # an RGB factor on the emitter's radiance
+    pipe.render()
+    scaled = np.array(pipe.stage_output("photon tracing").C).sum()
+    assert scaled / before == pytest.approx(6.0, rel=1e-5)
     with pytest.raises(ParameterError, match="scene's own Mitsuba emitter.*reload"):
         pipe.set_light(0, position=[1, 1, 1])
 
