@@ -348,7 +348,7 @@ def emit(
     """
     mode = emission_mode(light, box)
     if mode == "area":
-        return enter_grid(*area_photons(light, box, count, seed), box.n)
+        return enter_grid(*area_photons(light, box, count, seed), box.n, compact=True)
     if mode == "environment":
         return enter_grid(*environment_photons(light, box, count, seed), box.n)
     u, w = sampling.coherent_points(sampler, count, seed)
@@ -357,12 +357,20 @@ def emit(
     return emit_at(light, box, u, w, fidelity)
 
 
-def enter_grid(o: mi.Point3f, d: mi.Vector3f, power: mi.Color3f, n: int) -> Photons:
+def enter_grid(
+    o: mi.Point3f, d: mi.Vector3f, power: mi.Color3f, n: int, compact: bool = False
+) -> Photons:
     """Photons from ``o`` along ``d`` (voxel units) moved to where they enter the grid ``[0, n]³``
-    (unchanged inside it); those that miss it, or carry no power, get zero power."""
+    (unchanged inside it); those that miss it, or carry no power, get zero power — or, with
+    ``compact``, are left out (photons whose misses are scattered among the hits, which would
+    idle SIMD lanes of the marcher)."""
     count = dr.width(power)
     hit, t_near, _ = box_entry(o, d, n)
     keep = hit & (dr.max(power) > 0.0)
+    if compact:
+        index = dr.compress(keep)
+        o, d, power, t_near = (dr.gather(type(a), a, index) for a in (o, d, power, t_near))
+        keep = dr.full(mi.Bool, True, dr.width(index))
     photons = Photons(
         origin=dr.select(keep, o + t_near * d, 0.0),
         direction=d,
@@ -370,7 +378,7 @@ def enter_grid(o: mi.Point3f, d: mi.Vector3f, power: mi.Color3f, n: int) -> Phot
         generated=count,
     )
     dr.eval(photons.origin, photons.direction, photons.power)
-    photons.entering = int(dr.count(keep)[0]) if count else 0
+    photons.entering = int(dr.count(keep)[0]) if dr.width(keep) and count else 0
     return photons
 
 
