@@ -2,7 +2,9 @@
 models the medium (volumetric photon mapping, Jensen & Christensen 1998) and agrees with Mitsuba's
 ``volpath`` on the same scene — with no warning: the fog is no longer ignored."""
 
+import math
 import warnings
+from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
@@ -13,6 +15,7 @@ from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
 W, H = 64, 48
+EXAMPLE = Path(__file__).parents[2] / "examples" / "fog_box.xml"
 
 
 def fog_box_scene(fog: bool) -> mi.Scene:
@@ -82,6 +85,47 @@ def test_fog_box_scene_agrees_with_volpath_without_warning(reference):
     mean = reference.mean()
     ratio = image.mean() / mean
     error = np.sqrt(np.mean((blocks(image) - blocks(reference)) ** 2)) / mean
-    # provisional (measured seeds 0-1: ratio 0.968-0.975, 4x4 block error 0.079-0.092)
+    # measured over seeds 0-3: ratio 0.968-0.977, 4x4 block error 0.079-0.115 (the reference
+    # alone: 0.044 off an 8192-spp one). The 3 % deficit is the volume map's boundary bias: its
+    # k-NN spheres reach out of the fog near the box's faces and the floor (it shrinks with more
+    # photons: ratio 0.988 at 400k). Without the transmittance on the floor's shadow rays: 1.206;
+    # without the volume photons that passed the glass: 0.930
     assert abs(ratio - 1) < 0.05, ratio
-    assert error < 0.16, error
+    assert error < 0.2, error
+
+
+def fog_box_example(width: int = 48, height: int = 36) -> mi.Scene:
+    """examples/fog_box.xml (a glass ball in a box of fog) at ``width`` x ``height``, its point
+    light replaced by a sphere light of radius 0.2 with the same power: ``volpath`` cannot
+    sample a point light through glass, so with the point light its image lacks the volume
+    caustic under the ball that the photons find (measured at 48x36: ours 4-5 % brighter, all
+    of it in the caustic)."""
+    with open(EXAMPLE) as f:
+        xml = f.read()
+    xml = xml.replace('value="320"', f'value="{width}"').replace('value="240"', f'value="{height}"')
+    start = xml.index('<emitter type="point">')
+    end = xml.index("</emitter>", start) + len("</emitter>")
+    radiance = 40 / (math.pi * 0.2**2)  # Φ = 4π I = π L · 4π r²
+    sphere = (
+        '<shape type="sphere"><point name="center" x="0" y="5" z="0"/>'
+        '<float name="radius" value="0.2"/><emitter type="area">'
+        f'<rgb name="radiance" value="{radiance}"/></emitter></shape>'
+    )
+    return mi.load_string(xml[:start] + sphere + xml[end:])
+
+
+def test_glass_ball_in_fog_example_agrees_with_volpath():
+    reference = np.array(mi.render(fog_box_example(), spp=4096, seed=1))  # its volpath, depth 32
+    pipe = SurfacePipeline(
+        fog_box_example(), photons=400_000, caustic_photons=0, spp=4, fg_rays=4, max_depth=32
+    )
+    image = np.array(pipe.render())
+    mean = reference.mean()
+    ratio = image.mean() / mean
+    error = np.sqrt(np.mean((blocks(image) - blocks(reference)) ** 2)) / mean
+    # measured over seeds 0-3: ratio 0.980-0.993, 4x4 block error 0.132-0.161 — most of it
+    # volpath's: its volume caustic is a scatter of fireflies at 4096 spp (light paths through
+    # the glass reach the small light only by chance). Without the volume caustic (volume
+    # photons that passed the glass left out): 0.902
+    assert abs(ratio - 1) < 0.05, ratio
+    assert error < 0.28, error

@@ -87,6 +87,12 @@ def broadcast(medium: mi.Medium | None, n: int) -> mi.MediumPtr:
     return dr.gather(mi.MediumPtr, mi.MediumPtr(medium), dr.zeros(mi.UInt32, n))
 
 
+def full_width(ray: mi.Ray3f, n: int) -> mi.Ray3f:
+    """A copy of ``ray`` with every field ``n`` lanes wide (loop variables must be full width)."""
+    zero = dr.zeros(mi.Float, n)
+    return mi.Ray3f(ray.o + zero, ray.d + zero, ray.maxt + zero, ray.time + zero, ray.wavelengths)
+
+
 def interaction(
     p: mi.Point3f, d: mi.Vector3f, t: mi.Float, medium: mi.MediumPtr
 ) -> mi.MediumInteraction3f:
@@ -128,7 +134,7 @@ def free_flight(
     next non-``null`` surface (module docstring). ``ch``: the sampling channel per lane
     (:func:`channel`)."""
     n = dr.width(active)
-    ray = mi.Ray3f(ray)
+    ray = full_width(ray, n)
     medium = mi.MediumPtr(medium)
     weight = dr.full(mi.Spectrum, 1.0, n)
     si = dr.zeros(mi.SurfaceInteraction3f, n)
@@ -152,7 +158,9 @@ def free_flight(
         tr, pdf = medium.transmittance_eval_pdf(m, ends, in_medium)
         p_ch = pick(pdf, ch)
         weight[in_medium] *= dr.select(p_ch > 0, tr / p_ch, 0.0)
-        real_p = dr.select(collide, dr.mean(m.sigma_t / dr.maximum(m.combined_extinction, 1e-30)), 1.0)
+        real_p = dr.select(
+            collide, dr.mean(m.sigma_t / dr.maximum(m.combined_extinction, 1e-30)), 1.0
+        )
         real = collide & (gen.next_float32() < real_p)
         null_hit = collide & ~real
         weight[null_hit] *= m.sigma_n / dr.maximum(1.0 - real_p, 1e-30)
@@ -189,7 +197,7 @@ def segment_transmittance(
     each tentative collision against the majorant σ̄, in channel ``ch``) in a heterogeneous one;
     1 in vacuum (``medium`` None)."""
     n = dr.width(active)
-    ray = mi.Ray3f(ray)
+    ray = full_width(ray, n)
     ray.maxt = dr.select(active, length, 0.0)
     in_medium = active & (medium != None)  # noqa: E711
     homogeneous = in_medium & medium.is_homogeneous()
@@ -228,7 +236,7 @@ def transmittance(
     ``medium``: zero where a surface other than a ``null`` boundary lies on it, else the product of
     the media's transmittances between the boundaries (:func:`segment_transmittance`)."""
     n = dr.width(active)
-    ray = mi.Ray3f(ray)
+    ray = full_width(ray, n)
     medium = mi.MediumPtr(medium)
     T = dr.full(mi.Spectrum, 1.0, n)
     T[~active] = 0.0
@@ -407,7 +415,6 @@ def direct_inscattered(
     sigma_s, _, _ = mei.medium.get_scattering_coefficients(mei, lit)
     f, _ = mei.medium.phase_function().eval_pdf(mi.PhaseFunctionContext(None), mei, ds.d, lit)
     return dr.select(lit, sigma_s * f * em_weight * T, 0.0)
-
 
 
 MAX_STEPS = 256  # ray-marching steps per medium segment (longer segments take longer steps)

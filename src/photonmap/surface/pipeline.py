@@ -212,7 +212,9 @@ class SurfacePipeline(MovableCamera):
         if self._step is None or self._step[0] != key:
             density = None
             if isotropic(self.scene) and self._volume.size:
-                density = ScatteredDensity.build(self._volume, p.irradiance_every, p.volume_k, radius)
+                density = ScatteredDensity.build(
+                    self._volume, p.irradiance_every, p.volume_k, radius
+                )
             self._step = (key, self._automatic_step(p.volume_k, radius), density)
         step = p.march_step if p.march_step > 0 else self._step[1]
         return Inscatter(self.scene, self._volume, p.volume_k, radius, step, self._step[2], p.seed)

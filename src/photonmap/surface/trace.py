@@ -128,8 +128,17 @@ def follow_specular_media(
     )
     stored = dr.zeros(mi.Bool, slots)
     si, throughput, emitted, found, depth, medium, mei, weight, scattered = _follow(
-        scene, ray, throughput, medium, active, max_depth, gen, count_emission,
-        march or inscatter is None, buffers if marching else None, stored,
+        scene,
+        ray,
+        throughput,
+        medium,
+        active,
+        max_depth,
+        gen,
+        count_emission,
+        march or inscatter is None,
+        buffers if marching else None,
+        stored,
     )
     L_medium = dr.zeros(mi.Spectrum, n)
     if marching:
@@ -148,7 +157,16 @@ def follow_specular_media(
 
 @dr.syntax
 def _follow(
-    scene, ray, throughput, medium, active, max_depth, gen, count_emission, transmit, buffers,
+    scene,
+    ray,
+    throughput,
+    medium,
+    active,
+    max_depth,
+    gen,
+    count_emission,
+    transmit,
+    buffers,
     stored,
 ):
     """The bounce loop of :func:`follow_specular_media`: ``transmit`` multiplies the throughput
