@@ -329,11 +329,10 @@ class VolumePipeline(StagedPipeline):
         )
         # multiple scattering: σ_s and the phase function steer the photons too (beyond-seeds §5)
         scatter = march.Scattering(p.phase_k, p.seed) if p.scattering == "multiple" else None
-        if scatter is not None:
-            kappa_key = (kappa_key, sigma_key, cache_key(scatter))
+        scatter_key = None if scatter is None else (sigma_key, cache_key(scatter))
         march_grids = self.cache.stage(
             "march grids",
-            (octree_key, kappa_key),
+            (octree_key, kappa_key, None if scatter is None else sigma_key),
             lambda: march.MarchGrids.build(
                 mats.ior,
                 grad,
@@ -345,9 +344,13 @@ class VolumePipeline(StagedPipeline):
         )
 
         if p.emission == "adaptive":
-            C, D, smooth_key = self._adaptive(march_grids, octree_key, kappa_key, scatter)
+            C, D, smooth_key = self._adaptive(
+                march_grids, octree_key, kappa_key, scatter, scatter_key
+            )
         else:
-            C, D, smooth_key = self._uniform(march_grids, octree_key, kappa_key, scatter)
+            C, D, smooth_key = self._uniform(
+                march_grids, octree_key, kappa_key, scatter, scatter_key
+            )
         view_grids = self.cache.stage(
             "view grids",
             (smooth_key, ior_key, kappa_key, sigma_key),
@@ -376,7 +379,7 @@ class VolumePipeline(StagedPipeline):
             raise SceneError("the render produced NaN or infinite values; please report this scene")
         return image
 
-    def _uniform(self, march_grids, octree_key, kappa_key, scatter=None):
+    def _uniform(self, march_grids, octree_key, kappa_key, scatter=None, scatter_key=None):
         """S5–S8: uniform photons on the photon plane, marched and smoothed."""
         s, p = self.scene, self.params
         light_key = (
@@ -392,7 +395,7 @@ class VolumePipeline(StagedPipeline):
             light_key,
             lambda: emit.emit_lights(s.lights, s.box, p.photons, p.sampler, p.seed, p.fidelity),
         )
-        march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity)
+        march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity, scatter_key)
         traced = self.cache.stage(
             "photon tracing",
             march_key,
@@ -417,7 +420,7 @@ class VolumePipeline(StagedPipeline):
         }
         return C, D, smooth_key
 
-    def _adaptive(self, march_grids, octree_key, kappa_key, scatter=None):
+    def _adaptive(self, march_grids, octree_key, kappa_key, scatter=None, scatter_key=None):
         """A1–A7 (Pfeuti §3.2): pilot photons → photon-plane pdf per light → importance photons
         marched with their weights → mipmaps → level-selecting filter."""
         s, p = self.scene, self.params
@@ -458,7 +461,7 @@ class VolumePipeline(StagedPipeline):
             return emit.concat([b[0] for b in batches]), dr.concat([b[1] for b in batches])
 
         photons, weights = self.cache.stage("photon generation", gen_key, generate)
-        march_key = (gen_key, octree_key, kappa_key, p.ds_min)
+        march_key = (gen_key, octree_key, kappa_key, p.ds_min, scatter_key)
         traced = self.cache.stage(
             "photon tracing",
             march_key,
