@@ -48,7 +48,7 @@ from .emit import Photons
 
 OVERSHOOT = 1e-3  # δ, voxels (A10)
 KILL_FRACTION = 1e-3  # τ_rel (A18)
-EXPAND_MIN_PHOTONS = 16384  # fewer photons in a launch deposit with atomics (see reduce_mode)
+EXPAND_MIN_PHOTONS = 16384  # a launch of fewer photons deposits with atomics (reduce_mode)
 FIXED_POINT_BITS = 32
 WEIGHT_BITS = 20  # fixed-point bits of the photon weights 1/p summed by weight_tally
 CHANNELS = 8  # accumulator stride per voxel: C rgb, D xyz, 2 spare (one 64-byte line per voxel)
@@ -59,7 +59,8 @@ Int64 = dr.int64_array_t(mi.Float)
 def reduce_mode(expand: bool = True) -> dr.ReduceMode:
     """Per-thread copies of the accumulator (``Expand``) were 3–5× faster than atomics here, but
     each launch pays for making and summing the copies (≈ 0.1 s at 128³): a launch of few photons
-    (``expand`` False) uses atomics (``Local``). Dr.Jit 1.5's debug mode misreports (and drops)
+    (``expand`` False) uses atomics (``Local``), into an array of its own (Dr.Jit's documentation
+    says nothing of mixing the modes on one array). Dr.Jit 1.5's debug mode misreports (and drops)
     ``Expand`` packet scatters as out of range, so debug runs use ``Local``."""
     return dr.ReduceMode.Local if dr.flag(dr.JitFlag.Debug) or not expand else dr.ReduceMode.Expand
 
@@ -309,12 +310,15 @@ def _march_multiple(
     scattering: Scattering,
     tally=radiance_tally,
     shift: int = 0,
+    atomic: Int64 | None = None,
 ):
     """:func:`_march` with multiple scattering (``scatter.py``, beyond-seeds §5), one order at a
     time over the photons still alive (a wavefront: the scattered photons are compacted, so SIMD
     lanes do not wait for a neighbour's further orders). The collision of each order starts the
     next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian
     roulette (:func:`.scatter.roulette`). Photon ``i`` draws from PCG32 stream ``i`` of the seed.
+    Orders of fewer than :data:`EXPAND_MIN_PHOTONS` photons deposit into ``atomic`` (same layout
+    as ``acc``, to be added to it) with atomics: one reduction mode per array.
     Returns the total steps and, per photon, the final ``(x, v, L̃)`` and its scattering events.
     """
     count = dr.width(L)
@@ -328,8 +332,10 @@ def _march_multiple(
     steps = 0
     for order in range(scatter.MAX_ORDERS + 1):
         target, channel = scatter.free_flight(rng)
+        wide = dr.width(L) >= EXPAND_MIN_PHOTONS
+        into = acc if wide else atomic
         n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s = _march_order(
-            acc,
+            into,
             medium,
             x,
             v,
@@ -343,9 +349,9 @@ def _march_multiple(
             channel,
             tally,
             shift,
-            dr.width(L) >= EXPAND_MIN_PHOTONS,
+            wide,
         )
-        dr.eval(acc, n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s)  # one launch per order
+        dr.eval(into, n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s)  # one launch per order
         for array, value in zip(final, (x, v, L_end, dr.opaque(mi.UInt32, order)), strict=True):
             dr.scatter(array, value, ids)
         steps += int(dr.sum(Float64(n_steps))[0])
@@ -500,8 +506,10 @@ def accumulate(
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
         else:
-            steps, *final = _march_multiple(*args, scattering, tally, shift)
-            dr.eval(acc, *final)
+            atomic = dr.zeros(Int64, m**3 * CHANNELS)
+            steps, *final = _march_multiple(*args, scattering, tally, shift, atomic)
+            dr.eval(acc, atomic, *final)
+            acc = acc + atomic
         final = tuple(final)
     voxel = dr.arange(mi.UInt32, m**3) * 2
     first = Vector4d(dr.gather(Vector4i64, acc, voxel))
