@@ -237,7 +237,8 @@ def run_scene(label, scene, args, log=_log) -> dict:
 
     size = {"width": args.width, "height": args.height}
     nominal = args.nominal
-    pipe = VolumePipeline(scene, grid=args.grid, photons=nominal, **size)
+    # Pfeuti's adaptive method is single scattering, as is the ground truth's direct march
+    pipe = VolumePipeline(scene, grid=args.grid, photons=nominal, scattering="single", **size)
     start = time.perf_counter()
     log(f"{label}: ground truth ({TRUTH_FACTOR} × {nominal:,} photons) ...")
     truth = ground_truth(pipe, nominal, TRUTH_FACTOR)

@@ -360,3 +360,18 @@ def test_photons_superpose_exactly_with_their_weights():
     np.testing.assert_allclose(both[0], a[0] + b[0], rtol=1e-6, atol=1e-9)
     assert np.array_equal(both[1], a[1] + b[1])
     np.testing.assert_allclose(both[2], a[2] + b[2], rtol=1e-6)
+
+
+def test_multiple_scattering_is_the_default_and_only_adds_light():
+    """The first order is Sun's march bit for bit, so the higher orders can only add fluence:
+    C(multiple) ≥ C(single) in every voxel and channel (the built-in SPHERE; measured gain of
+    ΣC 1.165 at 64³, image brightness 1.185, no pixel darker)."""
+    default = small_pipeline()
+    assert default.params.scattering == "multiple"
+    image = np.array(default.render())
+    single = small_pipeline(scattering="single")
+    image_single = np.array(single.render())
+    C, C_single = default.grids["C"], single.grids["C"]
+    assert np.all(C >= C_single)
+    assert 1.05 < C.sum() / C_single.sum() < 1.3
+    assert image.mean() > image_single.mean()

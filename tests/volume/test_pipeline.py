@@ -15,6 +15,8 @@ from photonmap.volume.params import STAGES
 GRID, PHOTONS = 32, 4096
 SIZE = {"width": 16, "height": 12}
 PHOTON_STAGES = ["photon generation", "photon tracing", "smoothing", "view grids", "viewing"]
+# multiple scattering (the default): σ_s and the phase k steer the photons, so changing them
+# reruns photon tracing (spec §4.1's S9-only rule is single scattering's; test_multiple_scattering)
 
 
 def sphere(**params) -> VolumePipeline:
@@ -39,12 +41,12 @@ CHANGES = {
         ["viewing"],
         True,
     ),
-    "phase_k": (lambda p: p.set_params(phase_k=-0.2), ["viewing"], True),
+    "phase_k": (lambda p: p.set_params(phase_k=-0.2), PHOTON_STAGES[1:], False),
     "light": (lambda p: p.set_light(position=[0.7, 3.0, 0.4]), PHOTON_STAGES, False),
     "sigma_s only": (
         lambda p: p.set_material("fog", **half_split(p.scene.fog.kappa)),
-        ["materials", "view grids", "viewing"],
-        True,
+        ["materials", "march grids", *PHOTON_STAGES[1:]],
+        False,
     ),
     "kappa": (
         lambda p: p.set_material("glass", sigma_a=[1.0, 0.2, 0.1]),
@@ -142,8 +144,9 @@ def test_camera_change_traces_no_photon():
 
 
 def test_set_volume_bypasses_voxelization():
-    """Sun §6.2: grids given as arrays skip S1/S2; σ_s painted with κ kept reruns S9 only."""
-    pipe = sphere()
+    """Sun §6.2: grids given as arrays skip S1/S2; σ_s painted with κ kept reruns S9 only (single
+    scattering, Sun's pipeline)."""
+    pipe = sphere(scattering="single")
     image(pipe)
     z, y, x = np.meshgrid(*[np.arange(GRID) + 0.5] * 3, indexing="ij")
     r = np.sqrt((x - 16) ** 2 + (y - 18) ** 2 + (z - 16) ** 2)
@@ -230,7 +233,9 @@ def test_full_pipeline_single_scattering_in_a_homogeneous_slab():
     and, as the beam's C is exact at the centre planes, within 5e-5 of the discrete sum of S9
     (T updated before adding; 2.6e-5 measured, float32)."""
     n, kappa, x0 = 128, 0.01, 64.5
-    pipe = VolumePipeline(slab_scene(kappa, x0, n), grid=n, photons=4**7, phase_k=0.0)
+    pipe = VolumePipeline(
+        slab_scene(kappa, x0, n), grid=n, photons=4**7, phase_k=0.0, scattering="single"
+    )
     assert not pipe.scene.objects
     value = image(pipe).ravel()
     assert np.all(value == value[0])  # grey

@@ -74,7 +74,7 @@ class VolumeParams:
     fidelity: str = "physical"  # "paper": the papers' literal behaviour (spec §6)
     spp: int = 1  # camera rays per pixel
     emission: str = "uniform"  # "adaptive": Pfeuti's pilot + importance photons (§3.2)
-    scattering: str = "single"  # "multiple": photons scatter in the fog (beyond-seeds §5)
+    scattering: str = "multiple"  # photons scatter in the fog (beyond-seeds §5); "single": Sun's
     pilot_photons: int = 64**2  # adaptive: pilot photons, s² on an s × s grid (Pfeuti §4.3)
     grad_threshold: float = 0.0  # adaptive: pilot gradient threshold in (0, 1]; 0 = automatic
     rad_threshold: float = 0.0  # adaptive: pilot radiance threshold in (0, 1]; 0 = automatic

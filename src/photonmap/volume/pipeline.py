@@ -14,7 +14,9 @@ level-selecting filter (A6–A7, ``mipmap.py``).
 Every stage's result is cached under a key made of exactly the inputs it depends on, so a change
 reruns only what it must (spec seed-000-002 §4.1): a camera change reruns S9 only; a light change
 S5–S9 (adaptive: A1–A7 and S9); a change of σ_s that keeps κ reruns S9 only; a change of κ reruns
-S6–S9 (adaptive: A2–A7 and S9); a change of n reruns S2–S9; new geometry reruns everything.
+S6–S9 (adaptive: A2–A7 and S9); a change of n reruns S2–S9; new geometry reruns everything. With
+multiple scattering (``scattering="multiple"``, the default; beyond-seeds §5) σ_s and the phase
+function steer the photons too: a change of σ_s reruns S6–S9, one of the phase k S6/S7–S9.
 The stage outputs live in a :class:`~photonmap.core.stages.StageCache`: ``recomputed`` lists the
 stages the last :meth:`render` ran and ``timer`` their milliseconds (the rows of Sun et al.
 Table 1); :meth:`invalidate` forgets stages, :meth:`stage_output` reads one.
