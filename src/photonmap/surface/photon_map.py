@@ -5,7 +5,9 @@ BSDFs with Russian roulette, stored at every non-specular hit). Following Jensen
 (spec seed-001 A5): the **global map** holds every stored hit of ``photons`` light paths, first
 bounces included (the final gather needs them at its secondary hits); the **caustic map** holds the
 hits of a separate ``caustic_photons`` paths that lie on L S+ D paths. Caustics at an eye-ray hit
-come only from the caustic map, so nothing is counted twice.
+come only from the caustic map, so nothing is counted twice. In a scene with participating media
+(:func:`build_media_maps`) a third map, the volume map (Jensen & Christensen 1998), holds the
+photons stored at scattering events in the media.
 
 Each map keeps its photons as a struct of arrays (position, power, direction, normal; float32,
 52 bytes a photon) in tracing order; its search structure keeps the positions with their indices in

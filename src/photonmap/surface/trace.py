@@ -9,7 +9,9 @@ Mitsuba's ``plastic``) is treated as non-specular and its delta lobe is not foll
 ``roughplastic`` for a glossy coating.
 
 ``null``-BSDF shapes (the boundaries of a fog box) are invisible: rays pass straight through them
-(:func:`photonmap.core.bsdf.intersect_visible`) and crossing one is no bounce (issue 10).
+(:func:`photonmap.core.bsdf.intersect_visible`) and crossing one is no bounce (issue 10). In a
+scene with participating media :func:`follow_specular_media` does the same through the media
+(Jensen & Christensen 1998): transmittance, in-scattered light, and the medium at the end.
 """
 
 from __future__ import annotations
