@@ -500,47 +500,71 @@ class Inscatter:
           (D² + (t − Δ)²))`` — the ``1/r²`` peak of a point or spot light near the ray is
           sampled in proportion, where uniform steps would miss or hit it.
 
-        Both are unbiased estimates of their integrals for any step."""
+        Both are unbiased estimates of their integrals for any step. The points are evaluated
+        for runs of whole segments of at most :data:`CHUNK` points each."""
         L = dr.zeros(mi.Spectrum, lanes)
         if segments.count == 0:
             return L
-        length = segments.length.numpy()
-        steps = np.clip(np.ceil(length / self.step), 1, MAX_STEPS).astype(np.int64)
-        seg = mi.UInt32(np.repeat(np.arange(len(steps), dtype=np.uint32), steps))
-        starts = np.concatenate([[0], np.cumsum(steps)[:-1]])
-        k = mi.Float((np.arange(steps.sum()) - np.repeat(starts, steps)).astype(np.float32))
-        count = mi.Float(steps.astype(np.float32))
+        steps = np.clip(np.ceil(segments.length.numpy() / self.step), 1, MAX_STEPS)
+        steps = steps.astype(np.int64)
         gen = rng(segments.count, self.seed, stream)
-        jitter = dr.gather(mi.Float, gen.next_float32(), seg)
+        jitter = gen.next_float32()
+        middle = dr.zeros(mi.Interaction3f, segments.count)
+        middle.p = segments.origin + segments.direction * (0.5 * segments.length)
+        u = mi.Point2f(gen.next_float32(), gen.next_float32())
+        centre = self.scene.sample_emitter_direction(middle, u, False, True)[0].p
+        dr.eval(jitter, centre)
+        ends = np.cumsum(steps)
+        first = 0
+        while first < segments.count:  # runs of whole segments, at most CHUNK points each
+            base = ends[first - 1] if first else 0
+            last = max(first + 1, int(np.searchsorted(ends, base + CHUNK, side="right")))
+            run = np.arange(first, last)
+            seg = mi.UInt32(np.repeat(run, steps[run]).astype(np.uint32))
+            k = np.arange(ends[last - 1] - base) - np.repeat(
+                ends[run] - steps[run] - base, steps[run]
+            )
+            self._march_run(
+                segments,
+                seg,
+                mi.Float(k.astype(np.float32)),
+                mi.Float(steps.astype(np.float32)),
+                jitter,
+                centre,
+                L,
+                stream + 4 * first,
+            )
+            first = last
+        return L
+
+    def _march_run(self, segments, seg, k, steps, jitter, centre, L, stream: int) -> None:
+        """:meth:`march` at the points ``k`` (0 … N−1) of the segments ``seg``, added to ``L``."""
         origin = dr.gather(mi.Point3f, segments.origin, seg)
         d = dr.gather(mi.Vector3f, segments.direction, seg)
         medium = dr.gather(mi.MediumPtr, segments.medium, seg)
         weight = dr.gather(mi.Spectrum, segments.weight, seg)
         lane = dr.gather(mi.UInt32, segments.lane, seg)
         ell = dr.gather(mi.Float, segments.length, seg)
-        n = dr.gather(mi.Float, count, seg)
+        n = dr.gather(mi.Float, steps, seg)
+        u = dr.gather(mi.Float, jitter, seg)
 
-        # equiangular points about a point on the emitters, sampled from the segment's middle
-        middle = dr.zeros(mi.Interaction3f, segments.count)
-        middle.p = segments.origin + segments.direction * (0.5 * segments.length)
-        u = mi.Point2f(gen.next_float32(), gen.next_float32())
-        ds, _ = self.scene.sample_emitter_direction(middle, u, False, True)
-        centre = dr.gather(mi.Point3f, ds.p, seg)
-        delta = dr.dot(centre - origin, d)
-        D = dr.maximum(dr.norm(centre - origin - delta * d), 1e-6 * dr.maximum(ell, 1e-6))
+        # equiangular points about the point on the emitters
+        c = dr.gather(mi.Point3f, centre, seg)
+        delta = dr.dot(c - origin, d)
+        D = dr.maximum(dr.norm(c - origin - delta * d), 1e-6 * dr.maximum(ell, 1e-6))
         theta_a = dr.atan2(-delta, D)
         theta_b = dr.atan2(ell - delta, D)
-        theta = theta_a + (k + jitter) / n * (theta_b - theta_a)
+        theta = theta_a + (k + u) / n * (theta_b - theta_a)
         t_direct = dr.clip(delta + D * dr.tan(theta), 0.0, ell)
         pdf = D / ((theta_b - theta_a) * (dr.square(D) + dr.square(t_direct - delta)))
         inv_pdf = dr.select(pdf > 0, 1.0 / (n * pdf), 0.0)
         L_direct = self._term(origin, d, t_direct, medium, weight * inv_pdf, stream + 1, True)
         dr.scatter_reduce(dr.ReduceOp.Add, L, L_direct, lane)
         if self.vmap.size:
-            t_map = (k + jitter) * ell / n
+            t_map = (k + u) * ell / n
             L_map = self._term(origin, d, t_map, medium, weight * ell / n, stream + 2, False)
             dr.scatter_reduce(dr.ReduceOp.Add, L, L_map, lane)
-        return L
+        dr.eval(L)
 
     def _term(self, origin, d, t, medium, weight, stream: int, direct: bool) -> mi.Spectrum:
         """``weight · T(t) · L_s(t)`` (its direct or its volume-map term) at ``origin + t d``."""

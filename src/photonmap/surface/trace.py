@@ -83,7 +83,7 @@ def follow_specular(
     return si, throughput, emitted, found, dr.maximum(depth, 1) - 1
 
 
-MAX_SEGMENTS = 8  # medium segments of an eye path that are marched (later ones: transmittance)
+MAX_SEGMENTS = 4  # medium segments of an eye path that are marched (later ones: transmittance)
 MEDIA_STREAM = 1 << 24  # RNG streams of the in-scattering estimates start here
 
 
@@ -120,13 +120,13 @@ def follow_specular_media(
     throughput = mi.Spectrum(throughput) * dr.ones(mi.Float, n)  # every loop variable full width
     marching = march and inscatter is not None
     slots = n * MAX_SEGMENTS if marching else 1
-    buffers = Segments(
+    buffers = Segments(  # slot = segment number · n + lane (44 bytes a slot, lane implicit)
         dr.zeros(mi.Point3f, slots),
         dr.zeros(mi.Vector3f, slots),
         dr.zeros(mi.Float, slots),
         dr.zeros(mi.MediumPtr, slots),
         dr.zeros(mi.Spectrum, slots),
-        dr.zeros(mi.UInt32, slots),
+        None,
     )
     stored = dr.zeros(mi.Bool, slots)
     si, throughput, emitted, found, depth, medium, mei, weight, scattered = _follow(
@@ -145,7 +145,8 @@ def follow_specular_media(
     L_medium = dr.zeros(mi.Spectrum, n)
     if marching:
         index = dr.compress(stored)
-        segments = Segments(*(dr.gather(type(f), f, index) for f in vars(buffers).values()))
+        fields = [dr.gather(type(f), f, index) for f in vars(buffers).values() if f is not None]
+        segments = Segments(*fields, index % n)
         L_medium = inscatter.march(segments, n, stream)
     elif inscatter is not None and dr.any(scattered, axis=None):
         index = dr.compress(scattered)
@@ -205,7 +206,6 @@ def _follow(
                 dr.scatter(buffers.length, si.t, slot, record)
                 dr.scatter(buffers.medium, medium, slot, record)
                 dr.scatter(buffers.weight, throughput, slot, record)
-                dr.scatter(buffers.lane, lane, slot, record)
                 dr.scatter(stored, True, slot, record)
                 segments[record] += 1
             throughput[in_medium] *= segment_transmittance(ray, si.t, medium, gen, ch, in_medium)
