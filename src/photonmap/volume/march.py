@@ -32,6 +32,12 @@ them. :func:`radiance_tally` (C rgb, D xyz, two spare channels) is S6/S7. Pfeuti
 the spare channels of the same packets (:func:`weight_tally`), so the adaptive march costs no
 second atomic per deposit — the cost Pfeuti measured in Fig 4.14. The pilot marcher [§3.2.2, A2]
 deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``).
+
+Multiple scattering (``scattering``, beyond-seeds §5; sampling in ``scatter.py``): each order is
+this march (:func:`_march_order`, which also samples the order's collision); the photons that
+scatter are compacted, sorted (:func:`coherent_order`) and marched as the next order
+(:func:`_march_multiple`), into the same accumulator, so C and D hold the fluence of all orders
+and S8/S9 are unchanged. The first order deposits exactly what :func:`_march` deposits.
 """
 
 from __future__ import annotations
