@@ -170,17 +170,18 @@ def trace_photons_media(
     """:func:`trace_photons` through participating media (Jensen & Christensen 1998; spec
     beyond-seeds §4): the surface records as there, and the volume photons.
 
-    Each photon starts in its emitter's medium and flies by :func:`~photonmap.core.media.
-    free_flight` (``medium.sample_interaction`` in a colour channel drawn per path, delta tracking
-    in heterogeneous media, media switched at ``null``, dielectric and other medium-transition
-    boundaries), so the transmittance on the way is in the sampling. At a real scattering event
-    it is stored as a volume photon with the power it scatters, ``Φ·σ_s T/p`` (``Φ`` times the
-    albedo for a grey medium), ``direct`` when nothing but ``null`` boundaries lay between it and
-    its emitter; it then goes on with probability ``q = min(1, max_c σ_s T/p)`` (the albedo:
-    Russian roulette) with its power divided by ``q`` — a grey medium keeps the photon's power —
-    in a direction sampled from the medium's phase function. A medium event counts as an
-    interaction (``depth``, ``max_depth``) and as a smooth bounce: photons scattered by the medium
-    are never caustic, and ``caustics_only`` paths end at their first medium event unstored."""
+    Each photon starts in its emitter's medium (:func:`emitter_media`) and flies by
+    :func:`~photonmap.core.media.free_flight` (``medium.sample_interaction`` in a colour channel
+    drawn per path, delta tracking in heterogeneous media, media switched at ``null``, dielectric
+    and other medium-transition boundaries), so the transmittance on the way is in the sampling.
+    At a real scattering event it is stored as a volume photon with the power it scatters,
+    ``Φ·σ_s T/p`` (``Φ`` times the albedo for a grey medium), ``direct`` when nothing but ``null``
+    boundaries lay between it and its emitter; it then goes on with probability
+    ``q = min(1, max_c σ_s T/p)`` (the albedo: Russian roulette) with its power divided by ``q`` —
+    a grey medium keeps the photon's power — in a direction sampled from the medium's phase
+    function. A medium event counts as an interaction (``depth``, ``max_depth``) and as a smooth
+    bounce: photons scattered by the medium are never caustic, and ``caustics_only`` paths end
+    at their first medium event unstored."""
     if paths < 1:
         raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
     if max_depth < 1 or rr_depth < 1:
@@ -189,7 +190,7 @@ def trace_photons_media(
             f"rr_depth={rr_depth}"
         )
     emitter, ray, power, emitted = _emission(scene, paths, seed)
-    medium = dr.gather(mi.EmitterPtr, scene.emitters_dr(), emitter).get_medium()
+    medium = dr.gather(mi.MediumPtr, mi.MediumPtr(emitter_media(scene)), emitter)
     surface, volume = _trace_media(
         scene, ray, medium, power, rng(paths, seed, stream=1), max_depth, rr_depth, caustics_only
     )
@@ -201,6 +202,20 @@ def trace_photons_media(
     result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
     _check_power(result)
     return result, VolumePhotons(**vfields)
+
+
+def emitter_media(scene: mi.Scene) -> list:
+    """The medium each of ``scene.emitters()`` emits into: its own ``medium`` (a point, spot or
+    other emitter placed in fog), else for an area light its shape's exterior medium — the side
+    its normals face, where it emits (Mitsuba's ``target_medium`` of a direction along the
+    normal) — else None (vacuum)."""
+    media = []
+    for emitter in scene.emitters():
+        medium, shape = emitter.get_medium(), emitter.get_shape()
+        if medium is None and shape is not None:
+            medium = shape.exterior_medium()
+        media.append(medium)
+    return media
 
 
 def _emission(scene: mi.Scene, paths: int, seed: int):
