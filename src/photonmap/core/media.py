@@ -107,6 +107,30 @@ def interaction(
     return mei
 
 
+ESCAPE_FREE_PATHS = 10.0  # an escaping ray is marched this many mean free paths beyond the scene
+
+
+def escape_length(
+    scene: mi.Scene, ray: mi.Ray3f, medium: mi.MediumPtr, active: mi.Bool
+) -> mi.Float:
+    """How far to march ``ray`` when it leaves the scene inside ``medium`` (e.g. the sensor's
+    medium around everything): to the exit of the medium's bounding box where it has one
+    (a grid volume), else to the exit of the scene's bounding box and then
+    :data:`ESCAPE_FREE_PATHS` mean free paths (σ_t at the ray's origin) further, beyond which
+    less than e⁻¹⁰ of the light remains."""
+    _, _, medium_exit = medium.intersect_aabb(ray)
+    box = scene.bbox()
+    lo, hi = mi.Point3f(box.min), mi.Point3f(box.max)
+    inv = dr.rcp(ray.d)
+    far = dr.maximum((lo - ray.o) * inv, (hi - ray.o) * inv)
+    scene_exit = dr.maximum(dr.min(far), 0.0)
+    _, _, sigma_t = medium.get_scattering_coefficients(
+        interaction(ray.o, ray.d, 0.0, medium), active
+    )
+    beyond = ESCAPE_FREE_PATHS / dr.maximum(dr.mean(sigma_t), 1e-6)
+    return dr.select(dr.isfinite(medium_exit), medium_exit, scene_exit + beyond)
+
+
 @dataclass
 class Flight:
     """Result of :func:`free_flight` per lane: ``scattered`` — a real collision at ``mei``;

@@ -25,6 +25,7 @@ from ..core.media import (
     Segments,
     channel,
     enter,
+    escape_length,
     free_flight,
     segment_transmittance,
 )
@@ -197,18 +198,20 @@ def _follow(
     while searching & (crossings < MAX_NULL_CROSSINGS):
         if dr.hint(transmit, mode="scalar"):
             si = scene.ray_intersect(ray, searching)
-            in_medium = searching & (medium != None) & si.is_valid()  # noqa: E711
+            in_medium = searching & (medium != None)  # noqa: E711
+            escaping = in_medium & ~si.is_valid()  # leaving the scene inside a medium
+            length = dr.select(escaping, escape_length(scene, ray, medium, escaping), si.t)
             if dr.hint(buffers is not None, mode="scalar"):
                 record = in_medium & (segments < MAX_SEGMENTS)
                 slot = segments * n + lane
                 dr.scatter(buffers.origin, ray.o, slot, record)
                 dr.scatter(buffers.direction, ray.d, slot, record)
-                dr.scatter(buffers.length, si.t, slot, record)
+                dr.scatter(buffers.length, length, slot, record)
                 dr.scatter(buffers.medium, medium, slot, record)
                 dr.scatter(buffers.weight, throughput, slot, record)
                 dr.scatter(stored, True, slot, record)
                 segments[record] += 1
-            throughput[in_medium] *= segment_transmittance(ray, si.t, medium, gen, ch, in_medium)
+            throughput[in_medium] *= segment_transmittance(ray, length, medium, gen, ch, in_medium)
             bsdf = si.bsdf(ray)
             hit = searching & si.is_valid()
             cross = is_null(bsdf, hit) & (si.emitter(scene) == None)  # noqa: E711
