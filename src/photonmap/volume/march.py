@@ -54,7 +54,6 @@ from .emit import Photons
 
 OVERSHOOT = 1e-3  # δ, voxels (A10)
 KILL_FRACTION = 1e-3  # τ_rel (A18)
-EXPAND_MIN_PHOTONS = 16384  # a launch of fewer photons deposits with atomics (reduce_mode)
 FIXED_POINT_BITS = 32
 WEIGHT_BITS = 20  # fixed-point bits of the photon weights 1/p summed by weight_tally
 CHANNELS = 8  # accumulator stride per voxel: C rgb, D xyz, 2 spare (one 64-byte line per voxel)
@@ -64,10 +63,11 @@ Int64 = dr.int64_array_t(mi.Float)
 
 def reduce_mode(expand: bool = True) -> dr.ReduceMode:
     """Per-thread copies of the accumulator (``Expand``) were 3–5× faster than atomics here, but
-    each launch pays for making and summing the copies (≈ 0.1 s at 128³): a launch of few photons
-    (``expand`` False) uses atomics (``Local``), into an array of its own (Dr.Jit's documentation
-    says nothing of mixing the modes on one array). Dr.Jit 1.5's debug mode misreports (and drops)
-    ``Expand`` packet scatters as out of range, so debug runs use ``Local``."""
+    every launch makes and sums the copies again (≈ 0.1 s and, measured at 160³, 190 B per voxel
+    more peak memory per further launch): the scattered orders of multiple scattering
+    (``expand`` False) use atomics (``Local``), into an array of their own. Dr.Jit 1.5's debug
+    mode misreports (and drops) ``Expand`` packet scatters as out of range, so debug runs use
+    ``Local``."""
     return dr.ReduceMode.Local if dr.flag(dr.JitFlag.Debug) or not expand else dr.ReduceMode.Expand
 
 
@@ -323,8 +323,9 @@ def _march_multiple(
     lanes do not wait for a neighbour's further orders). The collision of each order starts the
     next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian
     roulette (:func:`.scatter.roulette`). Photon ``i`` draws from PCG32 stream ``i`` of the seed.
-    Orders of fewer than :data:`EXPAND_MIN_PHOTONS` photons deposit into ``atomic`` (same layout
-    as ``acc``, to be added to it) with atomics: one reduction mode per array.
+    The first order deposits into ``acc`` as :func:`_march` does; the scattered orders deposit
+    with atomics into ``atomic`` (same layout, summed with ``acc`` by the caller): one
+    reduction mode per array, one ``Expand`` launch (see :func:`reduce_mode`).
     Returns the total steps and, per photon, the final ``(x, v, L̃)`` and its scattering events.
     """
     count = dr.width(L)
@@ -338,8 +339,7 @@ def _march_multiple(
     steps = 0
     for order in range(scatter.MAX_ORDERS + 1):
         target, channel = scatter.free_flight(rng)
-        wide = dr.width(L) >= EXPAND_MIN_PHOTONS
-        into = acc if wide else atomic
+        into = acc if order == 0 else atomic
         n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s = _march_order(
             into,
             medium,
@@ -355,7 +355,7 @@ def _march_multiple(
             channel,
             tally,
             shift,
-            wide,
+            order == 0,
         )
         dr.eval(into, n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s)  # one launch per order
         for array, value in zip(final, (x, v, L_end, dr.opaque(mi.UInt32, order)), strict=True):
@@ -492,7 +492,7 @@ def accumulate(
     m = coarse_size(n, shift)
     acc = dr.zeros(Int64, m**3 * CHANNELS)
     phi_max = float(dr.max(dr.max(photons.power))[0]) if photons.count else 0.0
-    steps, final = 0, ()
+    steps, final, atomic = 0, (), None
     if phi_max > 0:
         scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
         args = (
@@ -512,14 +512,16 @@ def accumulate(
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
         else:
-            atomic = dr.zeros(Int64, m**3 * CHANNELS)
+            atomic = dr.zeros(Int64, m**3 * CHANNELS)  # no memory until an order writes to it
             steps, *final = _march_multiple(*args, scattering, tally, shift, atomic)
-            dr.eval(acc, atomic, *final)
-            acc = acc + atomic
+            dr.eval(acc, *final)
         final = tuple(final)
     voxel = dr.arange(mi.UInt32, m**3) * 2
-    first = Vector4d(dr.gather(Vector4i64, acc, voxel))
-    second = Vector4d(dr.gather(Vector4i64, acc, voxel + 1))
+    first, second = (dr.gather(Vector4i64, acc, voxel + k) for k in (0, 1))
+    if atomic is not None:  # the two accumulators summed as integers, in the same kernel
+        first += dr.gather(Vector4i64, atomic, voxel)
+        second += dr.gather(Vector4i64, atomic, voxel + 1)
+    first, second = Vector4d(first), Vector4d(second)
     return first, second, phi_max / 2.0**FIXED_POINT_BITS, steps, final
 
 
