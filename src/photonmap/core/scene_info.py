@@ -2,8 +2,9 @@
 media (the fog) and the shapes that bound them.
 
 The CLI picks the method from this (fog → ``volume``, else ``surface``), the volume method refuses
-a scene without fog, and the surface and screen methods warn once that they render without the
-media (issue 10: never a silently wrong image).
+a scene without fog, and the screen method, which does not model media, warns once that it
+renders without them (issue 10: never a silently wrong image). The surface method renders media
+with a volume photon map (:mod:`photonmap.core.media`).
 """
 
 from __future__ import annotations
