@@ -45,9 +45,10 @@ def test_grid_that_does_not_fit_in_memory():
 
 def test_memory_estimate_counts_the_grids():
     total, per_voxel = memory_estimate(64, objects=1, photons=1000, threads=2)
-    # cached: coverage 4 + materials 28 + ∇n 12 + octree 8 + march 40 + C, D twice 48 + view 64;
-    # while tracing: the 8-channel int64 accumulator and one copy per thread
-    assert per_voxel == 204 + 64 * 3
+    # cached: coverage 4 + materials 28 + ∇n 12 + octree 8 + march 56 (σ_s for multiple
+    # scattering) + C, D twice 48 + view 64; while tracing: the 8-channel int64 accumulator, one
+    # copy per thread and the scattered orders' accumulator
+    assert per_voxel == 220 + 64 * 4
     assert total == per_voxel * 64**3 + PHOTON_BYTES * 1000
     assert memory_estimate(64, objects=3, threads=8)[1] == per_voxel + 8 + 64 * 6
     need = memory_estimate(64)[0] / 2**20  # with this machine's thread count

@@ -223,15 +223,18 @@ def memory_estimate(grid: int, objects: int = 1, photons: int = 0, threads: int 
     ``(total, per_voxel)``.
 
     Per voxel, what stays cached: coverage (4 B per refractive object), material grids n, σ_s, κ
-    (28 B), ∇n (12 B), octree level and Δs_max (8 B), march grids (40 B), the traced and the
-    smoothed C, D (2 × 24 B), the packed viewing grid (64 B); and while photons are traced, the
-    64-bit fixed-point accumulator of 8 channels (64 B) with one more copy per Dr.Jit thread
-    (``ReduceMode.Expand``). Plus :data:`PHOTON_BYTES` per photon. Measured on this machine:
-    ≈ 360 B per voxel at 192³ with 2 threads, against 396 B estimated.
+    (28 B), ∇n (12 B), octree level and Δs_max (8 B), march grids (40 B, + 16 B of σ_s for
+    multiple scattering), the traced and the smoothed C, D (2 × 24 B), the packed viewing grid
+    (64 B); and while photons are traced, the 64-bit fixed-point accumulator of 8 channels (64 B)
+    with one more copy per Dr.Jit thread (``ReduceMode.Expand``) and a second one for the
+    scattered orders of multiple scattering (64 B). Plus :data:`PHOTON_BYTES` per photon.
+    Measured on this machine: ≈ 360 B per voxel at 192³ with 2 threads, single scattering,
+    against 396 B estimated then; glass_sphere_fog at 160³ with 2²⁰ photons peaks at 1.59 GiB
+    (single) and 1.84 GiB (multiple scattering) against 1.94 GiB estimated.
     """
     threads = dr.thread_count() if threads is None else threads
-    cached = 4 * objects + 28 + 12 + 8 + 40 + 2 * 24 + 4 * VIEW_CHANNELS
-    accumulator = 8 * 8 * (1 + max(int(threads), 1))
+    cached = 4 * objects + 28 + 12 + 8 + 56 + 2 * 24 + 4 * VIEW_CHANNELS
+    accumulator = 8 * 8 * (2 + max(int(threads), 1))
     per_voxel = cached + accumulator
     return per_voxel * int(grid) ** 3 + PHOTON_BYTES * int(photons), per_voxel
 
