@@ -26,6 +26,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/surface_vs_path.py
 	$(PY) benchmarks/knn_throughput.py
 	$(PY) benchmarks/screen_table1.py
+	$(PY) benchmarks/volume_vs_volpath.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
