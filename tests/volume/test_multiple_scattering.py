@@ -38,7 +38,7 @@ import pytest
 from scipy.stats import qmc
 
 from photonmap import VolumePipeline
-from photonmap.core.errors import ParameterError
+from photonmap.core.errors import ParameterError, PhotonmapError
 from photonmap.core.grid import GridBox
 from photonmap.volume.emit import Photons, emit
 from photonmap.volume.march import MarchGrids, Scattering, march
@@ -431,3 +431,20 @@ def test_glass_ball_in_fog_agrees_with_volpath():
     assert abs(image.mean() / mean - 1) < BALL_RATIO_BOUND
     error = np.sqrt(np.mean((block_means(image) - block_means(reference)) ** 2)) / mean
     assert error < BALL_BLOCK_BOUND
+
+
+def test_a_corrupted_accumulator_is_refused_not_rendered(monkeypatch):
+    """A negative sum of non-negative deposits (seen once while building multiple scattering,
+    not reproduced) must stop the render with a PhotonmapError, not give a wrong image."""
+    from photonmap.volume import march as march_module
+
+    real = march_module.accumulate
+
+    def corrupted(*args, **kwargs):
+        first, second, unit, steps, final = real(*args, **kwargs)
+        return -first - 1, second, unit, steps, final
+
+    monkeypatch.setattr(march_module, "accumulate", corrupted)
+    pipe = VolumePipeline("glass_sphere_fog", grid=24, photons=1024, width=16, height=12)
+    with pytest.raises(PhotonmapError, match="negative energy"):
+        pipe.render()

@@ -47,7 +47,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..core.errors import ParameterError
+from ..core.errors import ParameterError, PhotonmapError
 from ..core.grid import pack, to_tensor, trilinear_packed
 from . import scatter
 from .emit import Photons
@@ -566,4 +566,10 @@ def march(
         result.count = mi.TensorXf(count, (n, n, n))
         result.weight = mi.TensorXf(weight, (n, n, n))
     dr.eval(C, D, result.count, result.weight)  # one kernel reads the accumulator
+    if dr.min(C.array)[0] < 0:  # deposits are >= 0: a negative sum is a corrupted accumulator
+        raise PhotonmapError(
+            "the photon march produced negative energy in the radiance grid (a corrupted "
+            "fixed-point accumulator); the image would be wrong, so none is made: render again, "
+            "and report the scene and parameters if it repeats"
+        )
     return result
