@@ -13,7 +13,9 @@ Curves of error against wall time: ``volpath`` at rising spp, the ``volume`` met
 file's medium, no table) at rising grid and photon counts, and the ``surface`` method
 (:class:`~photonmap.SurfacePipeline`, its volume photon map; Jensen & Christensen 1998) at rising
 photon counts and spp. Every point is rendered once untimed (kernel compilation) and then 3 times
-with seeds 0, 1, 2; its time and errors are the medians of the 3. A photonmap time covers reading
+with seeds 0, 1, 2, in rounds over all the points of a scene (a burst of load from other work
+hits one sample of several points, not all of one); its time and errors are the medians of the
+3. A photonmap time covers reading
 the loaded Mitsuba scene, every stage and the image, Dr.Jit's queue drained
 (:func:`common.timed`). Errors: relative RMSE per pixel, and the relative RMSE of 4×4-block
 means (noise averages out within a block, a bias does not), over the pixels that do not see the
@@ -43,10 +45,12 @@ the curves, every sample, the headline's working), ``.md`` and ``.png`` (``_quic
 from __future__ import annotations
 
 import argparse
+import json
 import math
 import os
 import sys
 import time
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -121,18 +125,20 @@ def reference(name: str, scene, size, spp: int, cache: Path) -> tuple[np.ndarray
     halves, info = [], {"spp": spp, "halves": []}
     for half in (1, 2):
         path = cache / f"volume_vs_volpath_{name}_{size[0]}x{size[1]}_{spp}spp_{half}.exr"
-        if path.exists():
+        made = path.with_suffix(".json")  # how the cached half was rendered
+        if path.exists() and made.exists():
             halves.append(np.array(mi.Bitmap(str(path)), dtype=np.float64)[..., :3])
-            info["halves"].append({"cached": str(path)})
+            info["halves"].append({**json.loads(made.read_text()), "cached": str(path)})
             continue
         cache.mkdir(parents=True, exist_ok=True)
-        image, made = photonmap.render_reference(
+        image, done = photonmap.render_reference(
             scene, spp=spp // 2, integrator="volpath", max_depth=MAX_DEPTH, seed=100_000 * half
         )
         write_image(str(path), image)
+        common.write_json(path.with_suffix(".json"), done)
         halves.append(image)
-        info["halves"].append({**made, "rendered": str(path)})
-        print(f"  reference half {half}: {spp // 2} spp in {made['seconds']:.1f} s", flush=True)
+        info["halves"].append({**done, "rendered": str(path)})
+        print(f"  reference half {half}: {spp // 2} spp in {done['seconds']:.1f} s", flush=True)
     return halves, info
 
 
@@ -194,72 +200,74 @@ class Target:
         return out
 
 
-def measure(render, target: Target) -> dict:
-    """One warm-up render, then :data:`RUNS` timed ones (seed 0, 1, ...): median seconds and
-    errors (:meth:`Target.errors`), with every sample."""
-    render(0)
-    samples = []
+def measure(points, target: Target) -> dict[str, list[dict]]:
+    """Time and score renders: ``points`` are ``(method, budget, render)`` with ``render(seed)``
+    returning ``(image, extra)``. Each is rendered once untimed (kernel compilation), then in
+    :data:`RUNS` rounds over all points (seed = round), so that a burst of load from other work
+    on the machine hits one sample of several points rather than every sample of one. Returns
+    per method the rows: budget, median seconds and errors (:meth:`Target.errors`), and every
+    sample with the 1-minute load average after it."""
+    for _, _, render in points:
+        render(0)
+    samples = [[] for _ in points]
     for seed in range(RUNS):
-        seconds, (image, extra) = common.timed(render, seed)
-        samples.append({"seconds": seconds, **target.errors(image), **extra})
-    out = {"seconds": common.median(s["seconds"] for s in samples)}
-    for key in (*KEYS, "brightness"):
-        out[key] = common.median(s[key] for s in samples)
-    out["samples"] = samples
-    return out
-
-
-def run_volpath(scene, target, spps) -> list[dict]:
-    rows = []
-    for spp in spps:
-
-        def render(seed, spp=spp):
-            image, _ = photonmap.render_reference(
-                scene, spp=spp, integrator="volpath", max_depth=MAX_DEPTH, seed=1000 * seed
-            )
-            return image, {}
-
-        rows.append({"spp": spp, **measure(render, target)})
-        log("volpath", f"{spp} spp", rows[-1])
+        for (_, _, render), out in zip(points, samples, strict=True):
+            seconds, (image, extra) = common.timed(render, seed)
+            load = round(os.getloadavg()[0], 2)
+            out.append({"seconds": seconds, **target.errors(image), **extra, "load_1min": load})
+    rows = {}
+    for (method, budget, _), runs in zip(points, samples, strict=True):
+        row = {**budget, "seconds": common.median(r["seconds"] for r in runs)}
+        for key in (*KEYS, "brightness"):
+            row[key] = common.median(r[key] for r in runs)
+        row["samples"] = runs
+        rows.setdefault(method, []).append(row)
+        log(method, budget_text(method, row), row)
     return rows
 
 
-def run_volume(scene, target, budgets) -> list[dict]:
-    rows = []
-    for grid, photons in budgets:
+def volpath_points(scene, spps) -> list:
+    def render(seed, spp):
+        image, _ = photonmap.render_reference(
+            scene, spp=spp, integrator="volpath", max_depth=MAX_DEPTH, seed=1000 * seed
+        )
+        return image, {}
 
-        def render(seed, grid=grid, photons=photons):
-            pipe = photonmap.VolumePipeline(
-                scene, grid=grid, photons=photons, phase_k=0.0, table=0.0, seed=seed
-            )
-            image = np.array(pipe.render(), dtype=np.float64)
-            return image, {"stages_ms": dict(pipe.timer.ms)}
-
-        rows.append({"grid": grid, "photons": photons, **measure(render, target)})
-        log("volume", f"grid {grid}, {photons:,} photons", rows[-1])
-    return rows
+    return [("volpath", {"spp": spp}, partial(render, spp=spp)) for spp in spps]
 
 
-def run_surface(scene, target, budgets) -> list[dict]:
-    rows = []
-    for photons, spp in budgets:
+def volume_points(scene, budgets) -> list:
+    def render(seed, grid, photons):
+        pipe = photonmap.VolumePipeline(
+            scene, grid=grid, photons=photons, phase_k=0.0, table=0.0, seed=seed
+        )
+        image = np.array(pipe.render(), dtype=np.float64)
+        return image, {"stages_ms": dict(pipe.timer.ms)}
 
-        def render(seed, photons=photons, spp=spp):
-            pipe = photonmap.SurfacePipeline(
-                scene,
-                photons=photons,
-                caustic_photons=0,
-                fg_rays=4,
-                spp=spp,
-                max_depth=MAX_DEPTH,
-                seed=seed,
-            )
-            image = np.array(pipe.render(), dtype=np.float64)
-            return image, {"stages_ms": dict(pipe.timer.ms)}
+    return [
+        ("volume", {"grid": g, "photons": n}, partial(render, grid=g, photons=n))
+        for g, n in budgets
+    ]
 
-        rows.append({"photons": photons, "spp": spp, **measure(render, target)})
-        log("surface", f"{photons:,} photons, {spp} spp", rows[-1])
-    return rows
+
+def surface_points(scene, budgets) -> list:
+    def render(seed, photons, spp):
+        pipe = photonmap.SurfacePipeline(
+            scene,
+            photons=photons,
+            caustic_photons=0,
+            fg_rays=4,
+            spp=spp,
+            max_depth=MAX_DEPTH,
+            seed=seed,
+        )
+        image = np.array(pipe.render(), dtype=np.float64)
+        return image, {"stages_ms": dict(pipe.timer.ms)}
+
+    return [
+        ("surface", {"photons": n, "spp": spp}, partial(render, photons=n, spp=spp))
+        for n, spp in budgets
+    ]
 
 
 def log(method: str, budget: str, row: dict) -> None:
@@ -534,10 +542,13 @@ def main(argv=None) -> dict:
             "reference": ref_info,
             "reference_noise": target.noise,
             "masked_pixels": int((~target.mask).sum()),
-            "volpath": run_volpath(scene, target, config["volpath_spp"]),
-            "volume": run_volume(scene, target, config["volume"]),
-            "surface": run_surface(scene, target, config["surface"]),
         }
+        points = (
+            volpath_points(scene, config["volpath_spp"])
+            + volume_points(scene, config["volume"])
+            + surface_points(scene, config["surface"])
+        )
+        res.update(measure(points, target))
         res["headline"] = {
             method: {key: headline_for(res[method], res["volpath"], key) for key in KEYS}
             for method in METHODS

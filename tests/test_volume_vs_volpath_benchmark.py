@@ -42,6 +42,8 @@ def test_quick_run_writes_schema(bench, quick):
     assert list(data["scenes"]) == ["ball", "fog"]
     # the cached reference: two halves under out/cache, not the results folder
     assert len(list((out / "cache").glob("volume_vs_volpath_*_256spp_[12].exr"))) == 4
+    for scene in data["scenes"].values():
+        assert [h["spp"] for h in scene["reference"]["halves"]] == [128, 128]
     for name, scene in data["scenes"].items():
         assert finite(scene["reference_noise"]["rel_rmse"])
         for method in METHODS:
@@ -49,6 +51,7 @@ def test_quick_run_writes_schema(bench, quick):
             assert len(rows) >= 2
             for row in rows:
                 assert len(row["samples"]) == 3
+                assert all(finite(r["load_1min"]) for r in row["samples"])
                 for key in (*bench.KEYS, "brightness", "seconds"):
                     assert finite(row[key]) and row[key] >= 0, (name, method, key)
                     assert row[key] == pytest.approx(np.median([s[key] for s in row["samples"]]))
