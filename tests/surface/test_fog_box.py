@@ -19,7 +19,7 @@ EXAMPLE = Path(__file__).parents[2] / "examples" / "fog_box.xml"
 
 
 def fog_box_scene(fog: bool) -> mi.Scene:
-    """/work/shared/tools/scenes/glass_sphere_fog_box.xml's fog box (a null-BSDF cube holding a
+    """../shared/tools/scenes/glass_sphere_fog_box.xml's fog box (a null-BSDF cube holding a
     homogeneous medium) and glass ball, with a diffuse floor inside the box and a spherical area
     light above it: every light path and shadow ray to the floor crosses the box. Without
     ``fog`` the box and its medium are left out."""

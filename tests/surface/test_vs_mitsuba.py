@@ -1,5 +1,5 @@
 """The surface method against Mitsuba's own integrators on the same scene (issue 10 item 2; spec
-seed-001 §2.1): ``mi.cornell_box()`` and /work/shared/tools/scenes/glass_sphere_plane.xml against
+seed-001 §2.1): ``mi.cornell_box()`` and ../shared/tools/scenes/glass_sphere_plane.xml against
 ``path`` with the same ``max_depth`` (mean brightness, relative RMSE of 4x4-pixel block means),
 and the power of a glass ball's caustic against ``ptracer``.
 
@@ -18,7 +18,7 @@ import pytest
 
 from photonmap.surface.pipeline import SurfacePipeline
 
-SCENES = pathlib.Path("/work/shared/tools/scenes")
+SCENES = pathlib.Path(__file__).resolve().parents[3] / "shared/tools/scenes"  # beside the repo
 T = mi.ScalarTransform4f
 
 
