@@ -17,6 +17,7 @@ the others by building the pipeline again. Errors are :class:`photonmap.Photonma
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 
 import mitsuba as mi
@@ -87,7 +88,7 @@ class PipelineIntegrator(mi.SamplingIntegrator):
         elif fingerprint != self._fingerprint:
             self.scene_changed(scene)
         self._fingerprint = fingerprint
-        fields = {f for f in self.params_type.__dataclass_fields__}
+        fields = {f.name for f in dataclasses.fields(self.params_type)}
         changes = {}
         if "spp" in fields:
             changes["spp"] = int(spp) if spp else self.params.get("spp", self.params_type().spp)
