@@ -311,6 +311,17 @@ def _sample_rays(scene: mi.Scene, emitter: mi.UInt32, seed: int) -> tuple[mi.Ray
     return emitters.sample_ray(0.0, wavelength, spatial, directional)
 
 
+def _store(records: dict, slot, store, position, power, direction, normal, depth, caustic):
+    """Write one surface photon record per lane where ``store`` (slot ``slot``)."""
+    dr.scatter(records["position"], position, slot, store)
+    dr.scatter(records["power"], power, slot, store)
+    dr.scatter(records["direction"], direction, slot, store)
+    dr.scatter(records["normal"], mi.Vector3f(normal), slot, store)
+    dr.scatter(records["depth"], depth, slot, store)
+    dr.scatter(records["caustic"], caustic, slot, store)
+    dr.scatter(records["stored"], True, slot, store)
+
+
 @dr.syntax
 def _trace(
     scene: mi.Scene,
@@ -356,13 +367,7 @@ def _trace(
             slot = mi.UInt32(path)
         else:
             slot = (depth - 1) * n + path
-        dr.scatter(records["position"], si.p, slot, store)
-        dr.scatter(records["power"], power * throughput, slot, store)
-        dr.scatter(records["direction"], ray.d, slot, store)
-        dr.scatter(records["normal"], mi.Vector3f(si.sh_frame.n), slot, store)
-        dr.scatter(records["depth"], depth, slot, store)
-        dr.scatter(records["caustic"], caustic, slot, store)
-        dr.scatter(records["stored"], True, slot, store)
+        _store(records, slot, store, si.p, power * throughput, ray.d, si.sh_frame.n, depth, caustic)
 
         sample, weight = bsdf.sample(
             ctx,
@@ -460,13 +465,7 @@ def _trace_media(
             slot = mi.UInt32(path)
         else:
             slot = (depth - 1) * n + path
-        dr.scatter(records["position"], si.p, slot, store)
-        dr.scatter(records["power"], power * throughput, slot, store)
-        dr.scatter(records["direction"], ray.d, slot, store)
-        dr.scatter(records["normal"], mi.Vector3f(si.sh_frame.n), slot, store)
-        dr.scatter(records["depth"], depth, slot, store)
-        dr.scatter(records["caustic"], caustic, slot, store)
-        dr.scatter(records["stored"], True, slot, store)
+        _store(records, slot, store, si.p, power * throughput, ray.d, si.sh_frame.n, depth, caustic)
 
         sample, weight = bsdf.sample(
             ctx,
