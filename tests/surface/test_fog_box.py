@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from photonmap.core.errors import PhotonmapWarning
+from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
@@ -58,11 +59,6 @@ def fog_box_scene(fog: bool) -> mi.Scene:
         }
         scene["ball"]["exterior"] = {"type": "ref", "id": "fog"}
     return mi.load_dict(scene)
-
-
-def blocks(image, k=4):
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 @pytest.fixture(scope="module")

@@ -6,6 +6,7 @@ transmittance — against Mitsuba ``volpath`` on the same scene."""
 import mitsuba as mi
 import numpy as np
 
+from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
@@ -39,11 +40,6 @@ def fog_over_floor() -> mi.Scene:
             "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
         }
     )
-
-
-def blocks(image, k=4):
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 def test_fog_under_a_sky_agrees_with_volpath():

@@ -8,6 +8,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
@@ -48,11 +49,6 @@ def fog_only(light: str, boundary: str = "null") -> mi.Scene:
         }
     scene["light"]["medium"] = fog
     return mi.load_dict(scene)
-
-
-def blocks(image, k=4):
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 @pytest.fixture(scope="module", params=["point", "spot", "spot thindielectric"])

@@ -9,6 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
@@ -63,11 +64,6 @@ def fog_box(kind: str) -> mi.Scene:
             },
         }
     )
-
-
-def blocks(image, k=4):
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 # Measured over seeds 0-2 (the reference's own noise is most of the block error):

@@ -16,15 +16,11 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 SCENES = pathlib.Path(__file__).resolve().parents[3] / "shared/tools/scenes"  # beside the repo
 T = mi.ScalarTransform4f
-
-
-def blocks(image, k=4):
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 def compare(image, ref):
