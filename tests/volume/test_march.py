@@ -10,8 +10,9 @@ import pytest
 from scipy.special import erf
 
 from photonmap.core.grid import GridBox
+from photonmap.volume.deposit import FIXED_POINT_BITS, Int64, deposit_segment
 from photonmap.volume.emit import Photons, emit
-from photonmap.volume.march import FIXED_POINT_BITS, Int64, MarchGrids, deposit_segment, march
+from photonmap.volume.march import MarchGrids, march
 from photonmap.volume.scene import Light
 
 

@@ -15,7 +15,7 @@ explicitly"); rows and cells of zero mass are never chosen. A photon's power is 
 ``N`` plane samples times its weight ``w = 1/p(x, y)`` (A41: ``w_rel``, = 1 for the uniform pdf,
 so ``Φ = I·(A/N)·cos³θ/(d²·p)``, Pfeuti's ``light_power/(p_x·p_y·square_area·photon_count)``).
 The phase-2 march (A5) is S6/S7 with the count and weight sums in the spare accumulator channels
-(:func:`photonmap.volume.march.weight_tally`).
+(:func:`photonmap.volume.deposit.weight_tally`).
 """
 
 from __future__ import annotations

@@ -36,8 +36,9 @@ import numpy as np
 from ..core import sampling
 from ..core.errors import ParameterError
 from ..core.grid import GridBox
+from .deposit import Int64, Vector4i64, coarse_size
 from .emit import Photons, emit_at
-from .march import Int64, MarchGrids, Vector4i64, accumulate, coarse_size
+from .march import MarchGrids, accumulate
 from .scene import Light
 
 PILOT_GRID = 16  # cells per axis of the pilot grid for a 128³ volume (Pfeuti §3.2.2)
