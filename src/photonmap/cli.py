@@ -88,10 +88,9 @@ def _typed_params(method: str, sets: dict[str, str], builtin) -> dict:
     its scene parameters); unknown keys list the valid ones."""
     from . import METHODS
     from .core.errors import ParameterError
-    from .core.params import parse_value
+    from .core.params import field_types, parse_value
 
-    params_type = METHODS[method].params
-    kinds = {f.name: type(f.default) for f in dataclasses.fields(params_type)}
+    kinds = field_types(METHODS[method].params)
     if method == "volume":
         kinds["grid"] = int
     scene_kinds = {}

@@ -48,9 +48,7 @@ def read_properties(
 ) -> dict:
     """The properties that are fields of ``params_type`` (or of ``extra``: name → type), converted;
     unknown names raise a :class:`ParameterError` listing the valid ones."""
-    defaults = params_type()
-    fields = {f.name: type(getattr(defaults, f.name)) for f in dataclasses.fields(params_type)}
-    fields.update(extra or {})
+    fields = {**field_types(params_type), **(extra or {})}
     names = set(props.keys())
     unknown = sorted(names - set(fields) - set(ignore))
     if unknown:
@@ -86,11 +84,23 @@ def check_type(name: str, value, kind: type) -> None:
         raise ParameterError(f"{name} must be {article}, got {value!r} ({type(value).__name__})")
 
 
+def field_types(params_type) -> dict[str, type]:
+    """Each field's type: its default's, or ``metadata["type"]`` for a field whose default is
+    None (None then means "from the scene")."""
+    return {
+        f.name: f.metadata.get("type", type(f.default)) for f in dataclasses.fields(params_type)
+    }
+
+
 def check_fields(params) -> None:
-    """Every field of the dataclass ``params`` has its default's type (:func:`check_type`);
-    a ``seed`` field is an integer in [0, 2³²)."""
+    """Every field of the dataclass ``params`` has its type (:func:`field_types`,
+    :func:`check_type`; None where the default is None); a ``seed`` field is an integer in
+    [0, 2³²)."""
     for f in dataclasses.fields(params):
-        check_type(f.name, getattr(params, f.name), type(f.default))
+        value = getattr(params, f.name)
+        if value is None and f.default is None:
+            continue
+        check_type(f.name, value, f.metadata.get("type", type(f.default)))
     if hasattr(params, "seed"):
         check_range("seed", params.seed, 0, 2**32 - 1, "the seed of every random choice")
 

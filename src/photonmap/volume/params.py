@@ -64,7 +64,9 @@ class VolumeParams:
     supersample: int = 4  # voxelization supersampling (Sun §4.1)
     blur_all: bool = False  # also blur σ_s and κ (spec A3)
     smoothing: bool = True  # 3×3×3 smoothing of C and D (S8; emission="adaptive": C only)
-    phase_k: float = 0.3  # Schlick k (spec A25)
+    phase_k: float | None = dataclasses.field(default=None, metadata={"type": float})
+    # Schlick k (spec A25); None: from the fog's Mitsuba phase function (isotropic 0, hg g →
+    # k = 1.55 g − 0.55 g³); the built-in scenes set Sun's 0.3
     table: float = 0.0  # ρ_table of the reflective bottom layer; 0 = none (Pfeuti §3.1.6)
     iso_reflect: float = 0.04  # R_iso of the reflective isosurface (spec A29); 0 = none
     iso_ior: float = 0.0  # n_iso; 0 = midway between the fog's and the densest object's n
@@ -129,15 +131,16 @@ class VolumeParams:
             None,
             "the longest march step must be >= ds_min (both in voxels, Sun §5.3)",
         )
-        check_range(
-            "phase_k",
-            self.phase_k,
-            -1,
-            1,
-            "Schlick's k is 0 for isotropic scattering, > 0 forward, < 0 backward",
-            lo_open=True,
-            hi_open=True,
-        )
+        if self.phase_k is not None:
+            check_range(
+                "phase_k",
+                self.phase_k,
+                -1,
+                1,
+                "Schlick's k is 0 for isotropic scattering, > 0 forward, < 0 backward",
+                lo_open=True,
+                hi_open=True,
+            )
         for key in ("table", "iso_reflect"):
             check_range(key, getattr(self, key), 0, 1, "a reflectance; 0 turns it off")
         for key in ("ior_noise", "sigma_s_noise"):
@@ -340,6 +343,7 @@ def updated_medium(medium: Medium, ior, sigma_s, sigma_a, where: str) -> Medium:
         sigma_s=rgb("sigma_s", medium.sigma_s if sigma_s is None else sigma_s),
         sigma_a=rgb("sigma_a", medium.sigma_a if sigma_a is None else sigma_a),
         ior=n,
+        phase_k=medium.phase_k,
     )
     for name, value in (("sigma_s", new.sigma_s), ("sigma_a", new.sigma_a), ("ior", new.ior)):
         if not np.all(np.isfinite(value)):

@@ -329,8 +329,9 @@ class VolumePipeline(StagedPipeline):
                 mats.ior, p.eps, p.eps2, p.ds_max, boundaries=self._fog_boundaries()
             ),
         )
+        phase_k = self.phase_k
         # multiple scattering: σ_s and the phase function steer the photons too (beyond-seeds §5)
-        scatter = march.Scattering(p.phase_k, p.seed) if p.scattering == "multiple" else None
+        scatter = march.Scattering(phase_k, p.seed) if p.scattering == "multiple" else None
         scatter_key = None if scatter is None else (sigma_key, cache_key(scatter))
         march_grids = self.cache.stage(
             "march grids",
@@ -359,7 +360,7 @@ class VolumePipeline(StagedPipeline):
             lambda: ViewGrids.build(mats.ior, grad, mats.kappa, mats.sigma_s, C, D),
         )
         settings = ViewSettings(
-            phase_k=p.phase_k,
+            phase_k=phase_k,
             table=(p.table,) * 3,
             iso_ior=self._iso_ior(mats),
             iso_reflect=p.iso_reflect,
@@ -500,6 +501,20 @@ class VolumePipeline(StagedPipeline):
             "scatterings": traced.scatterings,
         }
         return C, D, filter_key
+
+    @property
+    def phase_k(self) -> float:
+        """Schlick's k in use: the ``phase_k`` parameter, else the fog's own phase function
+        (:attr:`VolumeScene.phase_k`: isotropic 0, Henyey–Greenstein g → 1.55 g − 0.55 g³)."""
+        if self.params.phase_k is not None:
+            return self.params.phase_k
+        k = self.scene.phase_k
+        if k is None:
+            raise SceneError(
+                "the fog's phase function is neither isotropic nor Henyey–Greenstein ('hg'), "
+                "which the volume pipeline models: set phase_k (Schlick's k) explicitly"
+            )
+        return k
 
     @property
     def stages(self) -> tuple[str, ...]:

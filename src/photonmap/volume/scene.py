@@ -43,6 +43,7 @@ class Medium:
     sigma_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
     sigma_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ior: float = 1.0
+    phase_k: float | None = 0.0  # Schlick k of its phase function (isotropic 0; None: other)
 
     @property
     def kappa(self) -> np.ndarray:
@@ -112,6 +113,14 @@ class VolumeScene:
     #                            given, they bypass voxelization (S1) and material mapping (S2)
     fog_volumes: list[FogVolume] = field(default_factory=list)  # bounded media, in scene order
     outside: Medium | None = None  # fills the grid outside the fog volumes; None: ``fog``
+
+    @property
+    def phase_k(self) -> float | None:
+        """Schlick's k of the scattering fog's phase function (the first fog volume that
+        scatters, else the fog): what the pipeline uses unless ``phase_k`` is set."""
+        media = [v.medium for v in self.fog_volumes] + [self.fog]
+        scattering = [m for m in media if np.any(np.asarray(m.sigma_s) > 0)]
+        return (scattering or media)[0].phase_k
 
     @property
     def surrounding(self) -> Medium:
@@ -289,7 +298,21 @@ def _medium(medium, what: str, at) -> Medium:
             f"{what} has negative coefficients (σ_s = {sigma_s}, σ_a = {sigma_a}): sigma_t and "
             "scale must be >= 0 and albedo in [0, 1]"
         )
-    return Medium(sigma_s, np.maximum(sigma_a, 0.0))
+    return Medium(sigma_s, np.maximum(sigma_a, 0.0), phase_k=_schlick_k(medium))
+
+
+def _schlick_k(medium) -> float | None:
+    """Schlick's k matching a Mitsuba phase function: isotropic → 0; Henyey–Greenstein g →
+    k = 1.55 g − 0.55 g³ (Blasi, Le Saëc & Schlick 1993, the fit the volume pipeline's Schlick
+    phase function, spec A25, is made for)."""
+    phase = medium.phase_function()
+    name = phase.class_name()
+    if name == "IsotropicPhaseFunction":
+        return 0.0
+    if name == "HGPhaseFunction":
+        g = float(np.asarray(mi.traverse(phase)["g"]).ravel()[0])
+        return float(np.clip(1.55 * g - 0.55 * g**3, -0.999, 0.999))
+    return None  # another phase function: the pipeline asks for an explicit phase_k
 
 
 def _fog(sensor, exteriors, fog_volumes, media: _Media) -> tuple[Medium, Medium | None]:
