@@ -1,9 +1,9 @@
 """The volume and surface methods against Mitsuba's ``volpath`` on fog (issue 11 item 6).
 
-Two scenes: **ball** — ``examples/fog_box.xml``, a glass ball (n = 1.5) in a 4 × 4 × 4 box of
-grey fog (σ_t 0.25, albedo 0.9, isotropic), its point light replaced by a sphere light of radius
-0.2 with the same power (``volpath`` cannot sample a point light through the glass, so it would
-miss the volume caustic; tests/volume/test_multiple_scattering.py does the same) — and **fog** —
+Two scenes: **ball** — ``examples/fog_box_sphere_light.xml``, a glass ball (n = 1.5) in a
+4 × 4 × 4 box of grey fog (σ_t 0.25, albedo 0.9, isotropic) under a sphere light of radius 0.2
+(fog_box.xml's point light, whose volume caustic through the glass ``volpath`` cannot sample,
+with the same power; the tests compare the same file) — and **fog** —
 the same file without the ball. For each, a long ``volpath`` render (depth 32, as the file asks)
 is the reference (:func:`photonmap.render_reference`, cached in ``results/cache/``, not in git),
 made of two independent halves whose difference measures its own noise.
@@ -62,7 +62,7 @@ import common  # noqa: E402
 import photonmap  # noqa: E402
 from photonmap.core.image import block_means, write_image  # noqa: E402
 
-EXAMPLE = common.REPO / "examples" / "fog_box.xml"
+EXAMPLE = common.REPO / "examples" / "fog_box_sphere_light.xml"
 SCENES = ("ball", "fog")
 METHODS = ("volume", "surface")
 MAX_DEPTH = 32  # the file's volpath depth
@@ -76,7 +76,6 @@ KEYS = (  # the errors with headlines; the first is the headline's headline
     "block_rel_rmse_full",
 )
 FLOOR_DROP = 0.1  # the error fell less than this (relative) over the last ≥ 2× of time: a floor
-LIGHT_RADIUS = 0.2
 
 FULL = {
     "size": (160, 120),
@@ -95,22 +94,13 @@ QUICK = {
 
 
 def scene_xml(name: str, width: int, height: int) -> str:
-    """``examples/fog_box.xml`` at ``width`` × ``height`` with a sphere light of radius
-    :data:`LIGHT_RADIUS` and the point light's power (Φ = 4π I = π L · 4π r²); ``name="fog"``
-    also drops the glass ball."""
+    """``examples/fog_box_sphere_light.xml`` (fog_box.xml under a sphere light of radius 0.2
+    with the point light's power) at ``width`` × ``height``; ``name="fog"`` also drops the
+    glass ball."""
     if name not in SCENES:
         raise ValueError(f"scene must be one of {', '.join(SCENES)}, got {name!r}")
     xml = EXAMPLE.read_text()
     xml = xml.replace('value="320"', f'value="{width}"').replace('value="240"', f'value="{height}"')
-    start = xml.index('<emitter type="point">')
-    end = xml.index("</emitter>", start) + len("</emitter>")
-    radiance = 40 / (math.pi * LIGHT_RADIUS**2)
-    sphere = (
-        '<shape type="sphere"><point name="center" x="0" y="5" z="0"/>'
-        f'<float name="radius" value="{LIGHT_RADIUS}"/><emitter type="area">'
-        f'<rgb name="radiance" value="{radiance}"/></emitter></shape>'
-    )
-    xml = xml[:start] + sphere + xml[end:]
     if name == "fog":
         start = xml.index('<shape type="sphere" id="ball">')
         end = xml.index("</shape>", start) + len("</shape>")
@@ -526,7 +516,7 @@ def main(argv=None) -> dict:
     start = time.perf_counter()
     size = config["size"]
     descriptions = {
-        "ball": "glass ball (n 1.5) in a 4×4×4 box of fog, sphere light (examples/fog_box.xml)",
+        "ball": "glass ball (n 1.5) in a 4×4×4 box of fog, sphere light (examples/fog_box_sphere_light.xml)",
         "fog": "the same box of fog without the ball",
     }
     results = {}

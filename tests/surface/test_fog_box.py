@@ -2,7 +2,6 @@
 models the medium (volumetric photon mapping, Jensen & Christensen 1998) and agrees with Mitsuba's
 ``volpath`` on the same scene — with no warning: the fog is no longer ignored."""
 
-import math
 import warnings
 from pathlib import Path
 
@@ -16,7 +15,7 @@ from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
 W, H = 64, 48
-EXAMPLE = Path(__file__).parents[2] / "examples" / "fog_box.xml"
+EXAMPLE = Path(__file__).parents[2] / "examples" / "fog_box_sphere_light.xml"
 
 
 def fog_box_scene(fog: bool) -> mi.Scene:
@@ -91,23 +90,13 @@ def test_fog_box_scene_agrees_with_volpath_without_warning(reference):
 
 
 def fog_box_example(width: int = 48, height: int = 36) -> mi.Scene:
-    """examples/fog_box.xml (a glass ball in a box of fog) at ``width`` x ``height``, its point
-    light replaced by a sphere light of radius 0.2 with the same power: ``volpath`` cannot
-    sample a point light through glass, so with the point light its image lacks the volume
+    """examples/fog_box_sphere_light.xml (a glass ball in a box of fog under a sphere light) at
+    ``width`` x ``height``: with fog_box.xml's point light ``volpath`` cannot sample the volume
     caustic under the ball that the photons find (measured at 48x36: ours 4-5 % brighter, all
     of it in the caustic)."""
-    with open(EXAMPLE) as f:
-        xml = f.read()
+    xml = EXAMPLE.read_text()
     xml = xml.replace('value="320"', f'value="{width}"').replace('value="240"', f'value="{height}"')
-    start = xml.index('<emitter type="point">')
-    end = xml.index("</emitter>", start) + len("</emitter>")
-    radiance = 40 / (math.pi * 0.2**2)  # Φ = 4π I = π L · 4π r²
-    sphere = (
-        '<shape type="sphere"><point name="center" x="0" y="5" z="0"/>'
-        '<float name="radius" value="0.2"/><emitter type="area">'
-        f'<rgb name="radiance" value="{radiance}"/></emitter></shape>'
-    )
-    return mi.load_string(xml[:start] + sphere + xml[end:])
+    return mi.load_string(xml)
 
 
 def test_glass_ball_in_fog_example_agrees_with_volpath():
