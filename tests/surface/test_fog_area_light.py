@@ -6,40 +6,20 @@ Mitsuba ``volpath``."""
 import mitsuba as mi
 import numpy as np
 
+from fog_scene import FOG, fog_box
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
-T = mi.ScalarTransform4f
-W, H = 48, 36
-
 
 def sphere_light_in_fog() -> mi.Scene:
-    fog = {"type": "ref", "id": "fog"}
-    return mi.load_dict(
-        {
-            "type": "scene",
-            "sensor": {
-                "type": "perspective",
-                "fov": 40,
-                "to_world": T().look_at(origin=[0, -0.2, 3.6], target=[0, -0.6, 0], up=[0, 1, 0]),
-                "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}},
-            },
-            "fog": {"type": "homogeneous", "sigma_t": 1.0, "albedo": 0.8},
-            "box": {
-                "type": "cube",
-                "to_world": T().scale([1.5, 1, 1]),
-                "bsdf": {"type": "null"},
-                "interior": fog,
-            },
-            "light": {
-                "type": "sphere",
-                "center": [0.3, 0.5, 0.0],
-                "radius": 0.15,
-                "emitter": {"type": "area", "radiance": 5.0},
-                "exterior": fog,
-            },
-        }
-    )
+    light = {
+        "type": "sphere",
+        "center": [0.3, 0.5, 0.0],
+        "radius": 0.15,
+        "emitter": {"type": "area", "radiance": 5.0},
+        "exterior": FOG,
+    }
+    return fog_box(light=light)
 
 
 def test_sphere_light_in_fog_agrees_with_volpath():

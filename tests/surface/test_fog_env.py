@@ -6,40 +6,23 @@ transmittance — against Mitsuba ``volpath`` on the same scene."""
 import mitsuba as mi
 import numpy as np
 
+from fog_scene import fog_box
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
-W, H = 48, 36
 
 
 def fog_over_floor() -> mi.Scene:
     """The 3 x 2 x 2 fog box of test_fog_media (σ_t = 1, albedo 0.8) above a white floor, under
     a uniform sky of radiance 1."""
-    return mi.load_dict(
-        {
-            "type": "scene",
-            "sensor": {
-                "type": "perspective",
-                "fov": 40,
-                "to_world": T().look_at(origin=[0, -0.2, 3.6], target=[0, -0.6, 0], up=[0, 1, 0]),
-                "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}},
-            },
-            "fog": {"type": "homogeneous", "sigma_t": 1.0, "albedo": 0.8},
-            "box": {
-                "type": "cube",
-                "to_world": T().scale([1.5, 1, 1]),
-                "bsdf": {"type": "null"},
-                "interior": {"type": "ref", "id": "fog"},
-            },
-            "floor": {
-                "type": "rectangle",
-                "to_world": T().translate([0, -1.2, 0]).rotate([1, 0, 0], -90).scale(4),
-                "bsdf": {"type": "diffuse"},
-            },
-            "sky": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
-        }
-    )
+    floor = {
+        "type": "rectangle",
+        "to_world": T().translate([0, -1.2, 0]).rotate([1, 0, 0], -90).scale(4),
+        "bsdf": {"type": "diffuse"},
+    }
+    sky = {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}}
+    return fog_box(floor=floor, sky=sky)
 
 
 def test_fog_under_a_sky_agrees_with_volpath():

@@ -8,47 +8,22 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from fog_scene import FOG, fog_box, spot_in_fog
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
-W, H = 48, 36
 
 
 def fog_only(light: str, boundary: str = "null") -> mi.Scene:
-    """A 3 x 2 x 2 box of grey fog (σ_t = 1, albedo 0.8, isotropic) with a ``point`` light or a
-    ``spot`` light in it (the emitter's medium is the fog, as Mitsuba needs to be told); the
-    box's BSDF is ``boundary`` (``null``, or ``thindielectric``: light also reflects off it)."""
-    fog = {"type": "ref", "id": "fog"}
-    scene = {
-        "type": "scene",
-        "sensor": {
-            "type": "perspective",
-            "fov": 40,
-            "to_world": T().look_at(origin=[0, -0.2, 3.6], target=[0, -0.6, 0], up=[0, 1, 0]),
-            "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}},
-        },
-        "fog": {"type": "homogeneous", "sigma_t": 1.0, "albedo": 0.8},
-        "box": {
-            "type": "cube",
-            "to_world": T().scale([1.5, 1, 1]),
-            "bsdf": {"type": boundary},
-            "interior": fog,
-        },
-    }
+    """The shared 3 x 2 x 2 box of grey fog (σ_t = 1, albedo 0.8, isotropic) with a ``point``
+    light or a ``spot`` light in it; the box's BSDF is ``boundary`` (``null``, or
+    ``thindielectric``: light also reflects off it)."""
     if light == "point":
-        scene["light"] = {"type": "point", "position": [0.4, 0.8, 0.2], "intensity": 5.0}
+        lamp = {"type": "point", "position": [0.4, 0.8, 0.2], "intensity": 5.0, "medium": FOG}
     else:
-        to_world = T().look_at(origin=[0, 0.9, 0], target=[0.3, -1, 0], up=[0, 0, 1])
-        scene["light"] = {
-            "type": "spot",
-            "cutoff_angle": 30,
-            "beam_width": 20,
-            "to_world": to_world,
-            "intensity": 10.0,
-        }
-    scene["light"]["medium"] = fog
-    return mi.load_dict(scene)
+        lamp = spot_in_fog()
+    return fog_box(boundary=boundary, light=lamp)
 
 
 @pytest.fixture(scope="module", params=["point", "spot", "spot thindielectric"])

@@ -9,11 +9,11 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import fog_scene
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
-W, H = 48, 36
 SEED = int(os.environ.get("PHOTONMAP_TEST_SEED", "0"))  # to measure the spread of the errors
 
 
@@ -38,32 +38,7 @@ def fog_box(kind: str) -> mi.Scene:
             "albedo": 0.8,
             "phase": {"type": "hg", "g": 0.6},
         }
-    return mi.load_dict(
-        {
-            "type": "scene",
-            "sensor": {
-                "type": "perspective",
-                "fov": 40,
-                "to_world": T().look_at(origin=[0, -0.2, 3.6], target=[0, -0.6, 0], up=[0, 1, 0]),
-                "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"}},
-            },
-            "fog": fog,
-            "box": {
-                "type": "cube",
-                "to_world": T().scale([1.5, 1, 1]),
-                "bsdf": {"type": "null"},
-                "interior": {"type": "ref", "id": "fog"},
-            },
-            "light": {
-                "type": "spot",
-                "cutoff_angle": 30,
-                "beam_width": 20,
-                "to_world": T().look_at(origin=[0, 0.9, 0], target=[0.3, -1, 0], up=[0, 0, 1]),
-                "intensity": 10.0,
-                "medium": {"type": "ref", "id": "fog"},
-            },
-        }
-    )
+    return fog_scene.fog_box(fog, light=fog_scene.spot_in_fog())
 
 
 # Measured over seeds 0-2 (the reference's own noise is most of the block error):
