@@ -2,12 +2,16 @@
 
 Conventions (DESIGN.md, spec seed-000-002 §0.2):
 
-- The grid is a cube of ``n³`` voxels over the world box ``[lo, lo + size]³``, voxel edge
-  ``h = size / n``. Kernels work in **voxel units**: ``p = (x_world − lo) / h ∈ [0, n)³``; voxel
-  ``(i, j, k)`` covers ``[i, i+1) × [j, j+1) × [k, k+1)`` and its centre is ``(i+½, j+½, k+½)``.
-- Grid arrays (NumPy or ``mi.TensorXf``) have shape ``(n, n, n)`` or ``(n, n, n, c)`` and are indexed
-  ``[z, y, x]`` (``[k, j, i]``), the order of ``dr.Texture3f``; the flat index of voxel ``(i, j, k)``
-  is ``(k·n + j)·n + i``.
+- The grid is a box of ``n_x × n_y × n_z`` cubic voxels of edge ``h`` (issue 11 item 2: a *box
+  grid*; ``n = max(n_x, n_y, n_z)`` voxels along its longest side of length ``size = n·h``), over
+  the world box ``[lo, lo + h·dims]``; ``dims = (n_x, n_y, n_z)``. A cubic grid has
+  ``dims = (n, n, n)``. Kernels work in **voxel units**: ``p = (x_world − lo) / h ∈ [0, dims)``;
+  voxel ``(i, j, k)`` covers ``[i, i+1) × [j, j+1) × [k, k+1)`` and its centre is
+  ``(i+½, j+½, k+½)``. Kernels take the grid's extent as ``dims`` (:func:`grid_dims`: an int ``n``
+  means the cube ``(n, n, n)``).
+- Grid arrays (NumPy or ``mi.TensorXf``) have shape ``(n_z, n_y, n_x)`` or ``(n_z, n_y, n_x, c)``
+  and are indexed ``[z, y, x]`` (``[k, j, i]``), the order of ``dr.Texture3f``; the flat index of
+  voxel ``(i, j, k)`` is ``(k·n_y + j)·n_x + i`` (:func:`flat_index`, :func:`voxel_of`).
 - "Whenever we read data from a voxel grid we apply trilinear interpolation" [Pf §3.1.1], with
   samples at voxel centres and clamp-to-edge addressing: :func:`trilinear_packed` (the semantics of
   ``dr.Texture3f`` with linear filtering and ``WrapMode.Clamp``, reading several channels with one
@@ -25,17 +29,69 @@ import numpy as np
 from .errors import ParameterError
 
 
+def grid_dims(n) -> tuple:
+    """The grid extent ``(n_x, n_y, n_z)`` of ``n``: a sequence of three, or one ``n`` (an int or
+    a per-lane Dr.Jit array) for the cube ``(n, n, n)``."""
+    if isinstance(n, tuple | list | np.ndarray):
+        nx, ny, nz = n
+        return nx, ny, nz
+    return n, n, n
+
+
+def grid_shape(n, *channels: int) -> tuple:
+    """The tensor shape ``(n_z, n_y, n_x, *channels)`` of a grid of extent ``n`` (:func:`grid_dims`)."""
+    nx, ny, nz = (int(c) for c in grid_dims(n))
+    return (nz, ny, nx, *channels)
+
+
+def grid_extent(n) -> mi.Point3f:
+    """The grid's far corner ``(n_x, n_y, n_z)`` in voxel units (:func:`grid_dims`)."""
+    return mi.Point3f(*(float(c) for c in grid_dims(n)))
+
+
+def voxel_count(n) -> int:
+    """``n_x · n_y · n_z``."""
+    nx, ny, nz = (int(c) for c in grid_dims(n))
+    return nx * ny * nz
+
+
+def flat_index(i, j, k, n):
+    """The flat index ``(k·n_y + j)·n_x + i`` of voxel ``(i, j, k)`` (layout [z, y, x])."""
+    nx, ny, _ = grid_dims(n)
+    return (k * ny + j) * nx + i
+
+
+def voxel_of(index, n) -> tuple:
+    """The voxel ``(i, j, k)`` of flat index ``index`` (the inverse of :func:`flat_index`)."""
+    nx, ny, _ = grid_dims(n)
+    return index % nx, (index // nx) % ny, index // (nx * ny)
+
+
 @dataclass(frozen=True)
 class GridBox:
-    """A cubic world box ``[lo, lo + size]³`` divided into ``n³`` voxels."""
+    """A world box of ``dims = (n_x, n_y, n_z)`` cubic voxels of edge ``h = size / n`` from the
+    corner ``lo``: ``n`` voxels along its longest side, of length ``size``. ``dims`` None (the
+    default) is the cube ``[lo, lo + size]³`` of ``n³`` voxels."""
 
     lo: tuple[float, float, float]
     size: float
     n: int
+    dims: tuple[int, int, int] | None = None
 
     def __post_init__(self):
         if not (isinstance(self.n, int | np.integer) and self.n >= 4):
             raise ParameterError(f"grid resolution must be an integer >= 4, got {self.n!r}")
+        dims = (self.n,) * 3 if self.dims is None else tuple(self.dims)
+        if not (
+            len(dims) == 3
+            and all(isinstance(c, int | np.integer) and 4 <= c <= self.n for c in dims)
+            and max(dims) == self.n
+        ):
+            raise ParameterError(
+                f"grid dims must be three integers in 4..n with the largest = n = {self.n}, "
+                f"got {self.dims!r}"
+            )
+        object.__setattr__(self, "dims", tuple(int(c) for c in dims))
         if not (np.isfinite(self.size) and self.size > 0):
             raise ParameterError(f"grid box size must be positive and finite, got {self.size!r}")
         if not np.all(np.isfinite(self.lo)):
@@ -47,12 +103,27 @@ class GridBox:
         return self.size / self.n
 
     @property
+    def extent(self) -> np.ndarray:
+        """The box's side lengths (world units, xyz): ``size·dims/n``."""
+        return self.size * (np.asarray(self.dims, dtype=np.float64) / self.n)
+
+    @property
     def hi(self) -> np.ndarray:
-        return np.asarray(self.lo, dtype=np.float64) + self.size
+        return np.asarray(self.lo, dtype=np.float64) + self.extent
 
     @property
     def center(self) -> np.ndarray:
-        return np.asarray(self.lo, dtype=np.float64) + 0.5 * self.size
+        return np.asarray(self.lo, dtype=np.float64) + 0.5 * self.extent
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        """The tensor shape ``(n_z, n_y, n_x)`` of the grid's arrays."""
+        return grid_shape(self.dims)
+
+    @property
+    def voxels(self) -> int:
+        """``n_x · n_y · n_z``."""
+        return voxel_count(self.dims)
 
     def to_voxel(self, x):
         """World position(s) → voxel coordinates (NumPy, last axis xyz)."""
@@ -77,17 +148,33 @@ class GridBox:
         lo = 0.5 * (bmin + bmax) - 0.5 * size
         return GridBox(tuple(float(c) for c in lo), size, n)
 
+    @staticmethod
+    def fitted(bbox_min, bbox_max, n: int, margin: float = 6.0) -> GridBox:
+        """The box grid (issue 11 item 2) centred on a bounding box that holds it with ``margin``
+        voxels on every side: ``n`` voxels along the longest side (voxel edge
+        ``h = extent/(n − 2·margin)``, as :meth:`around`), and along each other axis the fewest
+        voxels that hold its extent and margins (at least 4). A cubic bounding box gives
+        :meth:`around`'s cube."""
+        cube = GridBox.around(bbox_min, bbox_max, n, margin)
+        span = np.asarray(bbox_max, dtype=np.float64) - np.asarray(bbox_min, dtype=np.float64)
+        need = np.ceil(span / cube.h + 2.0 * margin - 1e-6)
+        dims = tuple(int(c) for c in np.clip(need, 4, n))
+        centre = 0.5 * (np.asarray(bbox_min, np.float64) + np.asarray(bbox_max, np.float64))
+        lo = centre - 0.5 * cube.size * (np.asarray(dims, dtype=np.float64) / n)
+        return GridBox(tuple(float(c) for c in lo), cube.size, n, dims)
 
-def to_tensor(values, n: int | None = None) -> mi.TensorXf:
-    """A NumPy grid (n, n, n[, c]) or a tensor → ``mi.TensorXf`` of shape (n, n, n, c)."""
+
+def to_tensor(values, n=None) -> mi.TensorXf:
+    """A NumPy grid (n_z, n_y, n_x[, c]) or a tensor → ``mi.TensorXf`` of shape
+    (n_z, n_y, n_x, c); ``n`` (:func:`grid_dims`), if given, is the extent it must have."""
     if isinstance(values, mi.TensorXf):
         t = values
     else:
         t = mi.TensorXf(np.ascontiguousarray(values, dtype=np.float32))
     if len(t.shape) == 3:
         t = mi.TensorXf(t.array, (*t.shape, 1))
-    if n is not None and tuple(t.shape[:3]) != (n, n, n):
-        raise ParameterError(f"grid has shape {tuple(t.shape[:3])}, expected {(n, n, n)}")
+    if n is not None and tuple(t.shape[:3]) != grid_shape(n):
+        raise ParameterError(f"grid has shape {tuple(t.shape[:3])}, expected {grid_shape(n)}")
     return t
 
 
@@ -127,20 +214,22 @@ def filter_separable(t: mi.TensorXf, taps, axes=(0, 1, 2)) -> mi.TensorXf:
     return t
 
 
-def pack(channels: list, n: int) -> mi.Float:
-    """Interleave per-voxel channels (tensors or NumPy grids (n, n, n[, c])) into one flat array of
-    ``4·k`` floats per voxel (zero-padded), the layout :func:`trilinear_packed` reads."""
+def pack(channels: list, n) -> mi.Float:
+    """Interleave per-voxel channels (tensors or NumPy grids (n_z, n_y, n_x[, c]) of extent ``n``,
+    :func:`grid_dims`) into one flat array of ``4·k`` floats per voxel (zero-padded), the layout
+    :func:`trilinear_packed` reads."""
     tensors = [to_tensor(c, n) for c in channels]
     sources = [(t, k) for t in tensors for k in range(t.shape[3])]
     packets = (len(sources) + 3) // 4
-    voxel = dr.arange(mi.UInt32, n**3)
-    out = dr.zeros(mi.Float, n**3 * 4 * packets)
+    count = voxel_count(n)
+    voxel = dr.arange(mi.UInt32, count)
+    out = dr.zeros(mi.Float, count * 4 * packets)
     for p in range(packets):
         values = [
             dr.gather(mi.Float, t.array, voxel * t.shape[3] + k)
             for t, k in sources[4 * p : 4 * p + 4]
         ]
-        values += [dr.zeros(mi.Float, n**3)] * (4 - len(values))
+        values += [dr.zeros(mi.Float, count)] * (4 - len(values))
         dr.scatter(out, mi.Vector4f(*values), voxel * packets + p)
     dr.eval(out)
     return out
@@ -151,8 +240,9 @@ def trilinear_packed(
 ) -> list:
     """Trilinear sample at voxel coordinates ``p`` of a grid packed by :func:`pack` with
     ``4·packets`` channels: one list entry (``mi.Vector4f``) per packet of four channels. The
-    grid has ``n`` cells per axis and starts at cell ``base`` of ``data`` — both may vary per lane
-    (the levels of a mipmap pyramid stored one after another).
+    grid has extent ``n`` (:func:`grid_dims`: ``(n_x, n_y, n_z)``, or one ``n`` per axis) and
+    starts at cell ``base`` of ``data`` — both may vary per lane (the levels of a mipmap pyramid
+    stored one after another).
 
     Samples sit at voxel centres with clamp-to-edge addressing (Pfeuti §3.1.1: "whenever we read
     data from a voxel grid we apply trilinear interpolation" — a CUDA 3D texture's semantics). The
@@ -162,14 +252,16 @@ def trilinear_packed(
     f = dr.floor(q)
     w = q - f
     i0 = mi.Point3i(f)
-    lo = dr.clip(i0, 0, n - 1)
-    hi = dr.clip(i0 + 1, 0, n - 1)
+    nx, ny, nz = grid_dims(n)
+    top = mi.Point3i(nx - 1, ny - 1, nz - 1)
+    lo = dr.clip(i0, 0, top)
+    hi = dr.clip(i0 + 1, 0, top)
     out = [dr.zeros(mi.Vector4f, dr.width(p)) for _ in range(packets)]
     for dz in (0, 1):
         z, wz = (hi.z, w.z) if dz else (lo.z, 1.0 - w.z)
         for dy in (0, 1):
             y, wy = (hi.y, w.y) if dy else (lo.y, 1.0 - w.y)
-            row = (z * n + y) * n
+            row = (z * ny + y) * nx
             for dx in (0, 1):
                 x, wx = (hi.x, w.x) if dx else (lo.x, 1.0 - w.x)
                 cell = (base + mi.UInt32(row + x)) * packets

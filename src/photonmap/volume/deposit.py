@@ -14,6 +14,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..core.grid import flat_index, grid_dims
+
 FIXED_POINT_BITS = 32
 WEIGHT_BITS = 20  # fixed-point bits of the photon weights 1/p summed by weight_tally
 CHANNELS = 8  # accumulator stride per voxel: C rgb, D xyz, 2 spare (one 64-byte line per voxel)
@@ -79,7 +81,8 @@ def deposit_segment(
     A20) or, with ``paper``, the linear ``lerp(L_s, L_e, u)``; the direction is linear. Each deposit
     is weighted by ``‖δ‖ = 1/|v̂_a|`` (length weighting, A19), or 1 with ``paper``. ``tally`` makes
     the two packets written per voxel; with ``shift > 0`` voxel ``v`` deposits into cell
-    ``v >> shift`` of a ``⌈n / 2^shift⌉³`` grid (the rasterisation stays at full resolution).
+    ``v >> shift`` of a grid ``2^shift`` times coarser (:func:`coarse_size`; the rasterisation
+    stays at full resolution). ``n``: the grid's extent (``(n_x, n_y, n_z)``, or one ``n``).
     """
     count = dr.width(s)
     L_e = L_s * dr.exp(-optical_depth)
@@ -114,15 +117,17 @@ def deposit_segment(
     turn = (dir_e - dir_s) * du
     zero = dr.zeros(Int64, count)
     m = coarse_size(n, shift)
+    nx, ny, nz = grid_dims(n)
+    far = mi.Point3i(nx, ny, nz)
 
     j = dr.zeros(mi.Int32, count)
     while j < total:
         cell = mi.Point3i(dr.floor(p0 + mi.Float(j) * step))
-        inside = dr.all((cell >= 0) & (cell < n))
+        inside = dr.all((cell >= 0) & (cell < far))
         flux_dir = (energy.x + energy.y + energy.z) * direction
         q = [Int64(dr.round(c)) for c in (*energy, *flux_dir)]
         cell >>= shift
-        packet = mi.UInt32((cell.z * m + cell.y) * m + cell.x) * 2
+        packet = mi.UInt32(flat_index(cell.x, cell.y, cell.z, m)) * 2
         first, second = tally(q, zero)
         mode = reduce_mode(expand)
         dr.scatter_reduce(dr.ReduceOp.Add, acc, first, packet, active=inside, mode=mode)
@@ -135,6 +140,7 @@ def deposit_segment(
         j += 1
 
 
-def coarse_size(n: int, shift: int) -> int:
-    """Cells per axis of the deposit grid ``2^shift`` times coarser than ``n``."""
-    return (n + (1 << shift) - 1) >> shift
+def coarse_size(n, shift: int) -> tuple[int, int, int]:
+    """The extent ``(m_x, m_y, m_z)`` of the deposit grid ``2^shift`` times coarser than the grid
+    of extent ``n`` (:func:`~.grid.grid_dims`): ``m = ⌈n / 2^shift⌉`` per axis."""
+    return tuple((int(c) + (1 << shift) - 1) >> shift for c in grid_dims(n))

@@ -54,7 +54,7 @@ import numpy as np
 
 from ..core import sampling
 from ..core.errors import SceneError
-from ..core.grid import GridBox
+from ..core.grid import GridBox, grid_dims, grid_extent
 from .scene import EMITTER_KINDS, Light
 
 PLANE_DISTANCE = (
@@ -97,18 +97,27 @@ def _basis(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(c, e1)
 
 
-def _corners(n: int) -> np.ndarray:
-    return np.array([[x, y, z] for x in (0, n) for y in (0, n) for z in (0, n)], dtype=np.float64)
+def _corners(n) -> np.ndarray:
+    """The eight corners of the grid of extent ``n`` (:func:`~.grid.grid_dims`), voxel units."""
+    nx, ny, nz = grid_dims(n)
+    return np.array(
+        [[x, y, z] for x in (0, nx) for y in (0, ny) for z in (0, nz)], dtype=np.float64
+    )
+
+
+def _centre(box: GridBox) -> np.ndarray:
+    """The grid's centre in voxel units."""
+    return np.asarray(box.dims, dtype=np.float64) / 2.0
 
 
 def in_front(light: Light, box: GridBox) -> bool:
     """Whether the whole grid lies in front of the point or spot ``light`` (every corner at a
     positive depth along the axis towards the grid's centre), as the photon plane needs."""
     p = box.to_voxel(light.position)
-    c = np.full(3, box.n / 2.0) - p
+    c = _centre(box) - p
     if np.linalg.norm(c) == 0:
         return False
-    return bool(np.all((_corners(box.n) - p) @ (c / np.linalg.norm(c)) > 0))
+    return bool(np.all((_corners(box.dims) - p) @ (c / np.linalg.norm(c)) > 0))
 
 
 def emission_mode(light: Light, box: GridBox) -> str:
@@ -126,7 +135,7 @@ def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
 
     Raises :class:`SceneError` for a light that has none (the plane-based ``emission="adaptive"``
     cannot use it; ``emission="uniform"`` emits such lights from the light itself)."""
-    corners = _corners(box.n)
+    corners = _corners(box.dims)
     if light.kind in EMITTER_KINDS:
         raise SceneError(
             f"the scene's {light.kind} light has no photon plane: emission='adaptive' places its "
@@ -137,7 +146,7 @@ def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
         c = np.asarray(light.direction, dtype=np.float64)
         c = c / np.linalg.norm(c)
         e1, e2 = _basis(c)
-        centre = np.full(3, box.n / 2.0)
+        centre = _centre(box)
         rel = corners - centre
         a = float(np.max(np.abs(np.stack([rel @ e1, rel @ e2]))))
         depth = float(np.max(np.abs(rel @ c))) + 1.0
@@ -152,7 +161,7 @@ def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
             "its position), or move the light outside the grid box (grid_bbox)"
         )
     p = box.to_voxel(light.position)
-    c = np.full(3, box.n / 2.0) - p
+    c = _centre(box) - p
     c = c / np.linalg.norm(c)
     e1, e2 = _basis(c)
     rel = corners - p
@@ -172,11 +181,12 @@ def _s(x: float) -> mi.Float:
     return dr.opaque(mi.Float, float(x))
 
 
-def box_entry(o: mi.Point3f, d: mi.Vector3f, n: int):
-    """Slab test of the ray ``o + t d`` against ``[0, n]³``: ``(hit, t_near, t_far)``."""
+def box_entry(o: mi.Point3f, d: mi.Vector3f, n):
+    """Slab test of the ray ``o + t d`` against the grid ``[0, n_x] × [0, n_y] × [0, n_z]``
+    (``n``: :func:`~.grid.grid_dims`): ``(hit, t_near, t_far)``."""
     inv = dr.rcp(d)
     t0 = (0.0 - o) * inv
-    t1 = (float(n) - o) * inv
+    t1 = (grid_extent(n) - o) * inv
     t_near = dr.maximum(dr.max(dr.minimum(t0, t1)), 0.0)
     t_far = dr.min(dr.maximum(t0, t1))
     return t_near < t_far, t_near, t_far
@@ -284,7 +294,7 @@ def area_photons(light: Light, box: GridBox, count: int, seed: int = 0):
     u = hammersley_nd(count, 4, seed)
     ps = light.shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
     si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
-    radius = _s(0.5 * math.sqrt(3.0) * box.size)  # the grid's bounding sphere (opaque)
+    radius = _s(0.5 * float(np.linalg.norm(box.extent)))  # the grid's bounding sphere (opaque)
     to_centre = _v(box.center) - ps.p
     dist = dr.norm(to_centre)
     far = dist > radius
@@ -313,18 +323,18 @@ def environment_photons(light: Light, box: GridBox, count: int, seed: int = 0):
     it.p = _v(box.center) + dr.zeros(mi.Point3f, count)
     ds, weight = light.emitter.sample_direction(it, mi.Point2f(u[0], u[1]))  # L(ω)/p(ω)
     d = -ds.d
-    face = _s(box.size**2)  # world area of each face (cubic grid)
-    a = dr.abs(d) * face
+    ex, ey, ez = box.extent
+    a = dr.abs(d) * _v((ey * ez, ex * ez, ex * ey))  # world areas of the faces normal to x, y, z
     projected = a.x + a.y + a.z  # A_⊥(ω)
     pick = u[2] * projected
-    n = _s(float(box.n))
+    n = _v(box.dims)
     enter = dr.select(d > 0, 0.0, n)  # the entry face's coordinate on each axis
     along_x, along_y = pick < a.x, (pick >= a.x) & (pick < a.x + a.y)
-    s, t = u[3] * n, u[4] * n
+    s, t = u[3] * n, u[4] * n  # the point on the face: (s, t) on its first and second free axis
     origin = mi.Point3f(
-        dr.select(along_x, enter.x, s),
-        dr.select(along_x, s, dr.select(along_y, enter.y, t)),
-        dr.select(along_x | along_y, t, enter.z),
+        dr.select(along_x, enter.x, s.x),
+        dr.select(along_x, s.y, dr.select(along_y, enter.y, t.y)),
+        dr.select(along_x | along_y, t.z, enter.z),
     )
     power = mi.Color3f(weight) * projected / count * mi.Color3f(_v(light.intensity))
     return origin, d, dr.select(ds.pdf > 0, power, 0.0)
@@ -348,19 +358,20 @@ def emit(
     """
     mode = emission_mode(light, box)
     if mode == "area":
-        return enter_grid(*area_photons(light, box, count, seed), box.n, compact=True)
+        return enter_grid(*area_photons(light, box, count, seed), box.dims, compact=True)
     if mode == "environment":
-        return enter_grid(*environment_photons(light, box, count, seed), box.n)
+        return enter_grid(*environment_photons(light, box, count, seed), box.dims)
     u, w = sampling.coherent_points(sampler, count, seed)
     if mode == "cone":
-        return enter_grid(*cone_photons(light, box, u, w), box.n)
+        return enter_grid(*cone_photons(light, box, u, w), box.dims)
     return emit_at(light, box, u, w, fidelity)
 
 
 def enter_grid(
-    o: mi.Point3f, d: mi.Vector3f, power: mi.Color3f, n: int, compact: bool = False
+    o: mi.Point3f, d: mi.Vector3f, power: mi.Color3f, n, compact: bool = False
 ) -> Photons:
-    """Photons from ``o`` along ``d`` (voxel units) moved to where they enter the grid ``[0, n]³``
+    """Photons from ``o`` along ``d`` (voxel units) moved to where they enter the grid of extent
+    ``n`` (:func:`box_entry`)
     (unchanged inside it); those that miss it, or carry no power, get zero power — or, with
     ``compact``, are left out (photons whose misses are scattered among the hits, which would
     idle SIMD lanes of the marcher)."""
@@ -392,7 +403,7 @@ def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight
     o, d, power = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
     if weight is not None:
         power *= weight
-    return enter_grid(o, d, power, box.n)
+    return enter_grid(o, d, power, box.dims)
 
 
 def emit_lights(

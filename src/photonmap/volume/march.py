@@ -49,7 +49,16 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.errors import ParameterError, PhotonmapError
-from ..core.grid import pack, to_tensor, trilinear_packed
+from ..core.grid import (
+    flat_index,
+    grid_dims,
+    grid_extent,
+    grid_shape,
+    pack,
+    to_tensor,
+    trilinear_packed,
+    voxel_count,
+)
 from . import scatter
 from .deposit import (
     CHANNELS,
@@ -75,39 +84,48 @@ class MarchGrids:
     """What the marcher reads, packed for vector gathers (voxel units, layout [z, y, x, c]):
     ``medium`` = (n, ∂n/∂x, ∂n/∂y, ∂n/∂z, κ_r, κ_g, κ_b, 0) per voxel (trilinear), ``octree`` =
     (level, Δs_max, 0, 0) per voxel (nearest); for multiple scattering ``scatter`` =
-    (σ_s,r, σ_s,g, σ_s,b, 0) per voxel (trilinear)."""
+    (σ_s,r, σ_s,g, σ_s,b, 0) per voxel (trilinear). ``dims = (n_x, n_y, n_z)``: the grid's
+    extent (a box grid, issue 11 item 2)."""
 
-    n: int
+    dims: tuple
     medium: mi.Float
     octree: mi.Float
     scatter: mi.Float | None = None
 
+    @property
+    def n(self) -> int:
+        """Voxels along the grid's longest side."""
+        return max(self.dims)
+
     @staticmethod
     def build(ior, grad, kappa, level, step_limit, sigma_s=None) -> MarchGrids:
-        n = int(to_tensor(ior).shape[0])
-        scattering = None if sigma_s is None else pack([sigma_s], n)
-        return MarchGrids(n, pack([ior, grad, kappa], n), pack([level, step_limit], n), scattering)
+        dims = tuple(int(c) for c in to_tensor(ior).shape[:3])[::-1]
+        scattering = None if sigma_s is None else pack([sigma_s], dims)
+        return MarchGrids(
+            dims, pack([ior, grad, kappa], dims), pack([level, step_limit], dims), scattering
+        )
 
 
 def sample_medium(grids: MarchGrids, p: mi.Point3f):
     """``(n, ∇n, κ)`` at voxel coordinates ``p`` (trilinear)."""
-    a, b = trilinear_packed(grids.medium, grids.n, 2, p)
+    a, b = trilinear_packed(grids.medium, grids.dims, 2, p)
     return a.x, mi.Vector3f(a.y, a.z, a.w), mi.Color3f(b.x, b.y, b.z)
 
 
-def voxel_index(p: mi.Point3f, n: int) -> mi.Point3i:
-    """The voxel holding ``p``, clamped into the grid."""
-    return dr.clip(mi.Point3i(dr.floor(p)), 0, n - 1)
+def voxel_index(p: mi.Point3f, n) -> mi.Point3i:
+    """The voxel holding ``p``, clamped into the grid of extent ``n`` (:func:`~.grid.grid_dims`)."""
+    nx, ny, nz = grid_dims(n)
+    return dr.clip(mi.Point3i(dr.floor(p)), 0, mi.Point3i(nx - 1, ny - 1, nz - 1))
 
 
 @dataclass
 class MarchResult:
-    C: mi.TensorXf  # (n, n, n, 3) deposited energy
-    D: mi.TensorXf  # (n, n, n, 3) Σ (R+G+B)·direction, unnormalised
+    C: mi.TensorXf  # (n_z, n_y, n_x, 3) deposited energy
+    D: mi.TensorXf  # (n_z, n_y, n_x, 3) Σ (R+G+B)·direction, unnormalised
     steps: int  # photon marching steps taken (Sun Table 1 "millions of steps")
     final: tuple = ()  # per photon (x, v, L̃) where it stopped (voxel units) [+ its scatterings]
-    count: mi.TensorXf | None = None  # (n, n, n) deposits per voxel (weighted march only)
-    weight: mi.TensorXf | None = None  # (n, n, n) their average weight w̄ = Σw / cnt, 0 if none
+    count: mi.TensorXf | None = None  # (n_z, n_y, n_x) deposits per voxel (weighted march only)
+    weight: mi.TensorXf | None = None  # (n_z, n_y, n_x) their average weight Σw / cnt, 0 if none
     scatterings: int = 0  # scattering events of all photons (multiple scattering)
 
 
@@ -120,14 +138,13 @@ class Scattering:
     seed: int = 0
 
 
-def _advance(medium: MarchGrids, x, v, L, ds_min, size: float, pfeuti_update: bool):
+def _advance(medium: MarchGrids, x, v, L, ds_min, size: mi.Point3f, pfeuti_update: bool):
     """S6: one curved-ray step (eqs 4–6) from ``x`` with ``v = n dx/ds`` and energy ``L``, to the
     face of the octree node holding ``x`` (+δ), clamped to ``[Δs_min, Δs_max]`` and clipped at the
     grid's exit face. Returns ``(x', v', L', v̂, v̂', κ(x), t, leaving)``."""
-    n = medium.n
     n_x, grad, kappa = sample_medium(medium, x)
-    vox = voxel_index(x, n)
-    oct_idx = mi.UInt32((vox.z * n + vox.y) * n + vox.x)
+    vox = voxel_index(x, medium.dims)
+    oct_idx = mi.UInt32(flat_index(vox.x, vox.y, vox.z, medium.dims))
     node_info = dr.gather(mi.Vector4f, medium.octree, oct_idx)
     level, limit = mi.Int32(node_info.x), node_info.y
     node = mi.Float(mi.Int32(1) << level)
@@ -164,14 +181,14 @@ def _march(
     tally=radiance_tally,
     shift: int = 0,
 ):
-    n = medium.n
+    n = medium.dims
     count = dr.width(L)
     L_kill = dr.max(L) * KILL_FRACTION
     ior = sample_medium(medium, x)[0]
     v = ior * d  # v₀ = n(x₀)·d₀
     steps = dr.zeros(mi.UInt32, count)
     active = dr.max(L) > 0  # photons that miss the grid carry no power
-    size = float(n)
+    size = grid_extent(n)
 
     while active:
         x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving = _advance(
@@ -212,9 +229,9 @@ def _march_order(
     final ``(x, v, L̃)`` and, per photon, whether it collided, the collision point, its
     direction there, ``T/p̄`` there (:func:`.scatter.collision_weight` without σ_s) and the start
     of the step it lies in (where σ_s is read, like κ)."""
-    n = medium.n
+    n = medium.dims
     count = dr.width(L)
-    size = float(n)
+    size = grid_extent(n)
     L_kill = dr.max(L) * KILL_FRACTION
     steps = dr.zeros(mi.UInt32, count)
     active = dr.max(L) > 0
@@ -264,7 +281,7 @@ def coherent_order(x: mi.Point3f, d: mi.Vector3f, subset: mi.UInt32, n: int) -> 
     their deposits share cache lines. The scattered photons come out of the compaction in their
     parents' order with random new directions; measured per photon at 128³ (glass_sphere_fog),
     the second order took 5× the time of the first in this order (unsorted: 8×; by octant and
-    position: 6–7×; 1536 direction bins: 8×)."""
+    position: 6–7×; 1536 direction bins: 8×). ``n``: voxels along the grid's longest side."""
     p, d = dr.gather(mi.Point3f, x, subset), dr.gather(mi.Vector3f, d, subset)
     a = dr.abs(d)
     axis = dr.select((a.x >= a.y) & (a.x >= a.z), 0, dr.select(a.y >= a.z, 1, 2))
@@ -341,7 +358,7 @@ def _march_multiple(
             break
         # the next order starts at the collisions (σ_s read where κ was, at the step's start)
         sigma_s = mi.Color3f(
-            trilinear_packed(medium.scatter, medium.n, 1, x_s, active=found)[0].xyz
+            trilinear_packed(medium.scatter, medium.dims, 1, x_s, active=found)[0].xyz
         )
         survives, W = scatter.roulette(L * sigma_s * ratio, start, order, rng.next_float32())
         omega = scatter.schlick_direction(
@@ -379,8 +396,8 @@ def accumulate(
     ``unit`` are watts), the total step count and the per-photon final state ``(x, v, L̃)``, with
     multiple ``scattering`` ``(x, v, L̃, scattering events)``."""
     n = medium.n
-    m = coarse_size(n, shift)
-    acc = dr.zeros(Int64, m**3 * CHANNELS)
+    cells = voxel_count(coarse_size(medium.dims, shift))
+    acc = dr.zeros(Int64, cells * CHANNELS)
     phi_max = float(dr.max(dr.max(photons.power))[0]) if photons.count else 0.0
     steps, final, atomic = 0, (), None
     if phi_max > 0:
@@ -402,11 +419,11 @@ def accumulate(
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
         else:
-            atomic = dr.zeros(Int64, m**3 * CHANNELS)  # no memory until an order writes to it
+            atomic = dr.zeros(Int64, cells * CHANNELS)  # no memory until an order writes to it
             steps, *final = _march_multiple(*args, scattering, tally, shift, atomic)
             dr.eval(acc, *final)
         final = tuple(final)
-    voxel = dr.arange(mi.UInt32, m**3) * 2
+    voxel = dr.arange(mi.UInt32, cells) * 2
     first, second = (dr.gather(Vector4i64, acc, voxel + k) for k in (0, 1))
     if atomic is not None:  # the two accumulators summed as integers, in the same kernel
         first += dr.gather(Vector4i64, atomic, voxel)
@@ -434,7 +451,7 @@ def march(
     the deposit count and average weight per voxel. With ``scattering`` (needs ``medium.scatter``)
     the photons scatter (beyond-seeds §5), and C, D hold the fluence of all orders.
     """
-    n = medium.n
+    shape = grid_shape(medium.dims)
     if scattering is not None and medium.scatter is None:
         raise ParameterError(
             "multiple scattering needs σ_s in the march grids: build them with "
@@ -446,15 +463,15 @@ def march(
     )
     unit /= voxel_size**2
     energy, flux = mi.Vector4f(first * unit), mi.Vector4f(second * unit)
-    C = mi.TensorXf(dr.ravel(mi.Vector3f(energy.x, energy.y, energy.z)), (n, n, n, 3))
-    D = mi.TensorXf(dr.ravel(mi.Vector3f(energy.w, flux.x, flux.y)), (n, n, n, 3))
+    C = mi.TensorXf(dr.ravel(mi.Vector3f(energy.x, energy.y, energy.z)), (*shape, 3))
+    D = mi.TensorXf(dr.ravel(mi.Vector3f(energy.w, flux.x, flux.y)), (*shape, 3))
     events = int(dr.sum(Float64(final[3]))[0]) if len(final) > 3 else 0
     result = MarchResult(C, D, steps, final, scatterings=events)
     if weights is not None:
         count = mi.Float(second.z)
         weight = mi.Float(second.w * 2.0**-WEIGHT_BITS / dr.maximum(second.z, 1.0))
-        result.count = mi.TensorXf(count, (n, n, n))
-        result.weight = mi.TensorXf(weight, (n, n, n))
+        result.count = mi.TensorXf(count, shape)
+        result.weight = mi.TensorXf(weight, shape)
     dr.eval(C, D, result.count, result.weight)  # one kernel reads the accumulator
     if dr.min(C.array)[0] < 0:  # deposits are >= 0: a negative sum is a corrupted accumulator
         raise PhotonmapError(

@@ -34,7 +34,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError
-from ..core.grid import GridBox, filter_separable, gaussian_taps
+from ..core.grid import GridBox, filter_separable, gaussian_taps, grid_shape, voxel_count, voxel_of
 from ..core.noise import perlin3
 from .scene import Medium
 
@@ -44,8 +44,8 @@ BLUR_TAPS = gaussian_taps(4, 1.5)
 
 @dataclass
 class MaterialGrids:
-    """Grids indexed [z, y, x]: ``ior`` (n, n, n, 1); ``sigma_s`` and ``kappa`` (n, n, n, 3), in
-    voxel units (per voxel edge)."""
+    """Grids indexed [z, y, x]: ``ior`` (n_z, n_y, n_x, 1); ``sigma_s`` and ``kappa``
+    (n_z, n_y, n_x, 3), in voxel units (per voxel edge)."""
 
     ior: mi.TensorXf
     sigma_s: mi.TensorXf
@@ -68,18 +68,20 @@ def _check_material(ior, sigma_s, kappa, where: str) -> None:
         )
 
 
-def _check_coverage(coverage: mi.TensorXf, n: int, what: str) -> None:
-    if tuple(coverage.shape[:3]) != (n, n, n) or dr.width(coverage.array) != n**3:
-        raise ParameterError(f"{what} has shape {coverage.shape}, expected {(n,) * 3}")
+def _check_coverage(coverage: mi.TensorXf, dims, what: str) -> None:
+    if tuple(coverage.shape[:3]) != grid_shape(dims) or dr.width(coverage.array) != voxel_count(
+        dims
+    ):
+        raise ParameterError(f"{what} has shape {coverage.shape}, expected {grid_shape(dims)}")
 
 
-def _voxel_centres(n: int) -> mi.Point3f:
-    index = dr.arange(mi.UInt32, n**3)
-    return mi.Point3f(index % n, (index // n) % n, index // (n * n)) + 0.5
+def voxel_centres(dims) -> mi.Point3f:
+    """The centres of every voxel of a grid of extent ``dims``, in flat [z, y, x] order."""
+    return mi.Point3f(*voxel_of(dr.arange(mi.UInt32, voxel_count(dims)), dims)) + 0.5
 
 
-def _grid(values: mi.Color3f, n: int) -> mi.TensorXf:
-    return mi.TensorXf(dr.ravel(values), (n, n, n, 3))
+def _grid(values: mi.Color3f, dims) -> mi.TensorXf:
+    return mi.TensorXf(dr.ravel(values), grid_shape(dims, 3))
 
 
 def material_grids(
@@ -93,9 +95,9 @@ def material_grids(
     noise_seed: int = 0,
     media: list[tuple[mi.TensorXf, Medium]] = (),
 ) -> MaterialGrids:
-    """Map coverages (n, n, n) to n, σ_s and κ, then blur n: ``fog`` everywhere, then each fog
-    volume of ``media`` (σ_s and κ only), then each object of ``coverages``."""
-    n, h = box.n, box.h
+    """Map coverages (n_z, n_y, n_x) to n, σ_s and κ, then blur n: ``fog`` everywhere, then each
+    fog volume of ``media`` (σ_s and κ only), then each object of ``coverages``."""
+    dims, h, count = box.dims, box.h, box.voxels
     _check_material(fog.ior, fog.sigma_s, fog.kappa, "the fog")
     if not (np.isfinite(noise_scale) and noise_scale > 0):
         raise ParameterError(f"noise_scale must be positive, got {noise_scale!r}")
@@ -103,23 +105,23 @@ def material_grids(
     def opaque_color(c):
         return dr.opaque(mi.Color3f(*(float(x) * h for x in np.broadcast_to(c, 3))))
 
-    ior = dr.opaque(mi.Float, fog.ior, n**3)
-    sigma_s = opaque_color(fog.sigma_s) * dr.ones(mi.Float, n**3)
-    kappa = opaque_color(fog.kappa) * dr.ones(mi.Float, n**3)
-    p = _voxel_centres(n) / dr.opaque(mi.Float, noise_scale)
+    ior = dr.opaque(mi.Float, fog.ior, count)
+    sigma_s = opaque_color(fog.sigma_s) * dr.ones(mi.Float, count)
+    kappa = opaque_color(fog.kappa) * dr.ones(mi.Float, count)
+    p = voxel_centres(dims) / dr.opaque(mi.Float, noise_scale)
     noise_n = noise_s = 0.0
     if ior_noise:
         noise_n = dr.opaque(mi.Float, ior_noise) * perlin3(p, noise_seed)
     if sigma_s_noise:
         noise_s = dr.opaque(mi.Float, sigma_s_noise) * perlin3(p, noise_seed + 1)
     for i, (coverage, medium) in enumerate(media):
-        _check_coverage(coverage, n, f"fog volume {i}")
+        _check_coverage(coverage, dims, f"fog volume {i}")
         _check_material(1.0, medium.sigma_s, medium.kappa, f"fog volume {i}")
         cov = coverage.array
         sigma_s = dr.lerp(sigma_s, opaque_color(medium.sigma_s), cov)
         kappa = dr.lerp(kappa, opaque_color(medium.kappa), cov)
     for i, (coverage, medium) in enumerate(coverages):
-        _check_coverage(coverage, n, f"coverage {i}")
+        _check_coverage(coverage, dims, f"coverage {i}")
         _check_material(medium.ior, medium.sigma_s, medium.kappa, f"object {i}")
         ior_obj = dr.opaque(mi.Float, medium.ior) + noise_n
         sigma_s_obj = opaque_color(medium.sigma_s) * dr.maximum(1.0 + noise_s, 0.0)
@@ -129,7 +131,9 @@ def material_grids(
         sigma_s = dr.lerp(sigma_s, sigma_s_obj, cov)
         kappa = dr.lerp(kappa, kappa_obj, cov)
 
-    grids = MaterialGrids(mi.TensorXf(ior, (n, n, n, 1)), _grid(sigma_s, n), _grid(kappa, n))
+    grids = MaterialGrids(
+        mi.TensorXf(ior, grid_shape(dims, 1)), _grid(sigma_s, dims), _grid(kappa, dims)
+    )
     grids.ior = filter_separable(grids.ior, BLUR_TAPS)
     if blur_all:
         grids.sigma_s = filter_separable(grids.sigma_s, BLUR_TAPS)
@@ -140,24 +144,25 @@ def material_grids(
 
 def from_arrays(grids: dict, box: GridBox) -> MaterialGrids:
     """Material grids from NumPy data in world units (the bypass of S1/S2 [Sun §3]):
-    ``{"n": (n, n, n), "sigma_s": (n, n, n) or (n, n, n, 3), "kappa": same}``, indexed [z, y, x]."""
+    ``{"n": (n_z, n_y, n_x), "sigma_s": (n_z, n_y, n_x) or (n_z, n_y, n_x, 3), "kappa": same}``,
+    indexed [z, y, x] (the box's :attr:`~.GridBox.shape`)."""
     keys = {"n", "sigma_s", "kappa"}
     if set(grids) != keys:
         raise ParameterError(
             f"volume grids need exactly the keys {sorted(keys)}, got {sorted(grids)}"
         )
-    n = box.n
+    shape = box.shape
     ior = np.asarray(grids["n"], dtype=np.float64)
-    if ior.shape != (n, n, n):
-        raise ParameterError(f"grid 'n' has shape {ior.shape}, expected {(n, n, n)}")
+    if ior.shape != shape:
+        raise ParameterError(f"grid 'n' has shape {ior.shape}, expected {shape}")
     rgb = {}
     for name in ("sigma_s", "kappa"):
         values = np.asarray(grids[name], dtype=np.float64)
-        if values.shape == (n, n, n):
+        if values.shape == shape:
             values = np.repeat(values[..., None], 3, axis=-1)
-        if values.shape != (n, n, n, 3):
+        if values.shape != (*shape, 3):
             raise ParameterError(
-                f"grid {name!r} has shape {values.shape}, expected {(n, n, n)} or {(n, n, n, 3)}"
+                f"grid {name!r} has shape {values.shape}, expected {shape} or {(*shape, 3)}"
             )
         rgb[name] = values
     _check_material(ior, rgb["sigma_s"], rgb["kappa"], "the volume grids")

@@ -67,7 +67,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError
-from ..core.grid import trilinear_packed
+from ..core.grid import flat_index, grid_shape, trilinear_packed, voxel_count, voxel_of
 
 # the 4-tap Gaussian of variance 4 at these offsets (fine voxels from the coarse cell centre),
 # normalised: [0.21891, 0.28109, 0.28109, 0.21891] (spec A6)
@@ -97,7 +97,8 @@ def weight_step(delta_weight: float, photons: int, n: int) -> float:
 
 
 def max_level(n: int) -> int:
-    """The top level built for an ``n³`` grid: 4³ cells (A45), at least level 0."""
+    """The top level built for an ``n³`` grid: 4³ cells (A45), at least level 0. A box grid
+    (issue 11 item 2) builds the levels of its longest side ``n``."""
     return max(0, int(math.floor(math.log2(n))) - 2)
 
 
@@ -151,18 +152,19 @@ def _interleave(arrays) -> mi.Float:
     return out
 
 
-def _weight_level(count: mi.Float, weight: mi.Float, m: int) -> tuple[mi.Float, mi.Float]:
-    """Next level of the count and average-weight grids (m³ → ⌈m/2⌉³): the sum of the 2×2×2
-    children's counts and the mean of their non-zero weights (Listing B.2), 0 where all are 0."""
-    h = (m + 1) // 2
-    cell = dr.arange(mi.UInt32, h**3)
-    x, y, z = cell % h * 2, cell // h % h * 2, cell // (h * h) * 2
+def _weight_level(count: mi.Float, weight: mi.Float, m: tuple) -> tuple[mi.Float, mi.Float]:
+    """Next level of the count and average-weight grids (extent ``m = (m_x, m_y, m_z)`` →
+    ``⌈m/2⌉`` per axis): the sum of the 2×2×2 children's counts and the mean of their non-zero
+    weights (Listing B.2), 0 where all are 0."""
+    half = tuple((c + 1) // 2 for c in m)
+    cell = dr.arange(mi.UInt32, voxel_count(half))
+    x, y, z = (2 * c for c in voxel_of(cell, half))
     total, wsum, nonzero = mi.Float(0), mi.Float(0), mi.Float(0)
     for dz in (0, 1):
         for dy in (0, 1):
             for dx in (0, 1):
-                inside = (x + dx < m) & (y + dy < m) & (z + dz < m)
-                child = ((z + dz) * m + y + dy) * m + x + dx
+                inside = (x + dx < m[0]) & (y + dy < m[1]) & (z + dz < m[2])
+                child = flat_index(x + dx, y + dy, z + dz, m)
                 w = dr.gather(mi.Float, weight, child, inside)
                 total += dr.gather(mi.Float, count, child, inside)
                 wsum += w
@@ -174,10 +176,11 @@ def _weight_level(count: mi.Float, weight: mi.Float, m: int) -> tuple[mi.Float, 
 
 @dataclass
 class Pyramid:
-    """Levels 0 … max_level of the phase-2 grids. Level 0 as marched: ``C``, ``D`` (n, n, n, 3),
-    ``count``, ``weight`` (n, n, n). Levels ℓ ≥ 1 packed for vector gathers and concatenated,
-    from cell ``offsets[ℓ]`` on, ``sizes[ℓ]`` cells per axis: ``fields`` = (ΣRGB, count, average
-    weight, 0) per cell; ``colors`` = (C rgb, 0) per cell."""
+    """Levels 0 … max_level of the phase-2 grids. Level 0 as marched: ``C``, ``D``
+    (n_z, n_y, n_x, 3), ``count``, ``weight`` (n_z, n_y, n_x). Levels ℓ ≥ 1 packed for vector
+    gathers and concatenated, from cell ``offsets[ℓ]`` on, of extent ``sizes[ℓ]`` (cells along
+    x, y, z): ``fields`` = (ΣRGB, count, average weight, 0) per cell; ``colors`` = (C rgb, 0) per
+    cell."""
 
     C: mi.TensorXf
     D: mi.TensorXf
@@ -198,17 +201,17 @@ def build_pyramid(
 ) -> Pyramid:
     """A6: the colour, count and weight pyramids of the phase-2 grids (``D`` is kept at level 0,
     see the module notes)."""
-    n = C.shape[0]
-    levels = max_level(n) if levels is None else levels
-    c, cnt, w, m = C, count.array, weight.array, n
-    fields, colors, offsets, sizes = [], [], [0, 0], [n]
+    dims = _dims(C)
+    levels = max_level(max(dims)) if levels is None else levels
+    c, cnt, w, m = C, count.array, weight.array, dims
+    fields, colors, offsets, sizes = [], [], [0, 0], [dims]
     for _ in range(levels):
         c = _gaussian_level(c)
         cnt, w = _weight_level(cnt, w, m)
-        m = c.shape[0]
+        m = _dims(c)
         sizes.append(m)
-        offsets.append(offsets[-1] + m**3)
-        rgb, zero = _channels(c), dr.zeros(mi.Float, m**3)
+        offsets.append(offsets[-1] + voxel_count(m))
+        rgb, zero = _channels(c), dr.zeros(mi.Float, voxel_count(m))
         fields.append(_interleave([rgb[0] + rgb[1] + rgb[2], cnt, w, zero]))
         colors.append(_interleave([*rgb, zero]))
         dr.eval(fields[-1], colors[-1])
@@ -218,32 +221,46 @@ def build_pyramid(
     return Pyramid(C, D, count, weight, fields, colors, offsets[: len(sizes)], sizes)
 
 
-def _voxel_centres(n: int, voxel: mi.UInt32 | None = None) -> mi.Point3f:
-    """The centres of the voxels with flat indices ``voxel`` (default: every voxel, in order)."""
-    voxel = dr.arange(mi.UInt32, n**3) if voxel is None else voxel
-    return (
-        mi.Point3f(mi.Float(voxel % n), mi.Float(voxel // n % n), mi.Float(voxel // (n * n))) + 0.5
-    )
+def _dims(t: mi.TensorXf) -> tuple[int, int, int]:
+    """The extent ``(n_x, n_y, n_z)`` of a grid tensor (n_z, n_y, n_x[, c])."""
+    return tuple(int(c) for c in t.shape[:3])[::-1]
+
+
+def _voxel_centres(n: tuple, voxel: mi.UInt32 | None = None) -> mi.Point3f:
+    """The centres of the voxels with flat indices ``voxel`` (default: every voxel, in order) of a
+    grid of extent ``n``."""
+    voxel = dr.arange(mi.UInt32, voxel_count(n)) if voxel is None else voxel
+    return mi.Point3f(*(mi.Float(c) for c in voxel_of(voxel, n))) + 0.5
+
+
+def _size_table(pyramid: Pyramid) -> list:
+    """Per axis, the extent of every mip level (three ``mi.Int32`` indexed by level)."""
+    return [mi.Int32([s[axis] for s in pyramid.sizes]) for axis in range(3)]
+
+
+def _level_dims(table: list, level: mi.Int32) -> tuple:
+    """The extent of mip level ``level`` per lane, from :func:`_size_table`."""
+    return tuple(dr.gather(mi.Int32, t, level) for t in table)
 
 
 BLOCKS = (1, 2)  # reconstruction granularity: per voxel (Pfeuti) or per 2×2×2 block
 
 
-def _children(n: int, block: int):
-    """Per block of ``block³`` voxels (flat [z, y, x] over ``⌈n/block⌉³`` blocks): the block
-    coordinates and, per child offset ``o`` (x fastest), the child's flat voxel index (clamped)
-    and whether it lies inside the grid."""
-    nb = (n + block - 1) // block
-    cell = dr.arange(mi.UInt32, nb**3)
-    b = mi.Point3u(cell % nb, cell // nb % nb, cell // (nb * nb))
+def _children(n: tuple, block: int):
+    """Per block of ``block³`` voxels (flat [z, y, x] over the ``⌈n/block⌉`` blocks per axis of
+    a grid of extent ``n``): the block coordinates and, per child offset ``o`` (x fastest), the
+    child's flat voxel index (clamped) and whether it lies inside the grid."""
+    nb = tuple((c + block - 1) // block for c in n)
+    b = mi.Point3u(*voxel_of(dr.arange(mi.UInt32, voxel_count(nb)), nb))
+    far = mi.Point3u(*n)
     children = []
     for oz in range(block):
         for oy in range(block):
             for ox in range(block):
                 v = b * block + mi.Point3u(ox, oy, oz)
-                inside = dr.all(v < n)
-                v = dr.minimum(v, n - 1)
-                children.append(((v.z * n + v.y) * n + v.x, inside))
+                inside = dr.all(v < far)
+                v = dr.minimum(v, far - 1)
+                children.append((flat_index(v.x, v.y, v.z, n), inside))
     return b, children
 
 
@@ -281,11 +298,11 @@ def _levels(pyramid, centre, Y, spread, found, w_level, dw, blend) -> mi.Float:
     cur_diff = dr.zeros(mi.Float, size)
     going = dr.full(mi.Bool, True, size)
     level = dr.full(mi.Int32, 1, size)
-    sizes = mi.Int32(pyramid.sizes)
     offsets = mi.UInt32(pyramid.offsets)
+    table = _size_table(pyramid)
     active = (level <= top) & (~found | (w_level > 0))
     while active:
-        m = dr.gather(mi.Int32, sizes, level)
+        m = _level_dims(table, level)
         base = dr.gather(mi.UInt32, offsets, level)
         scale = dr.rcp(mi.Float(mi.Int32(1) << level))
         f = trilinear_packed(pyramid.fields, m, 1, centre * scale, base)[0]
@@ -316,7 +333,7 @@ def select_levels(
     voxel: mi.UInt32 | None = None,
 ) -> mi.Float:
     """A7: the mip level of every voxel (``block = 1``, flat [z, y, x]) or of every 2×2×2 block
-    (``block = 2``, flat over the ``⌈n/2⌉³`` blocks): the minimum of the photon-weight and the
+    (``block = 2``, flat over the ``⌈n/2⌉`` blocks per axis): the minimum of the photon-weight and the
     centre-surround filter, an integer, or with ``blend`` a fractional level (the photon-weight
     level unquantised, :func:`_filter_level`). A voxel stops reading coarser levels as soon as both
     are decided (its weight is found and the centre-surround level has stopped or reached
@@ -335,7 +352,7 @@ def select_levels(
     dw = dr.opaque(mi.Float, delta_weight)
     count, weight = pyramid.count.array, pyramid.weight.array
     if block == 1:
-        idx = dr.arange(mi.UInt32, n**3) if voxel is None else voxel
+        idx = dr.arange(mi.UInt32, voxel_count(n)) if voxel is None else voxel
         Y = dr.sum(dr.gather(mi.Vector3f, pyramid.C.array, idx))
         found = dr.gather(mi.Float, count, idx) >= 1
         w = _filter_level(dr.gather(mi.Float, weight, idx), dw, top, blend)
@@ -359,12 +376,13 @@ def select_levels(
     return _levels(pyramid, centre, Y, spread, found, w_level, dw, blend)
 
 
-def block_to_voxels(level: mi.Float, n: int, block: int) -> mi.Float:
-    """The level of every voxel (flat [z, y, x]) from the level of every ``block³`` block."""
-    nb = (n + block - 1) // block
-    voxel = dr.arange(mi.UInt32, n**3)
-    x, y, z = voxel % n // block, voxel // n % n // block, voxel // (n * n) // block
-    return dr.gather(mi.Float, level, (z * nb + y) * nb + x)
+def block_to_voxels(level: mi.Float, n, block: int) -> mi.Float:
+    """The level of every voxel (flat [z, y, x]) of a grid of extent ``n`` (``(n_x, n_y, n_z)``)
+    from the level of every ``block³`` block."""
+    n = tuple(n)
+    nb = tuple((c + block - 1) // block for c in n)
+    x, y, z = (c // block for c in voxel_of(dr.arange(mi.UInt32, voxel_count(n)), n))
+    return dr.gather(mi.Float, level, flat_index(x, y, z, nb))
 
 
 def _colour(pyramid: Pyramid, level, active=True, voxel: mi.UInt32 | None = None) -> mi.Vector3f:
@@ -373,7 +391,7 @@ def _colour(pyramid: Pyramid, level, active=True, voxel: mi.UInt32 | None = None
     if isinstance(level, int):
         m, base, scale = pyramid.sizes[level], pyramid.offsets[level], 0.5**level
     else:
-        m = dr.gather(mi.Int32, mi.Int32(pyramid.sizes), level)
+        m = _level_dims(_size_table(pyramid), level)
         base = dr.gather(mi.UInt32, mi.UInt32(pyramid.offsets), level)
         scale = dr.rcp(mi.Float(mi.Int32(1) << level))
     p = _voxel_centres(pyramid.sizes[0], voxel) * scale
@@ -427,7 +445,7 @@ def _dense_levels(pyramid: Pyramid, dw, blend: bool):
 def reconstruct(
     pyramid: Pyramid, delta_weight: float, block: int = 1, blend: bool = False
 ) -> tuple[mi.TensorXf, mi.TensorXf, mi.Float]:
-    """A7: the filtered ``C``, the unnormalised level-0 ``D`` (n, n, n, 3) and the level of every
+    """A7: the filtered ``C``, the unnormalised level-0 ``D`` (n_z, n_y, n_x, 3) and the level of every
     voxel. ``block = 2`` selects one level per 2×2×2 block (:func:`select_levels`); every voxel is
     then read at its block's level (trilinear at the voxel centre, as per voxel). A fractional
     level ``ℓ + t`` (``blend``) reads ``(1 − t)·C_ℓ + t·C_{ℓ+1}``, as a GPU's trilinear mipmap
@@ -443,10 +461,10 @@ def reconstruct(
         level = select_levels(pyramid, delta_weight, block, blend)
         if block > 1:
             level = block_to_voxels(level, n, block)
-        c, rest = dr.zeros(mi.Vector3f, n**3), dr.arange(mi.UInt32, n**3)
+        c, rest = dr.zeros(mi.Vector3f, voxel_count(n)), dr.arange(mi.UInt32, voxel_count(n))
     dr.eval(level)
     if dr.width(rest):
         dr.scatter(c, _read_colours(pyramid, rest, dr.gather(mi.Float, level, rest)), rest)
-    C = mi.TensorXf(dr.ravel(c), (n, n, n, 3))
+    C = mi.TensorXf(dr.ravel(c), grid_shape(n, 3))
     dr.eval(C)
     return C, pyramid.D, level

@@ -12,7 +12,9 @@ level whose node is uniform (A9: strict ``<``):
     Δs_max(v) = ∞ if r_level(v)(v) < ε else L                         (A8; ∞ everywhere if ε' = ε)
 
 The defaults are those of [Sun §5.3]: ε = 0.005, ε' = 0.02, L = 8 voxels. A grid whose side is not
-a power of two is padded to the next ``2^K`` by edge replication, for the pyramid only (A7).
+a power of two is padded to the next ``2^K`` by edge replication, for the pyramid only (A7); a box
+grid (``n_x × n_y × n_z``, issue 11 item 2) is padded the same way to the cube ``2^K`` of its
+longest side, so its nodes are the same aligned cubes.
 Optionally (A50) a node must also have an extinction range below ``eps_kappa`` in every channel.
 
 Bounded fog (issue 11 item 1): a node must also lie wholly inside or wholly outside every fog
@@ -34,12 +36,18 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError
-from ..core.grid import filter_separable
+from ..core.grid import (
+    filter_separable,
+    flat_index,
+    grid_shape,
+    voxel_count,
+    voxel_of,
+)
 
 
 @dataclass
 class Octree:
-    """Per voxel (tensors (n, n, n, 1) indexed [z, y, x]): ``level`` of the leaf node (0..K) and
+    """Per voxel (tensors (n_z, n_y, n_x, 1) indexed [z, y, x]): ``level`` of the leaf node (0..K) and
     ``step_limit`` Δs_max (+inf, or ``ds_max`` voxels where the node only passes ε')."""
 
     level: mi.TensorXf
@@ -47,16 +55,17 @@ class Octree:
 
 
 def _range_pyramid(values: mi.TensorXf, size: int) -> list[mi.Float]:
-    """Per-channel range (max − min) of a grid (n, n, n, c) over the nodes of every level, after
-    padding it to ``size³`` by edge replication.
+    """Per-channel range (max − min) of a grid (n_z, n_y, n_x, c) over the nodes of every level,
+    after padding it to ``size³`` by edge replication.
 
     Entry k has flat index ``((z·m + y)·m + x)·c + channel`` with ``m = size / 2^k``.
     """
-    n, c = values.shape[0], values.shape[3]
+    nz, ny, nx, c = values.shape
+    dims = (nx, ny, nz)
     index = dr.arange(mi.UInt32, size**3 * c)
     cell, channel = index // c, index % c
-    x, y, z = (dr.minimum(a, n - 1) for a in (cell % size, (cell // size) % size, cell // size**2))
-    lo = hi = dr.gather(mi.Float, values.array, ((z * n + y) * n + x) * c + channel)
+    x, y, z = (dr.minimum(a, e - 1) for a, e in zip(voxel_of(cell, size), dims, strict=True))
+    lo = hi = dr.gather(mi.Float, values.array, flat_index(x, y, z, dims) * c + channel)
     ranges = [dr.zeros(mi.Float, dr.width(index))]
     while size > 1:
         size //= 2
@@ -83,46 +92,48 @@ def build_octree(
     eps_kappa: float = np.inf,
     boundaries: mi.TensorXf | None = None,
 ) -> Octree:
-    """Octree levels and step limits of the index grid ``ior`` (n, n, n[, 1]).
+    """Octree levels and step limits of the index grid ``ior`` (n_z, n_y, n_x[, 1]).
 
     ``eps2=None`` (or ``eps2 == eps``) builds the basic octree of [Sun §4.2], with no step limit.
-    ``kappa`` (n, n, n, c) with a finite ``eps_kappa`` also splits nodes whose extinction varies.
-    ``boundaries`` (n, n, n, c): the coverages of the fog volumes (S1); nodes where one varies
-    at all within one voxel of the node are split.
+    ``kappa`` (n_z, n_y, n_x, c) with a finite ``eps_kappa`` also splits nodes whose extinction
+    varies. ``boundaries`` (n_z, n_y, n_x, c): the coverages of the fog volumes (S1); nodes where
+    one varies at all within one voxel of the node are split.
     """
-    n = ior.shape[0]
+    if len(ior.shape) not in (3, 4):
+        raise ParameterError(f"the octree needs a scalar grid, got shape {ior.shape}")
+    dims = tuple(int(c) for c in ior.shape[:3])[::-1]
+    shape, count = grid_shape(dims), voxel_count(dims)
     eps2 = eps if eps2 is None else eps2
-    if tuple(ior.shape[:3]) != (n, n, n) or dr.width(ior.array) != n**3:
-        raise ParameterError(f"the octree needs a cubic scalar grid, got shape {ior.shape}")
+    if dr.width(ior.array) != count:
+        raise ParameterError(f"the octree needs a scalar grid, got shape {ior.shape}")
     if not (0 < eps <= eps2 < np.inf):
         raise ParameterError(f"octree tolerances need 0 < eps <= eps2 < inf, got {eps}, {eps2}")
     if not (ds_max > 0 and eps_kappa > 0):
         raise ParameterError(f"ds_max and eps_kappa must be positive, got {ds_max}, {eps_kappa}")
     channels = 0
     if kappa is not None:
-        channels = dr.width(kappa.array) // n**3
-        if tuple(kappa.shape[:3]) != (n, n, n) or dr.width(kappa.array) != channels * n**3:
-            raise ParameterError(f"kappa has shape {kappa.shape}, expected {(n, n, n)} + (c,)")
+        channels = dr.width(kappa.array) // count
+        if tuple(kappa.shape[:3]) != shape or dr.width(kappa.array) != channels * count:
+            raise ParameterError(f"kappa has shape {kappa.shape}, expected {shape} + (c,)")
 
     walls = 0
     if boundaries is not None:
-        walls = dr.width(boundaries.array) // n**3
-        if tuple(boundaries.shape[:3]) != (n, n, n) or dr.width(boundaries.array) != walls * n**3:
-            raise ParameterError(f"boundaries have shape {boundaries.shape}, expected {(n,) * 3}")
+        walls = dr.width(boundaries.array) // count
+        if tuple(boundaries.shape[:3]) != shape or dr.width(boundaries.array) != walls * count:
+            raise ParameterError(f"boundaries have shape {boundaries.shape}, expected {shape}")
 
-    depth = int(np.ceil(np.log2(n)))
+    depth = int(np.ceil(np.log2(max(dims))))
     size = 2**depth
-    ior_ranges = _range_pyramid(mi.TensorXf(ior.array, (n, n, n, 1)), size)
+    ior_ranges = _range_pyramid(mi.TensorXf(ior.array, (*shape, 1)), size)
     if kappa is not None:
-        kappa_ranges = _range_pyramid(mi.TensorXf(kappa.array, (n, n, n, channels)), size)
+        kappa_ranges = _range_pyramid(mi.TensorXf(kappa.array, (*shape, channels)), size)
     if walls:
-        support = filter_separable(mi.TensorXf(boundaries.array, (n, n, n, walls)), [1.0] * 3)
+        support = filter_separable(mi.TensorXf(boundaries.array, (*shape, walls)), [1.0] * 3)
         wall_ranges = _range_pyramid(support, size)
-    index = dr.arange(mi.UInt32, n**3)
-    x, y, z = index % n, (index // n) % n, index // (n * n)
+    x, y, z = voxel_of(dr.arange(mi.UInt32, count), dims)
     tolerances = (dr.opaque(mi.Float, eps), dr.opaque(mi.Float, eps2))
-    level = [dr.zeros(mi.Float, n**3), dr.zeros(mi.Float, n**3)]
-    labelled = [dr.zeros(mi.Bool, n**3), dr.zeros(mi.Bool, n**3)]
+    level = [dr.zeros(mi.Float, count), dr.zeros(mi.Float, count)]
+    labelled = [dr.zeros(mi.Bool, count), dr.zeros(mi.Bool, count)]
     for k in range(depth, -1, -1):
         m = size >> k
         cell = ((z >> k) * m + (y >> k)) * m + (x >> k)
@@ -138,4 +149,4 @@ def build_octree(
             level[i] = dr.select(uniform, k, level[i])
             labelled[i] |= uniform
     step_limit = dr.select(level[0] == level[1], dr.inf, dr.opaque(mi.Float, ds_max))
-    return Octree(mi.TensorXf(level[1], (n, n, n, 1)), mi.TensorXf(step_limit, (n, n, n, 1)))
+    return Octree(mi.TensorXf(level[1], (*shape, 1)), mi.TensorXf(step_limit, (*shape, 1)))

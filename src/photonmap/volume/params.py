@@ -14,6 +14,7 @@ import numpy as np
 
 from ..core import sampling
 from ..core.errors import ParameterError
+from ..core.grid import voxel_count
 from ..core.memory import available_memory, human_bytes
 from ..core.params import check_choice, check_fields, check_range
 from . import mipmap, pilot
@@ -221,9 +222,9 @@ VIEW_CHANNELS = 16  # floats per voxel in the packed viewing grid, the widest N�
 PHOTON_BYTES = 128  # per photon: plane samples, entry point, direction, power, march state
 
 
-def memory_estimate(grid: int, objects: int = 1, photons: int = 0, threads: int | None = None):
-    """Bytes the pipeline needs for an ``grid``³ volume (a rough upper estimate), as
-    ``(total, per_voxel)``.
+def memory_estimate(grid, objects: int = 1, photons: int = 0, threads: int | None = None):
+    """Bytes the pipeline needs for a ``grid``³ volume, or a box grid of ``grid = (n_x, n_y, n_z)``
+    voxels (issue 11 item 2; a rough upper estimate), as ``(total, per_voxel)``.
 
     Per voxel, what stays cached: coverage (4 B per refractive object), material grids n, σ_s, κ
     (28 B), ∇n (12 B), octree level and Δs_max (8 B), march grids (40 B, + 16 B of σ_s for
@@ -239,23 +240,31 @@ def memory_estimate(grid: int, objects: int = 1, photons: int = 0, threads: int 
     cached = 4 * objects + 28 + 12 + 8 + 56 + 2 * 24 + 4 * VIEW_CHANNELS
     accumulator = 8 * 8 * (2 + max(int(threads), 1))
     per_voxel = cached + accumulator
-    return per_voxel * int(grid) ** 3 + PHOTON_BYTES * int(photons), per_voxel
+    return per_voxel * voxel_count(grid) + PHOTON_BYTES * int(photons), per_voxel
 
 
-def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None = None) -> None:
-    """Raise :class:`ParameterError` unless ``grid`` is an integer >= 4 whose N³ grids fit in
-    Dr.Jit's array limit and in ``available`` bytes (default: :func:`available_memory`)."""
+def check_grid(
+    grid, objects: int = 1, photons: int = 0, available: int | None = None, dims=None
+) -> None:
+    """Raise :class:`ParameterError` unless ``grid`` is an integer >= 4 whose N³ grids (or, given
+    ``dims``, the box grid of ``n_x × n_y × n_z`` voxels) fit in Dr.Jit's array limit and in
+    ``available`` bytes (default: :func:`available_memory`)."""
     if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 4:
         raise ParameterError(
             f"grid must be an integer >= 4 (the grid is grid³ voxels; the papers use 128), "
             f"got {grid!r}"
         )
-    need, per_voxel = memory_estimate(grid, objects, photons)
+    dims = (grid,) * 3 if dims is None else tuple(int(c) for c in dims)
+    voxels = voxel_count(dims)
+    need, per_voxel = memory_estimate(dims, objects, photons)
     available = available_memory() if available is None else available
+    # the largest grid that fits: N scales every side of the box (fraction of the N³ cube)
+    fraction = voxels / grid**3
     if available is not None and need > available:
-        fits = int((max(available - PHOTON_BYTES * photons, 0) / per_voxel) ** (1 / 3))
+        fits = int((max(available - PHOTON_BYTES * photons, 0) / per_voxel / fraction) ** (1 / 3))
+        size = "×".join(str(c) for c in dims) if len(set(dims)) > 1 else f"{grid}³"
         parts = (
-            f"{grid}³ voxels × {per_voxel} bytes for the material, octree, photon and view grids"
+            f"{size} voxels × {per_voxel} bytes for the material, octree, photon and view grids"
         )
         if photons:
             parts += f" + {photons:,} photons × {PHOTON_BYTES} bytes"
@@ -264,10 +273,10 @@ def check_grid(grid, objects: int = 1, photons: int = 0, available: int | None =
             f"{human_bytes(available)} is available: use a smaller grid (grid <= {fits} fits)"
             + (" or fewer photons" if photons else "")
         )
-    if VIEW_CHANNELS * int(grid) ** 3 > DRJIT_MAX_ENTRIES:
-        largest = int((DRJIT_MAX_ENTRIES / VIEW_CHANNELS) ** (1 / 3))
+    if VIEW_CHANNELS * voxels > DRJIT_MAX_ENTRIES:
+        largest = int((DRJIT_MAX_ENTRIES / VIEW_CHANNELS / fraction) ** (1 / 3))
         raise ParameterError(
-            f"grid={grid} needs arrays of {VIEW_CHANNELS}·{grid}³ = {VIEW_CHANNELS * grid**3:,} "
+            f"grid={grid} needs arrays of {VIEW_CHANNELS}·{voxels:,} = {VIEW_CHANNELS * voxels:,} "
             f"entries, more than Dr.Jit's limit of 2³² entries per array: use grid <= {largest}"
         )
 

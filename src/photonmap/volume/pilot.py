@@ -35,7 +35,7 @@ import numpy as np
 
 from ..core import sampling
 from ..core.errors import ParameterError
-from ..core.grid import GridBox
+from ..core.grid import GridBox, grid_shape
 from .deposit import Int64, Vector4i64, coarse_size
 from .emit import Photons, emit_at
 from .march import MarchGrids, accumulate
@@ -49,12 +49,12 @@ PDF_BLUR = (0.1117, 0.23648, 0.30364, 0.23648, 0.1117)  # 5 taps, σ² = 2 (spec
 
 @dataclass
 class PilotGrids:
-    """The pilot grid (m³ cells, [z, y, x]) and the origin grid side ``s``."""
+    """The pilot grid (m_z × m_y × m_x cells, [z, y, x]) and the origin grid side ``s``."""
 
-    C: np.ndarray  # (m, m, m, 3) deposited energy
-    count: np.ndarray  # (m, m, m) deposits
-    origin_sum: np.ndarray  # (m, m, m, 2) Σox, Σoy
-    origin_sq: np.ndarray  # (m, m, m, 2) Σox², Σoy²
+    C: np.ndarray  # (m_z, m_y, m_x, 3) deposited energy
+    count: np.ndarray  # (m_z, m_y, m_x) deposits
+    origin_sum: np.ndarray  # (m_z, m_y, m_x, 2) Σox, Σoy
+    origin_sq: np.ndarray  # (m_z, m_y, m_x, 2) Σox², Σoy²
     side: int
     entering: int  # pilot photons that entered the grid
     steps: int
@@ -73,7 +73,8 @@ def pilot_side(count: int) -> int:
 
 
 def pilot_shift(n: int) -> int:
-    """``k`` such that the pilot grid is ``2^k`` times coarser than ``n`` (16³ for 128³)."""
+    """``k`` such that the pilot grid is ``2^k`` times coarser than ``n`` voxels along the grid's
+    longest side (16³ for 128³)."""
     return max(0, math.ceil(math.log2(n / PILOT_GRID)))
 
 
@@ -104,12 +105,12 @@ def march_pilot(
     """A2: march the pilot photons, depositing into the coarse pilot grid with origin sums."""
     side = math.isqrt(photons.generated)
     shift = pilot_shift(medium.n)
-    m = coarse_size(medium.n, shift)
+    m = grid_shape(coarse_size(medium.dims, shift), 4)
     first, second, unit, steps, _ = accumulate(
         photons, medium, _origin_tally(side, photons.generated), shift, ds_min, fidelity=fidelity
     )
-    first = np.asarray(first, dtype=np.float64).T.reshape(m, m, m, 4)
-    second = np.asarray(second, dtype=np.float64).T.reshape(m, m, m, 4)
+    first = np.asarray(first, dtype=np.float64).T.reshape(m)
+    second = np.asarray(second, dtype=np.float64).T.reshape(m)
     return PilotGrids(
         C=first[..., :3] * unit,
         count=first[..., 3],
@@ -138,7 +139,7 @@ def thresholds(pilot: PilotGrids, grad_threshold: float = 0.0, rad_threshold: fl
 def selected_voxels(
     pilot: PilotGrids, grad_threshold: float = 0.0, rad_threshold: float = 0.0
 ) -> np.ndarray:
-    """A3 voxel selection (Listing B.1): a boolean (m, m, m) grid."""
+    """A3 voxel selection (Listing B.1): a boolean grid of the pilot grid's shape."""
     Y, g, gt, rt = thresholds(pilot, grad_threshold, rad_threshold)
     hit = pilot.count > 0
     return hit & ((g >= gt) & (g > 0) | ((Y > 0) & (Y <= rt)))

@@ -100,6 +100,7 @@ class VolumePipeline(StagedPipeline):
             grid,
             objects=len(self.scene.objects),
             photons=self.params.photons * len(self.scene.lights),
+            dims=self.scene.box.dims,
         )
         self.cache = StageCache()
         self.stats: dict[str, float] = {}
@@ -120,9 +121,9 @@ class VolumePipeline(StagedPipeline):
         """Change pipeline parameters (:class:`VolumeParams` fields)."""
         new = updated(self.params, params, "volume")
         if hasattr(self, "scene") and new.photons != self.params.photons:
-            check_grid(
-                self.scene.box.n, len(self.scene.objects), new.photons * len(self.scene.lights)
-            )
+            box = self.scene.box
+            photons = new.photons * len(self.scene.lights)
+            check_grid(box.n, len(self.scene.objects), photons, dims=box.dims)
         self.params = new
 
     def set_camera(
@@ -290,18 +291,18 @@ class VolumePipeline(StagedPipeline):
         return mats, ior_key, kappa_key, key
 
     def _fog_boundaries(self) -> mi.TensorXf | None:
-        """The coverages of the fog volumes (n, n, n, V) from the cached voxelization, for the
-        octree (which splits its nodes at their boundaries); None without fog volumes."""
+        """The coverages of the fog volumes (n_z, n_y, n_x, V) from the cached voxelization, for
+        the octree (which splits its nodes at their boundaries); None without fog volumes."""
         s = self.scene
         if s.grids is not None or not s.fog_volumes:
             return None
         covs = self.cache.get("voxelization")[len(s.objects) :]
-        n, count = s.box.n, len(covs)
-        out = dr.zeros(mi.Float, n**3 * count)
-        index = dr.arange(mi.UInt32, n**3) * count
+        voxels, count = s.box.voxels, len(covs)
+        out = dr.zeros(mi.Float, voxels * count)
+        index = dr.arange(mi.UInt32, voxels) * count
         for c, coverage in enumerate(covs):
             dr.scatter(out, coverage.array, index + c)
-        return mi.TensorXf(out, (n, n, n, count))
+        return mi.TensorXf(out, (*s.box.shape, count))
 
     def render(self, progress=None) -> mi.TensorXf:
         """Run (or reuse) every stage and return the image (height, width, 3), linear radiance.

@@ -8,7 +8,7 @@ units (``σ_vox = σ_world · h``). It is built from a Mitsuba scene by :func:`f
 - every closed shape with a ``null`` or ``thindielectric`` BSDF and an interior medium is a
   :class:`FogVolume`: the fog is inside it and nowhere else (issue 11 item 1);
 - the sensor's medium fills the rest of the grid (:attr:`VolumeScene.outside`);
-- the grid box is the cube around the medium-bearing shapes (or an explicit ``grid_bbox``);
+- the grid box is the box grid fitted to the medium-bearing shapes (or an explicit ``grid_bbox``);
 - point, spot, directional and area emitters are :class:`Light` s; a ``constant`` or ``envmap``
   emitter is the background and a light too (photons through the grid's faces, issue 11 item 3);
 - the perspective sensor is the camera.
@@ -166,9 +166,11 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     - **Fog** (:attr:`VolumeScene.fog`, the medium ``set_material("fog")`` edits): the exterior
       medium of the refractive objects, else the sensor's medium, else the interior medium of the
       first fog volume, else vacuum.
-    - **Grid box** (``grid³`` voxels): ``grid_bbox = (min, max)`` if given, else the cube around the
-      fog volumes with no margin when they enclose every refractive object (the fog box is the
-      domain), else the cube around all medium-bearing shapes with ``MARGIN`` voxels.
+    - **Grid box** (a box grid, issue 11 item 2: ``n_x × n_y × n_z`` cubic voxels with ``grid``
+      of them along the longest side, :meth:`GridBox.fitted`): around ``grid_bbox = (min, max)``
+      if given, else around the fog volumes with no margin when they enclose every refractive
+      object (the fog box is the domain), else around all medium-bearing shapes with ``MARGIN``
+      voxels.
     - **Lights** (anywhere, issue 11 item 3): point, spot (``cutoff_angle`` → ``cos_outer``,
       ``beam_width`` → ``cos_inner``), directional, and area emitters (kept as Mitsuba emitters,
       sampled on their surface by S5); a ``constant``/``envmap`` emitter is the ``environment``
@@ -355,7 +357,7 @@ def _fog(sensor, exteriors, fog_volumes, media: _Media) -> tuple[Medium, Medium 
 def _grid_box(objects, fog_shapes, grid: int, grid_bbox) -> GridBox:
     if grid_bbox is not None:
         lo, hi = (_np3(v) for v in grid_bbox)
-        return GridBox.around(lo, hi, grid, margin=0.0)
+        return GridBox.fitted(lo, hi, grid, margin=0.0)
 
     def union(shapes):
         lo = np.min([_np3(s.bbox().min) for s in shapes], axis=0)
@@ -369,9 +371,9 @@ def _grid_box(objects, fog_shapes, grid: int, grid_bbox) -> GridBox:
             for o in objects
         )
         if inside:
-            return GridBox.around(lo, hi, grid, margin=0.0)
+            return GridBox.fitted(lo, hi, grid, margin=0.0)
     lo, hi = union([o.shape for o in objects] + fog_shapes)
-    return GridBox.around(lo, hi, grid, margin=MARGIN)
+    return GridBox.fitted(lo, hi, grid, margin=MARGIN)
 
 
 def _probe(emitter, ref) -> tuple[np.ndarray, np.ndarray, float]:

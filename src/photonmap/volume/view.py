@@ -31,7 +31,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.camera import pixel_means, pixel_rays
-from ..core.grid import GridBox, pack, to_tensor, trilinear_packed
+from ..core.grid import GridBox, grid_extent, pack, to_tensor, trilinear_packed
 from .emit import box_entry
 
 BISECTION_STEPS = 10
@@ -47,18 +47,20 @@ class ViewGrids:
       product (it differs from the product of interpolants only where σ_s changes within a voxel);
     - ``aux`` — ``(n, C_rgb)``: read at every step only when the isosurface test or the paper's
       ``v += h·n·∇n`` needs n, and for the table.
+
+    ``dims = (n_x, n_y, n_z)``: the grid's extent (a box grid, issue 11 item 2).
     """
 
-    n: int
+    dims: tuple
     main: mi.Float
     aux: mi.Float
 
     @staticmethod
     def build(ior, grad, kappa, sigma_s, C, D_hat) -> ViewGrids:
-        n = int(C.shape[0])
-        C, sigma_s = to_tensor(C, n), to_tensor(sigma_s, n)
+        dims = tuple(int(c) for c in C.shape[:3])[::-1]
+        C, sigma_s = to_tensor(C, dims), to_tensor(sigma_s, dims)
         source = mi.TensorXf(sigma_s.array * C.array, tuple(C.shape))
-        return ViewGrids(n, pack([grad, kappa, source, D_hat], n), pack([ior, C], n))
+        return ViewGrids(dims, pack([grad, kappa, source, D_hat], dims), pack([ior, C], dims))
 
 
 @dataclass
@@ -90,7 +92,7 @@ def environment(emitter, d: mi.Vector3f, active=True) -> mi.Color3f:
 
 def _sample(grids: ViewGrids, x: mi.Point3f):
     """``(∇n, κ, σ_s ⊙ C, D)`` at voxel coordinates ``x`` (trilinear)."""
-    a, b, c = trilinear_packed(grids.main, grids.n, 3, x)
+    a, b, c = trilinear_packed(grids.main, grids.dims, 3, x)
     return (
         mi.Vector3f(a.x, a.y, a.z),
         mi.Color3f(a.w, b.x, b.y),
@@ -101,7 +103,7 @@ def _sample(grids: ViewGrids, x: mi.Point3f):
 
 def _sample_aux(grids: ViewGrids, x: mi.Point3f):
     """``(n, C)`` at voxel coordinates ``x`` (trilinear)."""
-    (a,) = trilinear_packed(grids.aux, grids.n, 1, x)
+    (a,) = trilinear_packed(grids.aux, grids.dims, 1, x)
     return a.x, mi.Color3f(a.y, a.z, a.w)
 
 
@@ -121,11 +123,11 @@ def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: floa
 
 @dr.syntax
 def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings):
-    n = grids.n
+    far = grid_extent(grids.dims)
     count = dr.width(o)
-    enters, t_near, _ = box_entry(o, d, n)
+    enters, t_near, _ = box_entry(o, d, grids.dims)
     x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
-    inside = enters & dr.all((x >= 0.0) & (x < float(n)))
+    inside = enters & dr.all((x >= 0.0) & (x < far))
     n_x = _sample_aux(grids, x)[0]
     v = mi.Vector3f(n_x * d)
     x_old, v_old, n_old = mi.Point3f(x), mi.Vector3f(v), mi.Float(n_x)
@@ -134,7 +136,7 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
     L = dr.zeros(mi.Color3f, count)
     reflected = dr.zeros(mi.Bool, count)
     steps = dr.zeros(mi.UInt32, count)
-    max_steps = 4 * n
+    max_steps = 4 * max(grids.dims)
     # appearance parameters enter the kernel as opaque values: changing them does not recompile
     table_rgb = [float(c) * (1.0 if s.paper else 1.0 / math.pi) for c in s.table]
     table = mi.Color3f(*[dr.opaque(mi.Float, c) for c in table_rgb])
@@ -175,7 +177,7 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
         x = mi.Point3f(x + v / speed)
         v = mi.Vector3f(v + (n_x if s.paper else 1.0) * grad)
         steps += 1
-        active = dr.all((x >= 0.0) & (x < float(n))) & (steps < max_steps)
+        active = dr.all((x >= 0.0) & (x < far)) & (steps < max_steps)
     return L + col * T * environment(env, dr.normalize(v)), inside
 
 

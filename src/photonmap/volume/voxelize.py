@@ -91,19 +91,19 @@ def _trace_columns(scene, x, y, z, eps, limit, store=None):
 
 
 def _column_crossings(scene, box: GridBox, columns: mi.UInt32, s: int, z0: float):
-    """Crossings of the ``s×s`` sample columns under each coarse column (``j·n + i``).
+    """Crossings of the ``s×s`` sample columns under each coarse column (``j·n_x + i``).
 
     Column ``slot·s² + b·s + a`` passes through ``(i + (a+½)/s, j + (b+½)/s)`` (plus the jitter),
-    where ``columns[slot] = j·n + i``. Returns ``(start, count, heights)``: column ``c`` crosses the
+    where ``columns[slot] = j·n_x + i``. Returns ``(start, count, heights)``: column ``c`` crosses the
     surface at the heights (voxel units, ascending) ``heights[start[c] : start[c] + count[c]]``.
     """
-    n, h = box.n, box.h
+    nx, h = box.dims[0], box.h
     index = dr.arange(mi.UInt32, dr.width(columns) * s * s)
     coarse = dr.gather(mi.UInt32, columns, index // (s * s))
     sub = index % (s * s)
     lo = [dr.opaque(mi.Float, c) for c in box.lo]
-    x = lo[0] + h * (mi.Float(coarse % n) + (mi.Float(sub % s) + 0.5) / s + COLUMN_JITTER[0])
-    y = lo[1] + h * (mi.Float(coarse // n) + (mi.Float(sub // s) + 0.5) / s + COLUMN_JITTER[1])
+    x = lo[0] + h * (mi.Float(coarse % nx) + (mi.Float(sub % s) + 0.5) / s + COLUMN_JITTER[0])
+    y = lo[1] + h * (mi.Float(coarse // nx) + (mi.Float(sub // s) + 0.5) / s + COLUMN_JITTER[1])
     scale = max(float(np.max(np.abs(box.lo))), float(np.max(np.abs(box.hi))), abs(z0))
     eps = dr.opaque(mi.Float, max(1e-4 * h / s, 4e-6 * scale))
     z_start = dr.opaque(mi.Float, z0, dr.width(index))
@@ -119,15 +119,16 @@ def _column_crossings(scene, box: GridBox, columns: mi.UInt32, s: int, z0: float
 
 
 @dr.syntax
-def _mean_inside(voxels: mi.UInt32, slots: mi.UInt32, crossings, n: int, s: int) -> mi.Float:
+def _mean_inside(voxels: mi.UInt32, slots: mi.UInt32, crossings, layer_size: int, s: int):
     """Fraction of the ``s³`` sub-samples of each voxel that are inside (crossing parity).
 
-    ``slots[v]`` is the slot of the voxel's coarse column in :func:`_column_crossings`. The
+    ``slots[v]`` is the slot of the voxel's coarse column in :func:`_column_crossings`;
+    ``layer_size = n_x·n_y`` voxels per z layer. The
     parities of the ``s`` samples of a sub-column are the low bits of one integer: a crossing at
     height ``z`` lies below samples ``c ≥ c₀ = ⌊(z − k)·s + ½⌋`` and toggles their bits.
     """
     start, count, heights = crossings
-    layer = mi.Float(voxels // (n * n))
+    layer = mi.Float(voxels // layer_size)
     all_bits = (1 << s) - 1
     inside = dr.zeros(mi.UInt32, dr.width(voxels))
     sub = dr.zeros(mi.UInt32, dr.width(voxels))
@@ -149,37 +150,38 @@ def _mean_inside(voxels: mi.UInt32, slots: mi.UInt32, crossings, n: int, s: int)
 def voxelize(
     shape: mi.Shape, box: GridBox, supersample: int = 4, full_supersample: bool = False
 ) -> mi.TensorXf:
-    """Fractional inside coverage of the closed ``shape`` on the grid of ``box``: a tensor (n, n, n)
-    indexed [z, y, x] with values in [0, 1], multiples of ``1/supersample³`` on the border.
+    """Fractional inside coverage of the closed ``shape`` on the grid of ``box``: a tensor
+    (n_z, n_y, n_x) indexed [z, y, x] with values in [0, 1], multiples of ``1/supersample³`` on
+    the border.
 
     ``supersample = 1`` returns the binary centre-sample grid ``B``. The shape must be closed
     (see :func:`check_closed`); an open one gives meaningless parities.
     """
     if not (isinstance(supersample, int | np.integer) and 1 <= supersample <= 8):
         raise ParameterError(f"supersample must be an integer in 1..8, got {supersample!r}")
-    n = box.n
+    shape3, layer = box.shape, box.dims[0] * box.dims[1]
     scene = mi.load_dict({"type": "scene", "shape": shape})
     z0 = min(shape.bbox().min.z, float(box.lo[2])) - box.h
 
-    voxels = dr.arange(mi.UInt32, n**3)
-    centres = _column_crossings(scene, box, dr.arange(mi.UInt32, n * n), 1, z0)
-    coverage = _mean_inside(voxels, voxels % (n * n), centres, n, 1)
+    voxels = dr.arange(mi.UInt32, box.voxels)
+    centres = _column_crossings(scene, box, dr.arange(mi.UInt32, layer), 1, z0)
+    coverage = _mean_inside(voxels, voxels % layer, centres, layer, 1)
     if supersample == 1:
-        return mi.TensorXf(coverage, (n, n, n))
+        return mi.TensorXf(coverage, shape3)
 
     if full_supersample:
         border = voxels
     else:
         # Off the border, the sum of B over the clamped 3×3×3 neighbourhood is 0 or 27.
-        neighbours = filter_separable(mi.TensorXf(coverage, (n, n, n)), [1.0, 1.0, 1.0]).array
+        neighbours = filter_separable(mi.TensorXf(coverage, shape3), [1.0, 1.0, 1.0]).array
         border = dr.compress((neighbours > 0.5) & (neighbours < 26.5))
     if dr.width(border) > 0:
-        used = dr.zeros(mi.UInt32, n * n)
-        dr.scatter(used, 1, border % (n * n))
+        used = dr.zeros(mi.UInt32, layer)
+        dr.scatter(used, 1, border % layer)
         columns = dr.compress(used == 1)
-        slot_of = dr.zeros(mi.UInt32, n * n)
+        slot_of = dr.zeros(mi.UInt32, layer)
         dr.scatter(slot_of, dr.arange(mi.UInt32, dr.width(columns)), columns)
         samples = _column_crossings(scene, box, columns, supersample, z0)
-        slots = dr.gather(mi.UInt32, slot_of, border % (n * n))
-        dr.scatter(coverage, _mean_inside(border, slots, samples, n, supersample), border)
-    return mi.TensorXf(coverage, (n, n, n))
+        slots = dr.gather(mi.UInt32, slot_of, border % layer)
+        dr.scatter(coverage, _mean_inside(border, slots, samples, layer, supersample), border)
+    return mi.TensorXf(coverage, shape3)
