@@ -16,15 +16,22 @@ def tensor(a):
     return mi.TensorXf(np.ascontiguousarray(a, dtype=np.float32))
 
 
+def shape3(n) -> tuple:
+    """A grid's shape (n_z, n_y, n_x): ``n`` itself, or the cube ``(n, n, n)`` for an int."""
+    return tuple(n) if isinstance(n, tuple) else (n, n, n)
+
+
 def random_grids(n, seed=0):
-    """Smooth-ish colour and direction fields, integer counts with holes, weights with zeros."""
+    """Smooth-ish colour and direction fields, integer counts with holes, weights with zeros, on
+    the cube n³ or a box grid of shape ``n = (n_z, n_y, n_x)``."""
     rng = np.random.default_rng(seed)
-    z, y, x = np.mgrid[:n, :n, :n] / n
+    shape = shape3(n)
+    z, y, x = (a / max(shape) for a in np.mgrid[: shape[0], : shape[1], : shape[2]])
     base = 1 + np.sin(6 * x) * np.cos(5 * y) + (z > 0.5)
-    C = base[..., None] * rng.uniform(0.5, 1.5, (n, n, n, 3))
-    D = rng.normal(size=(n, n, n, 3))
-    count = rng.integers(0, 4, (n, n, n)).astype(float)
-    weight = np.where(count > 0, rng.uniform(0.1, 3.0, (n, n, n)), 0.0)
+    C = base[..., None] * rng.uniform(0.5, 1.5, (*shape, 3))
+    D = rng.normal(size=(*shape, 3))
+    count = rng.integers(0, 4, shape).astype(float)
+    weight = np.where(count > 0, rng.uniform(0.1, 3.0, shape), 0.0)
     return C, D, count, weight
 
 
@@ -40,11 +47,11 @@ def numpy_gauss_level(a):
 
 
 def numpy_weight_level(count, weight):
-    m = count.shape[0]
-    h = (m + 1) // 2
-    pad = 2 * h - m
-    c = np.pad(count, [(0, pad)] * 3).reshape(h, 2, h, 2, h, 2).sum((1, 3, 5))
-    w = np.pad(weight, [(0, pad)] * 3).reshape(h, 2, h, 2, h, 2)
+    h = [(m + 1) // 2 for m in count.shape]
+    pad = [(0, 2 * a - m) for a, m in zip(h, count.shape, strict=True)]
+    blocks = (h[0], 2, h[1], 2, h[2], 2)
+    c = np.pad(count, pad).reshape(blocks).sum((1, 3, 5))
+    w = np.pad(weight, pad).reshape(blocks)
     k = (w > 0).sum((1, 3, 5))
     return c, np.where(k > 0, w.sum((1, 3, 5)) / np.maximum(k, 1), 0.0)
 
@@ -52,7 +59,7 @@ def numpy_weight_level(count, weight):
 def numpy_pyramid(C, D, count, weight):
     """Levels (C, D, count, weight); D stays at level 0 (no direction pyramid)."""
     levels = [(C, D, count, weight)]
-    for _ in range(mipmap.max_level(C.shape[0])):
+    for _ in range(mipmap.max_level(max(C.shape[:3]))):
         c, _, cnt, w = levels[-1]
         levels.append((numpy_gauss_level(c), D, *numpy_weight_level(cnt, w)))
     return levels
@@ -61,9 +68,9 @@ def numpy_pyramid(C, D, count, weight):
 def unpack(pyramid, level, what):
     """Level ``level`` ≥ 1 of ``fields`` or ``colors`` (4 channels each) as a NumPy grid."""
     k = 4
-    m, start = pyramid.sizes[level], pyramid.offsets[level]
-    data = np.array(getattr(pyramid, what))[k * start : k * (start + m**3)]
-    return data.reshape(m, m, m, k)
+    (mx, my, mz), start = pyramid.sizes[level], pyramid.offsets[level]
+    data = np.array(getattr(pyramid, what))[k * start : k * (start + mx * my * mz)]
+    return data.reshape(mz, my, mx, k)
 
 
 def build(C, D, count, weight):
@@ -75,12 +82,12 @@ def test_gaussian_taps_are_the_spec_values():
     assert mipmap.max_level(128) == 5 and mipmap.max_level(4) == 0
 
 
-@pytest.mark.parametrize("n", [16, 12])
+@pytest.mark.parametrize("n", [16, 12, (6, 13, 16)])  # cubes and a box grid (issue 11 item 2)
 def test_pyramid_matches_numpy(n):
     grids = random_grids(n)
     pyramid = build(*grids)
     reference = numpy_pyramid(*grids)
-    assert pyramid.max_level == len(reference) - 1 == mipmap.max_level(n)
+    assert pyramid.max_level == len(reference) - 1 == mipmap.max_level(max(shape3(n)))
     for level in range(1, pyramid.max_level + 1):
         c, _, count, weight = reference[level]
         fields, colors = unpack(pyramid, level, "fields"), unpack(pyramid, level, "colors")
@@ -140,9 +147,9 @@ def centre_surround(d, top):
 def numpy_filter(levels, delta_weight, blend=False):
     """Listing B.3 (as resolved in spec A7/A46) on NumPy levels read with trilinear interpolation
     at the voxel centres (scipy's map_coordinates, order 1, edges replicated)."""
-    n = levels[0][0].shape[0]
+    shape = levels[0][0].shape[:3]
     top = len(levels) - 1
-    v = np.indices((n, n, n)).reshape(3, -1) + 0.5
+    v = np.indices(shape).reshape(3, -1) + 0.5
 
     def sample(grid, level):
         coords = v / 2**level - 0.5
@@ -153,7 +160,7 @@ def numpy_filter(levels, delta_weight, blend=False):
     Y = [sample(c.sum(-1), lvl) for lvl, (c, _, _, _) in enumerate(levels)]
     count = [sample(cnt, lvl) for lvl, (_, _, cnt, _) in enumerate(levels)]
     weight = [sample(w, lvl) for lvl, (_, _, _, w) in enumerate(levels)]
-    wl = np.zeros(n**3, int)
+    wl = np.zeros(v.shape[1], int)
     while True:  # lowest level with count ≥ 1 (or the top)
         more = (np.take_along_axis(np.stack(count), wl[None], 0)[0] < 1) & (wl < top)
         if not more.any():
@@ -179,18 +186,19 @@ def assert_matches(C, D, level, ref_level, ref) -> np.ndarray:
     return level
 
 
-@pytest.mark.parametrize("n", [32, 64])
+@pytest.mark.parametrize("n", [32, 64, (20, 37, 64)])
 @pytest.mark.parametrize("empty", [False, True])
 @pytest.mark.parametrize("blend", [False, True])
 @pytest.mark.parametrize("delta_weight", [0.2, 0.7, 1.2])
 def test_filter_matches_numpy(delta_weight, blend, empty, n):
     """Per voxel; ``empty``: a slab no photon crossed, whose voxels find their weight at a coarse
     level (Listing B.3) and may still be read at a finer one. At 64³ (5 levels) most voxels take
-    the loop-free path (``mipmap._dense_levels``), the others the level loop."""
+    the loop-free path (``mipmap._dense_levels``), the others the level loop; the box grid
+    (issue 11 item 2) has levels of different extents per axis."""
     grids = random_grids(n, seed=2)
     if empty:
-        grids[2][:, :, n // 4 :] = 0
-        grids[3][:, :, n // 4 :] = 0
+        grids[2][:, :, shape3(n)[2] // 4 :] = 0
+        grids[3][:, :, shape3(n)[2] // 4 :] = 0
     C, D, level = mipmap.reconstruct(build(*grids), delta_weight, blend=blend)
     ref_level, ref = numpy_filter(numpy_pyramid(*grids), delta_weight, blend)
     level = assert_matches(C, D, level, ref_level, ref)
@@ -246,10 +254,10 @@ def numpy_block_filter(levels, delta_weight, blend=False):
     centre (level 1: the block's own cell), the weight filter decided at level 0 by the block's
     crossed voxels (smallest level), d₀ = mean over the block of |Y₀(v) − Y₁|; every voxel then
     reads its block's level at its own centre."""
-    n = levels[0][0].shape[0]
+    shape = levels[0][0].shape[:3]
     top = len(levels) - 1
-    nb = (n + 1) // 2
-    centres = (np.indices((nb, nb, nb)).reshape(3, -1) * 2 + 1.0).astype(float)
+    nb = tuple((m + 1) // 2 for m in shape)
+    centres = (np.indices(nb).reshape(3, -1) * 2 + 1.0).astype(float)
 
     def sample(grid, level, points):
         coords = points / 2**level - 0.5
@@ -258,9 +266,9 @@ def numpy_block_filter(levels, delta_weight, blend=False):
         return np.stack([sample(grid[..., c], level, points) for c in range(grid.shape[-1])], -1)
 
     C0, _, count0, weight0 = levels[0]
-    pad = [(0, 2 * nb - n)] * 3
-    blocks = (nb, 2, nb, 2, nb, 2)
-    inside = np.pad(np.ones((n, n, n), bool), pad).reshape(blocks)
+    pad = [(0, 2 * b - m) for b, m in zip(nb, shape, strict=True)]
+    blocks = (nb[0], 2, nb[1], 2, nb[2], 2)
+    inside = np.pad(np.ones(shape, bool), pad).reshape(blocks)
     Y0 = np.pad(C0.sum(-1), pad).reshape(blocks)
     crossed = np.pad(count0 >= 1, pad).reshape(blocks)
     own = filter_level(np.pad(weight0, pad), delta_weight, top, blend).reshape(blocks)
@@ -275,29 +283,31 @@ def numpy_block_filter(levels, delta_weight, blend=False):
     coarse_w = np.take_along_axis(np.stack(weight[1:]), wl[None] - 1, 0)[0]
     coarse_level = filter_level(coarse_w, delta_weight, top, blend)
     w_level = np.where(found, w_own, coarse_level)
-    Y1 = Y[1].reshape(nb, 1, nb, 1, nb, 1)
+    Y1 = Y[1].reshape(nb[0], 1, nb[1], 1, nb[2], 1)
     spread = np.where(inside, np.abs(Y0 - Y1), 0).sum((1, 3, 5)) / inside.sum((1, 3, 5))
     d = [spread.ravel()] + [np.abs(Y[k] - Y[k + 1]) for k in range(1, top)]
     cen = centre_surround(d, top)
-    block_level = np.minimum(w_level, cen).reshape(nb, nb, nb)
-    level = block_level.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:n, :n, :n].ravel()
-    v = np.indices((n, n, n)).reshape(3, -1) + 0.5
+    block_level = np.minimum(w_level, cen).reshape(nb)
+    level = block_level.repeat(2, 0).repeat(2, 1).repeat(2, 2)
+    level = level[: shape[0], : shape[1], : shape[2]].ravel()
+    v = np.indices(shape).reshape(3, -1) + 0.5
     return level, read_levels(lambda grid, lvl: sample(grid, lvl, v), levels, level)
 
 
 @pytest.mark.parametrize(
     "n, delta_weight, blend",
     [(32, 0.2, False), (32, 0.7, False), (32, 1.2, False), (33, 0.7, False), (32, 0.7, True),
-     (33, 0.2, True)],
+     (33, 0.2, True), ((17, 24, 33), 0.7, True)],
 )  # fmt: skip
 def test_block_filter_matches_numpy(n, delta_weight, blend):
     grids = random_grids(n, seed=4)
-    grids[2][n // 3 :] = 0  # a region no photon crossed: the weight of a coarser level decides
-    grids[3][n // 3 :] = 0
+    empty = shape3(n)[0] // 3  # a region no photon crossed: the weight of a coarser level decides
+    grids[2][empty:] = 0
+    grids[3][empty:] = 0
     C, D, level = mipmap.reconstruct(build(*grids), delta_weight, block=2, blend=blend)
     ref_level, ref = numpy_block_filter(numpy_pyramid(*grids), delta_weight, blend)
     level = assert_matches(C, D, level, ref_level, ref)
-    blocks = level.reshape(n, n, n)
+    blocks = level.reshape(shape3(n))
     odd = blocks[1::2, 1::2, 1::2]
     assert np.array_equal(
         blocks[::2, ::2, ::2][: odd.shape[0], : odd.shape[1], : odd.shape[2]], odd

@@ -22,6 +22,7 @@ import pytest
 from photonmap import VolumePipeline, mi
 
 WIDTH, HEIGHT = 64, 48
+CUBE = ([-2.0] * 3, [2.0] * 3)  # the grid: the cube around the fog box (box grids: test_box_grid)
 SPHERE = (np.array([-1.0, 0.55, 0.2]), 0.15)
 SPOT = [0.5, 0.6, 0.0]
 
@@ -122,7 +123,14 @@ def compare(light: str, seed: int = 0) -> tuple[float, float]:
     image = mi.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed)
     reference = np.array(image)[..., :3]
     pipe = VolumePipeline(
-        scene, grid=grid, photons=128**2, phase_k=0.0, table=0.0, spp=4, scattering="single"
+        scene,
+        grid=grid,
+        grid_bbox=CUBE,
+        photons=128**2,
+        phase_k=0.0,
+        table=0.0,
+        spp=4,
+        scattering="single",
     )
     ours = np.array(pipe.render())
     a, b = block_means(ours), block_means(reference)

@@ -133,9 +133,10 @@ def test_bad_parameters_raise(kwargs, message):
         build_octree(mi.TensorXf(field("smooth", 8)), **kwargs)
 
 
-def test_non_cubic_grid_raises():
-    with pytest.raises(ParameterError, match="cubic"):
-        build_octree(mi.TensorXf(np.ones((8, 8, 4), np.float32)))
+def test_a_grid_that_is_no_scalar_grid_raises():
+    """(A box grid is fine: test_box_grid.py.)"""
+    with pytest.raises(ParameterError, match="scalar grid"):
+        build_octree(mi.TensorXf(np.ones((8, 8, 4, 2), np.float32)))
 
 
 def test_tolerance_is_strict():

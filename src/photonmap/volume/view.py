@@ -9,7 +9,10 @@ path of eqs (4)–(5), ``x += (h/‖v‖)·v``, ``v += h·∇n(x_old)``, until i
 
 with the Schlick phase function ``p = (1 − k²) / (4π (1 − k cos θ)²)`` (Pfeuti §2.1.3); leaving
 the grid adds ``colScale · T ⊙ L_env(v̂)``. This is the single-scattering volume rendering equation
-with ``∫ p L_i dω' ≈ p(θ(D̂, −ω)) · φ`` (spec §2.6), ``C`` being the fluence ``φ``.
+with ``∫ p L_i dω' ≈ p(θ(D̂, −ω)) · φ`` (spec §2.6), ``C`` being the fluence ``φ``. The step that
+reaches the grid's exit face is cut there (``h`` the distance to the face; ours): with box grids
+the fog often ends at the grid's face, and a whole last step would add up to a voxel of fog
+beyond it (measured: +3 % brightness in a 16-voxel-thick fog box).
 
 Reflective table (Pfeuti §3.1.6): a ray going down through the bottom voxel layer is mirrored at
 the plane ``y = 1`` and picks up ``ρ_table/π · C ⊙ T`` (a Lambertian table of albedo ρ lit by the
@@ -170,14 +173,19 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
             col *= 1.0 - r_iso
 
         speed = dr.norm(v)
+        d = v / speed
+        # the step that reaches the grid's exit face ends there: a whole step would count the
+        # medium of the face's voxels (clamp-to-edge) beyond the face, where a box grid's fog ends
+        t_exit = dr.min(dr.select(d > 0, (far - x) / d, dr.select(d < 0, -x / d, dr.inf)))
+        dt = dr.clip(t_exit, 0.0, 1.0)
         cos_theta = -dr.dot(v, D) / (speed * dr.maximum(dr.norm(D), 1e-20))
-        T *= dr.exp(-kappa)
-        L += col * schlick(k, cos_theta) * source * T
+        T *= dr.exp(-kappa * dt)
+        L += col * schlick(k, cos_theta) * source * T * dt
         x_old, v_old, n_old = mi.Point3f(x), mi.Vector3f(v), mi.Float(n_x)
-        x = mi.Point3f(x + v / speed)
-        v = mi.Vector3f(v + (n_x if s.paper else 1.0) * grad)
+        x = mi.Point3f(x + d * dt)
+        v = mi.Vector3f(v + dt * (n_x if s.paper else 1.0) * grad)
         steps += 1
-        active = dr.all((x >= 0.0) & (x < far)) & (steps < max_steps)
+        active = (t_exit > 1.0) & dr.all((x >= 0.0) & (x < far)) & (steps < max_steps)
     return L + col * T * environment(env, dr.normalize(v)), inside
 
 
