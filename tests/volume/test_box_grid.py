@@ -22,7 +22,7 @@ from photonmap.core.grid import GridBox, flat_index, pack, trilinear_packed, vox
 from photonmap.core.image import block_means
 from photonmap.volume.octree import build_octree
 from photonmap.volume.params import check_grid, memory_estimate
-from photonmap.volume.scene import FOG_MARGIN, from_mitsuba
+from photonmap.volume.scene import from_mitsuba
 from photonmap.volume.voxelize import voxelize
 
 T = mi.ScalarTransform4f
@@ -88,12 +88,9 @@ SKY = {"type": "constant", "radiance": {"type": "rgb", "value": [0.6, 0.7, 1.0]}
 
 
 def test_a_scene_gets_the_box_grid_of_its_fog():
-    """With a voxel of vacuum around the fog (scene.FOG_MARGIN); an explicit ``grid_bbox`` is the
-    grid's box itself."""
+    """The fog box is the grid's box; so is an explicit ``grid_bbox``."""
     scene = mi.load_dict(long_fog_box(POINT))
-    box = from_mitsuba(scene, grid=40).box
-    assert box == GridBox.fitted(*LONG_BOX, 40, margin=FOG_MARGIN) and FOG_MARGIN == 1.0
-    assert box.dims == (40, 21, 18) and box.h == pytest.approx(10 / 38)
+    assert from_mitsuba(scene, grid=40).box == GridBox.fitted(*LONG_BOX, 40, margin=0.0)
     given = from_mitsuba(scene, grid=30, grid_bbox=([-6, -3, -3], [6, 3, 3])).box  # grid_bbox
     assert given.dims == (30, 15, 15) and given.h == pytest.approx(0.4)
 
@@ -184,13 +181,16 @@ def test_octree_of_a_box_grid_is_that_of_its_padded_cube():
 # A 10 × 5 × 4 fog box against volpath (full depth)
 
 WIDTH, HEIGHT = 64, 48
-RATIO_BOUND = {"point": 0.008, "sky": 0.008}  # |brightness ratio − 1|: measured 0.0032, 0.0039
-BLOCK_BOUND = {"point": 0.12, "sky": 0.02}  # relative RMSE of 4×4-block means: 0.067, 0.0101
+# |brightness ratio − 1| and the relative RMSE of 4×4-block means; measured: point 1.028 / 0.082
+# (grid 96 and 2¹⁸ photons: 1.010 / 0.051; a grid cube of side 10, the fog in half of it: 1.043 /
+# 0.096), sky 0.9947 / 0.0116
+RATIO_BOUND = {"point": 0.045, "sky": 0.01}
+BLOCK_BOUND = {"point": 0.13, "sky": 0.02}
 
 
 @pytest.mark.parametrize("light", ["point", "sky"])
 def test_long_fog_box_matches_volpath(light):
-    """Grid 48 (48 × 25 × 21 voxels around the fog box), 2¹⁶ photons, multiple scattering;
+    """Grid 48 (48 × 24 × 20 voxels over the fog box), 2¹⁶ photons, multiple scattering;
     volpath at full depth, 512 spp. The sky's photons enter through the box's faces in
     proportion to their projected areas (``emit.environment_photons``)."""
     scene = long_fog_box(POINT if light == "point" else SKY, WIDTH, HEIGHT)
@@ -199,7 +199,7 @@ def test_long_fog_box_matches_volpath(light):
         reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=512))
     reference = reference[..., :3]
     pipe = VolumePipeline(scene, grid=48, photons=2**16, phase_k=0.0, table=0.0, spp=4)
-    assert pipe.scene.box.dims == (48, 25, 21)
+    assert pipe.scene.box.dims == (48, 24, 20)
     image = np.array(pipe.render())
     if light == "sky":  # the background seen beside the box is the sky itself in both
         inside = np.any(np.abs(image - np.array([0.6, 0.7, 1.0])) > 1e-3, axis=-1)

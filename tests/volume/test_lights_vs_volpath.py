@@ -1,9 +1,10 @@
 """Lights anywhere (issue 11 item 3) against Mitsuba ``volpath``: one fog box, one light of each
 kind, single scattering.
 
-The fog is a 4 × 2 × 2 box (σ_t 0.5, albedo 0.9, isotropic) in vacuum, in a grid cube of side 4
-(grid 32); the lights: a point light and a spot light inside the fog, a spherical area emitter
-inside the fog, a rectangle emitter above the grid (outside it, facing down), a constant
+The fog is a 4 × 2 × 2 box (σ_t 0.5, albedo 0.9, isotropic) in vacuum, the box grid over it
+(32 × 16 × 16 voxels, issue 11 item 2; 48 for the spot, point and sphere lights); the lights:
+a point light and a spot light inside the fog, a spherical area emitter inside the fog, a
+rectangle emitter above the grid (outside it, facing down), a constant
 environment and an envmap with a bright patch (the background too). ``volpath`` at
 ``max_depth = 2`` is direct light plus single scattering here (Mitsuba does not count the
 crossings of a ``null`` boundary; tests/volume/test_bounded_fog.py), what the volume method
@@ -22,7 +23,6 @@ import pytest
 from photonmap import VolumePipeline, mi
 
 WIDTH, HEIGHT = 64, 48
-CUBE = ([-2.0] * 3, [2.0] * 3)  # the grid: the cube around the fog box (box grids: test_box_grid)
 SPHERE = (np.array([-1.0, 0.55, 0.2]), 0.15)
 SPOT = [0.5, 0.6, 0.0]
 
@@ -123,14 +123,7 @@ def compare(light: str, seed: int = 0) -> tuple[float, float]:
     image = mi.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed)
     reference = np.array(image)[..., :3]
     pipe = VolumePipeline(
-        scene,
-        grid=grid,
-        grid_bbox=CUBE,
-        photons=128**2,
-        phase_k=0.0,
-        table=0.0,
-        spp=4,
-        scattering="single",
+        scene, grid=grid, photons=128**2, phase_k=0.0, table=0.0, spp=4, scattering="single"
     )
     ours = np.array(pipe.render())
     a, b = block_means(ours), block_means(reference)
@@ -141,22 +134,24 @@ def compare(light: str, seed: int = 0) -> tuple[float, float]:
 
 # light: grid, volpath spp, centre and radius of the left-out region (radius 0: none)
 SETUP = {
-    "point": (32, 1024, LIGHTS["point"]["position"], 0.3),
+    "point": (48, 1024, LIGHTS["point"]["position"], 0.3),
     "spot": (48, 1024, SPOT, 0.3),
-    "sphere": (32, 1024, SPHERE[0], SPHERE[1] + 0.3),
+    "sphere": (48, 1024, SPHERE[0], SPHERE[1] + 0.3),
     "rectangle": (32, 256, None, 0.0),
     "environment": (32, 256, None, 0.0),
     "envmap": (32, 256, None, 0.0),
 }
-# light: (ratio bound |r − 1|, block-error bound); measured over volpath seeds 0-2 (the test
-# uses seed 0), ours deterministic:
-#   point        ratio 1.000-1.012  error 0.084-0.115
-#   spot         ratio 0.985-0.988  error 0.140-0.168  (grid 48: 0.27 at grid 32, 0.13 at 64 —
-#                the resolution of the cone's edges and apex; the ratio stays 0.98-0.99)
-#   sphere       ratio 1.008-1.009  error 0.083-0.091
-#   rectangle    ratio 1.010-1.014  error 0.058-0.072
-#   environment  ratio 0.9997-0.9999 error 0.0056-0.0067
-#   envmap       ratio 0.9999-1.0009 error 0.013-0.015
+# light: (ratio bound |r − 1|, block-error bound); measured over volpath seeds 0-1 (the test
+# uses seed 0), ours deterministic, on the box grid with S9's exact step integrals:
+#   point        ratio 1.019-1.020  error 0.134-0.144  (grid 32: 1.039; 64: 1.011 — the
+#   sphere       ratio 1.020-1.021  error 0.075-0.086   discretisation near a light in the fog)
+#   spot         ratio 1.006-1.010  error 0.106-0.125
+#   rectangle    ratio 0.997-0.998  error 0.073
+#   environment  ratio 0.9998-1.0000 error 0.0031-0.0035
+#   envmap       ratio 0.9999-1.0009 error 0.009-0.011
+# (Before box grids, in the grid cube of side 4 with S9's end-of-step transmittance (the paper's
+# rule, 3 % dark here) the ratios were 0.985-1.014: that rule's bias and the half voxel of optical
+# depth photons miss entering fog inside the grid (octree.py) cancelled.)
 # The blocks left out around the point light, the spot's apex and the sphere hold the 1/r
 # singularity of the in-scattered radiance near a small light, which a voxel grid cannot resolve
 # (and volpath's own noise there is 0.16-2.3 in block error between 1024 and 4096 spp).
@@ -170,9 +165,9 @@ SETUP = {
 # A16's smoothstep spot profile (1.018 / 0.127), an area emitter's directions uniform over the
 # hemisphere instead of its cosine lobe (sphere 0.996 / 0.094).
 CASES = {
-    "point": (0.025, 0.2),
-    "spot": (0.03, 0.27),
-    "sphere": (0.02, 0.15),
+    "point": (0.035, 0.25),
+    "spot": (0.02, 0.2),
+    "sphere": (0.035, 0.15),
     "rectangle": (0.025, 0.12),
     "environment": (6e-4, 0.012),
     "envmap": (0.002, 0.03),

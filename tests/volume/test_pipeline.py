@@ -228,10 +228,10 @@ def slab_scene(sigma: float, x0: float, n: int) -> dict:
 
 
 def test_full_pipeline_single_scattering_in_a_homogeneous_slab():
-    """Oracle 25, full pipeline (fog-only scene, geometric interpolation): within 0.8% of the
-    continuous σ_s p E e^{−κx₀}(1 − e^{−κD})/κ (0.50% measured: the unit steps' discretisation);
-    and, as the beam's C is exact at the centre planes, within 5e-5 of the discrete sum of S9
-    (T updated before adding; 2.6e-5 measured, float32)."""
+    """Oracle 25, full pipeline (fog-only scene, geometric interpolation): as the beam's C is
+    exact at the centre planes and S9 adds each step's exact integral, within 5e-5 of the
+    continuous σ_s p E e^{−κx₀}(1 − e^{−κD})/κ (measured 1e-6, float32; S9's paper rule, T
+    updated before adding, is 0.5% lower: test_view.py)."""
     n, kappa, x0 = 128, 0.01, 64.5
     pipe = VolumePipeline(
         slab_scene(kappa, x0, n), grid=n, photons=4**7, phase_k=0.0, scattering="single"
@@ -241,9 +241,7 @@ def test_full_pipeline_single_scattering_in_a_homogeneous_slab():
     assert np.all(value == value[0])  # grey
     p = 1 / (4 * math.pi)
     continuous = kappa * p * math.exp(-kappa * x0) * (1 - math.exp(-kappa * n)) / kappa
-    discrete = kappa * p * math.exp(-kappa * x0) * np.sum(np.exp(-kappa * np.arange(1, n + 1)))
-    assert value[0] == pytest.approx(continuous, rel=0.008)
-    assert value[0] == pytest.approx(discrete, rel=5e-5)
+    assert value[0] == pytest.approx(continuous, rel=5e-5)
     assert pipe.stats["photons_propagated"] == 4**7  # the plane is the face: none miss
 
 

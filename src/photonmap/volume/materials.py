@@ -9,7 +9,9 @@ objects applied in turn: ``q(v) ← q(v) + cov(v)·(q_obj(v) − q(v))`` for ``q
 for σ_s and κ). Bounded fog (issue 11 item 1: the interior of a ``null``/``thindielectric`` shape)
 is applied the same way before the objects, to σ_s and κ only (index-matched: n unchanged), so
 that outside its shape σ is the surrounding medium's (vacuum: 0) and on its border the coverage
-fraction of it. Coefficients are stored in **voxel units**: ``σ_vox = σ_world · h``.
+fraction of it. A heterogeneous medium's values are per voxel (``medium_grid.py``: Mitsuba's own
+evaluation, averaged over 2³ points per voxel). Coefficients are stored in **voxel units**:
+``σ_vox = σ_world · h``.
 
 **Perturbation** (the CUBE scene of spec §3.3, [Pf Fig 4.9]): inside objects, at voxel centres
 ``v``, ``n_obj(v) = n_obj + a_n·perlin(v/s)`` and
@@ -36,6 +38,7 @@ import numpy as np
 from ..core.errors import ParameterError
 from ..core.grid import GridBox, filter_separable, gaussian_taps, grid_shape, voxel_count, voxel_of
 from ..core.noise import perlin3
+from .medium_grid import medium_on_grid
 from .scene import Medium
 
 BLUR_TAPS = gaussian_taps(4, 1.5)
@@ -105,9 +108,17 @@ def material_grids(
     def opaque_color(c):
         return dr.opaque(mi.Color3f(*(float(x) * h for x in np.broadcast_to(c, 3))))
 
+    def values(medium: Medium, what: str):
+        """(σ_s, κ, σ_a) in voxel units: constants, or per voxel for a heterogeneous medium."""
+        if medium.field is None:
+            return tuple(opaque_color(c) for c in (medium.sigma_s, medium.kappa, medium.sigma_a))
+        s, t = medium_on_grid(medium.field, box, what)
+        return s * h, t * h, (t - s) * h
+
     ior = dr.opaque(mi.Float, fog.ior, count)
-    sigma_s = opaque_color(fog.sigma_s) * dr.ones(mi.Float, count)
-    kappa = opaque_color(fog.kappa) * dr.ones(mi.Float, count)
+    fog_s, fog_kappa, _ = values(fog, "the fog")
+    sigma_s = fog_s * dr.ones(mi.Float, count)
+    kappa = fog_kappa * dr.ones(mi.Float, count)
     p = voxel_centres(dims) / dr.opaque(mi.Float, noise_scale)
     noise_n = noise_s = 0.0
     if ior_noise:
@@ -117,15 +128,17 @@ def material_grids(
     for i, (coverage, medium) in enumerate(media):
         _check_coverage(coverage, dims, f"fog volume {i}")
         _check_material(1.0, medium.sigma_s, medium.kappa, f"fog volume {i}")
+        medium_s, medium_kappa, _ = values(medium, f"fog volume {i}")
         cov = coverage.array
-        sigma_s = dr.lerp(sigma_s, opaque_color(medium.sigma_s), cov)
-        kappa = dr.lerp(kappa, opaque_color(medium.kappa), cov)
+        sigma_s = dr.lerp(sigma_s, medium_s, cov)
+        kappa = dr.lerp(kappa, medium_kappa, cov)
     for i, (coverage, medium) in enumerate(coverages):
         _check_coverage(coverage, dims, f"coverage {i}")
         _check_material(medium.ior, medium.sigma_s, medium.kappa, f"object {i}")
         ior_obj = dr.opaque(mi.Float, medium.ior) + noise_n
-        sigma_s_obj = opaque_color(medium.sigma_s) * dr.maximum(1.0 + noise_s, 0.0)
-        kappa_obj = sigma_s_obj + opaque_color(medium.sigma_a)
+        medium_s, _, medium_a = values(medium, f"object {i}")
+        sigma_s_obj = medium_s * dr.maximum(1.0 + noise_s, 0.0)
+        kappa_obj = sigma_s_obj + medium_a
         cov = coverage.array
         ior = dr.lerp(ior, ior_obj, cov)
         sigma_s = dr.lerp(sigma_s, sigma_s_obj, cov)

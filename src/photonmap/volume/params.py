@@ -348,11 +348,14 @@ def updated_medium(medium: Medium, ior, sigma_s, sigma_a, where: str) -> Medium:
         n = float(medium.ior if ior is None else ior)
     except (TypeError, ValueError):
         raise ParameterError(f"n (ior) of {where} must be a number, got {ior!r}") from None
+    keep = sigma_s is None and sigma_a is None  # a heterogeneous medium stays one
     new = Medium(
         sigma_s=rgb("sigma_s", medium.sigma_s if sigma_s is None else sigma_s),
         sigma_a=rgb("sigma_a", medium.sigma_a if sigma_a is None else sigma_a),
         ior=n,
         phase_k=medium.phase_k,
+        field=medium.field if keep else None,
+        fingerprint=medium.fingerprint if keep else "",
     )
     for name, value in (("sigma_s", new.sigma_s), ("sigma_a", new.sigma_a), ("ior", new.ior)):
         if not np.all(np.isfinite(value)):

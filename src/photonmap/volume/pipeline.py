@@ -43,6 +43,7 @@ from ..core.params import updated
 from ..core.stages import StageCache, StagedPipeline, cache_key
 from . import adaptive, emit, march, mipmap, pilot
 from .materials import MaterialGrids, from_arrays, gradient, material_grids
+from .medium_grid import KAPPA_TOLERANCE
 from .octree import build_octree
 from .params import (
     ADAPTIVE_STAGES,
@@ -282,9 +283,9 @@ class VolumePipeline(StagedPipeline):
         )
         kappa_key = (
             geo,
-            cache_key(surrounding.kappa),
-            cache_key([m.kappa for m in fog_media]),
-            cache_key([o.medium.kappa for o in s.objects]),
+            cache_key(surrounding.extinction_key),
+            cache_key([m.extinction_key for m in fog_media]),
+            cache_key([o.medium.extinction_key for o in s.objects]),
             p.blur_all,
             noise,
         )
@@ -322,12 +323,20 @@ class VolumePipeline(StagedPipeline):
 
         mats, ior_key, kappa_key, sigma_key = self._materials()
         grad = self.cache.stage("gradient", ior_key, lambda: gradient(mats.ior))
-        octree_key = (ior_key, p.eps, p.eps2, p.ds_max)
+        # a heterogeneous medium's κ varies within its shape: nodes split there too (A50)
+        varying = s.grids is None and s.heterogeneous
+        octree_key = (ior_key, p.eps, p.eps2, p.ds_max, kappa_key if varying else None)
         octree = self.cache.stage(
             "octree",
             octree_key,
             lambda: build_octree(
-                mats.ior, p.eps, p.eps2, p.ds_max, boundaries=self._fog_boundaries()
+                mats.ior,
+                p.eps,
+                p.eps2,
+                p.ds_max,
+                kappa=mats.kappa if varying else None,
+                eps_kappa=KAPPA_TOLERANCE,
+                boundaries=self._fog_boundaries(),
             ),
         )
         phase_k = self.phase_k

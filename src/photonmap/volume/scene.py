@@ -27,6 +27,7 @@ import numpy as np
 from ..core.errors import SceneError
 from ..core.grid import GridBox
 from ..core.scene_info import has_media
+from .medium_grid import coefficients_at
 from .voxelize import check_closed
 
 LIGHT_KINDS = ("point", "spot", "directional")  # lights set_light can make
@@ -35,20 +36,31 @@ EMITTER_KINDS = ("area", "environment")  # lights that are the scene's own Mitsu
 
 @dataclass
 class Medium:
-    """A homogeneous medium in world units: scattering and absorption coefficients (RGB, 1/length).
+    """A medium in world units: scattering and absorption coefficients (RGB, 1/length).
 
     For a refractive object ``ior`` is its index relative to the fog (whose ``ior`` is 1).
+    A heterogeneous medium (issue 11 item 1) keeps the Mitsuba medium itself in ``field``
+    (evaluated per voxel by S2, ``medium_grid.py``) and a digest of its parameters in
+    ``fingerprint``; ``sigma_s``, ``sigma_a`` are then its means over its shape's bounding box.
     """
 
     sigma_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
     sigma_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
     ior: float = 1.0
     phase_k: float | None = 0.0  # Schlick k of its phase function (isotropic 0; None: other)
+    field: object | None = None  # mi.Medium of a heterogeneous medium
+    fingerprint: str = ""
 
     @property
     def kappa(self) -> np.ndarray:
         """Extinction κ = σ_s + σ_a."""
         return np.asarray(self.sigma_s) + np.asarray(self.sigma_a)
+
+    @property
+    def extinction_key(self) -> tuple:
+        """What κ depends on: the cache key of the photon stages (a heterogeneous medium's field
+        and its parameters too)."""
+        return tuple(self.kappa), id(self.field), self.fingerprint
 
 
 @dataclass
@@ -123,6 +135,12 @@ class VolumeScene:
         return (scattering or media)[0].phase_k
 
     @property
+    def heterogeneous(self) -> bool:
+        """Whether a medium of the scene is heterogeneous (``Medium.field``)."""
+        media = [self.surrounding, *(v.medium for v in self.fog_volumes)]
+        return any(m.field is not None for m in media + [o.medium for o in self.objects])
+
+    @property
     def surrounding(self) -> Medium:
         """The medium outside every fog volume and object (:attr:`outside`, else :attr:`fog`)."""
         return self.fog if self.outside is None else self.outside
@@ -142,12 +160,6 @@ class VolumeScene:
 # Reading a Mitsuba scene
 
 MARGIN = 6.0  # voxels left around refractive objects when no fog box bounds the grid (spec A4)
-FOG_MARGIN = 1.0
-"""Voxels left around the fog volumes when they bound the grid. S7 rasterises a photon's path at
-the major-axis voxel-centre planes, so a photon entering (or leaving) through a face parallel to
-its major axis misses on average half a voxel of path there: with the fog up to the grid's faces
-that is fog (a 6 × 3 × 3 fog box at 48 voxels rendered 3 % too dark against volpath), with one
-voxel of vacuum around it the loss falls outside the fog (ratio 1.010, as the cube grid's 1.006)."""
 EMITTERS = "point, spot, directional and area emitters, or a constant or envmap environment"
 
 
@@ -167,16 +179,17 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
       a warning); else vacuum. An object's exterior medium that is the interior of a fog volume is
       fog only inside that volume.
     - **Media** are read as Mitsuba defines them: ``homogeneous`` with ``sigma_t``, ``albedo``
-      and ``scale`` (RGB): ``σ_s = scale·albedo·σ_t``, ``σ_a = scale·σ_t − σ_s``. Other media
-      (``heterogeneous`` grid volumes) are refused.
+      and ``scale`` (RGB): ``σ_s = scale·albedo·σ_t``, ``σ_a = scale·σ_t − σ_s``;
+      ``heterogeneous`` (grid volumes) kept as Mitsuba media and evaluated per voxel by S2
+      (``medium_grid.py``).
     - **Fog** (:attr:`VolumeScene.fog`, the medium ``set_material("fog")`` edits): the exterior
       medium of the refractive objects, else the sensor's medium, else the interior medium of the
       first fog volume, else vacuum.
     - **Grid box** (a box grid, issue 11 item 2: ``n_x × n_y × n_z`` cubic voxels with ``grid``
       of them along the longest side, :meth:`GridBox.fitted`): around ``grid_bbox = (min, max)``
-      if given, else around the fog volumes with :data:`FOG_MARGIN` voxels when they enclose
-      every refractive object (the fog box is the domain), else around all medium-bearing shapes
-      with ``MARGIN`` voxels.
+      if given, else around the fog volumes with no margin when they enclose every refractive
+      object (the fog box is the domain), else around all medium-bearing shapes with ``MARGIN``
+      voxels.
     - **Lights** (anywhere, issue 11 item 3): point, spot (``cutoff_angle`` → ``cos_outer``,
       ``beam_width`` → ``cos_inner``), directional, and area emitters (kept as Mitsuba emitters,
       sampled on their surface by S5); a ``constant``/``envmap`` emitter is the ``environment``
@@ -188,7 +201,7 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     Raises :class:`SceneError` saying what to fix for anything the pipeline cannot render.
     """
     sensor = _camera(scene)
-    media = _Media(_np3(scene.bbox().center()))
+    media = _Media(scene.bbox())
     objects, fog_volumes, exteriors = [], [], []
     for shape in scene.shapes():
         bsdf = shape.bsdf()
@@ -206,7 +219,7 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
         elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
             name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
             check_closed(shape, name)
-            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'")
+            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape.bbox())
             fog_volumes.append(FogVolume(name, shape, medium))
         elif not shape.is_emitter():
             warnings.warn(
@@ -260,7 +273,7 @@ def _refractive_object(shape, bsdf, media: _Media) -> RefractiveObject:
             "pipeline needs a finite n >= 1 (an object optically denser than the fog): fix its "
             "int_ior/ext_ior"
         )
-    medium = _medium(shape.interior_medium(), f"the interior medium of '{name}'", media.at)
+    medium = _medium(shape.interior_medium(), f"the interior medium of '{name}'", shape.bbox())
     medium.ior = eta
     return RefractiveObject(name, shape, medium)
 
@@ -269,35 +282,36 @@ class _Media:
     """One :class:`Medium` per Mitsuba medium, so that the fog volumes, the outside and
     :attr:`VolumeScene.fog` sharing a Mitsuba medium share the object ``set_material`` replaces."""
 
-    def __init__(self, at):
-        self.at = at
+    def __init__(self, bbox):
+        self.bbox = bbox  # the scene's: where a medium bounded by no shape is averaged
         self._read: list[tuple[object, Medium]] = []
 
-    def read(self, medium, what: str) -> Medium:
+    def read(self, medium, what: str, bbox=None) -> Medium:
         if medium is None:
             return Medium()
         for known, ours in self._read:
             if known is medium:
                 return ours
-        ours = _medium(medium, what, self.at)
+        ours = _medium(medium, what, self.bbox if bbox is None else bbox)
         self._read.append((medium, ours))
         return ours
 
 
-def _medium(medium, what: str, at) -> Medium:
-    """Coefficients of a homogeneous Mitsuba medium (None → vacuum), checked: Mitsuba's own
-    ``get_scattering_coefficients`` (``σ_t·scale`` and ``albedo·σ_t·scale``, RGB)."""
+def _medium(medium, what: str, bbox) -> Medium:
+    """Coefficients of a Mitsuba medium (None → vacuum), checked: Mitsuba's own
+    ``get_scattering_coefficients`` (``σ_t·scale`` and ``albedo·σ_t·scale``, RGB), at the centre
+    of ``bbox`` for a homogeneous medium; a heterogeneous one is kept (``field``) with its means
+    over ``bbox`` (8³ points)."""
     if medium is None:
         return Medium()
-    if not medium.is_homogeneous():
-        raise SceneError(
-            f"{what} is a {medium.class_name()}; the volume pipeline reads 'homogeneous' media "
-            "only: pass varying coefficients as NumPy grids instead (VolumePipeline.set_volume)"
-        )
-    mei = dr.zeros(mi.MediumInteraction3f)
-    mei.p = mi.Point3f(*(float(c) for c in at))
-    sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei)
-    sigma_s, sigma_t = _rgb(sigma_s), _rgb(sigma_t)
+    heterogeneous = not medium.is_homogeneous()
+    lo, hi = _np3(bbox.min), _np3(bbox.max)
+    side = 8 if heterogeneous else 1
+    u = (np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5)
+    points = lo + (hi - lo) * u / side
+    sigma_s, sigma_t = coefficients_at(medium, mi.Point3f(*points.T.astype(np.float32)))
+    sigma_s = np.asarray(sigma_s, dtype=np.float64).reshape(-1, 3).mean(0)
+    sigma_t = np.asarray(sigma_t, dtype=np.float64).reshape(-1, 3).mean(0)
     if not (np.all(np.isfinite(sigma_t)) and np.all(np.isfinite(sigma_s))):
         raise SceneError(f"{what} has non-finite coefficients (σ_t = {sigma_t}): use finite values")
     sigma_a = sigma_t - sigma_s
@@ -306,7 +320,15 @@ def _medium(medium, what: str, at) -> Medium:
             f"{what} has negative coefficients (σ_s = {sigma_s}, σ_a = {sigma_a}): sigma_t and "
             "scale must be >= 0 and albedo in [0, 1]"
         )
-    return Medium(sigma_s, np.maximum(sigma_a, 0.0), phase_k=_schlick_k(medium))
+    if not heterogeneous:
+        return Medium(sigma_s, np.maximum(sigma_a, 0.0), phase_k=_schlick_k(medium))
+    return Medium(
+        sigma_s,
+        np.maximum(sigma_a, 0.0),
+        phase_k=_schlick_k(medium),
+        field=medium,
+        fingerprint=_digest(medium),
+    )
 
 
 def _schlick_k(medium) -> float | None:
@@ -377,7 +399,7 @@ def _grid_box(objects, fog_shapes, grid: int, grid_bbox) -> GridBox:
             for o in objects
         )
         if inside:
-            return GridBox.fitted(lo, hi, grid, margin=FOG_MARGIN)
+            return GridBox.fitted(lo, hi, grid, margin=0.0)
     lo, hi = union([o.shape for o in objects] + fog_shapes)
     return GridBox.fitted(lo, hi, grid, margin=MARGIN)
 
