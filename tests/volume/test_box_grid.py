@@ -181,10 +181,10 @@ def test_octree_of_a_box_grid_is_that_of_its_padded_cube():
 # A 10 × 5 × 4 fog box against volpath (full depth)
 
 WIDTH, HEIGHT = 64, 48
-# |brightness ratio − 1| and the relative RMSE of 4×4-block means; measured: point 1.028 / 0.082
-# (grid 96 and 2¹⁸ photons: 1.010 / 0.051; a grid cube of side 10, the fog in half of it: 1.043 /
-# 0.096), sky 0.9947 / 0.0116
-RATIO_BOUND = {"point": 0.045, "sky": 0.01}
+# |brightness ratio − 1| and the relative RMSE of 4×4-block means; measured: point 1.035 / 0.087
+# (grid 96 and 2¹⁸ photons: 1.013 / 0.052; a grid cube of side 10, the fog in a fifth of it:
+# 1.038 / 0.097), sky 0.996 / 0.0108
+RATIO_BOUND = {"point": 0.055, "sky": 0.01}
 BLOCK_BOUND = {"point": 0.13, "sky": 0.02}
 
 

@@ -143,12 +143,12 @@ SETUP = {
 }
 # light: (ratio bound |r − 1|, block-error bound); measured over volpath seeds 0-1 (the test
 # uses seed 0), ours deterministic, on the box grid with S9's exact step integrals:
-#   point        ratio 1.019-1.020  error 0.134-0.144  (grid 32: 1.039; 64: 1.011 — the
-#   sphere       ratio 1.020-1.021  error 0.075-0.086   discretisation near a light in the fog)
-#   spot         ratio 1.006-1.010  error 0.106-0.125
-#   rectangle    ratio 0.997-0.998  error 0.073
-#   environment  ratio 0.9998-1.0000 error 0.0031-0.0035
-#   envmap       ratio 0.9999-1.0009 error 0.009-0.011
+#   point        ratio 1.020-1.022  error 0.128-0.137  (grid 32: 1.04; 64: 1.01 — the
+#   sphere       ratio 1.023-1.025  error 0.084-0.096   discretisation near a light in the fog)
+#   spot         ratio 0.995-0.998  error 0.125-0.160
+#   rectangle    ratio 1.004-1.005  error 0.075
+#   environment  ratio 1.0000-1.0002 error 0.0032-0.0037
+#   envmap       ratio 0.9993-1.0003 error 0.009-0.011
 # (Before box grids, in the grid cube of side 4 with S9's end-of-step transmittance (the paper's
 # rule, 3 % dark here) the ratios were 0.985-1.014: that rule's bias and the half voxel of optical
 # depth photons miss entering fog inside the grid (octree.py) cancelled.)
@@ -166,8 +166,8 @@ SETUP = {
 # hemisphere instead of its cosine lobe (sphere 0.996 / 0.094).
 CASES = {
     "point": (0.035, 0.25),
-    "spot": (0.02, 0.2),
-    "sphere": (0.035, 0.15),
+    "spot": (0.02, 0.27),
+    "sphere": (0.04, 0.16),
     "rectangle": (0.025, 0.12),
     "environment": (6e-4, 0.012),
     "envmap": (0.002, 0.03),

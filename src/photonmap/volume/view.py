@@ -2,17 +2,16 @@
 Pfeuti 2009 §3.1.6, Listing 3.4, Listing A.4).
 
 One ray per pixel (and sample) marches with a fixed step of one voxel (``h = 1``) along the curved
-path of eqs (4)–(5), ``x += (h/‖v‖)·v``, ``v += h·∇n(x_m)``, until it leaves the grid. At each step,
-with the grids read at the step's midpoint ``x_m = x + ½h v̂``,
+path of eqs (4)–(5), ``x += (h/‖v‖)·v``, ``v += h·∇n(x_old)``, until it leaves the grid. At each step
 
-    L  +=  colScale · σ_s(x_m) · p(cos θ) · C(x_m) ⊙ T · (1 − exp(−κ(x_m)·h)) / κ(x_m)
-    T  ⊙= exp(−κ(x_m)·h),                               cos θ = (−v · D̂(x_m)) / ‖v‖
+    L  +=  colScale · σ_s(x) · p(cos θ) · C(x) ⊙ T · (1 − exp(−κ(x)·h)) / κ(x)
+    T  ⊙= exp(−κ(x)·h),                               cos θ = (−v · D̂(x)) / ‖v‖
 
 (the step's exact integral with κ and the source constant over it; ours). Sun's and Pfeuti's
-rule, kept for ``fidelity="paper"``, reads the grids at ``x`` and adds ``h·σ_s p C ⊙ T`` after
-``T ⊙= exp(−κh)``: the in-scattering of every step attenuated by the whole step, ``κh/2`` too
-dark (3 % at κh = 0.06), which the half voxel of optical depth photons miss on entering fog
-inside the grid (octree.py) used to hide; with box grids the fog meets the grid's faces.
+rule, kept for ``fidelity="paper"``, adds ``h·σ_s p C ⊙ T`` after ``T ⊙= exp(−κh)``: the
+in-scattering of every step attenuated by the whole step, ``κh/2`` too dark (3 % at κh = 0.06),
+which the half voxel of optical depth photons miss on entering fog inside the grid (octree.py)
+used to hide; with box grids the fog meets the grid's faces.
 
 with the Schlick phase function ``p = (1 − k²) / (4π (1 − k cos θ)²)`` (Pfeuti §2.1.3); leaving
 the grid adds ``colScale · T ⊙ L_env(v̂)``. This is the single-scattering volume rendering equation
@@ -159,6 +158,7 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
 
     active = mi.Bool(inside)
     while active:
+        grad, kappa, source, D = _sample(grids, x)
         if need_n:
             n_x = _sample_aux(grids, x)[0]
         if table_on & (v.y < 0) & (x.y < 1.0):
@@ -166,6 +166,7 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
             t_hit = (1.0 - x_old.y) / v_old.y
             x = mi.Point3f(x_old + t_hit * v_old)
             v = mi.Vector3f(v_old.x, -v_old.y, v_old.z)
+            grad, kappa, source, D = _sample(grids, x)
             n_x, C = _sample_aux(grids, x)
             L += col * table * C * (1.0 if s.paper else T)
         elif iso_on & ~reflected & (n_old < iso) & (n_x >= iso):
@@ -183,16 +184,13 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
         # medium of the face's voxels (clamp-to-edge) beyond the face, where a box grid's fog ends
         t_exit = dr.min(dr.select(d > 0, (far - x) / d, dr.select(d < 0, -x / d, dr.inf)))
         dt = dr.clip(t_exit, 0.0, 1.0)
-        # the grids are read at the step's midpoint (the paper: at its start), a second-order
-        # rule for the in-scattering and the bending alike
-        grad, kappa, source, D = _sample(grids, x if s.paper else x + (0.5 * dt) * d)
         cos_theta = -dr.dot(v, D) / (speed * dr.maximum(dr.norm(D), 1e-20))
         tau = kappa * dt
         decay = dr.exp(-tau)
         if s.paper:  # Listing A.4: each sample attenuated by its whole step
             T *= decay
             L += col * schlick(k, cos_theta) * source * T * dt
-        else:  # the step's integral, κ and the source constant over it at their midpoint values
+        else:  # the step's exact integral, κ and the source constant over it
             weight = dr.select(
                 tau > 1e-4, (1.0 - decay) / dr.maximum(kappa, 1e-30), dt * (1.0 - 0.5 * tau)
             )

@@ -1,0 +1,149 @@
+"""Box grids against the cube grid (issue 11 item 2) on the issue's first scene.
+
+``examples/glass_sphere_long_fog_box.xml``: a glass sphere in a 10 × 5 × 4 box of fog under a
+sphere light outside the box, and the same box without the sphere. The volume method renders it
+on the cube grid around the fog box (``grid_bbox`` = that cube: the layout before box grids, the
+fog in a fifth of the voxels) and on the box grid fitted to the fog box, at the same voxel size
+(``grid`` N for both) and at equal memory (the box grid's N chosen so that N_x·N_y·N_z ≈ N³).
+Errors against ``volpath`` (the file's own integrator, ``--reference-spp``, cached in
+``results/cache/``, not in git): the brightness ratio mean(ours)/mean(volpath), the relative RMSE
+of 4×4-block means and per pixel; render times are medians of ``--repeats`` full renders (every
+stage), with the load average (the machine is shared).
+
+    PYTHONPATH=src .venv/bin/python benchmarks/volume_box_grid.py            # ~10 min
+    PYTHONPATH=src .venv/bin/python benchmarks/volume_box_grid.py --quick    # ~1 min
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import mitsuba as mi  # noqa: E402
+
+import common  # noqa: E402
+from photonmap import VolumePipeline  # noqa: E402
+from photonmap.core.image import compare, read_image, write_image  # noqa: E402
+from photonmap.core.reference import render_reference  # noqa: E402
+from photonmap.volume.params import memory_estimate  # noqa: E402
+
+SCENE = common.REPO / "examples" / "glass_sphere_long_fog_box.xml"
+CUBE = ([-5.0] * 3, [5.0] * 3)  # the cube around the 10 × 5 × 4 fog box
+
+
+def scene_text(ball: bool, width: int, height: int) -> str:
+    """The example at ``width`` × ``height``, with or without its glass sphere."""
+    text = SCENE.read_text().replace('value="320"', f'value="{width}"')
+    text = text.replace('value="240"', f'value="{height}"')
+    if not ball:
+        start = text.index('<shape type="sphere" id="ball">')
+        text = text[:start] + text[text.index("</shape>", start) + len("</shape>") :]
+    return text
+
+
+def reference(name: str, text: str, spp: int, cache: Path) -> np.ndarray:
+    digest = hashlib.sha1(text.encode()).hexdigest()[:10]
+    path = cache / f"volume_box_grid_{name}_{spp}spp_{digest}.exr"
+    if not path.exists():
+        cache.mkdir(parents=True, exist_ok=True)
+        image, info = render_reference(mi.load_string(text), spp=spp, seed=7)
+        write_image(str(path), image)
+        print(f"reference {name}: {info['seconds']:.1f} s", flush=True)
+    return read_image(str(path))
+
+
+def equal_memory_grid(n: int, extent=(10.0, 5.0, 4.0)) -> int:
+    """The box grid's N whose N_x·N_y·N_z is closest to N³ (cubic voxels fitted to ``extent``)."""
+    fraction = np.prod(np.asarray(extent) / max(extent))
+    return int(round(n / fraction ** (1 / 3)))
+
+
+def run(args) -> dict:
+    rows = []
+    for name in ("fog", "ball"):
+        text = scene_text(name == "ball", args.width, args.height)
+        ref = reference(name, text, args.reference_spp, args.out_dir / "cache")
+        layouts = [("cube", args.grid, CUBE), ("box", args.grid, None)]
+        layouts.append(("box, equal memory", equal_memory_grid(args.grid), None))
+        for layout, grid, bbox in layouts:
+            times, image, pipe = [], None, None
+            for _ in range(args.repeats):
+                pipe = VolumePipeline(
+                    mi.load_string(text), grid=grid, grid_bbox=bbox, photons=args.photons,
+                    phase_k=0.0, table=0.0, spp=4,
+                )  # fmt: skip
+                start = time.perf_counter()
+                image = np.asarray(pipe.render())
+                times.append(time.perf_counter() - start)
+            errors = compare(image, ref)
+            box = pipe.scene.box
+            row = {
+                "scene": name,
+                "layout": layout,
+                "grid": grid,
+                "dims": list(box.dims),
+                "voxels": box.voxels,
+                "memory_bytes": memory_estimate(box.dims, 1, args.photons)[0],
+                "ratio": float(image.mean() / ref.mean()),
+                "block_rel_rmse": errors["block_rel_rmse"],
+                "rel_rmse": errors["rel_rmse"],
+                "render_s": common.summarize(times),
+                "loadavg": os.getloadavg(),
+            }
+            rows.append(row)
+            print(
+                f"{name:5s} {layout:18s} {'×'.join(map(str, box.dims)):12s} ratio "
+                f"{row['ratio']:.4f}  block {row['block_rel_rmse']:.4f}  pixel "
+                f"{row['rel_rmse']:.4f}  {row['render_s']['median']:.2f} s",
+                flush=True,
+            )
+    return {
+        "benchmark": "volume_box_grid",
+        "machine": common.machine_info(),
+        "git": common.git_revision(),
+        "config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
+        "rows": rows,
+    }
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--grid", type=int, default=64)
+    parser.add_argument("--photons", type=int, default=2**18)
+    parser.add_argument("--width", type=int, default=96)
+    parser.add_argument("--height", type=int, default=72)
+    parser.add_argument("--reference-spp", type=int, default=8192)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--quick", action="store_true", help="grid 24, 48×36, 256-spp reference")
+    parser.add_argument("--out-dir", type=Path, default=common.RESULTS)
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.grid, args.photons, args.width, args.height = 24, 2**14, 48, 36
+        args.reference_spp, args.repeats = 256, 1
+    result = run(args)
+    headers = ["scene", "layout", "voxels", "ratio", "block rel. RMSE", "pixel rel. RMSE", "s"]
+    table = common.markdown_table(
+        headers,
+        [
+            [r["scene"], r["layout"], "×".join(map(str, r["dims"])), common.fmt(r["ratio"], 4),
+             common.fmt(r["block_rel_rmse"], 4), common.fmt(r["rel_rmse"], 4),
+             common.fmt(r["render_s"]["median"], 2)]
+            for r in result["rows"]
+        ],
+    )  # fmt: skip
+    name = "volume_box_grid" + ("_quick" if args.quick else "")
+    common.write_json(args.out_dir / f"{name}.json", result)
+    common.write_text(args.out_dir / f"{name}.md", table + "\n")
+    print(table)
+    return result
+
+
+if __name__ == "__main__":
+    main()
