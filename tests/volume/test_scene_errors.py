@@ -147,13 +147,16 @@ def test_open_shapes():
         read(d)
 
 
-def test_heterogeneous_medium():
+def test_heterogeneous_medium_is_kept_as_a_field():
+    """(Issue 11 item 1: read per voxel by S2, tests/volume/test_heterogeneous.py.)"""
     grid = mi.VolumeGrid(np.ones((2, 2, 2, 1), dtype=np.float32))
     interior = {"type": "heterogeneous", "sigma_t": {"type": "gridvolume", "grid": grid}}
     d = scene_dict()
     d["glass"]["interior"] = interior
-    with pytest.raises(SceneError, match="'homogeneous' media only"):
-        read(d)
+    vs = read(d)
+    (glass,) = vs.objects
+    assert vs.heterogeneous and glass.medium.field is not None and glass.medium.fingerprint
+    np.testing.assert_allclose(glass.medium.kappa, 1.0, rtol=1e-6)  # σ_t = 1, scale 1
 
 
 def test_different_exterior_media():
