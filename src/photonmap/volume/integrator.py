@@ -4,7 +4,7 @@
 
  * - grid
    - |int|
-   - Voxel resolution N of the N³ grid. (Default: 128)
+   - Voxels N along the grid box's longest side (a box grid). (Default: 128)
  * - photons, sampler, seed, eps, eps2, ds_min, ds_max, supersample, phase_k, table,
      iso_reflect, iso_ior, ior_noise, sigma_s_noise, noise_scale, fidelity, smoothing, blur_all,
      spp, emission and the adaptive-emission keys

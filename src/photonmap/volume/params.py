@@ -1,6 +1,6 @@
 """Parameters of the volume pipeline and their validation (spec seed-000-002 §1 parameter table,
 §6 recommendations): :class:`VolumeParams` (the CLI's ``--set`` keys, the plugin's properties), the
-stage lists, the memory check of the N³ grids (:func:`check_grid`) and the checks of light and
+stage lists, the memory check of the box grids (:func:`check_grid`) and the checks of light and
 medium edits (:func:`check_light`, :func:`updated_medium`).
 """
 
@@ -251,7 +251,8 @@ def check_grid(
     ``available`` bytes (default: :func:`available_memory`)."""
     if isinstance(grid, bool) or not isinstance(grid, int | np.integer) or grid < 4:
         raise ParameterError(
-            f"grid must be an integer >= 4 (the grid is grid³ voxels; the papers use 128), "
+            f"grid must be an integer >= 4 (voxels along the grid's longest side; the papers "
+            "use 128), "
             f"got {grid!r}"
         )
     dims = (grid,) * 3 if dims is None else tuple(int(c) for c in dims)

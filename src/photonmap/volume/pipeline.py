@@ -23,7 +23,7 @@ Table 1); :meth:`invalidate` forgets stages, :meth:`stage_output` reads one.
 ``render(progress=f)`` calls ``f(stage)`` as each stage that must run starts (the CLI's progress
 bar).
 
-Before allocating anything the pipeline estimates the memory its N³ grids need
+Before allocating anything the pipeline estimates the memory its grids need
 (:func:`.params.memory_estimate`) and stops with a :class:`ParameterError` if that exceeds the
 available memory or Dr.Jit's 2³² entries per array.
 """
@@ -65,7 +65,8 @@ class VolumePipeline(StagedPipeline):
     """Voxel photon tracing through refractive participating media, relightable.
 
     ``scene`` is a Mitsuba scene (``mi.Scene``), a scene dict, an XML path or a built-in name
-    (``photonmap scenes``). ``grid`` is the voxel resolution N (the grid is N³). Keyword arguments
+    (``photonmap scenes``). ``grid`` is the voxel count N along the longest side of the box grid
+    (N_x × N_y × N_z cubic voxels fitted to the media, ``scene.box.dims``). Keyword arguments
     are :class:`VolumeParams` fields; a built-in scene's own defaults apply first, and for a
     built-in the keywords of its ``build`` (``width``, ``height``, ``ior``, ...) pass through.
     Any unknown keyword raises a :class:`ParameterError` listing the valid ones.
@@ -187,7 +188,8 @@ class VolumePipeline(StagedPipeline):
 
     def set_volume(self, n=None, sigma_s=None, kappa=None) -> None:
         """Supply material grids directly (simulation data, painting; Sun §6.2): NumPy arrays of
-        shape (N, N, N) or (N, N, N, 3) indexed [z, y, x], world units. Bypasses S1/S2."""
+        shape ``scene.box.shape`` (N_z, N_y, N_x) or (N_z, N_y, N_x, 3) indexed [z, y, x], world
+        units. Bypasses S1/S2."""
         grids = dict(self.scene.grids or {})
         for key, value in (("n", n), ("sigma_s", sigma_s), ("kappa", kappa)):
             if value is not None:
@@ -195,8 +197,8 @@ class VolumePipeline(StagedPipeline):
                     grids[key] = np.array(value, dtype=np.float32)  # a copy: later edits re-key
                 except (TypeError, ValueError):
                     raise ParameterError(
-                        f"set_volume: {key} must be a numeric array of shape (N, N, N) or "
-                        f"(N, N, N, 3), got {type(value).__name__}"
+                        f"set_volume: {key} must be a numeric array of shape (N_z, N_y, N_x) or "
+                        f"(N_z, N_y, N_x, 3), got {type(value).__name__}"
                     ) from None
         missing = {"n", "sigma_s", "kappa"} - set(grids)
         if missing:
