@@ -1,0 +1,194 @@
+"""The viewer's web server: one static page and a small HTTP API (issue 14 items 1 and 3;
+README "Interactive viewer" documents it).
+
+=========================  ===============================================================
+``GET /``                  the page (``static/index.html``)
+``GET /api/state``         scene, method and current values, in the shape ``/api/update`` takes
+``POST /api/update``       a partial state; 422 with the reason (state unchanged) if invalid
+``POST /api/paint``        a brush stroke into the volume (volume method; Sun §6.2.1)
+``POST /api/reset``        undo the painting
+``GET /api/frame.png``     the image after every change made so far (waits for it)
+``GET /api/frame.json``    how that image was made: per-stage ms, the stages that reran, fps
+``WS /api/stream``         every frame: a JSON message, then the image as a binary message
+=========================  ===============================================================
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from importlib.resources import files
+
+from fastapi import FastAPI, Request, WebSocket, WebSocketDisconnect
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from ..core.errors import ParameterError, PhotonmapError
+from .adapters import ADAPTERS, VolumeAdapter, check_stroke
+from .worker import RenderWorker
+
+STATIC = files("photonmap.viewer") / "static"
+
+
+class Viewer:
+    """A scene rendered by one method, its render thread and its state document."""
+
+    def __init__(self, scene, method: str, overrides=None, size=None, frames=None, name=None,
+                 preview_scale: int = 4, settle: float = 0.25):  # fmt: skip
+        if method not in ADAPTERS:
+            raise ParameterError(f"unknown method {method!r}; the viewer offers {', '.join(ADAPTERS)}")
+        extra = {}
+        if frames is not None:
+            if not issubclass(ADAPTERS[method], VolumeAdapter):
+                raise ParameterError("a volume sequence (--volumes) needs the volume method")
+            extra["frames"] = frames
+        self.adapter = ADAPTERS[method](method, scene, overrides, size, **extra)
+        self.scene = name or str(scene)
+        self.method = method
+        self.worker = RenderWorker(self.adapter, preview_scale, settle)
+
+    def state(self) -> dict:
+        """The state document (:mod:`.state`) with the read-only facts around it."""
+        with self.worker._cond:
+            values = json.loads(json.dumps(self.worker.target))
+        out = {"scene": self.scene, "method": self.method, "methods": list(ADAPTERS),
+               "stages": list(self.adapter.stages), **values}  # fmt: skip
+        if isinstance(self.adapter, VolumeAdapter):
+            out["frames"] = self.adapter.frame_count
+            out["brush_fields"] = ["sigma_s", "n"]
+        return out
+
+    def close(self) -> None:
+        self.worker.stop()
+
+
+def _unprocessable(exc: Exception) -> JSONResponse:
+    return JSONResponse({"detail": str(exc)}, status_code=422)
+
+
+async def _json(request: Request):
+    try:
+        return await request.json()
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"the body is not valid JSON: {exc}") from None
+
+
+def create_app(viewer: Viewer) -> FastAPI:
+    """The FastAPI application serving ``viewer``."""
+    app = FastAPI(title="photonmap view", docs_url=None, redoc_url=None)
+    app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
+
+    @app.exception_handler(PhotonmapError)
+    async def photonmap_error(request, exc):
+        return _unprocessable(exc)
+
+    @app.get("/")
+    def index():
+        return FileResponse(str(STATIC / "index.html"))
+
+    @app.get("/api/state")
+    def get_state():
+        return viewer.state()
+
+    @app.post("/api/update")
+    async def post_update(request: Request):
+        _, version = viewer.worker.update(await _json(request))
+        return {"version": version, "state": viewer.state()}
+
+    @app.post("/api/paint")
+    async def post_paint(request: Request):
+        if not isinstance(viewer.adapter, VolumeAdapter):
+            raise ParameterError(f"painting needs the volume method, not {viewer.method}")
+        stroke = check_stroke(await _json(request))
+        return {"version": viewer.worker.act(lambda: viewer.adapter.paint(stroke))}
+
+    @app.post("/api/reset")
+    def post_reset():
+        if not isinstance(viewer.adapter, VolumeAdapter):
+            raise ParameterError(f"reset undoes painting, which needs the volume method, not "
+                                 f"{viewer.method}")  # fmt: skip
+        return {"version": viewer.worker.act(viewer.adapter.reset_volume)}
+
+    def _frame(timeout: float):
+        try:
+            return viewer.worker.wait_frame(timeout=timeout)
+        except TimeoutError as exc:
+            return JSONResponse({"detail": str(exc)}, status_code=504)
+
+    @app.get("/api/frame.png")
+    def get_frame_png(timeout: float = 300.0):
+        frame = _frame(timeout)
+        if isinstance(frame, JSONResponse):
+            return frame
+        return Response(frame.data, media_type="image/png",
+                        headers={"X-Frame-Version": str(frame.version)})  # fmt: skip
+
+    @app.get("/api/frame.json")
+    def get_frame_json(timeout: float = 300.0):
+        frame = _frame(timeout)
+        return frame if isinstance(frame, JSONResponse) else frame.meta()
+
+    @app.websocket("/api/stream")
+    async def stream(ws: WebSocket):
+        await ws.accept()
+        loop = asyncio.get_running_loop()
+        wake = asyncio.Event()
+        latest: list = []  # newest message only: a slow client skips frames, never queues them
+        errors: list = []
+
+        def listener(message, frame):
+            (latest if frame is not None else errors).append((message, frame))
+            del latest[:-1]
+            loop.call_soon_threadsafe(wake.set)
+
+        frame = viewer.worker.frame
+        if frame is not None:
+            latest.append((frame.meta(), frame))
+            wake.set()
+        closed = []
+
+        async def watch():  # the page sends nothing; this notices when it goes away
+            try:
+                while True:
+                    await ws.receive_text()
+            except WebSocketDisconnect:
+                closed.append(True)
+                wake.set()
+
+        watcher = asyncio.create_task(watch())
+        viewer.worker.subscribe(listener)
+        try:
+            while True:
+                await wake.wait()
+                wake.clear()
+                if closed:
+                    break
+                while errors:
+                    await ws.send_json(errors.pop(0)[0])
+                if latest:
+                    message, frame = latest.pop()
+                    await ws.send_json(message)
+                    await ws.send_bytes(frame.data)
+        except (WebSocketDisconnect, RuntimeError):
+            pass
+        finally:
+            viewer.worker.unsubscribe(listener)
+            watcher.cancel()
+
+    return app
+
+
+def serve(viewer: Viewer, host: str = "127.0.0.1", port: int = 8000, open_browser: bool = True):
+    """Run the server until interrupted; open the page in the default browser once it is up."""
+    import threading
+    import webbrowser
+
+    import uvicorn
+
+    url = f"http://{host}:{port}/"
+    if open_browser:
+        threading.Timer(1.0, webbrowser.open, args=(url,)).start()
+    try:
+        uvicorn.run(create_app(viewer), host=host, port=port, log_level="warning")
+    finally:
+        viewer.close()
