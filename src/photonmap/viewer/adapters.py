@@ -103,17 +103,12 @@ class Adapter:
         if not isinstance(update, dict):
             raise ParameterError(f"an update must be a JSON object, got {update!r}")
         allowed = (*st.SECTIONS, *st.READ_ONLY, "preview")
-        unknown = sorted(set(update) - set(allowed) - {"scene", "method"})
+        unknown = sorted(set(update) - set(allowed))
         if unknown:
             raise ParameterError(
                 f"unknown key(s) {', '.join(unknown)}; an update may hold "
                 f"{', '.join(k for k in st.SECTIONS if k in state)} and preview"
             )
-        for key in ("scene", "method"):
-            if key in update and update[key] != state.get(key):
-                raise ParameterError(
-                    f"{key} is read-only ({state.get(key)!r}): start another `photonmap view`"
-                )
         new = dict(state)
         if "camera" in update:
             new["camera"] = st.check_camera(state["camera"], update["camera"])

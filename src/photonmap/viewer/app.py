@@ -25,6 +25,7 @@ from fastapi.staticfiles import StaticFiles
 
 from ..core.errors import ParameterError, PhotonmapError
 from .adapters import ADAPTERS, VolumeAdapter, check_stroke
+from .state import READ_ONLY
 from .worker import RenderWorker
 
 STATIC = files("photonmap.viewer") / "static"
@@ -57,6 +58,18 @@ class Viewer:
             out["frames"] = self.adapter.frame_count
             out["brush_fields"] = ["sigma_s", "n"]
         return out
+
+    def update(self, update) -> int:
+        """Check ``update`` (read-only keys may only repeat their values) and hand it to the
+        render thread; returns the state version it makes."""
+        if isinstance(update, dict):
+            facts = self.state()
+            for key in READ_ONLY:
+                if key in update and update[key] != facts.get(key):
+                    raise ParameterError(
+                        f"{key} is read-only ({facts.get(key)!r}): start another `photonmap view`"
+                    )
+        return self.worker.update(update)[1]
 
     def close(self) -> None:
         self.worker.stop()
@@ -92,7 +105,7 @@ def create_app(viewer: Viewer) -> FastAPI:
 
     @app.post("/api/update")
     async def post_update(request: Request):
-        _, version = viewer.worker.update(await _json(request))
+        version = viewer.update(await _json(request))
         return {"version": version, "state": viewer.state()}
 
     @app.post("/api/paint")

@@ -1,0 +1,60 @@
+"""Fixtures of the viewer tests: the viewer of :mod:`viewer_oracle`'s scene, a test client, and a
+uvicorn server on a free port for the browser tests."""
+
+from __future__ import annotations
+
+import os
+import socket
+import sys
+import threading
+import time
+
+import pytest
+
+pytest.importorskip("fastapi", reason="the viewer extra is not installed: pip install .[viewer]")
+sys.path.insert(0, os.path.dirname(__file__))
+
+from viewer_oracle import OVERRIDES, SCENE, SIZE  # noqa: E402
+
+
+@pytest.fixture
+def viewer():
+    from photonmap.viewer import Viewer
+
+    v = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE)
+    yield v
+    v.close()
+
+
+@pytest.fixture
+def client(viewer):
+    from fastapi.testclient import TestClient
+
+    from photonmap.viewer import create_app
+
+    with TestClient(create_app(viewer)) as c:
+        yield c
+
+
+@pytest.fixture(scope="module")
+def server():
+    """The viewer served by uvicorn on a free port of 127.0.0.1: (base URL, viewer)."""
+    import uvicorn
+
+    from photonmap.viewer import Viewer, create_app
+
+    viewer = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE)
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    config = uvicorn.Config(create_app(viewer), host="127.0.0.1", port=port, log_level="warning")
+    srv = uvicorn.Server(config)
+    thread = threading.Thread(target=srv.run, daemon=True)
+    thread.start()
+    deadline = time.monotonic() + 30
+    while not srv.started and time.monotonic() < deadline:
+        time.sleep(0.05)
+    yield f"http://127.0.0.1:{port}", viewer
+    srv.should_exit = True
+    thread.join(timeout=10)
+    viewer.close()
