@@ -5,6 +5,7 @@ made through the package API (conftest.direct)."""
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 import pytest
@@ -137,7 +138,8 @@ def test_paint_and_reset(client, viewer):
     np.testing.assert_array_equal(
         painted, direct(lambda p: p.set_volume(**{k: np.asarray(v) for k, v in grids.items()}))
     )
-    assert client.post("/api/paint", json={**stroke, "field": "n", "amount": 0.2}).status_code == 200
+    n_stroke = {**stroke, "field": "n", "amount": 0.2}
+    assert client.post("/api/paint", json=n_stroke).status_code == 200
     client.get("/api/frame.png")
     assert viewer.adapter.pipe.scene.grids["n"][i] > own["n"][i] + 0.1
     assert client.post("/api/reset").status_code == 200
@@ -223,3 +225,35 @@ def test_preview_then_full_resolution(viewer):
         frame.pixels, direct(lambda p: p.set_camera(origin=[1.5, 1.0, 2.0], target=
                                                     worker.target["camera"]["target"]))
     )
+
+
+def test_progressive_method_refines_and_restarts(monkeypatch):
+    """How an sppm method is offered: refine while idle (the mean of renders with seeds 0, 1,
+    2, ...), restart on any change."""
+    from photonmap import VolumePipeline
+    from photonmap.viewer import Viewer, adapters, app
+    from photonmap.viewer.worker import to_srgb8
+
+    monkeypatch.setattr(adapters, "MAX_PASSES", 2)
+    monkeypatch.setitem(app.ADAPTERS, "volume", adapters.progressive(adapters.VolumeAdapter))
+    viewer = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE)
+    try:
+        worker = viewer.worker
+        metas = []
+        worker.subscribe(lambda meta, frame: metas.append(meta))
+        worker.wait_frame()
+        deadline = time.monotonic() + 60
+        while worker.frame.passes < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        renders = [
+            VolumePipeline(SCENE, **OVERRIDES, width=SIZE[0], height=SIZE[1], seed=s).render()
+            for s in range(3)
+        ]
+        mean = to_srgb8(np.mean([np.asarray(r) for r in renders], axis=0))
+        assert np.abs(worker.frame.pixels.astype(int) - mean).max() <= 1  # float32 rounding
+        worker.update({"lights": [{"intensity": 20}]})
+        frame = worker.wait_frame()
+        assert frame.passes == 1 and frame.recomputed[0] == "photon generation"
+        assert [m["passes"] for m in metas][-3:] == [2, 3, 1]  # no fourth pass: MAX_PASSES
+    finally:
+        viewer.close()

@@ -478,7 +478,8 @@ class SurfaceAdapter(MitsubaAdapter):
             if e.class_name() == "PointLight":
                 entry["position"] = np.array(params["position"], float).ravel().tolist()
             elif e.class_name() == "SpotLight":
-                entry["position"] = np.array(params["to_world"].matrix, float)[:3, 3].ravel().tolist()
+                m = np.array(params["to_world"].matrix, float)
+                entry["position"] = m[:3, 3].ravel().tolist()
             out.append(entry)
         return out
 

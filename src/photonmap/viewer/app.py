@@ -37,7 +37,9 @@ class Viewer:
     def __init__(self, scene, method: str, overrides=None, size=None, frames=None, name=None,
                  preview_scale: int = 4, settle: float = 0.25):  # fmt: skip
         if method not in ADAPTERS:
-            raise ParameterError(f"unknown method {method!r}; the viewer offers {', '.join(ADAPTERS)}")
+            raise ParameterError(
+                f"unknown method {method!r}; the viewer offers {', '.join(ADAPTERS)}"
+            )
         extra = {}
         if frames is not None:
             if not issubclass(ADAPTERS[method], VolumeAdapter):

@@ -146,7 +146,8 @@ def check_light(index: int, light: dict, update: dict) -> dict:
 
 
 def check_material(name: str, material: dict, update: dict) -> dict:
-    """Material ``name`` after ``update``: n finite and > 0, σ_s and σ_a >= 0 (one number or RGB)."""
+    """Material ``name`` after ``update``: n finite and > 0, σ_s and σ_a >= 0 (a number or
+    RGB)."""
     _keys(f"materials.{name}", _object(f"materials.{name}", update), material)
     new = dict(material)
     for key, value in update.items():

@@ -203,7 +203,8 @@ class RenderWorker:
             except Exception as exc:  # the thread lives on; the page shows the reason
                 if not isinstance(exc, PhotonmapError):
                     traceback.print_exc()
-                self._fail(exc, applied, version, retry=snapshot is not None and applied != snapshot)
+                retry = snapshot is not None and applied != snapshot
+                self._fail(exc, applied, version, retry)
                 continue
             pixels = to_srgb8(image)
             data = encode(pixels, "jpeg" if preview else "png")

@@ -37,6 +37,7 @@ function unproject(cam, x, y, depth) { // image point in [0, 1]² at distance `d
 
 // ------------------------------------------------------------------ talking to the server
 let pending = null, inFlight = false;
+viewer.busy = () => pending !== null || inFlight; // an update not yet answered
 function mergeUpdate(a, b) {
   const out = { ...a };
   for (const [k, v] of Object.entries(b)) {
@@ -120,6 +121,10 @@ function connect() {
       viewer.idle = !meta.preview && !pending && !inFlight && meta.version >= (viewer.version || 0);
       drawOverlay();
       showStats(meta);
+      if (!drag && !viewer.busy() && meta.version > (viewer.version || 0)) {
+        viewer.version = meta.version; // changed by another page or a script: show its values
+        loadState();
+      }
       if (playing && !meta.preview) nextVolumeFrame();
     };
     img.src = url;

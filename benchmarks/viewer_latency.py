@@ -1,0 +1,161 @@
+"""Update latency of ``photonmap view`` (issue 14, "Done when"): from a ``POST /api/update`` to
+its new frame (``GET /api/frame.png`` returning the full-size PNG of that update), for a light
+move and a camera move, on ``glass_sphere_fog`` (volume method) and ``cornell_ispm`` (screen
+method) at their default sizes and settings.
+
+The viewer is served by uvicorn on 127.0.0.1 and driven over real HTTP (httpx). Each move
+alternates between two positions, so every update needs new work (the stage cache keeps one key
+per stage). Per update it records the latency, the render thread's own time (applying the
+change, the stages that reran, PNG encoding: ``ms`` of the frame) and the stages that reran.
+For scale, the same run times one frame of Mitsuba's own integrator on the same scene at 1 spp
+(``volpath`` with fog, else ``path``): the ratio says how many such frames one update costs.
+
+    .venv/bin/python benchmarks/viewer_latency.py [--runs 7] [--quick]
+
+Writes ``results/viewer_latency.json`` and ``.md``; the machine is shared, so the load average
+is recorded and medians are reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import httpx  # noqa: E402
+import uvicorn  # noqa: E402
+
+import common  # noqa: E402
+import photonmap  # noqa: E402
+from photonmap.core.reference import render_reference  # noqa: E402
+from photonmap.scenes import load_scene  # noqa: E402
+from photonmap.viewer import Viewer, create_app  # noqa: E402
+
+CASES = {  # scene → (method, two light positions, two camera origins)
+    "glass_sphere_fog": ("volume", ([0.3, 3.0, 0.5], [0.7, 3.0, 0.5]),
+                         ([1.8, 1.7, 2.2], [1.2, 1.8, 2.6])),
+    "cornell_ispm": ("screen", ([0.2, 0.53, 0.28], [0.35, 0.53, 0.28]),
+                     ([0.2, 0.3, -0.8], [0.35, 0.25, -0.8])),
+}  # fmt: skip
+
+
+def serve(viewer: Viewer) -> tuple[str, uvicorn.Server, threading.Thread]:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(create_app(viewer), host="127.0.0.1", port=port,
+                                           log_level="warning"))  # fmt: skip
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    while not server.started:
+        time.sleep(0.05)
+    return f"http://127.0.0.1:{port}", server, thread
+
+
+def measure(http: httpx.Client, base: str, updates: list[dict]) -> list[dict]:
+    out = []
+    for update in updates:
+        start = time.perf_counter()
+        reply = http.post(base + "/api/update", json=update)
+        reply.raise_for_status()
+        frame = http.get(base + "/api/frame.png")
+        frame.raise_for_status()
+        latency = 1e3 * (time.perf_counter() - start)
+        assert int(frame.headers["X-Frame-Version"]) >= reply.json()["version"]
+        meta = http.get(base + "/api/frame.json").json()
+        out.append({"latency_ms": latency, "render_ms": meta["ms"], "png_bytes": len(frame.content),
+                    "recomputed": meta["recomputed"], "timings": meta["timings"]})  # fmt: skip
+    return out
+
+
+def mitsuba_frame_ms(scene: str, runs: int) -> dict:
+    """One 1-spp frame of Mitsuba's own integrator on the same scene (after a warm-up)."""
+    mi_scene, _ = load_scene(scene)
+    samples = []
+    for i in range(runs + 1):
+        start = time.perf_counter()
+        render_reference(mi_scene, spp=1, seed=i)
+        samples.append(1e3 * (time.perf_counter() - start))
+    return common.summarize(samples[1:])
+
+
+def run_case(scene: str, runs: int) -> dict:
+    method, lights, origins = CASES[scene]
+    viewer = Viewer(scene, method)
+    base, server, thread = serve(viewer)
+    try:
+        with httpx.Client(timeout=600) as http:
+            start = time.perf_counter()
+            first = http.get(base + "/api/frame.png")
+            first.raise_for_status()
+            first_ms = 1e3 * (time.perf_counter() - start)
+            state = http.get(base + "/api/state").json()
+            light = measure(http, base, [
+                {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)
+            ])[1:]  # fmt: skip
+            camera = measure(http, base, [
+                {"camera": {"origin": origins[i % 2]}} for i in range(runs + 1)
+            ])[1:]  # fmt: skip
+    finally:
+        server.should_exit = True
+        thread.join(timeout=30)
+        viewer.close()
+    size = (state["camera"]["width"], state["camera"]["height"])
+    mitsuba = mitsuba_frame_ms(scene, max(2, runs // 2))
+    result = {"method": method, "size": size, "params": state["params"], "first_frame_ms": first_ms,
+              "mitsuba_1spp_frame_ms": mitsuba}  # fmt: skip
+    for name, samples in (("light", light), ("camera", camera)):
+        result[name] = {
+            "latency_ms": common.summarize([s["latency_ms"] for s in samples]),
+            "render_ms": common.summarize([s["render_ms"] for s in samples]),
+            "stages_ms": common.stage_medians([s["timings"] for s in samples]),
+            "recomputed": samples[-1]["recomputed"],
+            "png_bytes": samples[-1]["png_bytes"],
+            "latency_over_mitsuba_1spp": common.median(s["latency_ms"] for s in samples)
+            / mitsuba["median"],
+        }
+    return result
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=7, help="timed updates per kind of move")
+    parser.add_argument("--quick", action="store_true", help="3 runs")
+    parser.add_argument("--out-dir", default=str(common.RESULTS))
+    args = parser.parse_args(argv)
+    runs = 3 if args.quick else args.runs
+    results = {"machine": common.machine_info(), "runs": runs,
+               "cases": {scene: run_case(scene, runs) for scene in CASES}}  # fmt: skip
+    results["machine"]["load_average_end"] = [round(x, 2) for x in __import__("os").getloadavg()]
+    rows = []
+    for scene, r in results["cases"].items():
+        for move in ("light", "camera"):
+            m = r[move]
+            rows.append([
+                scene, r["method"], f"{r['size'][0]}×{r['size'][1]}", move,
+                common.fmt(m["latency_ms"]["median"]), common.fmt(m["render_ms"]["median"]),
+                common.fmt(r["mitsuba_1spp_frame_ms"]["median"]),
+                common.fmt(m["latency_over_mitsuba_1spp"], 2), ", ".join(m["recomputed"]),
+            ])  # fmt: skip
+    table = common.markdown_table(
+        ["scene", "method", "size", "move", "latency ms", "render ms", "Mitsuba 1 spp ms",
+         "latency / Mitsuba frame", "stages rerun"], rows, "llllrrrrl",
+    )  # fmt: skip
+    load = results["machine"].get("load_average")
+    text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"
+            f"Medians of {runs} updates each; load average {load} at the start, "
+            f"{results['machine']['load_average_end']} at the end.\n")  # fmt: skip
+    out = Path(args.out_dir)
+    common.write_json(out / "viewer_latency.json", results)
+    common.write_text(out / "viewer_latency.md", text)
+    print(text)
+    return results
+
+
+if __name__ == "__main__":
+    photonmap.set_device("cpu")
+    main()
