@@ -97,6 +97,7 @@ BAD = [
     ({"volume": {"frame": 0}}, "no volume sequence"),
     ({"preview": "yes"}, "preview must be true or false"),
     ({"colour": 1}, "unknown key(s) colour"),
+    ({"camera": {"fov": 30}, "lights": [{"intensity": -1}]}, "intensity must be >= 0"),  # all or none
     ([1, 2], "an update must be a JSON object"),
 ]
 
