@@ -9,6 +9,7 @@ import os
 import shutil
 
 import httpx
+import mitsuba as mi
 import numpy as np
 import pytest
 from viewer_oracle import pixels
@@ -83,7 +84,7 @@ def test_page_loads_without_console_errors(page, server):
 def test_dragging_the_light_changes_the_image(page, server):
     """The light starts above the picture: "place light" mode puts it under the mouse (at its
     depth from the camera), then the drag moves it; its ring follows the mouse."""
-    base, _ = server
+    base, viewer = server
     before, light0 = settled(page, base), state(base)["lights"][0]["position"]
     box = page.locator("#overlay").bounding_box()
     page.check("input[name=mode][value=light]")
@@ -100,6 +101,12 @@ def test_dragging_the_light_changes_the_image(page, server):
     assert np.abs(after.astype(int) - before).mean() > 0.5
     x1, y1 = page.evaluate("viewer.lightScreen(0)")
     assert abs(x1 - (x - 30)) < 1 and abs(y1 - (y - 10)) < 1
+    # the ring is where Mitsuba's camera sees the light (sample_direction's film position)
+    it = mi.Interaction3f()
+    it.p = mi.Point3f(*light1)
+    uv = np.array(viewer.adapter.sensor.sample_direction(it, mi.Point2f(0.5))[0].uv).ravel()
+    film = np.array(viewer.adapter.sensor.film().size())
+    np.testing.assert_allclose([x1, y1], uv / film * [box["width"], box["height"]], atol=0.5)
     # and the ring can be grabbed and dragged in camera mode
     page.mouse.move(box["x"] + x1, box["y"] + y1)
     page.mouse.down()
@@ -160,10 +167,13 @@ def test_two_quick_changes_leave_the_image_of_the_second(page, server):
     box.press("Enter")
     second = settled(page, base)
     assert np.abs(second.astype(int) - first).mean() > 1
-    box.fill("5")
-    box.press("Enter")
-    box.fill("80")  # at once: the second change arrives while the first renders
-    box.press("Enter")
+    page.evaluate(  # two changes in one task: the second comes while the first is in flight
+        """() => {
+            const box = document.getElementById("light-intensity");
+            box.value = "5"; box.dispatchEvent(new Event("change"));
+            box.value = "80"; box.dispatchEvent(new Event("change"));
+        }"""
+    )
     shown = settled(page, base)
     assert state(base)["lights"][0]["intensity"] == 80
     np.testing.assert_array_equal(shown, second)
