@@ -6,7 +6,8 @@ method) at their default sizes and settings.
 The viewer is served by uvicorn on 127.0.0.1 and driven over real HTTP (httpx). Each move
 alternates between two positions, so every update needs new work (the stage cache keeps one key
 per stage). Per update it records the latency, the render thread's own time (applying the
-change, the stages that reran, PNG encoding: ``ms`` of the frame) and the stages that reran.
+change through the pipeline's setters, rendering, sRGB conversion and PNG encoding) and the
+stages that reran.
 For scale, the same run times one frame of Mitsuba's own integrator on the same scene at 1 spp
 (``volpath`` with fog, else ``path``): the ratio says how many such frames one update costs.
 
@@ -67,8 +68,10 @@ def measure(http: httpx.Client, base: str, updates: list[dict]) -> list[dict]:
         latency = 1e3 * (time.perf_counter() - start)
         assert int(frame.headers["X-Frame-Version"]) >= reply.json()["version"]
         meta = http.get(base + "/api/frame.json").json()
-        out.append({"latency_ms": latency, "render_ms": meta["ms"], "png_bytes": len(frame.content),
-                    "recomputed": meta["recomputed"], "timings": meta["timings"]})  # fmt: skip
+        out.append({"latency_ms": latency, "frame_ms": meta["ms"], "apply_ms": meta["apply_ms"],
+                    "render_ms": meta["render_ms"], "encode_ms": meta["encode_ms"],
+                    "png_bytes": len(frame.content), "recomputed": meta["recomputed"],
+                    "timings": meta["timings"]})  # fmt: skip
     return out
 
 
@@ -111,7 +114,8 @@ def run_case(scene: str, runs: int) -> dict:
     for name, samples in (("light", light), ("camera", camera)):
         result[name] = {
             "latency_ms": common.summarize([s["latency_ms"] for s in samples]),
-            "render_ms": common.summarize([s["render_ms"] for s in samples]),
+            **{key: common.summarize([s[key] for s in samples])
+               for key in ("frame_ms", "apply_ms", "render_ms", "encode_ms")},
             "stages_ms": common.stage_medians([s["timings"] for s in samples]),
             "recomputed": samples[-1]["recomputed"],
             "png_bytes": samples[-1]["png_bytes"],
@@ -137,13 +141,14 @@ def main(argv=None) -> dict:
             m = r[move]
             rows.append([
                 scene, r["method"], f"{r['size'][0]}×{r['size'][1]}", move,
-                common.fmt(m["latency_ms"]["median"]), common.fmt(m["render_ms"]["median"]),
+                common.fmt(m["latency_ms"]["median"]), common.fmt(m["apply_ms"]["median"]),
+                common.fmt(m["render_ms"]["median"]), common.fmt(m["encode_ms"]["median"]),
                 common.fmt(r["mitsuba_1spp_frame_ms"]["median"]),
                 common.fmt(m["latency_over_mitsuba_1spp"], 2), ", ".join(m["recomputed"]),
             ])  # fmt: skip
     table = common.markdown_table(
-        ["scene", "method", "size", "move", "latency ms", "render ms", "Mitsuba 1 spp ms",
-         "latency / Mitsuba frame", "stages rerun"], rows, "llllrrrrl",
+        ["scene", "method", "size", "move", "latency ms", "apply ms", "render ms", "encode ms",
+         "Mitsuba 1 spp ms", "latency / Mitsuba frame", "stages rerun"], rows, "llllrrrrrrl",
     )  # fmt: skip
     load = results["machine"].get("load_average")
     text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"

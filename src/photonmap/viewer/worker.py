@@ -41,11 +41,12 @@ class Frame:
     pixels: np.ndarray  # uint8 (h, w, 3), sRGB
     data: bytes  # the encoded image
     mime: str
-    ms: float  # wall time of applying the changes and rendering
+    ms: float  # wall time of applying the changes, rendering and encoding
     timings: dict[str, float] = field(default_factory=dict)  # ms per stage that ran
     recomputed: list[str] = field(default_factory=list)
     fps: float = 0.0  # frames finished per second over the last two seconds
     passes: int = 1  # progressive methods: passes averaged
+    parts: dict[str, float] = field(default_factory=dict)  # apply, render, encode: ms each
 
     def meta(self) -> dict:
         h, w = self.pixels.shape[:2]
@@ -54,6 +55,7 @@ class Frame:
             "width": w, "height": h, "mime": self.mime, "ms": round(self.ms, 2),
             "timings": {k: round(v, 2) for k, v in self.timings.items()},
             "recomputed": self.recomputed, "fps": round(self.fps, 2), "passes": self.passes,
+            **{f"{k}_ms": round(v, 2) for k, v in self.parts.items()},
         }  # fmt: skip
 
 
@@ -183,6 +185,7 @@ class RenderWorker:
         while (work := self._next()) is not None:
             snapshot, version, preview, actions, refine = work
             start = time.perf_counter()
+            applied_at = start
             try:
                 if refine:
                     image = self.adapter.refine()
@@ -198,6 +201,7 @@ class RenderWorker:
                             applied = copy.deepcopy(self.adapter.state)
                     for action in actions:
                         action()
+                    applied_at = time.perf_counter()
                     image = self.adapter.render(self._size(preview))
                     self._refining = self.adapter.progressive and not preview
             except Exception as exc:  # the thread lives on; the page shows the reason
@@ -206,17 +210,21 @@ class RenderWorker:
                 retry = snapshot is not None and applied != snapshot
                 self._fail(exc, applied, version, retry)
                 continue
+            rendered_at = time.perf_counter()
             pixels = to_srgb8(image)
             data = encode(pixels, "jpeg" if preview else "png")
+            end = time.perf_counter()
+            parts = {"apply": applied_at - start, "render": rendered_at - applied_at,
+                     "encode": end - rendered_at}  # fmt: skip
             now = time.monotonic()
             self._done.append(now)
             recent = [t for t in self._done if now - t <= 2.0]
             seq += 1
             frame = Frame(
                 seq, version, preview, pixels, data, "image/jpeg" if preview else "image/png",
-                1e3 * (time.perf_counter() - start), self.adapter.timings,
-                self.adapter.recomputed, len(recent) / 2.0,
-                self.adapter._passes + 1 if self.adapter.progressive else 1,
+                1e3 * (end - start), self.adapter.timings, self.adapter.recomputed,
+                len(recent) / 2.0, self.adapter._passes + 1 if self.adapter.progressive else 1,
+                {k: 1e3 * v for k, v in parts.items()},
             )  # fmt: skip
             with self._cond:
                 self.frame, self.error = frame, None
