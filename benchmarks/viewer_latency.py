@@ -5,9 +5,10 @@ method) at their default sizes and settings.
 
 The viewer is served by uvicorn on 127.0.0.1 and driven over real HTTP (httpx). Each move
 alternates between two positions, so every update needs new work (the stage cache keeps one key
-per stage). Per update it records the latency, the render thread's own time (applying the
-change through the pipeline's setters, rendering, sRGB conversion and PNG encoding) and the
-stages that reran.
+per stage). Per update it records the latency to the PNG, the latency to the frame's arrival on
+the WebSocket stream (what the page waits for: a JPEG), the render thread's own time (applying
+the change through the pipeline's setters, rendering, sRGB conversion and JPEG encoding) and
+the stages that reran.
 For scale, the same run times one frame of Mitsuba's own integrator on the same scene at 1 spp
 (``volpath`` with fog, else ``path``): the ratio says how many such frames one update costs.
 
@@ -20,6 +21,7 @@ is recorded and medians are reported.
 from __future__ import annotations
 
 import argparse
+import json
 import socket
 import sys
 import threading
@@ -29,6 +31,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import httpx  # noqa: E402
 import uvicorn  # noqa: E402
+from websockets.sync.client import connect  # noqa: E402
 
 import common  # noqa: E402
 import photonmap  # noqa: E402
@@ -57,18 +60,31 @@ def serve(viewer: Viewer) -> tuple[str, uvicorn.Server, threading.Thread]:
     return f"http://127.0.0.1:{port}", server, thread
 
 
-def measure(http: httpx.Client, base: str, updates: list[dict]) -> list[dict]:
+def streamed(ws, version: int) -> dict:
+    """Read the frame stream up to the full-size frame of ``version``; returns its message."""
+    while True:
+        message = json.loads(ws.recv())
+        if message["type"] == "error":
+            raise RuntimeError(message["message"])
+        ws.recv()  # the image
+        if message["version"] >= version and not message["preview"]:
+            return message
+
+
+def measure(http: httpx.Client, ws, base: str, updates: list[dict]) -> list[dict]:
     out = []
     for update in updates:
         start = time.perf_counter()
         reply = http.post(base + "/api/update", json=update)
         reply.raise_for_status()
+        meta = streamed(ws, reply.json()["version"])
+        stream = 1e3 * (time.perf_counter() - start)
         frame = http.get(base + "/api/frame.png")
         frame.raise_for_status()
         latency = 1e3 * (time.perf_counter() - start)
-        assert int(frame.headers["X-Frame-Version"]) >= reply.json()["version"]
-        meta = http.get(base + "/api/frame.json").json()
-        out.append({"latency_ms": latency, "frame_ms": meta["ms"], "apply_ms": meta["apply_ms"],
+        assert int(frame.headers["X-Frame-Version"]) == meta["version"] >= reply.json()["version"]
+        out.append({"latency_ms": latency, "stream_ms": stream, "frame_ms": meta["ms"],
+                    "apply_ms": meta["apply_ms"],
                     "render_ms": meta["render_ms"], "encode_ms": meta["encode_ms"],
                     "png_bytes": len(frame.content), "recomputed": meta["recomputed"],
                     "timings": meta["timings"]})  # fmt: skip
@@ -97,12 +113,14 @@ def run_case(scene: str, runs: int) -> dict:
             first.raise_for_status()
             first_ms = 1e3 * (time.perf_counter() - start)
             state = http.get(base + "/api/state").json()
-            light = measure(http, base, [
-                {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)
-            ])[1:]  # fmt: skip
-            camera = measure(http, base, [
-                {"camera": {"origin": origins[i % 2]}} for i in range(runs + 1)
-            ])[1:]  # fmt: skip
+            with connect(base.replace("http", "ws") + "/api/stream", max_size=None) as ws:
+                streamed(ws, 0)
+                light = measure(http, ws, base, [
+                    {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)
+                ])[1:]  # fmt: skip
+                camera = measure(http, ws, base, [
+                    {"camera": {"origin": origins[i % 2]}} for i in range(runs + 1)
+                ])[1:]  # fmt: skip
     finally:
         server.should_exit = True
         thread.join(timeout=30)
@@ -115,7 +133,7 @@ def run_case(scene: str, runs: int) -> dict:
         result[name] = {
             "latency_ms": common.summarize([s["latency_ms"] for s in samples]),
             **{key: common.summarize([s[key] for s in samples])
-               for key in ("frame_ms", "apply_ms", "render_ms", "encode_ms")},
+               for key in ("stream_ms", "frame_ms", "apply_ms", "render_ms", "encode_ms")},
             "stages_ms": common.stage_medians([s["timings"] for s in samples]),
             "recomputed": samples[-1]["recomputed"],
             "png_bytes": samples[-1]["png_bytes"],
@@ -141,14 +159,16 @@ def main(argv=None) -> dict:
             m = r[move]
             rows.append([
                 scene, r["method"], f"{r['size'][0]}×{r['size'][1]}", move,
-                common.fmt(m["latency_ms"]["median"]), common.fmt(m["apply_ms"]["median"]),
+                common.fmt(m["latency_ms"]["median"]), common.fmt(m["stream_ms"]["median"]),
+                common.fmt(m["apply_ms"]["median"]),
                 common.fmt(m["render_ms"]["median"]), common.fmt(m["encode_ms"]["median"]),
                 common.fmt(r["mitsuba_1spp_frame_ms"]["median"]),
                 common.fmt(m["latency_over_mitsuba_1spp"], 2), ", ".join(m["recomputed"]),
             ])  # fmt: skip
     table = common.markdown_table(
-        ["scene", "method", "size", "move", "latency ms", "apply ms", "render ms", "encode ms",
-         "Mitsuba 1 spp ms", "latency / Mitsuba frame", "stages rerun"], rows, "llllrrrrrrl",
+        ["scene", "method", "size", "move", "latency ms (PNG)", "stream ms", "apply ms",
+         "render ms", "encode ms", "Mitsuba 1 spp ms", "latency / Mitsuba frame",
+         "stages rerun"], rows, "llllrrrrrrrl",
     )  # fmt: skip
     load = results["machine"].get("load_average")
     text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"

@@ -157,7 +157,6 @@ def test_volume_sequence(tmp_path):
     z, y, x = np.meshgrid(*[np.arange(n)] * 3, indexing="ij")
     blobs = [np.exp(-((x - c) ** 2 + (y - 8) ** 2 + (z - 16) ** 2) / 20.0) for c in (10, 22)]
     frames = {"sigma_s": np.stack([40 * b for b in blobs]).astype(np.float32)}
-    frames["kappa"] = frames["sigma_s"] + 1.0
     with pytest.raises(ParameterError, match=r"expected \(F, 32, 32, 32"):
         Viewer(SCENE, "volume", dict(OVERRIDES), SIZE, frames={"kappa": np.zeros((2, 8, 8, 8))})
     viewer = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE, frames=frames)
@@ -174,8 +173,9 @@ def test_volume_sequence(tmp_path):
     finally:
         viewer.close()
     assert np.abs(images[0].astype(int) - images[1]).mean() > 0.5
+    kappa = frames["sigma_s"][1][..., None] + np.maximum(own["kappa"] - own["sigma_s"], 0)
     expected = direct(lambda p: p.set_volume(n=own["n"], sigma_s=frames["sigma_s"][1],
-                                             kappa=frames["kappa"][1]))  # fmt: skip
+                                             kappa=kappa))  # fmt: skip
     np.testing.assert_array_equal(images[1], expected)
 
 
@@ -184,11 +184,12 @@ def test_stream_sends_meta_then_the_image(client):
     with client.websocket_connect("/api/stream") as ws:
         meta = ws.receive_json()
         data = ws.receive_bytes()
-    assert meta["type"] == "frame" and not meta["preview"] and meta["mime"] == "image/png"
+    assert meta["type"] == "frame" and not meta["preview"] and meta["mime"] == "image/jpeg"
     assert (meta["width"], meta["height"]) == SIZE and set(meta["recomputed"]) <= set(
         client.get("/api/state").json()["stages"]
     )
-    np.testing.assert_array_equal(pixels(data), pixels(png))
+    # the streamed JPEG (quality 92) is the frame within JPEG's error: measured mean 0.77 / 255
+    assert np.abs(pixels(data).astype(int) - pixels(png)).mean() < 1.5
 
 
 def test_updates_coalesce_newest_wins(viewer):

@@ -1,6 +1,6 @@
 """The page in a real browser (issue 14 item 4): Playwright for Python driving Debian's
 ``chromium`` (installed by ``scripts/ensure-chromium.sh``; no browser downloads). The image the
-page shows is read back from its <img> and compared with ``GET /api/frame.png``."""
+page shows (a JPEG) is read back from its <img> and compared with ``GET /api/frame.png``."""
 
 from __future__ import annotations
 
@@ -63,7 +63,8 @@ def settled(page, base) -> np.ndarray:
     image = pixels(base64.b64decode(shown))
     latest = httpx.get(base + "/api/frame.png", timeout=60)
     if int(latest.headers["X-Frame-Version"]) == page.evaluate("viewer.meta.version"):
-        np.testing.assert_array_equal(image, pixels(latest.content))
+        # the streamed JPEG (quality 92) is the frame within JPEG's error (measured 0.77 / 255)
+        assert np.abs(image.astype(int) - pixels(latest.content)).mean() < 1.5
     return image
 
 

@@ -340,9 +340,16 @@ class VolumeAdapter(Adapter):
         return image
 
     def _grids_of(self, frame: int) -> dict[str, np.ndarray] | None:
+        """Frame ``frame`` of the sequence; arrays it lacks are the scene's own, and a σ_s
+        without κ keeps the scene's absorption (κ = σ_s + σ_a)."""
         if frame < 0:
             return None
-        return {**self.own_grids(), **{k: a[frame] for k, a in self.frames.items()}}
+        own = self.own_grids()
+        grids = {**own, **{k: a[frame] for k, a in self.frames.items()}}
+        if "sigma_s" in self.frames and "kappa" not in self.frames:
+            absorb = np.maximum(_rgb_grid(own["kappa"]) - _rgb_grid(own["sigma_s"]), 0)
+            grids["kappa"] = _rgb_grid(grids["sigma_s"]) + absorb
+        return grids
 
     def _set_volume(self, volume):
         grids = self._grids_of(volume["frame"])

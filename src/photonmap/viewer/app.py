@@ -135,7 +135,7 @@ def create_app(viewer: Viewer) -> FastAPI:
         frame = _frame(timeout)
         if isinstance(frame, JSONResponse):
             return frame
-        return Response(frame.data, media_type="image/png",
+        return Response(frame.png, media_type="image/png",
                         headers={"X-Frame-Version": str(frame.version)})  # fmt: skip
 
     @app.get("/api/frame.json")
