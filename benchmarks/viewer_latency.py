@@ -22,22 +22,19 @@ from __future__ import annotations
 
 import argparse
 import json
-import socket
 import sys
-import threading
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import httpx  # noqa: E402
-import uvicorn  # noqa: E402
 from websockets.sync.client import connect  # noqa: E402
 
 import common  # noqa: E402
 import photonmap  # noqa: E402
 from photonmap.core.reference import render_reference  # noqa: E402
 from photonmap.scenes import load_scene  # noqa: E402
-from photonmap.viewer import Viewer, create_app  # noqa: E402
+from photonmap.viewer import Background, Viewer  # noqa: E402
 
 CASES = {  # scene → (method, two light positions, two camera origins)
     "glass_sphere_fog": ("volume", ([0.3, 3.0, 0.5], [0.7, 3.0, 0.5]),
@@ -45,19 +42,6 @@ CASES = {  # scene → (method, two light positions, two camera origins)
     "cornell_ispm": ("screen", ([0.2, 0.53, 0.28], [0.35, 0.53, 0.28]),
                      ([0.2, 0.3, -0.8], [0.35, 0.25, -0.8])),
 }  # fmt: skip
-
-
-def serve(viewer: Viewer) -> tuple[str, uvicorn.Server, threading.Thread]:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(viewer), host="127.0.0.1", port=port,
-                                           log_level="warning"))  # fmt: skip
-    thread = threading.Thread(target=server.run, daemon=True)
-    thread.start()
-    while not server.started:
-        time.sleep(0.05)
-    return f"http://127.0.0.1:{port}", server, thread
 
 
 def streamed(ws, version: int) -> dict:
@@ -104,8 +88,8 @@ def mitsuba_frame_ms(scene: str, runs: int) -> dict:
 
 def run_case(scene: str, runs: int) -> dict:
     method, lights, origins = CASES[scene]
-    viewer = Viewer(scene, method)
-    base, server, thread = serve(viewer)
+    background = Background(Viewer(scene, method))
+    base = background.url.rstrip("/")
     try:
         with httpx.Client(timeout=600) as http:
             start = time.perf_counter()
@@ -122,9 +106,7 @@ def run_case(scene: str, runs: int) -> dict:
                     {"camera": {"origin": origins[i % 2]}} for i in range(runs + 1)
                 ])[1:]  # fmt: skip
     finally:
-        server.should_exit = True
-        thread.join(timeout=30)
-        viewer.close()
+        background.stop()
     size = (state["camera"]["width"], state["camera"]["height"])
     mitsuba = mitsuba_frame_ms(scene, max(2, runs // 2))
     result = {"method": method, "size": size, "params": state["params"], "first_frame_ms": first_ms,

@@ -14,17 +14,13 @@ from __future__ import annotations
 
 import argparse
 import io
-import socket
-import threading
-import time
 from pathlib import Path
 
 import httpx
-import uvicorn
 from PIL import Image
 from playwright.sync_api import sync_playwright
 
-from photonmap.viewer import Viewer, create_app
+from photonmap.viewer import Background, Viewer
 
 DOCS = Path(__file__).resolve().parent.parent / "docs"
 LIGHT = {"position": [0.5, 1.25, 0.5], "intensity": 3.0}  # 0.69 from the ball's centre, not 2.56
@@ -38,15 +34,8 @@ def main(argv=None) -> None:
     parser.add_argument("--chromium", default="/usr/bin/chromium")
     args = parser.parse_args(argv)
     overrides = {k: int(v) for k, v in (s.split("=", 1) for s in args.sets)}
-    viewer = Viewer(args.scene, "volume", overrides)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    server = uvicorn.Server(uvicorn.Config(create_app(viewer), port=port, log_level="warning"))
-    threading.Thread(target=server.run, daemon=True).start()
-    while not server.started:
-        time.sleep(0.05)
-    base = f"http://127.0.0.1:{port}"
+    background = Background(Viewer(args.scene, "volume", overrides))
+    base = background.url.rstrip("/")
 
     def settle(page):
         page.wait_for_function("!viewer.busy()")
@@ -82,8 +71,7 @@ def main(argv=None) -> None:
             page.mouse.up()
             browser.close()
     finally:
-        server.should_exit = True
-        viewer.close()
+        background.stop()
     frames[0].save(DOCS / "viewer_drag.webp", save_all=True, append_images=frames[1:],
                    duration=400, loop=0, quality=70)  # fmt: skip
     print(f"wrote {DOCS / 'viewer.png'} and {DOCS / 'viewer_drag.webp'} ({len(frames)} frames)")

@@ -4,10 +4,7 @@ uvicorn server on a free port for the browser tests."""
 from __future__ import annotations
 
 import os
-import socket
 import sys
-import threading
-import time
 
 import pytest
 
@@ -39,22 +36,7 @@ def client(viewer):
 @pytest.fixture(scope="module")
 def server():
     """The viewer served by uvicorn on a free port of 127.0.0.1: (base URL, viewer)."""
-    import uvicorn
+    from photonmap.viewer import Background, Viewer
 
-    from photonmap.viewer import Viewer, create_app
-
-    viewer = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE)
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    config = uvicorn.Config(create_app(viewer), host="127.0.0.1", port=port, log_level="warning")
-    srv = uvicorn.Server(config)
-    thread = threading.Thread(target=srv.run, daemon=True)
-    thread.start()
-    deadline = time.monotonic() + 30
-    while not srv.started and time.monotonic() < deadline:
-        time.sleep(0.05)
-    yield f"http://127.0.0.1:{port}", viewer
-    srv.should_exit = True
-    thread.join(timeout=10)
-    viewer.close()
+    with Background(Viewer(SCENE, "volume", dict(OVERRIDES), SIZE)) as bg:
+        yield bg.url.rstrip("/"), bg.viewer

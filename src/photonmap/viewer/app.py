@@ -193,6 +193,50 @@ def create_app(viewer: Viewer) -> FastAPI:
     return app
 
 
+class Background:
+    """The viewer served by uvicorn on a thread (scripts, tests, notebooks): ``url``, ``stop()``.
+
+    >>> with Background(Viewer("cornell_ispm", "screen")) as bg:
+    ...     httpx.get(bg.url + "api/state")
+    """
+
+    def __init__(self, viewer: Viewer, host: str = "127.0.0.1", port: int = 0,
+                 timeout: float = 60.0):  # fmt: skip
+        import socket
+        import threading
+        import time
+
+        import uvicorn
+
+        if port == 0:  # a free port of this machine
+            with socket.socket() as s:
+                s.bind((host, 0))
+                port = s.getsockname()[1]
+        self.viewer = viewer
+        self.url = f"http://{host}:{port}/"
+        config = uvicorn.Config(create_app(viewer), host=host, port=port, log_level="warning")
+        self._server = uvicorn.Server(config)
+        self._thread = threading.Thread(target=self._server.run, daemon=True)
+        self._thread.start()
+        deadline = time.monotonic() + timeout
+        while not self._server.started:
+            if not self._thread.is_alive() or time.monotonic() > deadline:
+                raise PhotonmapError(f"the viewer's server did not start on {self.url}")
+            time.sleep(0.02)
+
+    def stop(self) -> None:
+        """Stop the server and the viewer's render thread."""
+        self._server.should_exit = True
+        self._thread.join(timeout=30)
+        self.viewer.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+
+
 def serve(viewer: Viewer, host: str = "127.0.0.1", port: int = 8000, open_browser: bool = True):
     """Run the server until interrupted; open the page in the default browser once it is up."""
     import threading

@@ -32,7 +32,6 @@ import numpy as np
 from ..core.errors import ParameterError, PhotonmapError
 from .state import changes
 
-
 QUALITY, PREVIEW_QUALITY = 92, 80
 
 
