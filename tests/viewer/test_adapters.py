@@ -83,3 +83,53 @@ def test_surface_spot_position():
     m = np.array(mi.traverse(emitter)["to_world"].matrix, float).reshape(4, 4)
     np.testing.assert_allclose(m[:3, 3], position, atol=1e-6)
     assert np.abs(moved - before).mean() > 1e-4
+
+
+class SteppedScreen(ScreenPipeline):
+    """A pipeline that refines itself, as the sppm method does (``reset``, ``step``, ``image``):
+    each step adds a render with the next seed to a running mean."""
+
+    def reset(self):
+        self.iterations, self._sum = 0, None
+
+    def step(self):
+        self.set_params(seed=self.iterations)
+        image = np.asarray(self.render())
+        self._sum = image if self._sum is None else self._sum + image
+        self.iterations += 1
+
+    def image(self):
+        return mi.TensorXf(self._sum / self.iterations)
+
+
+def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
+    import time
+
+    import photonmap
+    from photonmap.viewer import Viewer, adapters, app
+
+    monkeypatch.setitem(photonmap.METHODS, "stepped", photonmap.METHODS["screen"]._replace(
+        pipeline=SteppedScreen))  # fmt: skip
+    monkeypatch.setitem(app.ADAPTERS, "stepped", adapters.progressive(ScreenAdapter, ("bounces",)))
+    monkeypatch.setattr(adapters, "MAX_PASSES", 2)
+    viewer = Viewer("cornell_ispm", "stepped", {"light_res": 16, "subsample": 2}, SMALL)
+    try:
+        assert viewer.state()["params"] == {"bounces": 2}
+        worker, pipe = viewer.worker, viewer.adapter.pipe
+        worker.wait_frame()
+        deadline = time.monotonic() + 60
+        while worker.frame.passes < 3 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert worker.frame.passes == 3 and pipe.iterations == 3  # then no more (MAX_PASSES)
+        renders = []
+        for seed in range(3):
+            ref = ScreenPipeline("cornell_ispm", light_res=16, subsample=2, seed=seed)
+            ref.set_camera(width=SMALL[0], height=SMALL[1])
+            renders.append(np.asarray(ref.render()))
+        np.testing.assert_allclose(np.asarray(pipe.image()), np.mean(renders, axis=0), rtol=1e-5,
+                                   atol=1e-6)  # fmt: skip
+        worker.update({"camera": {"origin": [0.3, 0.3, -0.7]}})
+        frame = worker.wait_frame()
+        assert frame.passes == 1 and pipe.iterations >= 1  # restarted, refining again
+    finally:
+        viewer.close()

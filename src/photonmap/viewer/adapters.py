@@ -4,9 +4,10 @@ reruns only the stages it needs (Sun et al. 2008 §6.1–6.2, seed 002; spec see
 seed-004 §7).
 
 :data:`ADAPTERS` maps a method name to its adapter class; a new method is one line there. An
-adapter with ``progressive = True`` keeps refining while nothing changes — each idle pass renders
-the scene again with the next seed and averages (the image converges as 1/passes in variance) —
-and restarts on any change: how an ``sppm`` method is offered once the package registers one.
+adapter with ``progressive = True`` keeps refining while nothing changes and restarts on any
+change: a pipeline with ``reset()``, ``step()`` and ``image()`` (the ``sppm`` method: one
+iteration per step) refines itself; any other renders again with the next seed and averages (the
+variance falls as 1/passes). ``sppm`` is offered this way when the package registers it.
 
 Only the render thread (:mod:`.worker`) calls :meth:`Adapter.apply`, :meth:`Adapter.render`,
 :meth:`Adapter.refine` and the volume edits; :meth:`Adapter.check` reads nothing the render thread
@@ -183,6 +184,12 @@ class Adapter:
         film = tuple(int(c) for c in self.sensor.film().size())
         if film != tuple(size):
             self.pipe.set_camera(width=int(size[0]), height=int(size[1]))
+        if self.progressive and self._steps:
+            self._passes = 0
+            self.pipe.reset()
+            self.pipe.step()
+            self._mean = as_rgb(self.pipe.image())
+            return self._mean
         if self.progressive and self._passes:
             self._passes = 0
             self.pipe.set_params(seed=self._seed0)
@@ -190,14 +197,23 @@ class Adapter:
         return self._mean
 
     def refine(self) -> np.ndarray | None:
-        """A progressive adapter's next pass averaged into the image (None when done)."""
+        """A progressive adapter's next pass folded into the image (None when done)."""
         if not self.progressive or self._mean is None or self._passes >= MAX_PASSES:
             return None
         self._passes += 1
+        if self._steps:
+            self.pipe.step()
+            self._mean = as_rgb(self.pipe.image())
+            return self._mean
         self.pipe.set_params(seed=(self._seed0 + self._passes) % 2**32)
         image = as_rgb(self.pipe.render())
         self._mean = self._mean + (image - self._mean) / (self._passes + 1)
         return self._mean
+
+    @property
+    def _steps(self) -> bool:
+        """The pipeline refines itself (``reset``, ``step``, ``image``)."""
+        return all(hasattr(self.pipe, name) for name in ("reset", "step", "image"))
 
     @property
     def timings(self) -> dict[str, float]:
@@ -517,9 +533,11 @@ class SurfaceAdapter(MitsubaAdapter):
         self.pipe.set_camera(sensor=sensor)
 
 
-def progressive(adapter: type[Adapter]) -> type[Adapter]:
-    """``adapter`` refining while idle and restarting on change (:meth:`Adapter.refine`)."""
-    return type(f"Progressive{adapter.__name__}", (adapter,), {"progressive": True})
+def progressive(adapter: type[Adapter], params: tuple[str, ...] | None = None) -> type[Adapter]:
+    """``adapter`` refining while idle and restarting on change (:meth:`Adapter.refine`),
+    offering the method parameters ``params`` (default: the adapter's)."""
+    attrs = {"progressive": True, "params": adapter.params if params is None else params}
+    return type(f"Progressive{adapter.__name__}", (adapter,), attrs)
 
 
 ADAPTERS: dict[str, type[Adapter]] = {
@@ -528,4 +546,4 @@ ADAPTERS: dict[str, type[Adapter]] = {
     "surface": SurfaceAdapter,
 }
 if "sppm" in METHODS:  # stochastic progressive photon mapping: refine, restart on any change
-    ADAPTERS["sppm"] = progressive(SurfaceAdapter)
+    ADAPTERS["sppm"] = progressive(SurfaceAdapter, ("photons_per_iteration", "alpha"))
