@@ -121,7 +121,7 @@ class Adapter:
             new["lights"] = lights
         if "materials" in update:
             materials = dict(state["materials"])
-            for name, changes in st._object("materials", update["materials"]).items():
+            for name, changes in st.as_object("materials", update["materials"]).items():
                 if name not in materials:
                     raise ParameterError(
                         f"no material {name!r}; materials: {', '.join(materials) or 'none'}"
@@ -130,7 +130,7 @@ class Adapter:
                 self._check_material(name, materials[name])
             new["materials"] = materials
         if "params" in update:
-            st._keys("params", st._object("params", update["params"]), self.params)
+            st.check_keys("params", st.as_object("params", update["params"]), self.params)
             params = {**state["params"], **update["params"]}
             updated(self._params0, params, self.method)  # the method's own validation
             new["params"] = params
@@ -209,6 +209,11 @@ class Adapter:
         image = as_rgb(self.pipe.render())
         self._mean = self._mean + (image - self._mean) / (self._passes + 1)
         return self._mean
+
+    @property
+    def passes(self) -> int:
+        """The passes in the current image (1 unless progressive)."""
+        return self._passes + 1
 
     @property
     def _steps(self) -> bool:
@@ -333,7 +338,7 @@ class VolumeAdapter(Adapter):
     def _check_volume(self, state, update):
         if self.frames is None:
             raise ParameterError("no volume sequence: start the viewer with --volumes FILE.npz")
-        st._keys("volume", st._object("volume", update), ("frame",))
+        st.check_keys("volume", st.as_object("volume", update), ("frame",))
         frame = st.number("volume.frame", update.get("frame", -1), -1, self.frame_count - 1,
                           integer=True)  # fmt: skip
         return {"frame": frame}
@@ -416,7 +421,7 @@ def _rgb_grid(a: np.ndarray) -> np.ndarray:
 def check_stroke(stroke) -> dict:
     """A brush stroke ``{"field": "sigma_s" | "n", "center": [x, y, z], "radius": r > 0,
     "amount": a}`` (world units), checked."""
-    st._keys("stroke", st._object("stroke", stroke), ("field", "center", "radius", "amount"))
+    st.check_keys("stroke", st.as_object("stroke", stroke), ("field", "center", "radius", "amount"))
     missing = {"center", "radius", "amount"} - set(stroke)
     if missing:
         raise ParameterError(f"a stroke needs {', '.join(sorted(missing))}")

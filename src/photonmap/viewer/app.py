@@ -52,8 +52,7 @@ class Viewer:
 
     def state(self) -> dict:
         """The state document (:mod:`.state`) with the read-only facts around it."""
-        with self.worker._cond:
-            values = json.loads(json.dumps(self.worker.target))
+        values = self.worker.target_state()
         out = {"scene": self.scene, "method": self.method, "methods": list(ADAPTERS),
                "stages": list(self.adapter.stages), **values}  # fmt: skip
         if isinstance(self.adapter, VolumeAdapter):

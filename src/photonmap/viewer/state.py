@@ -69,13 +69,15 @@ def number(name: str, value, lo=None, hi=None, lo_open=False, integer=False) -> 
     return value if integer else float(value)
 
 
-def _object(name: str, value) -> dict:
+def as_object(name: str, value) -> dict:
+    """``value``, which must be a JSON object."""
     if not isinstance(value, dict):
         raise ParameterError(f"{name} must be an object, got {value!r}")
     return value
 
 
-def _keys(name: str, given: dict, allowed) -> None:
+def check_keys(name: str, given: dict, allowed) -> None:
+    """No keys in ``given`` but ``allowed`` (the message lists them)."""
     unknown = sorted(set(given) - set(allowed))
     if unknown:
         raise ParameterError(
@@ -104,13 +106,13 @@ def light_changes(update, count: int) -> dict[int, dict]:
             items[index] = v
     else:
         raise ParameterError(f"lights must be a list or an object of indices, got {update!r}")
-    return {i: _object(f"lights[{i}]", v) for i, v in items.items()}
+    return {i: as_object(f"lights[{i}]", v) for i, v in items.items()}
 
 
 def check_camera(camera: dict, update: dict) -> dict:
     """The camera after ``update``: origin and target finite and apart, fov in (0, 180)
     degrees, width and height integers in 1…:data:`MAX_SIDE`."""
-    _keys("camera", _object("camera", update), camera)
+    check_keys("camera", as_object("camera", update), camera)
     new = dict(camera)
     for key, value in update.items():
         if key in ("origin", "target"):
@@ -129,7 +131,7 @@ def check_camera(camera: dict, update: dict) -> dict:
 def check_light(index: int, light: dict, update: dict) -> dict:
     """Light ``index`` after ``update``: a position (if the light has one) finite, colour and
     intensity >= 0; its kind cannot change."""
-    _keys(f"lights[{index}]", update, light)
+    check_keys(f"lights[{index}]", update, light)
     new = dict(light)
     for key, value in update.items():
         where = f"lights[{index}].{key}"
@@ -148,7 +150,7 @@ def check_light(index: int, light: dict, update: dict) -> dict:
 def check_material(name: str, material: dict, update: dict) -> dict:
     """Material ``name`` after ``update``: n finite and > 0, σ_s and σ_a >= 0 (a number or
     RGB)."""
-    _keys(f"materials.{name}", _object(f"materials.{name}", update), material)
+    check_keys(f"materials.{name}", as_object(f"materials.{name}", update), material)
     new = dict(material)
     for key, value in update.items():
         where = f"materials.{name}.{key}"

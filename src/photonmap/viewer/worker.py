@@ -156,6 +156,11 @@ class RenderWorker:
                 raise TimeoutError(f"no frame of version {version} within {timeout} s")
             return self.frame
 
+    def target_state(self) -> dict:
+        """A copy of the state every accepted update leads to."""
+        with self._cond:
+            return copy.deepcopy(self.target)
+
     def subscribe(self, listener: Callable[[dict, Frame | None], None]) -> None:
         """Call ``listener(message, frame)`` from the render thread for each frame and error."""
         with self._cond:
@@ -234,7 +239,7 @@ class RenderWorker:
             frame = Frame(
                 seq, version, preview, pixels, data,
                 1e3 * (end - start), self.adapter.timings, self.adapter.recomputed,
-                len(recent) / 2.0, self.adapter._passes + 1 if self.adapter.progressive else 1,
+                len(recent) / 2.0, self.adapter.passes,
                 {k: 1e3 * v for k, v in parts.items()},
             )  # fmt: skip
             with self._cond:

@@ -5,9 +5,7 @@
 "use strict";
 
 const $ = (id) => document.getElementById(id);
-const viewer = (window.viewer = {
-  state: null, meta: null, frames: 0, imageUrl: null, errors: 0, idle: true,
-});
+const viewer = (window.viewer = { state: null, meta: null, frames: 0, imageUrl: null, errors: 0 });
 
 // ------------------------------------------------------------------ vectors and the camera
 const sub = (a, b) => a.map((v, i) => v - b[i]);
@@ -55,7 +53,6 @@ function mergeUpdate(a, b) {
 }
 function send(update) {
   pending = mergeUpdate(pending || {}, update);
-  viewer.idle = false;
   if (!inFlight) flush();
 }
 async function flush() {
@@ -118,7 +115,6 @@ function connect() {
       viewer.imageUrl = url;
       viewer.meta = meta;
       viewer.frames += 1;
-      viewer.idle = !meta.preview && !pending && !inFlight && meta.version >= (viewer.version || 0);
       drawOverlay();
       showStats(meta);
       if (!drag && !viewer.busy() && meta.version > (viewer.version || 0)) {
