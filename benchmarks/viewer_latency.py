@@ -1,7 +1,7 @@
 """Update latency of ``photonmap view`` (issue 14, "Done when"): from a ``POST /api/update`` to
 its new frame (``GET /api/frame.png`` returning the full-size PNG of that update), for a light
 move and a camera move, on ``glass_sphere_fog`` (volume method) and ``cornell_ispm`` (screen
-method) at their default sizes and settings.
+method) at their default sizes and settings, and on ``glass_sphere_fog`` with 512² photons.
 
 The viewer is served by uvicorn on 127.0.0.1 and driven over real HTTP (httpx). Each move
 alternates between two positions, so every update needs new work (the stage cache keeps one key
@@ -36,11 +36,14 @@ from photonmap.core.reference import render_reference  # noqa: E402
 from photonmap.scenes import load_scene  # noqa: E402
 from photonmap.viewer import Background, Viewer  # noqa: E402
 
-CASES = {  # scene → (method, two light positions, two camera origins)
-    "glass_sphere_fog": ("volume", ([0.3, 3.0, 0.5], [0.7, 3.0, 0.5]),
-                         ([1.8, 1.7, 2.2], [1.2, 1.8, 2.6])),
-    "cornell_ispm": ("screen", ([0.2, 0.53, 0.28], [0.35, 0.53, 0.28]),
+SPHERE = ([0.3, 3.0, 0.5], [0.7, 3.0, 0.5]), ([1.8, 1.7, 2.2], [1.2, 1.8, 2.6])
+CASES = {  # name → (scene, method, overrides, two light positions, two camera origins)
+    "glass_sphere_fog": ("glass_sphere_fog", "volume", {}, *SPHERE),
+    "cornell_ispm": ("cornell_ispm", "screen", {}, ([0.2, 0.53, 0.28], [0.35, 0.53, 0.28]),
                      ([0.2, 0.3, -0.8], [0.35, 0.25, -0.8])),
+    # the issue's example state: 512² photons instead of the default 1024²
+    "glass_sphere_fog, 512² photons": ("glass_sphere_fog", "volume", {"photons": 512**2},
+                                        *SPHERE),
 }  # fmt: skip
 
 
@@ -86,9 +89,9 @@ def mitsuba_frame_ms(scene: str, runs: int) -> dict:
     return common.summarize(samples[1:])
 
 
-def run_case(scene: str, runs: int) -> dict:
-    method, lights, origins = CASES[scene]
-    background = Background(Viewer(scene, method))
+def run_case(name: str, runs: int) -> dict:
+    scene, method, overrides, lights, origins = CASES[name]
+    background = Background(Viewer(scene, method, dict(overrides)))
     base = background.url.rstrip("/")
     try:
         with httpx.Client(timeout=600) as http:
@@ -133,7 +136,7 @@ def main(argv=None) -> dict:
     args = parser.parse_args(argv)
     runs = 3 if args.quick else args.runs
     results = {"machine": common.machine_info(), "runs": runs,
-               "cases": {scene: run_case(scene, runs) for scene in CASES}}  # fmt: skip
+               "cases": {name: run_case(name, runs) for name in CASES}}  # fmt: skip
     results["machine"]["load_average_end"] = [round(x, 2) for x in __import__("os").getloadavg()]
     rows = []
     for scene, r in results["cases"].items():
