@@ -259,3 +259,22 @@ def test_progressive_method_refines_and_restarts(monkeypatch):
         assert [m["passes"] for m in metas][-3:] == [2, 3, 1]  # no fourth pass: MAX_PASSES
     finally:
         viewer.close()
+
+
+def test_a_change_the_pipeline_refuses_is_undone_and_reported(viewer):
+    """An update that passes the checks but fails in the pipeline (photons beyond memory: the
+    pipeline's own check_grid): the parts applied before it stay, the rest is undone, the page
+    is told why."""
+    worker = viewer.worker
+    worker.wait_frame()
+    errors = []
+    worker.subscribe(lambda meta, frame: meta["type"] == "error" and errors.append(meta))
+    camera = {"origin": [0.5, 0.9, 2.6], "target": [0.5, 0.4, 0.5]}
+    worker.update({"camera": camera, "params": {"photons": 2**31}})
+    frame = worker.wait_frame()
+    assert len(errors) == 1 and "GB of memory" in errors[0]["message"]
+    assert frame.error == errors[0]["message"] and frame.meta()["error"] == frame.error
+    state = worker.target_state()
+    assert state["params"]["photons"] == OVERRIDES["photons"]
+    assert state["camera"]["origin"] == camera["origin"]
+    np.testing.assert_array_equal(frame.pixels, direct(lambda p: p.set_camera(**camera)))

@@ -16,7 +16,9 @@ changes (the state document and parameters captured at start).
 
 from __future__ import annotations
 
+import copy
 import dataclasses
+from abc import ABC, abstractmethod
 
 import mitsuba as mi
 import numpy as np
@@ -58,7 +60,7 @@ def _rgb(light: dict) -> list[float]:
     return (np.asarray(light["color"]) * light["intensity"]).tolist()
 
 
-class Adapter:
+class Adapter(ABC):
     """The viewer's handle on one pipeline of :data:`photonmap.METHODS`.
 
     ``scene`` is a built-in name, an XML path or an ``mi.Scene``; ``overrides`` are method or
@@ -92,11 +94,13 @@ class Adapter:
     def centre(self):
         return scene_bounds(self.pipe.scene)[0]
 
+    @abstractmethod
     def _lights(self) -> list[dict]:
-        raise NotImplementedError
+        """The state entries of the pipeline's lights."""
 
+    @abstractmethod
     def _materials(self) -> dict[str, dict]:
-        raise NotImplementedError
+        """The state entries of the pipeline's materials, by name."""
 
     # --------------------------------------------------------------- checks (any thread)
     def check(self, state: dict, update: dict) -> dict:
@@ -138,10 +142,10 @@ class Adapter:
             new["volume"] = self._check_volume(state, update["volume"])
         return new
 
-    def _check_light(self, index: int, light: dict) -> None:
+    def _check_light(self, index: int, light: dict) -> None:  # noqa: B027 (a hook: none)
         """The method's own checks of a light (beyond :func:`.state.check_light`)."""
 
-    def _check_material(self, name: str, material: dict) -> None:
+    def _check_material(self, name: str, material: dict) -> None:  # noqa: B027 (a hook)
         """The method's own checks of a material (beyond :func:`.state.check_material`)."""
 
     def _check_volume(self, state: dict, update) -> dict:
@@ -150,32 +154,40 @@ class Adapter:
     # --------------------------------------------------------------- changes (render thread)
     def apply(self, diff: dict, new: dict) -> None:
         """Push the changes ``diff`` (a :func:`.state.changes` of the applied state) into the
-        pipeline; ``new`` is the whole state they lead to."""
-        if "camera" in diff:
-            c = new["camera"]
-            self.pipe.set_camera(
-                origin=c["origin"], target=c["target"], fov=c["fov"],
-                width=c["width"], height=c["height"],
-            )  # fmt: skip
-        for index in diff.get("lights", {}):
-            self._set_light(index, new["lights"][index])
-        for name in diff.get("materials", {}):
-            self._set_material(name, new["materials"][name])
-        if "params" in diff:
-            self.pipe.set_params(**diff["params"])
-        if "volume" in diff:
-            self._set_volume(new["volume"])
-        self.state = new
-        self._passes = 0
+        pipeline; ``new`` is the whole state they lead to. If a setter fails, :attr:`state`
+        holds what the pipeline took before it."""
+        done = copy.deepcopy(self.state)
+        try:
+            if "camera" in diff:
+                c = new["camera"]
+                self.pipe.set_camera(
+                    origin=c["origin"], target=c["target"], fov=c["fov"],
+                    width=c["width"], height=c["height"],
+                )  # fmt: skip
+                done["camera"] = new["camera"]
+            for index in diff.get("lights", {}):
+                self._set_light(index, new["lights"][index])
+                done["lights"][index] = new["lights"][index]
+            for name in diff.get("materials", {}):
+                self._set_material(name, new["materials"][name])
+                done["materials"][name] = new["materials"][name]
+            if "params" in diff:
+                self.pipe.set_params(**diff["params"])
+                done["params"] = new["params"]
+            if "volume" in diff:  # only a VolumeAdapter's check lets it through
+                self._set_volume(new["volume"])
+                done["volume"] = new["volume"]
+        finally:
+            self.state = done
+            self._passes = 0
 
+    @abstractmethod
     def _set_light(self, index: int, light: dict) -> None:
-        raise NotImplementedError
+        """Give light ``index`` of the pipeline the values of ``light`` (its state entry)."""
 
+    @abstractmethod
     def _set_material(self, name: str, material: dict) -> None:
-        raise NotImplementedError
-
-    def _set_volume(self, volume: dict) -> None:
-        raise NotImplementedError
+        """Give material ``name`` of the pipeline the values of ``material``."""
 
     # --------------------------------------------------------------- frames (render thread)
     def render(self, size: tuple[int, int]) -> np.ndarray:

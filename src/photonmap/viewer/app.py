@@ -134,8 +134,10 @@ def create_app(viewer: Viewer) -> FastAPI:
         frame = _frame(timeout)
         if isinstance(frame, JSONResponse):
             return frame
-        return Response(frame.png, media_type="image/png",
-                        headers={"X-Frame-Version": str(frame.version)})  # fmt: skip
+        headers = {"X-Frame-Version": str(frame.version)}
+        if frame.error:  # the last update was undone: the pipeline refused it
+            headers["X-Frame-Error"] = frame.error.encode("ascii", "replace").decode()
+        return Response(frame.png, media_type="image/png", headers=headers)
 
     @app.get("/api/frame.json")
     def get_frame_json(timeout: float = 300.0):

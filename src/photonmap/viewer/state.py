@@ -12,15 +12,16 @@ update carrying only what changes::
 Lights are addressed by their index: ``"lights"`` in an update is a list (``null`` or ``{}``
 leaves a light as it is) or an object ``{"1": {...}}``. A light's RGB power is ``color ×
 intensity``. Keys shown read-only (``scene``, ``method``, a light's ``kind``) may be sent back
-unchanged. :func:`check_update` raises a :class:`~photonmap.core.errors.ParameterError` naming
-the first bad value; nothing is applied then. :func:`merged` and :func:`changes` are the two
-halves of coalescing: updates merge into one target state (the newest value of each key wins),
-and the render thread applies only the difference from what the pipeline holds.
+unchanged. The ``check_*`` functions here (and :meth:`.adapters.Adapter.check`, which adds each
+method's own checks) raise a :class:`~photonmap.core.errors.ParameterError` naming the first bad
+value; nothing is applied then. Coalescing has two halves: each checked update
+yields the next target state (the newest value of each key wins;
+:meth:`.adapters.Adapter.check`), and the render thread applies only the difference from what
+the pipeline holds (:func:`changes`).
 """
 
 from __future__ import annotations
 
-import copy
 import math
 
 import numpy as np
@@ -155,23 +156,6 @@ def check_material(name: str, material: dict, update: dict) -> dict:
     for key, value in update.items():
         where = f"materials.{name}.{key}"
         new[key] = number(where, value, 0, lo_open=True) if key == "ior" else rgb(where, value)
-    return new
-
-
-def merged(state: dict, update: dict) -> dict:
-    """``state`` with a checked ``update`` applied (a new document; lights by index)."""
-    new = copy.deepcopy(state)
-    for section, value in update.items():
-        if section in READ_ONLY:
-            continue
-        if section == "lights":
-            for index, changes in light_changes(value, len(new["lights"])).items():
-                new["lights"][index].update(copy.deepcopy(changes))
-        elif section == "materials":
-            for name, changes in value.items():
-                new["materials"][name].update(copy.deepcopy(changes))
-        else:
-            new[section].update(copy.deepcopy(value))
     return new
 
 

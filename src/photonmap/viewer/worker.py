@@ -50,6 +50,7 @@ class Frame:
     fps: float = 0.0  # frames finished per second over the last two seconds
     passes: int = 1  # progressive methods: passes averaged
     parts: dict[str, float] = field(default_factory=dict)  # apply, render, encode: ms each
+    error: str | None = None  # why the changes before it were undone (the pipeline refused)
     _png: bytes | None = None
 
     @property
@@ -67,6 +68,7 @@ class Frame:
             "timings": {k: round(v, 2) for k, v in self.timings.items()},
             "recomputed": self.recomputed, "fps": round(self.fps, 2), "passes": self.passes,
             **{f"{k}_ms": round(v, 2) for k, v in self.parts.items()},
+            **({"error": self.error} if self.error else {}),
         }  # fmt: skip
 
 
@@ -243,7 +245,8 @@ class RenderWorker:
                 {k: 1e3 * v for k, v in parts.items()},
             )  # fmt: skip
             with self._cond:
-                self.frame, self.error = frame, None
+                frame.error, self.error = self.error, None  # the failure this frame undid
+                self.frame = frame
                 self._rendered = max(self._rendered, version)
                 self._last_preview, self._last_time = preview, now
                 listeners = list(self._listeners)
@@ -256,13 +259,14 @@ class RenderWorker:
         (``retry``: render that again), and tell the page why."""
         message = str(exc) if isinstance(exc, PhotonmapError) else f"{type(exc).__name__}: {exc}"
         with self._cond:
-            if retry:
+            if retry:  # the next frame shows the state the pipeline holds, with the reason
                 self.target = copy.deepcopy(applied)
                 self.version += 1
-            else:
+            else:  # no frame for this version: wait_frame raises the reason
                 self._rendered = max(self._rendered, version)
                 self._last_preview = self._refining = False
-            self.error, self._error_version = message, version
+                self._error_version = version
+            self.error = message
             listeners = list(self._listeners)
             self._cond.notify_all()
         for listener in listeners:
