@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from photonmap import ParameterError, ScreenPipeline, SurfacePipeline
-from photonmap.viewer.adapters import ScreenAdapter, SurfaceAdapter
+from photonmap.viewer.mitsuba_adapters import ScreenAdapter, SurfaceAdapter
 from photonmap.viewer.state import changes
 
 SMALL = (48, 36)
@@ -63,7 +63,8 @@ def test_surface_light_material_camera():
     ref = SurfacePipeline("cornell_steinhurst", **SURFACE)
     ref.set_camera(width=SMALL[0], height=SMALL[1])  # as the viewer and `photonmap render` do
     params = mi.traverse(next(e for e in ref.scene.emitters() if e.class_name() == "AreaLight"))
-    params["radiance.value"] = mi.Color3f(*(2 * np.array(params["radiance.value"]).ravel()).tolist())
+    radiance = 2 * np.array(params["radiance.value"]).ravel()
+    params["radiance.value"] = mi.Color3f(*radiance.tolist())
     params.update()
     set_eta(ref, "glass_sphere", 1.3)
     sensor = ref.sensor
@@ -106,11 +107,12 @@ def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
     import time
 
     import photonmap
-    from photonmap.viewer import Viewer, adapters, app
+    from photonmap.viewer import Viewer, adapters, methods
 
     monkeypatch.setitem(photonmap.METHODS, "stepped", photonmap.METHODS["screen"]._replace(
         pipeline=SteppedScreen))  # fmt: skip
-    monkeypatch.setitem(app.ADAPTERS, "stepped", adapters.progressive(ScreenAdapter, ("bounces",)))
+    monkeypatch.setitem(methods.ADAPTERS, "stepped",
+                        adapters.progressive(ScreenAdapter, ("bounces",)))  # fmt: skip
     monkeypatch.setattr(adapters, "MAX_PASSES", 2)
     viewer = Viewer("cornell_ispm", "stepped", {"light_res": 16, "subsample": 2}, SMALL)
     try:

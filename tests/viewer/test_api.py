@@ -97,7 +97,8 @@ BAD = [
     ({"volume": {"frame": 0}}, "no volume sequence"),
     ({"preview": "yes"}, "preview must be true or false"),
     ({"colour": 1}, "unknown key(s) colour"),
-    ({"camera": {"fov": 30}, "lights": [{"intensity": -1}]}, "intensity must be >= 0"),  # all or none
+    # a valid camera with a bad light: refused whole
+    ({"camera": {"fov": 30}, "lights": [{"intensity": -1}]}, "intensity must be >= 0"),
     ([1, 2], "an update must be a JSON object"),
 ]
 
@@ -233,11 +234,12 @@ def test_progressive_method_refines_and_restarts(monkeypatch):
     """How an sppm method is offered: refine while idle (the mean of renders with seeds 0, 1,
     2, ...), restart on any change."""
     from photonmap import VolumePipeline
-    from photonmap.viewer import Viewer, adapters, app
+    from photonmap.viewer import Viewer, adapters, methods
+    from photonmap.viewer.volume_adapter import VolumeAdapter
     from photonmap.viewer.worker import to_srgb8
 
     monkeypatch.setattr(adapters, "MAX_PASSES", 2)
-    monkeypatch.setitem(app.ADAPTERS, "volume", adapters.progressive(adapters.VolumeAdapter))
+    monkeypatch.setitem(methods.ADAPTERS, "volume", adapters.progressive(VolumeAdapter))
     viewer = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE)
     try:
         worker = viewer.worker

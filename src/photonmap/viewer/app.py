@@ -24,8 +24,9 @@ from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from ..core.errors import ParameterError, PhotonmapError
-from .adapters import ADAPTERS, VolumeAdapter, check_stroke
+from .methods import ADAPTERS
 from .state import READ_ONLY
+from .volume_adapter import VolumeAdapter, check_stroke
 from .worker import RenderWorker
 
 STATIC = files("photonmap.viewer") / "static"
