@@ -6,8 +6,9 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: demo test bench lint clean
 
-$(STAMP): pyproject.toml scripts/ensure-llvm.sh
+$(STAMP): pyproject.toml scripts/ensure-llvm.sh scripts/ensure-chromium.sh
 	bash scripts/ensure-llvm.sh
+	bash scripts/ensure-chromium.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[dev]"
@@ -27,6 +28,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/knn_throughput.py
 	$(PY) benchmarks/screen_table1.py
 	$(PY) benchmarks/volume_vs_volpath.py
+	$(PY) benchmarks/viewer_latency.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

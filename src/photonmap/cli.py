@@ -348,3 +348,77 @@ def compare(
         f"4x4-block relative RMSE {m['block_rel_rmse']:.6g}  brightness {m['brightness']:.4f}  "
         f"PSNR {m['psnr']:.2f} dB"
     )
+
+
+@app.command()
+def view(
+    scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
+    method: Annotated[
+        str | None,
+        typer.Option(help="volume | screen | surface (sppm where installed); default as render"),
+    ] = None,
+    port: Annotated[int, typer.Option(help="TCP port of the local web server")] = 8000,
+    host: Annotated[str, typer.Option(help="address to bind (default: this machine only)")] = (
+        "127.0.0.1"
+    ),
+    no_browser: Annotated[
+        bool, typer.Option("--no-browser", help="do not open the page in a browser (a flag)")
+    ] = False,
+    width: Annotated[int | None, typer.Option(help="image width (alone: keeps the aspect)")] = None,
+    height: Annotated[int | None, typer.Option(help="image height")] = None,
+    volumes: Annotated[
+        str | None,
+        typer.Option(help=".npz of volume frames to play: n, sigma_s, kappa, shape (F, N, N, N)"),
+    ] = None,
+    set_: Annotated[
+        list[str] | None,
+        typer.Option("--set", help="KEY=VALUE: a method or scene parameter (repeatable)"),
+    ] = None,
+):
+    """Interactive relighting in the browser: drag the light, orbit the camera, change the
+    glass and the fog, paint the volume; per-stage timings of each change. README "Interactive
+    viewer" documents the page and its HTTP API."""
+    from . import METHODS, PhotonmapError
+    from .core.errors import ParameterError
+    from .core.memory import check_side
+    from .core.scene_info import pick_method
+
+    try:
+        from .viewer import Viewer, serve
+    except ImportError as exc:
+        raise _error(PhotonmapError(
+            f"the viewer needs the 'viewer' extra ({exc.name} is missing): "
+            "pip install 'photonmap[viewer]'"
+        )) from None
+    try:
+        check_side("--width", width)
+        check_side("--height", height)
+        if not 1 <= port <= 65535:
+            raise ParameterError(f"--port must lie in 1…65535, got {port}")
+        if method is not None and method not in METHODS:
+            raise ParameterError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
+        mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
+        if method is None:
+            method = builtin.pipeline if builtin is not None else pick_method(mi_scene)
+        params = _typed_params(method, sets, builtin)
+        frames = None
+        if volumes is not None:
+            import numpy as np
+
+            if not os.path.isfile(volumes):
+                raise ParameterError(f"--volumes: no such file {volumes!r}")
+            with np.load(volumes) as data:
+                frames = {k: data[k] for k in data.files}
+        size = None
+        if width or height:
+            from .scenes import load_scene
+
+            probe = mi_scene if mi_scene is not None else load_scene(scene)[0]
+            size = _image_size(width, height, probe.sensors()[0].film().size())
+        _say(f"loading {scene} ({method})")
+        viewer = Viewer(mi_scene if mi_scene is not None else scene, method, params, size,
+                        frames, name=scene)  # fmt: skip
+        _say(f"photonmap view: http://{host}:{port}/  (Ctrl-C stops)")
+        serve(viewer, host, port, open_browser=not no_browser)
+    except PhotonmapError as exc:
+        raise _error(exc) from None

@@ -1,0 +1,171 @@
+"""Update latency of ``photonmap view`` (issue 14, "Done when"): from a ``POST /api/update`` to
+its new frame (``GET /api/frame.png`` returning the full-size PNG of that update), for a light
+move and a camera move, on ``glass_sphere_fog`` (volume method) and ``cornell_ispm`` (screen
+method) at their default sizes and settings, and on ``glass_sphere_fog`` with 512² photons.
+
+The viewer is served by uvicorn on 127.0.0.1 and driven over real HTTP (httpx). Each move
+alternates between two positions, so every update needs new work (the stage cache keeps one key
+per stage). Per update it records the latency to the PNG, the latency to the frame's arrival on
+the WebSocket stream (what the page waits for: a JPEG), the render thread's own time (applying
+the change through the pipeline's setters, rendering, sRGB conversion and JPEG encoding) and
+the stages that reran.
+For scale, the same run times one frame of Mitsuba's own integrator on the same scene at 1 spp
+(``volpath`` with fog, else ``path``): the ratio says how many such frames one update costs.
+
+    .venv/bin/python benchmarks/viewer_latency.py [--runs 7] [--quick]
+
+Writes ``results/viewer_latency.json`` and ``.md``; the machine is shared, so the load average
+is recorded and medians are reported.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import httpx  # noqa: E402
+from websockets.sync.client import connect  # noqa: E402
+
+import common  # noqa: E402
+import photonmap  # noqa: E402
+from photonmap.core.reference import render_reference  # noqa: E402
+from photonmap.scenes import load_scene  # noqa: E402
+from photonmap.viewer import Background, Viewer  # noqa: E402
+
+SPHERE = ([0.3, 3.0, 0.5], [0.7, 3.0, 0.5]), ([1.8, 1.7, 2.2], [1.2, 1.8, 2.6])
+CASES = {  # name → (scene, method, overrides, two light positions, two camera origins)
+    "glass_sphere_fog": ("glass_sphere_fog", "volume", {}, *SPHERE),
+    "cornell_ispm": ("cornell_ispm", "screen", {}, ([0.2, 0.53, 0.28], [0.35, 0.53, 0.28]),
+                     ([0.2, 0.3, -0.8], [0.35, 0.25, -0.8])),
+    # the issue's example state: 512² photons instead of the default 1024²
+    "glass_sphere_fog, 512² photons": ("glass_sphere_fog", "volume", {"photons": 512**2},
+                                        *SPHERE),
+}  # fmt: skip
+
+
+def streamed(ws, version: int) -> dict:
+    """Read the frame stream up to the full-size frame of ``version``; returns its message."""
+    while True:
+        message = json.loads(ws.recv())
+        if message["type"] == "error":
+            raise RuntimeError(message["message"])
+        ws.recv()  # the image
+        if message["version"] >= version and not message["preview"]:
+            return message
+
+
+def measure(http: httpx.Client, ws, base: str, updates: list[dict]) -> list[dict]:
+    out = []
+    for update in updates:
+        start = time.perf_counter()
+        reply = http.post(base + "/api/update", json=update)
+        reply.raise_for_status()
+        meta = streamed(ws, reply.json()["version"])
+        stream = 1e3 * (time.perf_counter() - start)
+        frame = http.get(base + "/api/frame.png")
+        frame.raise_for_status()
+        latency = 1e3 * (time.perf_counter() - start)
+        assert int(frame.headers["X-Frame-Version"]) == meta["version"] >= reply.json()["version"]
+        out.append({"latency_ms": latency, "stream_ms": stream, "frame_ms": meta["ms"],
+                    "apply_ms": meta["apply_ms"],
+                    "render_ms": meta["render_ms"], "encode_ms": meta["encode_ms"],
+                    "png_bytes": len(frame.content), "recomputed": meta["recomputed"],
+                    "timings": meta["timings"]})  # fmt: skip
+    return out
+
+
+def mitsuba_frame_ms(scene: str, runs: int) -> dict:
+    """One 1-spp frame of Mitsuba's own integrator on the same scene (after a warm-up)."""
+    mi_scene, _ = load_scene(scene)
+    samples = []
+    for i in range(runs + 1):
+        start = time.perf_counter()
+        render_reference(mi_scene, spp=1, seed=i)
+        samples.append(1e3 * (time.perf_counter() - start))
+    return common.summarize(samples[1:])
+
+
+def run_case(name: str, runs: int) -> dict:
+    scene, method, overrides, lights, origins = CASES[name]
+    background = Background(Viewer(scene, method, dict(overrides)))
+    base = background.url.rstrip("/")
+    try:
+        with httpx.Client(timeout=600) as http:
+            start = time.perf_counter()
+            first = http.get(base + "/api/frame.png")
+            first.raise_for_status()
+            first_ms = 1e3 * (time.perf_counter() - start)
+            state = http.get(base + "/api/state").json()
+            with connect(base.replace("http", "ws") + "/api/stream", max_size=None) as ws:
+                streamed(ws, 0)
+                light = measure(http, ws, base, [
+                    {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)
+                ])[1:]  # fmt: skip
+                camera = measure(http, ws, base, [
+                    {"camera": {"origin": origins[i % 2]}} for i in range(runs + 1)
+                ])[1:]  # fmt: skip
+    finally:
+        background.stop()
+    size = (state["camera"]["width"], state["camera"]["height"])
+    mitsuba = mitsuba_frame_ms(scene, max(2, runs // 2))
+    result = {"method": method, "size": size, "params": state["params"], "first_frame_ms": first_ms,
+              "mitsuba_1spp_frame_ms": mitsuba}  # fmt: skip
+    for name, samples in (("light", light), ("camera", camera)):
+        result[name] = {
+            "latency_ms": common.summarize([s["latency_ms"] for s in samples]),
+            **{key: common.summarize([s[key] for s in samples])
+               for key in ("stream_ms", "frame_ms", "apply_ms", "render_ms", "encode_ms")},
+            "stages_ms": common.stage_medians([s["timings"] for s in samples]),
+            "recomputed": samples[-1]["recomputed"],
+            "png_bytes": samples[-1]["png_bytes"],
+            "latency_over_mitsuba_1spp": common.median(s["latency_ms"] for s in samples)
+            / mitsuba["median"],
+        }
+    return result
+
+
+def main(argv=None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--runs", type=int, default=7, help="timed updates per kind of move")
+    parser.add_argument("--quick", action="store_true", help="3 runs")
+    parser.add_argument("--out-dir", default=str(common.RESULTS))
+    args = parser.parse_args(argv)
+    runs = 3 if args.quick else args.runs
+    results = {"machine": common.machine_info(), "runs": runs,
+               "cases": {name: run_case(name, runs) for name in CASES}}  # fmt: skip
+    results["machine"]["load_average_end"] = [round(x, 2) for x in __import__("os").getloadavg()]
+    rows = []
+    for scene, r in results["cases"].items():
+        for move in ("light", "camera"):
+            m = r[move]
+            rows.append([
+                scene, r["method"], f"{r['size'][0]}×{r['size'][1]}", move,
+                common.fmt(m["latency_ms"]["median"]), common.fmt(m["stream_ms"]["median"]),
+                common.fmt(m["apply_ms"]["median"]),
+                common.fmt(m["render_ms"]["median"]), common.fmt(m["encode_ms"]["median"]),
+                common.fmt(r["mitsuba_1spp_frame_ms"]["median"]),
+                common.fmt(m["latency_over_mitsuba_1spp"], 2), ", ".join(m["recomputed"]),
+            ])  # fmt: skip
+    table = common.markdown_table(
+        ["scene", "method", "size", "move", "latency ms (PNG)", "stream ms", "apply ms",
+         "render ms", "encode ms", "Mitsuba 1 spp ms", "latency / Mitsuba frame",
+         "stages rerun"], rows, "llllrrrrrrrl",
+    )  # fmt: skip
+    load = results["machine"].get("load_average")
+    text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"
+            f"Medians of {runs} updates each; load average {load} at the start, "
+            f"{results['machine']['load_average_end']} at the end.\n")  # fmt: skip
+    out = Path(args.out_dir)
+    common.write_json(out / "viewer_latency.json", results)
+    common.write_text(out / "viewer_latency.md", text)
+    print(text)
+    return results
+
+
+if __name__ == "__main__":
+    photonmap.set_device("cpu")
+    main()

@@ -1,0 +1,255 @@
+"""The viewer's web server: one static page and a small HTTP API (issue 14 items 1 and 3;
+README "Interactive viewer" documents it).
+
+=========================  ===============================================================
+``GET /``                  the page (``static/index.html``)
+``GET /api/state``         scene, method and current values, in the shape ``/api/update`` takes
+``POST /api/update``       a partial state; 422 with the reason (state unchanged) if invalid
+``POST /api/paint``        a brush stroke into the volume (volume method; Sun §6.2.1)
+``POST /api/reset``        undo the painting
+``GET /api/frame.png``     the image after every change made so far (waits for it)
+``GET /api/frame.json``    how that image was made: per-stage ms, the stages that reran, fps
+``WS /api/stream``         every frame: a JSON message, then the image as a binary message
+=========================  ===============================================================
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from importlib.resources import files
+
+from fastapi import FastAPI, Request, WebSocket, WebSocketDisconnect
+from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.staticfiles import StaticFiles
+
+from ..core.errors import ParameterError, PhotonmapError
+from .methods import ADAPTERS
+from .state import READ_ONLY
+from .volume_adapter import VolumeAdapter, check_stroke
+from .worker import RenderWorker
+
+STATIC = files("photonmap.viewer") / "static"
+
+
+class Viewer:
+    """A scene rendered by one method, its render thread and its state document."""
+
+    def __init__(self, scene, method: str, overrides=None, size=None, frames=None, name=None,
+                 preview_scale: int = 4, settle: float = 0.25):  # fmt: skip
+        if method not in ADAPTERS:
+            raise ParameterError(
+                f"unknown method {method!r}; the viewer offers {', '.join(ADAPTERS)}"
+            )
+        extra = {}
+        if frames is not None:
+            if not issubclass(ADAPTERS[method], VolumeAdapter):
+                raise ParameterError("a volume sequence (--volumes) needs the volume method")
+            extra["frames"] = frames
+        self.adapter = ADAPTERS[method](method, scene, overrides, size, **extra)
+        self.scene = name or str(scene)
+        self.method = method
+        self.worker = RenderWorker(self.adapter, preview_scale, settle)
+
+    def state(self) -> dict:
+        """The state document (:mod:`.state`) with the read-only facts around it."""
+        values = self.worker.target_state()
+        out = {"scene": self.scene, "method": self.method, "methods": list(ADAPTERS),
+               "stages": list(self.adapter.stages), **values}  # fmt: skip
+        if isinstance(self.adapter, VolumeAdapter):
+            out["frames"] = self.adapter.frame_count
+            out["brush_fields"] = ["sigma_s", "n"]
+        return out
+
+    def update(self, update) -> int:
+        """Check ``update`` (read-only keys may only repeat their values) and hand it to the
+        render thread; returns the state version it makes."""
+        if isinstance(update, dict):
+            facts = self.state()
+            for key in READ_ONLY:
+                if key in update and update[key] != facts.get(key):
+                    raise ParameterError(
+                        f"{key} is read-only ({facts.get(key)!r}): start another `photonmap view`"
+                    )
+        return self.worker.update(update)[1]
+
+    def close(self) -> None:
+        self.worker.stop()
+
+
+def _unprocessable(exc: Exception) -> JSONResponse:
+    return JSONResponse({"detail": str(exc)}, status_code=422)
+
+
+async def _json(request: Request):
+    try:
+        return await request.json()
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ParameterError(f"the body is not valid JSON: {exc}") from None
+
+
+def create_app(viewer: Viewer) -> FastAPI:
+    """The FastAPI application serving ``viewer``."""
+    app = FastAPI(title="photonmap view", docs_url=None, redoc_url=None)
+    app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
+
+    @app.exception_handler(PhotonmapError)
+    async def photonmap_error(request, exc):
+        return _unprocessable(exc)
+
+    @app.get("/")
+    def index():
+        return FileResponse(str(STATIC / "index.html"))
+
+    @app.get("/api/state")
+    def get_state():
+        return viewer.state()
+
+    @app.post("/api/update")
+    async def post_update(request: Request):
+        version = viewer.update(await _json(request))
+        return {"version": version, "state": viewer.state()}
+
+    @app.post("/api/paint")
+    async def post_paint(request: Request):
+        if not isinstance(viewer.adapter, VolumeAdapter):
+            raise ParameterError(f"painting needs the volume method, not {viewer.method}")
+        stroke = check_stroke(await _json(request))
+        return {"version": viewer.worker.act(lambda: viewer.adapter.paint(stroke))}
+
+    @app.post("/api/reset")
+    def post_reset():
+        if not isinstance(viewer.adapter, VolumeAdapter):
+            raise ParameterError(f"reset undoes painting, which needs the volume method, not "
+                                 f"{viewer.method}")  # fmt: skip
+        return {"version": viewer.worker.act(viewer.adapter.reset_volume)}
+
+    def _frame(timeout: float):
+        try:
+            return viewer.worker.wait_frame(timeout=timeout)
+        except TimeoutError as exc:
+            return JSONResponse({"detail": str(exc)}, status_code=504)
+
+    @app.get("/api/frame.png")
+    def get_frame_png(timeout: float = 300.0):
+        frame = _frame(timeout)
+        if isinstance(frame, JSONResponse):
+            return frame
+        headers = {"X-Frame-Version": str(frame.version)}
+        if frame.error:  # the last update was undone: the pipeline refused it
+            headers["X-Frame-Error"] = frame.error.encode("ascii", "replace").decode()
+        return Response(frame.png, media_type="image/png", headers=headers)
+
+    @app.get("/api/frame.json")
+    def get_frame_json(timeout: float = 300.0):
+        frame = _frame(timeout)
+        return frame if isinstance(frame, JSONResponse) else frame.meta()
+
+    @app.websocket("/api/stream")
+    async def stream(ws: WebSocket):
+        await ws.accept()
+        loop = asyncio.get_running_loop()
+        wake = asyncio.Event()
+        latest: list = []  # newest message only: a slow client skips frames, never queues them
+        errors: list = []
+
+        def listener(message, frame):
+            (latest if frame is not None else errors).append((message, frame))
+            del latest[:-1]
+            loop.call_soon_threadsafe(wake.set)
+
+        frame = viewer.worker.frame
+        if frame is not None:
+            latest.append((frame.meta(), frame))
+            wake.set()
+        closed = []
+
+        async def watch():  # the page sends nothing; this notices when it goes away
+            try:
+                while True:
+                    await ws.receive_text()
+            except WebSocketDisconnect:
+                closed.append(True)
+                wake.set()
+
+        watcher = asyncio.create_task(watch())
+        viewer.worker.subscribe(listener)
+        try:
+            while True:
+                await wake.wait()
+                wake.clear()
+                if closed:
+                    break
+                while errors:
+                    await ws.send_json(errors.pop(0)[0])
+                if latest:
+                    message, frame = latest.pop()
+                    await ws.send_json(message)
+                    await ws.send_bytes(frame.data)
+        except (WebSocketDisconnect, RuntimeError):
+            pass
+        finally:
+            viewer.worker.unsubscribe(listener)
+            watcher.cancel()
+
+    return app
+
+
+class Background:
+    """The viewer served by uvicorn on a thread (scripts, tests, notebooks): ``url``, ``stop()``.
+
+    >>> with Background(Viewer("cornell_ispm", "screen")) as bg:
+    ...     httpx.get(bg.url + "api/state")
+    """
+
+    def __init__(self, viewer: Viewer, host: str = "127.0.0.1", port: int = 0,
+                 timeout: float = 60.0):  # fmt: skip
+        import socket
+        import threading
+        import time
+
+        import uvicorn
+
+        if port == 0:  # a free port of this machine
+            with socket.socket() as s:
+                s.bind((host, 0))
+                port = s.getsockname()[1]
+        self.viewer = viewer
+        self.url = f"http://{host}:{port}/"
+        config = uvicorn.Config(create_app(viewer), host=host, port=port, log_level="warning")
+        self._server = uvicorn.Server(config)
+        self._thread = threading.Thread(target=self._server.run, daemon=True)
+        self._thread.start()
+        deadline = time.monotonic() + timeout
+        while not self._server.started:
+            if not self._thread.is_alive() or time.monotonic() > deadline:
+                raise PhotonmapError(f"the viewer's server did not start on {self.url}")
+            time.sleep(0.02)
+
+    def stop(self) -> None:
+        """Stop the server and the viewer's render thread."""
+        self._server.should_exit = True
+        self._thread.join(timeout=30)
+        self.viewer.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop()
+
+
+def serve(viewer: Viewer, host: str = "127.0.0.1", port: int = 8000, open_browser: bool = True):
+    """Run the server until interrupted; open the page in the default browser once it is up."""
+    import threading
+    import webbrowser
+
+    import uvicorn
+
+    url = f"http://{host}:{port}/"
+    if open_browser:
+        threading.Timer(1.0, webbrowser.open, args=(url,)).start()
+    try:
+        uvicorn.run(create_app(viewer), host=host, port=port, log_level="warning")
+    finally:
+        viewer.close()
