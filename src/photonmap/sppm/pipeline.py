@@ -55,6 +55,7 @@ class SPPMParams:
     seed: int = 0
     max_depth: int = 8  # bounces of photon paths and of the eye paths' specular chains
     mode: str = "sppm"  # "sppm" (per-pixel radii) | "memoryless" (Knaus & Zwicker 2011)
+    aim: float = 0.5  # fraction of the area lights' photons aimed at specular shapes (0 = none)
 
     def validate(self) -> None:
         """Types (:func:`~photonmap.core.params.check_fields`), then ranges and choices."""
@@ -66,6 +67,8 @@ class SPPMParams:
         check_range("radius", self.radius, 0, None, "the initial gather radius; 0 = automatic")
         check_range("alpha", self.alpha, 0, 1, "SPPM's α (2/3 is usual)", True, True)
         check_range("max_depth", self.max_depth, 1, None, "bounces of photon and eye paths")
+        check_range("aim", self.aim, 0, 1, "fraction of photons aimed at specular shapes",
+                    hi_open=True)
         check_choice("mode", self.mode, MODES, "progressive per-pixel radii or memoryless")
 
 
@@ -147,7 +150,10 @@ class SPPMPipeline(MovableCamera):
         """Forget all iterations (the next :meth:`step` is iteration 1)."""
         self._state = None  # PixelState (sppm) or BlockSums (memoryless)
         self.iterations = 0
-        self.stats = {"photons": 0, "photon_records": 0, "gathers": 0}
+        self.stats = {
+            "photons": 0, "photon_records": 0, "gathers": 0, "aimed_photons": 0,
+            "aimed_on_specular": 0.0,
+        }  # fmt: skip
         if hasattr(self, "timer"):
             self.timer.reset()
 
@@ -197,11 +203,15 @@ class SPPMPipeline(MovableCamera):
         with self.timer("eye pass"):
             points = eye_pass(self.scene, self.sensor, eye_seed, p.max_depth, self.null_shapes)
         with self.timer("photon pass"):
-            photons = photon_pass(self.scene, p.photons_per_iteration, photon_seed, p.max_depth)
+            photons = photon_pass(
+                self.scene, p.photons_per_iteration, photon_seed, p.max_depth, p.aim
+            )
         with self.timer("gather"):
             got = gather(points, radius, photons)
         self.stats["photons"] += p.photons_per_iteration
         self.stats["photon_records"] += photons.count
+        self.stats["aimed_photons"] += photons.aimed
+        self.stats["aimed_on_specular"] += photons.caustic_fraction * photons.aimed
         self.stats["gathers"] += dr.width(points.found)
         return points, got
 
