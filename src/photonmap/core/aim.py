@@ -174,11 +174,13 @@ def trace_aimed_photons(
     aimed = aimed.astype(np.int64)
     plain = counts - aimed
     index = np.arange(len(counts), dtype=np.uint32)
-    plain_emitter = mi.UInt32(np.repeat(index, plain))
-    ray, weight = _sample_rays(scene, plain_emitter, seed)
-    power = weight / dr.gather(mi.Float, mi.Float(np.maximum(plain, 1).astype(np.float32)),
-                               plain_emitter)  # fmt: skip
     n_plain, n_aimed = int(plain.sum()), int(aimed.sum())
+    parts = []  # (ray, power, emitter) of the plain paths, then of the aimed ones
+    if n_plain:
+        plain_emitter = mi.UInt32(np.repeat(index, plain))
+        ray, weight = _sample_rays(scene, plain_emitter, seed)
+        per = dr.gather(mi.Float, mi.Float(np.maximum(plain, 1).astype(np.float32)), plain_emitter)
+        parts.append((ray, weight / per, plain_emitter))
     fraction = 0.0
     if n_aimed:
         aimed_emitter = mi.UInt32(np.repeat(index, aimed))
@@ -186,12 +188,13 @@ def trace_aimed_photons(
         first = intersect_visible(scene, a_ray, True, has_null_shapes(scene))
         hits = is_specular(first.bsdf(a_ray), first.is_valid())
         fraction = float(dr.count(hits)[0]) / n_aimed
-        if n_plain:
-            ray = mi.Ray3f(_join(ray.o, a_ray.o), _join(ray.d, a_ray.d))
-            power = _join(power, a_power)
-            plain_emitter = dr.concat([plain_emitter, aimed_emitter])
-        else:
-            ray, power, plain_emitter = a_ray, a_power, aimed_emitter
+        parts.append((a_ray, a_power, aimed_emitter))
+    if len(parts) == 2:
+        (ray, power, emitter), (a_ray, a_power, a_emitter) = parts
+        ray = mi.Ray3f(_join(ray.o, a_ray.o), _join(ray.d, a_ray.d))
+        power, emitter = _join(power, a_power), dr.concat([emitter, a_emitter])
+    else:
+        ray, power, emitter = parts[0]
     emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
     records = _trace(
         scene, ray, power, rng(paths, seed, stream=1), max_depth, rr_depth, caustics_only,
@@ -205,7 +208,7 @@ def trace_aimed_photons(
         depth = dr.gather(mi.UInt32, records["depth"], slot)
         smooth_first = dr.zeros(mi.Bool, paths)
         dr.scatter(smooth_first, True, path, depth == 1)
-        em = dr.gather(mi.UInt32, plain_emitter, path)
+        em = dr.gather(mi.UInt32, emitter, path)
         partitioned = dr.gather(mi.Bool, mi.Bool(can), em)
         keep = ~partitioned | (dr.gather(mi.Bool, smooth_first, path) == (path < n_plain))
         slot = dr.gather(mi.UInt32, slot, dr.compress(keep))
