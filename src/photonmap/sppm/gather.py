@@ -90,6 +90,9 @@ def _scan(grid: HashGrid, points: VisiblePoints, radius, power, direction):
     return flux * points.beta, count
 
 
+MAX_FIRST_SHRINK = 8.0  # the first iteration shrinks a radius by at most this factor
+
+
 @dataclass
 class PixelState:
     """The per-pixel statistics of progressive SPPM (Hachisuka & Jensen 2009 §4)."""
@@ -110,14 +113,28 @@ class PixelState:
             0,
         )
 
-    def updated(self, points: VisiblePoints, got: Gathered, alpha: float) -> PixelState:
+    def updated(
+        self, points: VisiblePoints, got: Gathered, alpha: float, target: float | None = None
+    ) -> PixelState:
         """The state after one iteration (spec beyond-seeds §1 step 3); pixels without a visible
-        point or without photons keep N, R and τ."""
+        point or without photons keep N, R and τ.
+
+        ``target`` (the first iteration only): a pixel that found ``M`` photons may shrink its
+        radius further, to the disk that would hold about ``target`` of them, ``R·sqrt(target/M)``
+        (at most by :data:`MAX_FIRST_SHRINK`) — PPM's photon-density start (Hachisuka et al.
+        2008 set the first radius from the photons). The update keeps the law's form: with
+        ``s = R_new/R_old`` ≤ the SPPM value, ``N_new = (N + M)·s²`` and ``τ_new = (τ + φ)·s²``
+        (the photons and flux inside the smaller disk, for a locally uniform density)."""
         m = dr.select(points.found, got.count, 0.0)
-        n_new = self.photons + alpha * m
-        shrink = dr.select(m > 0, dr.sqrt(n_new / dr.maximum(self.photons + m, 1e-30)), 1.0)
-        radius = self.radius * shrink
-        tau = (self.tau + dr.select(points.found, got.flux, 0.0)) * dr.square(shrink)
+        total = self.photons + m
+        shrink2 = (self.photons + alpha * m) / dr.maximum(total, 1e-30)
+        if target is not None:
+            dense = dr.maximum(target / dr.maximum(m, 1e-30), MAX_FIRST_SHRINK**-2)
+            shrink2 = dr.minimum(shrink2, dense)
+        shrink2 = dr.select(m > 0, shrink2, 1.0)
+        radius = self.radius * dr.sqrt(shrink2)
+        n_new = total * shrink2
+        tau = (self.tau + dr.select(points.found, got.flux, 0.0)) * shrink2
         direct = self.direct + mi.Color3f(points.direct)
         dr.eval(radius, n_new, tau, direct)
         return PixelState(radius, n_new, tau, direct, self.iterations + 1)

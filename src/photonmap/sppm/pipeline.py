@@ -15,7 +15,9 @@ per-pixel state, whatever the number of iterations.
   blocks from anywhere merge into the same image (the basis of distributed rendering).
 
 ``radius = 0`` picks ``r_1`` automatically: :data:`RADIUS_PIXELS` pixel footprints at the median
-distance of the surfaces the camera sees.
+distance of the surfaces the camera sees; in ``sppm`` mode the first iteration then shrinks each
+pixel's radius to hold about :data:`FIRST_PHOTONS` photons (:meth:`.gather.PixelState.updated`:
+small radii where photons are dense, in caustics). A given ``radius`` is every pixel's start.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ from .visible import eye_pass
 MODES = ("sppm", "memoryless")
 STAGES = ("eye pass", "photon pass", "gather")
 RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
+FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
 
 
 @dataclass
@@ -251,7 +254,9 @@ class SPPMPipeline(MovableCamera):
             w, h = self.size
             state = self._state or PixelState.start(w * h, self.initial_radius())
             points, got = self._iteration(i, state.radius)
-            new = state.updated(points, got, self.params.alpha)
+            automatic = state.iterations == 0 and self.params.radius == 0
+            target = FIRST_PHOTONS if automatic else None
+            new = state.updated(points, got, self.params.alpha, target)
         self._state, self.iterations = new, i  # one assignment: Ctrl-C keeps a whole iteration
 
     def image(self) -> mi.TensorXf:
