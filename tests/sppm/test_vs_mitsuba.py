@@ -19,45 +19,18 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from caustic_scene import spot_caustic_scene
 from photonmap.core.image import compare
 from photonmap.sppm import SPPMPipeline
 
 T = mi.ScalarTransform4f
 FLOOR = -2.2  # below the ball's focus: a small bright caustic with a sharp rim
-
-
-def spot_caustic_scene(res: int = 48) -> mi.Scene:
-    """A glass ball (r = 1, n = 1.5) under a narrow spot 20 above it; the camera sees the floor
-    and the caustic, not the ball (ptracer renders every pixel)."""
-    return mi.load_dict(
-        {
-            "type": "scene",
-            "ball": {"type": "sphere", "bsdf": {"type": "dielectric", "int_ior": 1.5}},
-            "floor": {
-                "type": "rectangle",
-                "to_world": T().translate([0, FLOOR, 0]).rotate([1, 0, 0], -90).scale(4),
-                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}},
-            },
-            "light": {
-                "type": "spot",
-                "cutoff_angle": 3.5,
-                "beam_width": 3.4,
-                "intensity": 100.0,
-                "to_world": T().look_at(origin=[0, 20, 0], target=[0, 0, 0], up=[0, 0, 1]),
-            },
-            "sensor": {
-                "type": "perspective",
-                "fov": 30,
-                "to_world": T().look_at(origin=[0, 0.5, 6], target=[0, FLOOR, 0], up=[0, 1, 0]),
-                "film": {"type": "hdrfilm", "width": res, "height": res, "rfilter": {"type": "box"}},
-            },
-        }
-    )
+# (tests/caustic_scene.py: the spot-lit glass ball; the camera sees the floor, not the ball)
 
 
 @pytest.fixture(scope="module")
 def caustic():
-    scene = spot_caustic_scene()
+    scene = spot_caustic_scene(FLOOR)
     ptracer = mi.load_dict({"type": "ptracer", "max_depth": 16})
     return scene, np.array(mi.render(scene, integrator=ptracer, spp=1024, seed=0))
 
