@@ -57,3 +57,14 @@ def test_block_errors(pipe):
     sppm = SPPMPipeline(SCENE, photons_per_iteration=1000)
     with pytest.raises(ParameterError, match="mode='memoryless'"):
         sppm.render_block(1, 1)
+
+
+def test_iteration_seeds_are_distinct():
+    """Every (seed, iteration) pair draws its own random numbers, and the eye and photon
+    passes of one iteration their own streams."""
+    from photonmap.sppm.pipeline import iteration_seeds
+
+    seeds = [iteration_seeds(s, i) for s in range(4) for i in range(1, 200)]
+    flat = [x for pair in seeds for x in pair]
+    assert len(set(flat)) == len(flat)
+    assert iteration_seeds(3, 7) == iteration_seeds(3, 7)
