@@ -106,3 +106,17 @@ def test_without_specular_shapes_nothing_is_aimed():
 def test_bad_aim(aim):
     with pytest.raises(ParameterError, match="aim must lie in"):
         trace_aimed_photons(mi.load_file(EXAMPLE), 1000, aim)
+
+
+def test_a_trace_that_stores_nothing():
+    """A spot light aimed at nothing smooth: no records (the caustic map of a scene without
+    caustics), an empty result rather than an error."""
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "glass": {"type": "sphere", "bsdf": {"type": "dielectric"}},
+            "light": {"type": "point", "position": [0, 5, 0]},
+        }
+    )
+    for aim, only in ((0.5, False), (1.0, True)):
+        assert trace_aimed_photons(scene, 1000, aim, caustics_only=only).records.count == 0

@@ -202,8 +202,8 @@ def trace_aimed_photons(
     )  # fmt: skip
     stored = records.pop("stored")
     slot = dr.compress(stored)
-    path = slot % paths
-    if n_aimed and not caustics_only:
+    if n_aimed and not caustics_only and dr.width(slot):
+        path = slot % paths
         # a path's first interaction was smooth iff it left a record at depth 1
         depth = dr.gather(mi.UInt32, records["depth"], slot)
         smooth_first = dr.zeros(mi.Bool, paths)
