@@ -29,6 +29,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/screen_table1.py
 	$(PY) benchmarks/volume_vs_volpath.py
 	$(PY) benchmarks/viewer_latency.py
+	$(PY) benchmarks/caustics_vs_path.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

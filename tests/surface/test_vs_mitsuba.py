@@ -16,6 +16,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from caustic_scene import spot_caustic_scene
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
@@ -75,35 +76,7 @@ def caustic_scene() -> mi.Scene:
     floor at twice the focal distance: the caustic is a broad disk with a bright rim, 61 % of the
     image's light (the rest is the spot's spill around the ball's shadow). The camera sees the
     floor only, not the ball."""
-    floor = -3.24
-    return mi.load_dict(
-        {
-            "type": "scene",
-            "ball": {
-                "type": "sphere",
-                "radius": 1.0,
-                "bsdf": {"type": "dielectric", "int_ior": 1.5},
-            },
-            "floor": {
-                "type": "rectangle",
-                "to_world": T().translate([0, floor, 0]).rotate([1, 0, 0], -90).scale(4),
-                "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.5}},
-            },
-            "light": {
-                "type": "spot",
-                "cutoff_angle": 3.5,
-                "beam_width": 3.4,
-                "intensity": 100.0,
-                "to_world": T().look_at(origin=[0, 20, 0], target=[0, 0, 0], up=[0, 0, 1]),
-            },
-            "sensor": {
-                "type": "perspective",
-                "fov": 30,
-                "to_world": T().look_at(origin=[0, 0.5, 6], target=[0, floor, 0], up=[0, 1, 0]),
-                "film": {"type": "hdrfilm", "width": 48, "height": 48, "rfilter": {"type": "box"}},
-            },
-        }
-    )
+    return spot_caustic_scene(-3.24)
 
 
 def test_caustic_power_under_a_glass_ball_against_ptracer():

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..core.aim import trace_aimed_photons
 from ..core.errors import ParameterError
 from ..core.hashgrid import HashGrid
 from ..core.media import VolumeMap
@@ -76,9 +77,9 @@ def build_photon_maps(
         )
     global_records = trace_photons(scene, photons, max_depth=max_depth, seed=seed)
     if caustic_photons:
-        caustic_records = trace_photons(
-            scene, caustic_photons, max_depth=max_depth, seed=seed + 1, caustics_only=True
-        )
+        caustic_records = trace_aimed_photons(  # aimed at the specular shapes (issue 12)
+            scene, caustic_photons, 1.0, max_depth=max_depth, seed=seed + 1, caustics_only=True
+        ).records
     else:
         caustic_records = global_records.select(dr.zeros(mi.Bool, global_records.count))
     return photon_map(global_records, structure), photon_map(caustic_records, structure)
