@@ -3,7 +3,7 @@
 Importing the package finds a usable libLLVM (see :mod:`photonmap.core.llvm`), selects a Mitsuba
 variant (``llvm_ad_rgb`` by default; ``PHOTONMAP_DEVICE=cuda`` or :func:`set_device` selects
 ``cuda_ad_rgb``) and registers the Mitsuba integrator plugins (``volume_photon``,
-``photon_mapper``, ``ispm``).
+``photon_mapper``, ``ispm``, ``sppm``).
 """
 
 from __future__ import annotations
@@ -38,12 +38,14 @@ def set_device(device: str) -> str:
 
 def _register_plugins() -> None:
     from .screen.integrator import register as register_screen
+    from .sppm.integrator import register as register_sppm
     from .surface.integrator import register as register_surface
     from .volume.integrator import register as register_volume
 
     register_volume()
     register_surface()
     register_screen()
+    register_sppm()
 
 
 set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
@@ -54,6 +56,8 @@ from .core.image import compare  # noqa: E402
 from .core.reference import render_reference  # noqa: E402
 from .screen.pipeline import STAGES as SCREEN_STAGES  # noqa: E402
 from .screen.pipeline import ScreenParams, ScreenPipeline  # noqa: E402
+from .sppm.pipeline import STAGES as SPPM_STAGES  # noqa: E402
+from .sppm.pipeline import BlockSums, SPPMParams, SPPMPipeline  # noqa: E402
 from .surface.pipeline import STAGES as SURFACE_STAGES  # noqa: E402
 from .surface.pipeline import SurfaceParams, SurfacePipeline  # noqa: E402
 from .volume.params import STAGES as VOLUME_STAGES  # noqa: E402
@@ -73,18 +77,23 @@ METHODS = {
     "volume": Method(VolumePipeline, VolumeParams, VOLUME_STAGES),
     "surface": Method(SurfacePipeline, SurfaceParams, SURFACE_STAGES),
     "screen": Method(ScreenPipeline, ScreenParams, SCREEN_STAGES),
+    "sppm": Method(SPPMPipeline, SPPMParams, SPPM_STAGES),
 }
 
 __all__ = [
     "METHODS",
     "SCREEN_STAGES",
+    "SPPM_STAGES",
     "SURFACE_STAGES",
     "VOLUME_STAGES",
     "BackendError",
+    "BlockSums",
     "Method",
     "ParameterError",
     "PhotonmapError",
     "PhotonmapWarning",
+    "SPPMParams",
+    "SPPMPipeline",
     "SceneError",
     "ScreenParams",
     "ScreenPipeline",

@@ -133,7 +133,7 @@ def render(
     method: Annotated[
         str | None,
         typer.Option(
-            help="volume | surface | screen (default: a built-in's own; for a file, volume if "
+            help="volume | surface | screen | sppm (default: a built-in's own; for a file, volume if "
             "it holds fog, else surface)"
         ),
     ] = None,
@@ -155,6 +155,12 @@ def render(
             "--timings/--no-timings", metavar=" ", help="print per-stage milliseconds (a flag)"
         ),
     ] = False,
+    time: Annotated[
+        float | None, typer.Option(help="sppm: iterate for SECONDS (Ctrl-C stops early)")
+    ] = None,
+    preview_every: Annotated[
+        float | None, typer.Option(help="sppm: rewrite the output every SECONDS while iterating")
+    ] = None,
 ):
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
 
@@ -180,6 +186,7 @@ def render(
             raise PhotonmapError(f"--spp must be at least 1, got {spp}")
         if method is not None and method not in METHODS:
             raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
+        _check_progressive(method, time, preview_every)
         with console.status(f"loading {scene}") if interactive() else nullcontext():
             mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
         if method is None and builtin is not None:
@@ -213,8 +220,11 @@ def render(
             check_image_memory(method, *size, params.get("spp", 1))
             if size != tuple(int(c) for c in film):
                 pipe.set_camera(width=size[0], height=size[1])
-            with stage_progress(pipe.stages, f"rendering {scene}", console=console) as report:
-                image = pipe.render(progress=report)
+            if method == "sppm":
+                image = _iterate(pipe, scene, output, time, "iterations" in params, preview_every)
+            else:
+                with stage_progress(pipe.stages, f"rendering {scene}", console=console) as report:
+                    image = pipe.render(progress=report)
         for w in {str(w.message): w for w in caught}.values():
             _say(f"warning: {w.message}")
         for out in output:
@@ -228,6 +238,50 @@ def render(
             )
     except PhotonmapError as exc:
         raise _error(exc) from None
+
+
+def _check_progressive(method, seconds, preview_every) -> None:
+    """``--time`` and ``--preview-every`` are the progressive method's (positive seconds)."""
+    from .core.errors import ParameterError
+
+    for name, value in (("--time", seconds), ("--preview-every", preview_every)):
+        if value is None:
+            continue
+        if method != "sppm":
+            raise ParameterError(f"{name} applies to --method sppm only (progressive rendering)")
+        if not value > 0:
+            raise ParameterError(f"{name} must be > 0 seconds, got {value}")
+
+
+def _iterate(pipe, scene, outputs, seconds, iterations_set, preview_every):
+    """Run the progressive pipeline for ``--time`` seconds (and/or ``--set iterations=N``) with
+    a progress bar of iterations and the mean radius; ``--preview-every`` rewrites the outputs
+    during the run; Ctrl-C ends it with the image reached so far."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from .core.image import write_image
+    from .core.progress import interactive
+
+    iterations = pipe.params.iterations if seconds is None or iterations_set else None
+    total = float(seconds) if iterations is None else float(iterations)
+    columns = (TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console, transient=True, disable=not interactive()) as bar:
+        task = bar.add_task(f"sppm {scene}", total=total)
+
+        def progress(i, elapsed, radius):
+            done = elapsed if iterations is None else i
+            bar.update(task, completed=done, description=f"sppm: {i} iterations, r {radius:.4g}")
+
+        def preview(image):
+            for out in outputs:
+                write_image(out, image)
+
+        try:
+            pipe.run(seconds, iterations, progress, preview, preview_every or float("inf"))
+        except KeyboardInterrupt:
+            _say(f"interrupted: writing the image of {pipe.iterations} iterations")
+    _say(f"sppm: {pipe.iterations} iterations, mean radius {pipe.mean_radius:.4g}")
+    return pipe.image()
 
 
 @app.command()

@@ -10,7 +10,7 @@ from .errors import ParameterError
 MAX_SIDE = 16384  # pixels per image side
 # bytes in flight per camera sample (rough upper bounds measured on the LLVM backend: the eye
 # pass's interactions, the final-gather batch, the view pass's march state, the G-buffers)
-BYTES_PER_SAMPLE = {"surface": 1200, "volume": 400, "screen": 2000}
+BYTES_PER_SAMPLE = {"surface": 1200, "volume": 400, "screen": 2000, "sppm": 1200}
 
 
 def available_memory() -> int | None:

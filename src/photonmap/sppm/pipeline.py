@@ -1,0 +1,305 @@
+"""``SPPMPipeline`` — stochastic progressive photon mapping (Hachisuka & Jensen 2009) and its
+memoryless variant (Knaus & Zwicker 2011); spec beyond-seeds §1–2, issue 12.
+
+One iteration ``i`` (1-based) is an eye pass (:mod:`.visible`: one visible point per pixel and
+the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons_per_iteration`` paths) and a
+gather at the visible points (:mod:`.gather`). Its random numbers come from ``(seed, i)`` alone,
+so an iteration's work is the same whatever ran before, and memory is one iteration's plus the
+per-pixel state, whatever the number of iterations.
+
+- ``mode="sppm"``: per-pixel radius ``R_j``, photon count ``N_j`` and flux ``τ_j``, updated after
+  each iteration (α: the fraction of new photons kept).
+- ``mode="memoryless"``: one radius ``r_i = r_1 · i^((α−1)/2)`` for all pixels; iteration ``i``
+  is an ordinary photon-mapping image and the result their mean. Iterations are independent:
+  :meth:`SPPMPipeline.render_block` renders any range of them as a :class:`BlockSums`, and
+  blocks from anywhere merge into the same image (the basis of distributed rendering).
+
+``radius = 0`` picks ``r_1`` automatically: :data:`RADIUS_PIXELS` pixel footprints at the median
+distance of the surfaces the camera sees.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+import warnings
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.bsdf import has_null_shapes
+from ..core.camera import MovableCamera, pixel_rays, scene_bounds
+from ..core.errors import ParameterError, PhotonmapWarning, SceneError
+from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.scene_info import has_media
+from ..core.timer import StageTimer
+from .gather import PixelState, gather, iteration_image, memoryless_radius
+from .photons import photon_pass
+from .visible import eye_pass
+
+MODES = ("sppm", "memoryless")
+STAGES = ("eye pass", "photon pass", "gather")
+RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
+
+
+@dataclass
+class SPPMParams:
+    """Parameters of the SPPM pipeline (the ``sppm`` plugin and ``--set`` keys)."""
+
+    iterations: int = 64  # iterations of render() (run() takes its own budget)
+    photons_per_iteration: int = 200_000  # photon paths traced per iteration (M)
+    radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
+    alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
+    seed: int = 0
+    max_depth: int = 8  # bounces of photon paths and of the eye paths' specular chains
+    mode: str = "sppm"  # "sppm" (per-pixel radii) | "memoryless" (Knaus & Zwicker 2011)
+
+    def validate(self) -> None:
+        """Types (:func:`~photonmap.core.params.check_fields`), then ranges and choices."""
+        check_fields(self)
+        check_range("iterations", self.iterations, 1, None, "SPPM iterations of render()")
+        check_range(
+            "photons_per_iteration", self.photons_per_iteration, 1, None, "photon paths each"
+        )
+        check_range("radius", self.radius, 0, None, "the initial gather radius; 0 = automatic")
+        check_range("alpha", self.alpha, 0, 1, "SPPM's α (2/3 is usual)", True, True)
+        check_range("max_depth", self.max_depth, 1, None, "bounces of photon and eye paths")
+        check_choice("mode", self.mode, MODES, "progressive per-pixel radii or memoryless")
+
+
+@dataclass
+class BlockSums:
+    """The sum of the images of memoryless iterations ``first … first + iterations − 1``:
+    ``total`` (float64, H×W×3) and ``iterations``. Blocks of disjoint ranges merge by addition."""
+
+    total: np.ndarray
+    iterations: int
+
+    def merge(self, other: BlockSums) -> BlockSums:
+        if self.total.shape != other.total.shape:
+            raise ParameterError(
+                f"cannot merge blocks of different image sizes {self.total.shape[:2]} and "
+                f"{other.total.shape[:2]}"
+            )
+        return BlockSums(self.total + other.total, self.iterations + other.iterations)
+
+    def image(self) -> np.ndarray:
+        """The mean of the iteration images (float32 H×W×3)."""
+        if self.iterations < 1:
+            raise ParameterError("an empty block (0 iterations) has no image")
+        return (self.total / self.iterations).astype(np.float32)
+
+
+def iteration_seeds(seed: int, i: int) -> tuple[int, int]:
+    """The seeds of iteration ``i``'s eye pass and photon pass, from ``(seed, i)`` alone."""
+    state = np.random.SeedSequence([seed, i]).generate_state(2)
+    return int(state[0]), int(state[1])
+
+
+class SPPMPipeline(MovableCamera):
+    """Progressive photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
+
+    >>> pipe = SPPMPipeline("examples/glass_sphere_plane.xml", photons_per_iteration=100_000)
+    >>> pipe.run(seconds=30)            # or: iterations=…, or pipe.step() in a loop
+    >>> image = pipe.image()            # mi.TensorXf (height, width, 3)
+    """
+
+    stages = STAGES
+
+    def __init__(self, scene, **params):
+        from ..scenes import load_scene
+
+        defaults = {f.name for f in dataclasses.fields(SPPMParams)}
+        scene_params = {k: v for k, v in params.items() if k not in defaults}
+        self.scene, _ = load_scene(scene, **scene_params)
+        self.sensor = self.scene.sensors()[0] if self.scene.sensors() else None
+        if self.sensor is None:
+            raise ParameterError("the scene has no sensor (camera) to render from")
+        if has_media(self.scene):
+            warnings.warn(
+                "the sppm method renders participating media as vacuum; use --method surface "
+                "or volume for fog",
+                PhotonmapWarning,
+                stacklevel=2,
+            )
+        self.null_shapes = has_null_shapes(self.scene)
+        self.params = SPPMParams()
+        self.set_params(**{k: v for k, v in params.items() if k in defaults})
+        self.timer = StageTimer()
+        self.stats: dict[str, float] = {}
+        self._r1 = None
+        self.reset()
+
+    def set_params(self, **params) -> None:
+        """Change parameters (:class:`SPPMParams` fields); the progressive state restarts."""
+        self.params = updated(self.params, params, "sppm")
+        self._r1 = None
+        self.reset()
+
+    def set_camera(self, *args, **kwargs) -> None:
+        super().set_camera(*args, **kwargs)
+        self._r1 = None
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget all iterations (the next :meth:`step` is iteration 1)."""
+        self._state = None  # PixelState (sppm) or BlockSums (memoryless)
+        self.iterations = 0
+        self.stats = {"photons": 0, "photon_records": 0, "gathers": 0}
+        if hasattr(self, "timer"):
+            self.timer.reset()
+
+    @property
+    def size(self) -> tuple[int, int]:
+        w, h = (int(c) for c in self.sensor.film().crop_size())
+        return w, h
+
+    # ------------------------------------------------------------------------- radii
+    def initial_radius(self) -> float:
+        """``r_1``: the ``radius`` parameter, or :data:`RADIUS_PIXELS` footprints of a pixel at
+        the median distance of the first surfaces the camera rays meet."""
+        if self.params.radius > 0:
+            return self.params.radius
+        if self._r1 is None:
+            w, h = self.size
+            pixel = dr.arange(mi.UInt32, w * h)
+            ray, _ = pixel_rays(self.sensor, pixel, mi.Point2f(0.5, 0.5))
+            side, _ = pixel_rays(self.sensor, pixel, mi.Point2f(1.5, 0.5))
+            angle = dr.safe_acos(dr.dot(ray.d, side.d))
+            si = self.scene.ray_intersect(ray)
+            footprint = (si.t * angle).numpy()[si.is_valid().numpy()]
+            if footprint.size:
+                self._r1 = RADIUS_PIXELS * float(np.median(footprint))
+            else:
+                self._r1 = 1e-3 * scene_bounds(self.scene)[1]
+        return self._r1
+
+    def radius_at(self, i: int) -> float:
+        """The memoryless radius of iteration ``i``."""
+        return memoryless_radius(self.initial_radius(), self.params.alpha, i)
+
+    @property
+    def mean_radius(self) -> float:
+        """The current mean gather radius (per-pixel radii: their mean)."""
+        if self.params.mode == "memoryless":
+            return self.radius_at(max(self.iterations, 1))
+        if self._state is None:
+            return self.initial_radius()
+        return float(dr.mean(self._state.radius, axis=None)[0])
+
+    # ------------------------------------------------------------------------- one iteration
+    def _iteration(self, i: int, radius):
+        """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one)."""
+        p = self.params
+        eye_seed, photon_seed = iteration_seeds(p.seed, i)
+        with self.timer("eye pass"):
+            points = eye_pass(self.scene, self.sensor, eye_seed, p.max_depth, self.null_shapes)
+        with self.timer("photon pass"):
+            photons = photon_pass(self.scene, p.photons_per_iteration, photon_seed, p.max_depth)
+        with self.timer("gather"):
+            got = gather(points, radius, photons)
+        self.stats["photons"] += p.photons_per_iteration
+        self.stats["photon_records"] += photons.count
+        self.stats["gathers"] += dr.width(points.found)
+        return points, got
+
+    def _memoryless_image(self, i: int) -> np.ndarray:
+        radius = self.radius_at(i)
+        points, got = self._iteration(i, radius)
+        w, h = self.size
+        return np.asarray(iteration_image(points, got, radius), np.float64).T.reshape(h, w, 3)
+
+    def render_block(self, first: int, count: int) -> BlockSums:
+        """The summed images of memoryless iterations ``first … first + count − 1`` (1-based;
+        ``mode="memoryless"`` only). Independent of what was rendered before."""
+        if self.params.mode != "memoryless":
+            raise ParameterError(
+                "render_block needs independent iterations: set mode='memoryless' "
+                f"(the pipeline's mode is {self.params.mode!r})"
+            )
+        if not (isinstance(first, int) and first >= 1 and isinstance(count, int) and count >= 1):
+            raise ParameterError(
+                f"render_block needs first >= 1 and count >= 1 (integers), got {first!r}, "
+                f"{count!r}"
+            )
+        w, h = self.size
+        total = np.zeros((h, w, 3))
+        for i in range(first, first + count):
+            total = total + self._memoryless_image(i)
+        return BlockSums(total, count)
+
+    def step(self) -> None:
+        """Run the next iteration and fold it into the image."""
+        i = self.iterations + 1
+        if self.params.mode == "memoryless":
+            w, h = self.size
+            state = self._state or BlockSums(np.zeros((h, w, 3)), 0)
+            new = state.merge(BlockSums(self._memoryless_image(i), 1))
+        else:
+            w, h = self.size
+            state = self._state or PixelState.start(w * h, self.initial_radius())
+            points, got = self._iteration(i, state.radius)
+            new = state.updated(points, got, self.params.alpha)
+        self._state, self.iterations = new, i  # one assignment: Ctrl-C keeps a whole iteration
+
+    def image(self) -> mi.TensorXf:
+        """The image of the iterations so far, ``(height, width, 3)`` linear radiance."""
+        w, h = self.size
+        if self._state is None:
+            return mi.TensorXf(np.zeros((h, w, 3), np.float32))
+        if self.params.mode == "memoryless":
+            image = self._state.image()
+        else:
+            image = np.asarray(self._state.image(), np.float32).T.reshape(h, w, 3)
+        if not np.all(np.isfinite(image)):
+            raise SceneError(
+                "the render produced NaN or infinite values; check the scene's textures and "
+                "emitters for NaN"
+            )
+        return mi.TensorXf(image)
+
+    def run(self, seconds=None, iterations=None, progress=None, preview=None, preview_every=10.0):
+        """Iterate until ``seconds`` have passed or ``iterations`` more have run (whichever comes
+        first; one of them is required) and return :meth:`image`. ``progress(iterations,
+        elapsed, mean_radius)`` is called after each iteration; ``preview(image)`` every
+        ``preview_every`` seconds. An interrupt (Ctrl-C) stops after a whole iteration: the
+        image so far stays available through :meth:`image`."""
+        if seconds is None and iterations is None:
+            raise ParameterError("run() needs a budget: seconds=… or iterations=…")
+        if seconds is not None:
+            check_range("seconds", seconds, 0, None, "the time budget", lo_open=True)
+        if iterations is not None:
+            if not isinstance(iterations, int):
+                raise ParameterError(f"iterations must be an integer, got {iterations!r}")
+            check_range("iterations", iterations, 1, None, "iterations to run")
+        start = time.perf_counter()
+        last_preview = start
+        done = 0
+        while True:
+            self.step()
+            done += 1
+            now = time.perf_counter()
+            if progress is not None:
+                progress(self.iterations, now - start, self.mean_radius)
+            if preview is not None and now - last_preview >= preview_every:
+                preview(self.image())
+                last_preview = now
+            if iterations is not None and done >= iterations:
+                break
+            if seconds is not None and now - start >= seconds:
+                break
+        return self.image()
+
+    def render(self, progress=None) -> mi.TensorXf:
+        """Render ``iterations`` iterations from scratch (``progress(stage)`` as the other
+        pipelines: called per iteration with ``"iteration i/n"``)."""
+        self.reset()
+        n = self.params.iterations
+
+        def report(i, _elapsed, _radius):
+            if progress:
+                progress(f"iteration {i}/{n}")
+
+        return self.run(iterations=n, progress=report)
