@@ -11,31 +11,37 @@ task's key, so where a task ran never changes what it returns.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 from ..core.errors import PhotonmapError
 from .connect import ClusterError
 
 
-def run_tasks(ray, actors: list, method: str, tasks, depth: int = 2) -> Iterator[tuple]:
+def run_tasks(ray, actors: list, method: str, tasks: Iterable, depth: int = 2) -> Iterator[tuple]:
     """Yield ``(key, result)`` for each ``(key, args)`` of ``tasks`` as its result arrives:
-    ``actors[i].<method>.remote(*args)``. Raises the worker's own :class:`PhotonmapError` (bad
+    ``actors[i].<method>.remote(*args)``. ``tasks`` is consumed lazily (a generator may stop
+    yielding when a time budget is spent). Raises the worker's own :class:`PhotonmapError` (bad
     input is not retried), or a :class:`ClusterError` when no worker is left."""
-    queue = deque(tasks)
+    fresh = iter(tasks)
+    retry: deque = deque()  # tasks whose worker died, run first
     alive = list(actors)
     load = {id(a): 0 for a in alive}
     flight: dict = {}  # ObjectRef → (task, actor)
     try:
-        while queue or flight:
+        while True:
             for actor in alive:
-                while queue and load[id(actor)] < depth:
-                    task = queue.popleft()
+                while load[id(actor)] < depth:
+                    task = retry.popleft() if retry else next(fresh, None)
+                    if task is None:
+                        break
                     flight[getattr(actor, method).remote(*task[1])] = (task, actor)
                     load[id(actor)] += 1
             if not flight:
+                if alive or not (retry or next(fresh, None) is not None):
+                    return  # everything ran
                 raise ClusterError(
-                    f"every worker died; {len(queue)} task(s) were not run (see the Ray logs "
-                    "under /tmp/ray/session_latest/logs)"
+                    "every worker died and work is left undone (see the Ray logs under "
+                    "/tmp/ray/session_latest/logs)"
                 )
             (ref,), _ = ray.wait(list(flight), num_returns=1)
             task, actor = flight.pop(ref)
@@ -45,7 +51,7 @@ def run_tasks(ray, actors: list, method: str, tasks, depth: int = 2) -> Iterator
             except ray.exceptions.RayActorError as exc:
                 if isinstance(exc, ray.exceptions.ActorDiedError) and actor in alive:
                     alive.remove(actor)
-                queue.appendleft(task)
+                retry.append(task)
                 continue
             except ray.exceptions.RayTaskError as exc:
                 cause = getattr(exc, "cause", None)
