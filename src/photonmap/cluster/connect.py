@@ -26,6 +26,7 @@ MAX_RESTARTS = 2  # restarts of a crashed actor (its constructor reruns: scene l
 MAX_TASK_RETRIES = 2  # retries of the task that was running when it crashed
 CONNECT_TIMEOUT = 3.0  # seconds to wait for a cluster address to answer
 OBJECT_STORE = 512 * 2**20  # bytes of shared memory for a local instance's results
+QUIET = {"include_dashboard": False, "log_to_driver": False, "logging_level": "error"}
 
 
 class ClusterError(PhotonmapError):
@@ -109,24 +110,35 @@ def cluster(workers: int | None = None, address: str | None = None, timeout=CONN
 
 
 def _init(ray, workers, address) -> None:
-    quiet = {"include_dashboard": False, "log_to_driver": False, "logging_level": "error"}
     try:
         if address is not None:
-            ray.init(address=address, **quiet)
-            return
-        src = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-        path = os.pathsep.join(p for p in (src, os.environ.get("PYTHONPATH")) if p)
-        ray.init(
-            num_cpus=workers or os.cpu_count(),
-            object_store_memory=OBJECT_STORE,
-            _node_ip_address="127.0.0.1",
-            runtime_env={"env_vars": {"PYTHONPATH": path}},  # the driver's photonmap
-            **quiet,
-        )
+            ray.init(address=address, **QUIET)
+        else:
+            start_local(ray, workers or os.cpu_count())
     except (ConnectionError, RuntimeError, ValueError) as exc:
         where = f"at {address}" if address else "locally"
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ClusterError(f"cannot start or join Ray {where}: {first}") from None
+
+
+def start_local(ray, cpus: int) -> str:
+    """Start a private Ray instance with ``cpus`` CPUs on the loopback address, its workers
+    importing the same photonmap as this process; return its address (``host:port``)."""
+    from ray._private import ray_constants
+
+    # A private instance stays on the loopback address: without this Ray advertises the
+    # machine's network address (what it does on macOS and Windows by default).
+    ray_constants.ENABLE_RAY_CLUSTER = False
+    src = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    path = os.pathsep.join(p for p in (src, os.environ.get("PYTHONPATH")) if p)
+    context = ray.init(
+        num_cpus=cpus,
+        object_store_memory=OBJECT_STORE,
+        _node_ip_address="127.0.0.1",
+        runtime_env={"env_vars": {"PYTHONPATH": path}},
+        **QUIET,
+    )
+    return context.address_info["gcs_address"]
 
 
 def placement(ray, workers: int | None) -> Placement:
