@@ -162,9 +162,11 @@ def placement(ray, workers: int | None) -> Placement:
     return Placement(n, float(per), 0.0, per, device)
 
 
+@contextmanager
 def spawn(ray, worker_class, place: Placement, *args):
     """``place.workers`` actors of ``worker_class`` built with ``*args``, restarting after a
-    crash and retrying the task that was running (Ray actor fault tolerance)."""
+    crash and retrying the task that was running (Ray actor fault tolerance); killed on exit, so
+    their CPUs are free for the next job at once."""
     remote = ray.remote(
         num_cpus=place.cpus,
         num_gpus=place.gpus,
@@ -172,4 +174,9 @@ def spawn(ray, worker_class, place: Placement, *args):
         max_task_retries=MAX_TASK_RETRIES,
         scheduling_strategy="SPREAD",
     )(worker_class)
-    return [remote.remote(*args, place.device, place.threads) for _ in range(place.workers)]
+    actors = [remote.remote(*args, place.device, place.threads) for _ in range(place.workers)]
+    try:
+        yield actors
+    finally:
+        for actor in actors:
+            ray.kill(actor)

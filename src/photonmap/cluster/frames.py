@@ -30,6 +30,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import re
 from dataclasses import dataclass, field
 
 from ..core.errors import ParameterError
@@ -223,13 +224,12 @@ def frame_path(pattern: str, index: int) -> str:
 
 
 def check_pattern(pattern: str) -> None:
-    """An output pattern holds exactly one integer field (``%d``, ``%04d``) and nothing else
-    that ``%`` would format."""
-    try:
-        a, b = pattern % 0, pattern % 1
-    except (TypeError, ValueError):
-        a = b = None
-    if a is None or a == b:
+    """An output pattern holds exactly one integer field (``%d``, ``%04d``) and no other ``%``
+    (a literal one is written ``%%``)."""
+    fields = re.findall(r"%(?:%|0?\d*d|.?)", pattern)
+    if [f for f in fields if f != "%%" and not f.endswith("d")] or sum(
+        f.endswith("d") for f in fields
+    ) != 1:
         raise FrameSpecError(
             f"output {pattern!r} needs one frame-number field such as %04d (out/%04d.png)"
         )

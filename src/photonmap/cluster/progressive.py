@@ -117,8 +117,7 @@ def render_progressive(
     ray = import_ray()
     start = time.perf_counter()
     result = ProgressiveResult(None)
-    with cluster(workers, address) as place:
-        actors = spawn(ray, BlockWorker, place, job)
+    with cluster(workers, address) as place, spawn(ray, BlockWorker, place, job) as actors:
         size = block or block_size(iterations, place.workers)
         deadline = None if seconds is None else start + seconds
         arrived: dict = {}  # first iteration → BlockSums, waiting for the blocks before it

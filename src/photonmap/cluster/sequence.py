@@ -57,9 +57,9 @@ def render_sequence(
     ray = import_ray()
     with cluster(workers, address) as place:
         place = dataclasses.replace(place, workers=min(place.workers, len(todo)))
-        actors = spawn(ray, FrameWorker, place, job)
         tasks = [(f.index, (f,)) for f in todo]
-        for index, (image, info) in run_tasks(ray, actors, "render", tasks):
-            image = np.array(image)  # writable: Ray hands out read-only views of its store
-            paths = [write_image(frame_path(p, index), image) for p in patterns]
-            yield index, paths, info
+        with spawn(ray, FrameWorker, place, job) as actors:
+            for index, (image, info) in run_tasks(ray, actors, "render", tasks):
+                image = np.array(image)  # writable: Ray hands out read-only views of its store
+                paths = [write_image(frame_path(p, index), image) for p in patterns]
+                yield index, paths, info
