@@ -5,12 +5,14 @@ import json
 import socket
 import time
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from photonmap.cli import app
 from photonmap.cluster.connect import ClusterError, parse_address, probe
 from photonmap.cluster.frames import FrameSpecError, check_pattern, parse_frames
+from photonmap.cluster.job import FrameState, SceneJob, sensor_of
 
 runner = CliRunner()
 
@@ -150,3 +152,25 @@ def test_unreachable_address_is_one_line_and_fast(tmp_path):
     result = run("render-sequence", "glass_sphere_fog", "--frames", spec, "--ray", address,
                  "-o", tmp_path / "%d.png")  # fmt: skip
     assert result.exit_code == 2 and "cannot reach" in result.output
+
+
+def test_frame_state_depends_on_the_frame_only():
+    """A worker renders frames in any order: a frame applied after another gives the pipeline
+    the same camera and parameters as a fresh pipeline given that frame alone."""
+    job = SceneJob("cornell_steinhurst", "surface", {}, width=32, height=24)
+    a, b = parse_frames(
+        {"frames": [{"camera": {"origin": [0.2, 1.0, 3.5]}, "set": {"photons": 1000}},
+                    {"camera": {"origin": [-0.4, 1.2, 3.0]}, "set": {"photons": 2000}}]}
+    ).frames  # fmt: skip
+    state = FrameState(job)
+    state.apply(b)
+    after_b = state.apply(a)
+    fresh = FrameState(job).apply(a)
+    for pipe in (after_b, fresh):
+        assert pipe.params.photons == 1000
+    assert np.array_equal(_pose(after_b), _pose(fresh))
+    assert not np.array_equal(_pose(FrameState(job).apply(b)), _pose(fresh))
+
+
+def _pose(pipe):
+    return np.asarray(sensor_of(pipe).world_transform().matrix, dtype=np.float64)

@@ -96,8 +96,9 @@ def split_set(job: SceneJob, values: dict) -> tuple[dict, dict]:
 
 class FrameState:
     """A pipeline that renders frames in any order: before each frame the camera is reset to the
-    job's, the parameters the previous frames changed go back to their first values, and a frame
-    whose scene parameters differ from the current pipeline's rebuilds it. Stages whose inputs
+    job's (then moved as the frame says), the frame's parameters are set (every frame gives the
+    same keys), and a frame whose scene parameters differ from the current pipeline's rebuilds
+    it. Stages whose inputs
     are unchanged stay cached (a camera path reruns only the viewing stages; a light path keeps
     the volume method's voxel grids and octree)."""
 
@@ -106,8 +107,6 @@ class FrameState:
         self.pipe = None
         self._scene_key = None
         self._sensor = None
-        self._initial = None
-        self._touched: set[str] = set()
 
     def apply(self, frame: Frame):
         """Set the pipeline up for ``frame``; return it."""
@@ -117,14 +116,10 @@ class FrameState:
             self.pipe = build_pipeline(self.job.with_scene_params(scene_params))
             self._scene_key = key
             self._sensor = sensor_of(self.pipe)
-            self._initial = self.pipe.params
-            self._touched = set()
         pipe = self.pipe
-        reset = {k: getattr(self._initial, k) for k in self._touched - set(params)}
-        if reset or params:
-            pipe.set_params(**reset, **params)
-        self._touched |= set(params)
-        if frame.camera:
+        if params:  # every frame sets the same keys (frames.py), so none needs undoing
+            pipe.set_params(**params)
+        if frame.camera:  # a camera given without a target keeps aiming where the job's did
             pipe.set_camera(sensor=self._sensor)
             pipe.set_camera(**frame.camera)
         if frame.light:
