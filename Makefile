@@ -10,7 +10,7 @@ $(STAMP): pyproject.toml scripts/ensure-llvm.sh
 	bash scripts/ensure-llvm.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[dev]"
+	$(PY) -m pip install -q -e ".[dev,cluster]"
 	touch $(STAMP)
 
 demo: $(STAMP)

@@ -129,6 +129,7 @@ def start_local(ray, cpus: int) -> str:
     # A private instance stays on the loopback address: without this Ray advertises the
     # machine's network address (what it does on macOS and Windows by default).
     ray_constants.ENABLE_RAY_CLUSTER = False
+    os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # a private instance reports nothing
     src = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     path = os.pathsep.join(p for p in (src, os.environ.get("PYTHONPATH")) if p)
     context = ray.init(
