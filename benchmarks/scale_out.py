@@ -106,21 +106,24 @@ def progressive_rate(ray, args, workers: int) -> dict:
     context, actors, ready, info = warm_actors(
         ray, BlockWorker, job, workers, lambda a, i: a.render_block.remote(1000 + i, 1)
     )
-    rates, overhead = [], []
+    rates, overhead, shares = [], [], []
     try:
         for rep in range(args.repeats):
             first = 1 + rep * args.blocks * args.block
             tasks = [(f, (f, args.block)) for f in range(first, first + args.blocks * args.block,
                                                            args.block)]  # fmt: skip
-            merged, t0 = None, time.perf_counter()
+            merged, t0, cpu = None, time.perf_counter(), 0.0
             arrived, nxt = {}, first
-            for key, (sums, _info) in run_tasks(ray, actors, "render_block", tasks):
+            for key, (sums, block_info) in run_tasks(ray, actors, "render_block", tasks):
+                cpu += block_info["cpu_seconds"]
                 arrived[key] = sums
                 while nxt in arrived:
                     part = arrived.pop(nxt)
                     merged = part if merged is None else merged.merge(part)
                     nxt += part.iterations
-            rates.append(merged.iterations / (time.perf_counter() - t0))
+            wall = time.perf_counter() - t0
+            rates.append(merged.iterations / wall)
+            shares.append(cpu / wall)
         for _ in range(args.repeats):  # one block at a time: round trip − compute
             t0 = time.perf_counter()
             _, block_info = ray.get(actors[0].render_block.remote(1, 1))
@@ -130,6 +133,7 @@ def progressive_rate(ray, args, workers: int) -> dict:
     return {
         "workers": workers,
         "iterations_per_s": summarize(rates),
+        "cores_obtained": summarize(shares),
         "ready_s": summarize(ready),
         "scene_load_s": info["load_seconds"],
         "block_round_trip_overhead_s": summarize(overhead),
@@ -145,23 +149,27 @@ def sequence_rate(ray, args, workers: int) -> dict:
     context, actors, ready, _ = warm_actors(
         ray, FrameWorker, sequence_job(args), workers, lambda a, i: a.render.remote(frames[i])
     )
-    rates, write = [], []
+    rates, write, shares = [], [], []
     try:
         from photonmap.core.image import write_image
 
         for _ in range(args.repeats):
             tasks = [(f.index, (f,)) for f in frames[2:]]
-            t0 = time.perf_counter()
-            for _key, (image, _info) in run_tasks(ray, actors, "render", tasks):
+            t0, cpu = time.perf_counter(), 0.0
+            for _key, (image, frame_info) in run_tasks(ray, actors, "render", tasks):
+                cpu += frame_info["cpu_seconds"]
                 tw = time.perf_counter()
                 write_image(os.path.join(args.tmp, "frame.png"), np.array(image))
                 write.append(time.perf_counter() - tw)
-            rates.append(len(tasks) / (time.perf_counter() - t0))
+            wall = time.perf_counter() - t0
+            rates.append(len(tasks) / wall)
+            shares.append(cpu / wall)
     finally:
         context.__exit__(None, None, None)
     return {
         "workers": workers,
         "frames_per_s": summarize(rates),
+        "cores_obtained": summarize(shares),
         "ready_s": summarize(ready),
         "driver_write_s": summarize(write),
     }
@@ -268,6 +276,7 @@ def main(argv=None) -> dict:
     load_after = os.getloadavg()
 
     it = [p["iterations_per_s"]["median"] for p in progressive]
+    cores = [p["cores_obtained"]["median"] for p in progressive]
     fr = [s["frames_per_s"]["median"] for s in sequence]
     o_block = progressive[0]["block_round_trip_overhead_s"]["median"]
     t_block = driver["merge_s"]["median"] + driver["store_put_get_s"]["median"]
@@ -293,6 +302,8 @@ def main(argv=None) -> dict:
         "model": {"bandwidth_bytes_per_s": BANDWIDTH, **curves},
         "headline": {
             "scaling_2_workers": it[1] / it[0],
+            "projected_scaling_2_free_cores": (it[1] / cores[1]) / (it[0] / cores[0]) * 2,
+            "cores_obtained": cores,
             "scaling_2_workers_frames": fr[1] / fr[0],
             "iterations_per_s": it,
             "frames_per_s": fr,
@@ -314,6 +325,9 @@ def main(argv=None) -> dict:
         "",
         markdown_table(["", "1 worker", "2 workers", "scaling"], rows),
         "",
+        f"CPU cores the workers obtained (CPU seconds / wall): 1 worker {cores[0]:.2f}, "
+        f"2 workers {cores[1]:.2f}; scaling if 2 workers had had 2× the CPU of 1: "
+        f"{h['projected_scaling_2_free_cores']:.2f}",
         f"in-process, Dr.Jit 2 threads: {local:.2f} iterations/s",
         f"worker ready (start + scene load + first block): "
         f"{progressive[0]['ready_s']['median']:.2f} s (scene load "
