@@ -10,8 +10,8 @@ start_local`), each worker an actor with 1 CPU and 1 Dr.Jit thread:
   the same code ``render --workers`` runs); iterations/s with 1 and 2 workers, median of
   ``--repeats``. ``headline.scaling_2_workers`` = rate(2) / rate(1) (goal ≥ 1.7). For scale, the
   same iterations in this process with Dr.Jit's own 2 threads.
-- **sequence**: a camera path of the volume method (``glass_sphere_fog``), frames/s with 1 and 2
-  warm frame workers (each keeps its stages: a camera move reruns the viewing stages).
+- **sequence**: a light path of the volume method (``glass_sphere_fog``), frames/s with 1 and 2
+  warm frame workers (each keeps its voxel grids and octree: a light move reruns S5–S9).
 - **overheads**: worker start (process, photonmap import, scene load, first block with kernel
   compilation), block round trip minus the worker's own compute time (scheduling +
   serialisation + transfer of the H×W×3 float64 sums), the driver's merge of one block and the
@@ -69,8 +69,8 @@ def progressive_job(args):
 def sequence_frames(args):
     from photonmap.cluster.frames import parse_frames
 
-    camera = [{"origin": [0.1, 0.6, 2.2]}, {"origin": [0.9, 0.6, 2.2]}]
-    spec = parse_frames({"frames": args.frames + 2, "camera": camera})  # +1 warm-up per worker
+    light = [{"position": [0.3, 3.0, 0.5]}, {"position": [0.7, 2.0, 0.5]}]
+    spec = parse_frames({"frames": args.frames + 2, "light": light})  # +1 warm-up per worker
     return spec.frames
 
 
