@@ -25,7 +25,9 @@ second queued block except for its serialisation); the driver handles one block 
     rate(N) = min(N · b / (b/r + o_w), b / t_d)
 
 and the knee, where the driver saturates, is N* = (b/r + o_w) / t_d. It is drawn for the measured
-block size and for 4× larger blocks, with the payload crossing a 10 Gbit/s network. Sequences the
+block size and for 4× larger blocks, with the payload crossing a 10 Gbit/s network, and, as a
+pessimistic bound for a film-quality render, with 1920×1080 sums (the driver's merge, store and
+network costs scaled by the pixel count, the iterations' cost kept as measured). Sequences the
 same way with frames (the driver writes each frame: ``t_d`` = get + write).
 
 The machine is shared with other agents (2 cores): the load average before and after is
@@ -57,6 +59,7 @@ from common import (
 NAME = "scale_out"
 BANDWIDTH = 10e9 / 8  # bytes/s of the driver's network link in the model (10 Gbit/s)
 MODEL_N = (1, 2, 4, 8, 16, 32, 64)
+FILM = (1920, 1080)  # the film-sized image of the model's pessimistic curves
 
 
 def progressive_job(args):
@@ -228,8 +231,12 @@ def plot(path: Path, curves: dict, measured: dict) -> None:
                                         ("sequence", "frames/s")), strict=True):  # fmt: skip
         for name, c in curves[kind].items():
             line = ax.plot(c["n"], c["throughput"], marker=".", label=f"{name} (knee {c['knee']:.0f})")
-            ax.axvline(c["knee"], color=line[0].get_color(), ls=":", lw=0.8)
+            if c["knee"] <= 64:
+                ax.axvline(c["knee"], color=line[0].get_color(), ls=":", lw=0.8)
+        ideal = [n * measured[kind][0] for n in MODEL_N]
+        ax.plot(MODEL_N, ideal, "k--", lw=0.8, label="ideal (N × 1 worker)")
         ax.plot([1, 2], measured[kind], "ks", label="measured here")
+        ax.set_xlim(0.8, 80)
         ax.set_xscale("log", base=2)
         ax.set_yscale("log")
         ax.set_xlabel("workers (machines like one measured worker)")
@@ -283,10 +290,15 @@ def main(argv=None) -> dict:
     t_block += driver["payload_bytes"] / BANDWIDTH
     frame_bytes = args.width * args.height * 3 * 4
     t_frame = sequence[0]["driver_write_s"]["median"] + frame_bytes / BANDWIDTH
+    # the same iterations with film-sized sums: every driver cost grows with the pixels
+    t_film = t_block * FILM[0] * FILM[1] / (args.width * args.height)
+    film = f"{FILM[0]}x{FILM[1]} sums"
     curves = {
         "progressive": {
             f"block {args.block}": model(it[0], o_block, t_block, args.block),
             f"block {4 * args.block}": model(it[0], o_block, t_block, 4 * args.block),
+            f"{film}, block {args.block}": model(it[0], o_block, t_film, args.block),
+            f"{film}, block {4 * args.block}": model(it[0], o_block, t_film, 4 * args.block),
         },
         "sequence": {"1 frame/task": model(fr[0], 0.0, t_frame, 1)},
     }
@@ -311,6 +323,10 @@ def main(argv=None) -> dict:
             "knee_workers": curves["progressive"][f"block {args.block}"]["knee"],
             "knee_workers_4x_block": curves["progressive"][f"block {4 * args.block}"]["knee"],
             "knee_workers_frames": curves["sequence"]["1 frame/task"]["knee"],
+            "knee_workers_film": curves["progressive"][f"{film}, block {args.block}"]["knee"],
+            "knee_workers_film_4x_block": curves["progressive"][
+                f"{film}, block {4 * args.block}"
+            ]["knee"],
         },
     }
     suffix = "_quick" if args.quick else ""
@@ -336,7 +352,9 @@ def main(argv=None) -> dict:
         f"{driver['store_put_get_s']['median'] * 1e3:.2f} ms of {driver['payload_bytes']:,} bytes",
         f"model knee (driver saturates): {h['knee_workers']:.0f} workers at block {args.block}, "
         f"{h['knee_workers_4x_block']:.0f} at block {4 * args.block}; sequences "
-        f"{h['knee_workers_frames']:.0f}",
+        f"{h['knee_workers_frames']:.0f}; with {film} (driver costs × pixels, iterations as "
+        f"measured): {h['knee_workers_film']:.1f} at block {args.block}, "
+        f"{h['knee_workers_film_4x_block']:.1f} at block {4 * args.block}",
         "",
     ])  # fmt: skip
     write_json(args.out_dir / f"{NAME}{suffix}.json", result)
