@@ -1,5 +1,6 @@
-"""Frame specs (photonmap.cluster.frames) and the refusals of the cluster CLI that happen before
-any Ray work: bad specs, bad keys, bad output patterns, bad addresses (issue 15 items 2–4)."""
+"""Frame specs (photonmap.cluster.frames), block plans (.progressive) and the refusals of the
+cluster CLI that happen before any Ray work: bad specs, bad keys, bad output patterns, bad
+addresses (issue 15 items 2–4)."""
 
 import json
 import socket
@@ -13,6 +14,14 @@ from photonmap.cli import app
 from photonmap.cluster.connect import ClusterError, parse_address, probe
 from photonmap.cluster.frames import FrameSpecError, check_pattern, parse_frames
 from photonmap.cluster.job import FrameState, SceneJob, sensor_of
+from photonmap.cluster.progressive import (
+    MAX_BLOCK,
+    TIMED_BLOCK,
+    block_size,
+    blocks,
+    check_job,
+)
+from photonmap.core.errors import ParameterError
 
 runner = CliRunner()
 
@@ -174,3 +183,25 @@ def test_frame_state_depends_on_the_frame_only():
 
 def _pose(pipe):
     return np.asarray(sensor_of(pipe).world_transform().matrix, dtype=np.float64)
+
+
+def test_blocks_cover_the_iterations_in_order_and_stop_at_the_deadline():
+    tasks = list(blocks(10, 4))
+    assert tasks == [(1, (1, 4)), (5, (5, 4)), (9, (9, 2))]
+    assert [block_size(64, 2), block_size(1000, 2), block_size(3, 4), block_size(None, 2)] == [
+        8, MAX_BLOCK, 1, TIMED_BLOCK,
+    ]
+    assert list(blocks(None, 2, deadline=time.perf_counter() - 1)) == []
+    timed = blocks(None, 2, deadline=time.perf_counter() + 0.05)
+    assert [next(timed)[0] for _ in range(3)] == [1, 3, 5]  # open-ended until the deadline
+    time.sleep(0.06)
+    assert next(timed, None) is None
+
+
+def test_progressive_jobs_are_memoryless_sppm():
+    job = SceneJob("cornell_steinhurst", "sppm", {"photons_per_iteration": 10})
+    assert check_job(job).params == {"photons_per_iteration": 10, "mode": "memoryless"}
+    with pytest.raises(ParameterError, match="mode=memoryless"):
+        check_job(SceneJob("cornell_steinhurst", "sppm", {"mode": "sppm"}))
+    with pytest.raises(ParameterError, match="render-sequence"):
+        check_job(SceneJob("cornell_steinhurst", "surface"))
