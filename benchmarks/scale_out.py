@@ -42,6 +42,7 @@ import argparse
 import os
 import sys
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -84,55 +85,49 @@ def sequence_job(args):
     return SceneJob("glass_sphere_fog", "volume", params, width=args.width, height=args.height)
 
 
+@contextmanager
 def warm_actors(ray, worker_class, job, workers, warm_call):
-    """Start ``workers`` actors and run one task on each; return the spawn context, the actors
-    and the seconds each took to become ready (start + first task, with kernel compilation)."""
+    """``workers`` actors, each having run one task (``warm_call(actor, i)``); yields the actors,
+    the seconds each took to become ready (start + first task, kernel compilation included) and
+    the last warm-up's info."""
     from photonmap.cluster.connect import Placement, spawn
 
-    context = spawn(ray, worker_class, Placement(workers, 1.0, 0.0, 1, "cpu"), job)
-    actors = context.__enter__()
-    t0 = time.perf_counter()
-    refs = [warm_call(a, i) for i, a in enumerate(actors)]
-    ready = []
-    for ref in refs:
-        _, info = ray.get(ref)
-        ready.append(time.perf_counter() - t0)
-    return context, actors, ready, info
+    with spawn(ray, worker_class, Placement(workers, 1.0, 0.0, 1, "cpu"), job) as actors:
+        t0 = time.perf_counter()
+        refs = [warm_call(a, i) for i, a in enumerate(actors)]
+        ready = []
+        for ref in refs:
+            _, info = ray.get(ref)
+            ready.append(time.perf_counter() - t0)
+        yield actors, ready, info
 
 
 def progressive_rate(ray, args, workers: int) -> dict:
     """Iterations/s of warm workers through the driver's task loop and in-order merge."""
+    from photonmap.cluster.progressive import InOrder
     from photonmap.cluster.schedule import run_tasks
     from photonmap.cluster.workers import BlockWorker
 
-    job = progressive_job(args)
-    context, actors, ready, info = warm_actors(
-        ray, BlockWorker, job, workers, lambda a, i: a.render_block.remote(1000 + i, 1)
-    )
     rates, overhead, shares = [], [], []
-    try:
+    warm = lambda a, i: a.render_block.remote(1000 + i, 1)  # noqa: E731
+    with warm_actors(ray, BlockWorker, progressive_job(args), workers, warm) as (
+        actors, ready, info,
+    ):  # fmt: skip
         for rep in range(args.repeats):
             first = 1 + rep * args.blocks * args.block
             tasks = [(f, (f, args.block)) for f in range(first, first + args.blocks * args.block,
                                                            args.block)]  # fmt: skip
-            merged, t0, cpu = None, time.perf_counter(), 0.0
-            arrived, nxt = {}, first
+            merged, t0, cpu = InOrder(first), time.perf_counter(), 0.0
             for key, (sums, block_info) in run_tasks(ray, actors, "render_block", tasks):
                 cpu += block_info["cpu_seconds"]
-                arrived[key] = sums
-                while nxt in arrived:
-                    part = arrived.pop(nxt)
-                    merged = part if merged is None else merged.merge(part)
-                    nxt += part.iterations
+                merged.add(key, sums)
             wall = time.perf_counter() - t0
-            rates.append(merged.iterations / wall)
+            rates.append(merged.sums.iterations / wall)
             shares.append(cpu / wall)
         for _ in range(args.repeats):  # one block at a time: round trip − compute
             t0 = time.perf_counter()
             _, block_info = ray.get(actors[0].render_block.remote(1, 1))
             overhead.append(time.perf_counter() - t0 - block_info["seconds"])
-    finally:
-        context.__exit__(None, None, None)
     return {
         "workers": workers,
         "iterations_per_s": summarize(rates),
@@ -147,15 +142,12 @@ def sequence_rate(ray, args, workers: int) -> dict:
     """Frames/s of warm frame workers (each rendered one frame of the path first)."""
     from photonmap.cluster.schedule import run_tasks
     from photonmap.cluster.workers import FrameWorker
+    from photonmap.core.image import write_image
 
     frames = sequence_frames(args)
-    context, actors, ready, _ = warm_actors(
-        ray, FrameWorker, sequence_job(args), workers, lambda a, i: a.render.remote(frames[i])
-    )
     rates, write, shares = [], [], []
-    try:
-        from photonmap.core.image import write_image
-
+    warm = lambda a, i: a.render.remote(frames[i])  # noqa: E731
+    with warm_actors(ray, FrameWorker, sequence_job(args), workers, warm) as (actors, ready, _):
         for _ in range(args.repeats):
             tasks = [(f.index, (f,)) for f in frames[2:]]
             t0, cpu = time.perf_counter(), 0.0
@@ -167,8 +159,6 @@ def sequence_rate(ray, args, workers: int) -> dict:
             wall = time.perf_counter() - t0
             rates.append(len(tasks) / wall)
             shares.append(cpu / wall)
-    finally:
-        context.__exit__(None, None, None)
     return {
         "workers": workers,
         "frames_per_s": summarize(rates),

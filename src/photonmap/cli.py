@@ -396,9 +396,10 @@ def render_sequence(
                 for text in set(info["warnings"]) - seen:
                     _say(f"warning: {text}")
                 seen |= set(info["warnings"])
+                reran = info["recomputed"]
+                reran = "" if reran is None else f", reran {len(reran)} stage(s)"
                 _say(f"wrote {', '.join(paths)} (frame {index}, {done}/{len(todo)}; worker "
-                     f"{info['node']}:{info['pid']}, {info['seconds']:.2f} s, reran "
-                     f"{len(info['recomputed'])} stage(s))")
+                     f"{info['node']}:{info['pid']}, {info['seconds']:.2f} s{reran})")
         except KeyboardInterrupt:
             _say(f"interrupted: {done} of {len(todo)} frames written")
             raise typer.Exit(130) from None

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from photonmap import BlockSums
 from photonmap.cli import app
 from photonmap.cluster.connect import ClusterError, parse_address, probe
 from photonmap.cluster.frames import FrameSpecError, check_pattern, parse_frames
@@ -17,6 +18,7 @@ from photonmap.cluster.job import FrameState, SceneJob, sensor_of
 from photonmap.cluster.progressive import (
     MAX_BLOCK,
     TIMED_BLOCK,
+    InOrder,
     block_size,
     blocks,
     check_job,
@@ -205,3 +207,15 @@ def test_progressive_jobs_are_memoryless_sppm():
         check_job(SceneJob("cornell_steinhurst", "sppm", {"mode": "sppm"}))
     with pytest.raises(ParameterError, match="render-sequence"):
         check_job(SceneJob("cornell_steinhurst", "surface"))
+
+
+def test_blocks_merge_in_block_order_whatever_order_they_arrive_in():
+    rng = np.random.default_rng(3)
+    parts = {f: BlockSums(rng.random((2, 3, 3)) * 10.0 ** rng.integers(-8, 8), 2) for f in
+             (1, 3, 5, 7)}  # fmt: skip
+    expect = parts[1].merge(parts[3]).merge(parts[5]).merge(parts[7])
+    merged = InOrder()
+    for first, held in ((5, None), (3, None), (1, 5), (7, 7)):  # arrival → blocks merged so far
+        merged.add(first, parts[first])
+        assert (merged.sums is None and held is None) or merged.next == held + 2
+    assert np.array_equal(merged.sums.total, expect.total) and merged.sums.iterations == 8

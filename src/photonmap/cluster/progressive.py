@@ -54,6 +54,23 @@ class ProgressiveResult:
         return sorted({w for info in self.blocks for w in info["warnings"]})
 
 
+class InOrder:
+    """Merges ``BlockSums`` in block order: a block that arrives early waits until every block
+    before it has joined, so the sum's grouping is fixed whatever order workers finish in."""
+
+    def __init__(self, first: int = 1):
+        self.sums = None  # the merged blocks first … next − 1
+        self.next = first
+        self._waiting: dict = {}
+
+    def add(self, first: int, sums) -> None:
+        self._waiting[first] = sums
+        while self.next in self._waiting:
+            part = self._waiting.pop(self.next)
+            self.sums = part if self.sums is None else self.sums.merge(part)
+            self.next += part.iterations
+
+
 def block_size(iterations: int | None, workers: int) -> int:
     """Iterations per block: about :data:`BLOCKS_PER_WORKER` blocks per worker, at most
     :data:`MAX_BLOCK`; :data:`TIMED_BLOCK` under a time budget."""
@@ -120,17 +137,13 @@ def render_progressive(
     with cluster(workers, address) as place, spawn(ray, BlockWorker, place, job) as actors:
         size = block or block_size(iterations, place.workers)
         deadline = None if seconds is None else start + seconds
-        arrived: dict = {}  # first iteration → BlockSums, waiting for the blocks before it
-        next_first, last_preview = 1, start
+        merged, last_preview = InOrder(), start
         try:
             tasks = blocks(iterations, size, deadline)
             for first, (sums, info) in run_tasks(ray, actors, "render_block", tasks):
-                arrived[first] = sums
                 result.blocks.append({"first": first, "count": sums.iterations, **info})
-                while next_first in arrived:  # fixed order: block k after blocks 1 … k−1
-                    part = arrived.pop(next_first)
-                    result.sums = part if result.sums is None else result.sums.merge(part)
-                    next_first += part.iterations
+                merged.add(first, sums)
+                result.sums = merged.sums
                 if on_block is not None:
                     on_block(result.iterations, info)
                 now = time.perf_counter()
