@@ -1,5 +1,6 @@
 """The ``photonmap`` command: render a scene with a method, render Mitsuba's own reference of the
-same scene, compare two images, list the built-in scenes.
+same scene, compare two images, list the built-in scenes; on Ray workers, progressive passes
+(``render --workers/--ray``) and frame sequences (``render-sequence``, :mod:`photonmap.cluster`).
 
 Every argument is checked before any work starts (output paths, image size and its memory, the
 ``--set`` keys and values); each bad input is one line ``error: ...`` and exit status 2. The CLI

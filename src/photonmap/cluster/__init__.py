@@ -11,6 +11,7 @@ specs), :mod:`.job` (rebuilding the driver's pipeline on a worker).
 from .connect import ClusterError, cluster, probe
 from .frames import Frame, FrameSpec, FrameSpecError, load_frames, parse_frames
 from .job import SceneJob, build_pipeline
+from .progressive import ProgressiveResult, render_progressive
 from .sequence import render_sequence
 
 __all__ = [
@@ -18,11 +19,13 @@ __all__ = [
     "Frame",
     "FrameSpec",
     "FrameSpecError",
+    "ProgressiveResult",
     "SceneJob",
     "build_pipeline",
     "cluster",
     "load_frames",
     "parse_frames",
     "probe",
+    "render_progressive",
     "render_sequence",
 ]
