@@ -47,38 +47,41 @@ def single():
     return pipe.run(iterations=ITERATIONS).numpy(), pipe
 
 
-def _merged(result):
-    assert result.iterations == ITERATIONS and not result.interrupted
-    firsts = sorted(b["first"] for b in result.blocks)
-    assert firsts[: ITERATIONS // BLOCK] == list(range(1, ITERATIONS + 1, BLOCK))
-    return result.sums.image()
-
-
-def test_merged_blocks_equal_single_process(address, single):
-    previews = []
-    result = render_progressive(SPPM, ITERATIONS, address=address, block=BLOCK,
-                                preview=previews.append, preview_every=0)  # fmt: skip
-    image = _merged(result)
-    assert len({b["pid"] for b in result.blocks}) == 2  # both workers took blocks
+def test_merged_blocks_equal_single_process(address, single, tmp_path):
+    out = tmp_path / "box.exr"
+    p = SPPM.params
+    result = CliRunner().invoke(app, [
+        "render", SPPM.scene, "--method", "sppm", "--seed", str(p["seed"]),
+        "--set", f"photons_per_iteration={p['photons_per_iteration']}",
+        "--set", f"iterations={ITERATIONS}", "--width", str(SPPM.width),
+        "--height", str(SPPM.height), "--ray", address, "-o", str(out),
+    ])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert f"sppm: {ITERATIONS} iterations in" in result.output
+    assert "on 2 worker(s)" in result.output  # both workers took blocks
+    image = read_image(str(out))
     assert np.array_equal(image, single[0])  # bit-identical (module docstring of .progressive)
     assert image.mean() > 0.05
-    assert 1 <= len(previews) <= len(result.blocks)  # one per arrival once block 1 is in
-    assert np.array_equal(previews[-1], image)
 
 
 def test_worker_killed_mid_run_gives_the_same_image(address, single):
-    killed = []
+    killed, previews = [], []
 
     def kill_first(done, info):  # SIGKILL the worker that delivered the first block
         if not killed:
             os.kill(info["pid"], signal.SIGKILL)
             killed.append(info["pid"])
 
-    result = render_progressive(SPPM, ITERATIONS, address=address, block=1, on_block=kill_first)
+    result = render_progressive(SPPM, ITERATIONS, address=address, block=1, on_block=kill_first,
+                                preview=previews.append, preview_every=0)  # fmt: skip
     pids = {b["pid"] for b in result.blocks}
     assert killed and len(pids) >= 3  # Ray restarted the killed actor and ran its blocks again
     assert sorted(b["first"] for b in result.blocks) == list(range(1, ITERATIONS + 1))
-    assert np.array_equal(result.sums.image(), single[0])
+    assert result.iterations == ITERATIONS and not result.interrupted
+    image = result.sums.image()
+    assert np.array_equal(image, single[0])
+    assert 1 <= len(previews) <= len(result.blocks)  # one per arrival once block 1 is in
+    assert np.array_equal(previews[-1], image)
 
 
 def test_interrupted_driver_keeps_what_was_merged(address, single):
