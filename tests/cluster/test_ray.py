@@ -21,6 +21,7 @@ from photonmap.cluster.job import FrameState, SceneJob, build_pipeline
 from photonmap.cluster.progressive import render_progressive
 from photonmap.cluster.schedule import run_tasks
 from photonmap.cluster.workers import FrameWorker
+from photonmap.core.errors import SceneError
 from photonmap.core.image import read_image
 
 ITERATIONS, BLOCK = 6, 2
@@ -140,3 +141,11 @@ def test_sequence_survives_a_worker_that_dies(address, light_path):
     assert sorted(got) == [0, 1, 2, 3]
     for i, want in enumerate(expect):
         assert np.abs(got[i] - want).max() <= 1e-6 * np.abs(want).max()
+
+
+def test_a_worker_error_reaches_the_driver_as_itself(address):
+    """Bad input on a worker (here a scene file the node lacks) is raised as the worker's own
+    PhotonmapError, not retried and not reported as a dead worker."""
+    job = SceneJob("no/such/scene.xml", "sppm", {"photons_per_iteration": 100})
+    with pytest.raises(SceneError, match="neither a built-in nor a file on this node"):
+        render_progressive(job, 2, workers=1, address=address)

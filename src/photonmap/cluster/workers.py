@@ -68,30 +68,33 @@ class FrameWorker(_Worker):
 
 class BlockWorker(_Worker):
     """Runs blocks of memoryless progressive iterations (beyond-seeds §2, Knaus & Zwicker 2011) of
-    one SPPM pipeline built once from ``job``; returns their per-pixel sums."""
+    one SPPM pipeline, built from ``job`` by the first block (so a scene that fails to load is
+    that task's error, not a dead actor) and kept; returns their per-pixel sums."""
 
     def __init__(self, job: SceneJob, device: str = "cpu", threads: int = 1):
-        from .job import build_pipeline
-
         super().__init__(device, threads)
-        t0 = time.perf_counter()
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            self.pipe = build_pipeline(job)
-        self.load_seconds = time.perf_counter() - t0
-        self.warnings = sorted({str(w.message) for w in caught})
+        self.job = job
+        self.pipe = None
+        self.load_seconds = 0.0
+        self.warnings: list[str] = []
 
     def render_block(self, first: int, count: int):
         """``BlockSums`` of iterations ``first … first + count − 1`` (1-based), with timings."""
+        from .job import build_pipeline
+
         t0, c0 = time.perf_counter(), time.process_time()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
+            if self.pipe is None:
+                self.pipe = build_pipeline(self.job)
+                self.load_seconds = time.perf_counter() - t0
             sums = self.pipe.render_block(first, count)
+        self.warnings = sorted(set(self.warnings) | {str(w.message) for w in caught})
         info = {
             "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - c0,
             "load_seconds": self.load_seconds,
-            "warnings": sorted(set(self.warnings) | {str(w.message) for w in caught}),
+            "warnings": self.warnings,
             **self.where(),
         }
         return sums, info
