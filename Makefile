@@ -11,7 +11,7 @@ $(STAMP): pyproject.toml scripts/ensure-llvm.sh scripts/ensure-chromium.sh
 	bash scripts/ensure-chromium.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[dev]"
+	$(PY) -m pip install -q -e ".[dev,cluster]"
 	touch $(STAMP)
 
 demo: $(STAMP)
@@ -30,6 +30,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/volume_vs_volpath.py
 	$(PY) benchmarks/viewer_latency.py
 	$(PY) benchmarks/caustics_vs_path.py
+	$(PY) benchmarks/scale_out.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

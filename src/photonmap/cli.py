@@ -1,5 +1,6 @@
 """The ``photonmap`` command: render a scene with a method, render Mitsuba's own reference of the
-same scene, compare two images, list the built-in scenes.
+same scene, compare two images, list the built-in scenes; on Ray workers, progressive passes
+(``render --workers/--ray``) and frame sequences (``render-sequence``, :mod:`photonmap.cluster`).
 
 Every argument is checked before any work starts (output paths, image size and its memory, the
 ``--set`` keys and values); each bad input is one line ``error: ...`` and exit status 2. The CLI
@@ -161,6 +162,12 @@ def render(
     preview_every: Annotated[
         float | None, typer.Option(help="sppm: rewrite the output every SECONDS while iterating")
     ] = None,
+    workers: Annotated[
+        int | None, typer.Option(help="sppm: iterate on N local Ray workers (one per core)")
+    ] = None,
+    ray_address: Annotated[
+        str | None, typer.Option("--ray", help="sppm: iterate on the Ray cluster at HOST:PORT")
+    ] = None,
 ):
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
 
@@ -187,6 +194,11 @@ def render(
         if method is not None and method not in METHODS:
             raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
         _check_progressive(method, time, preview_every)
+        if (workers is not None or ray_address is not None) and method not in (None, "sppm"):
+            raise PhotonmapError(
+                "--workers/--ray distribute the progressive method's iterations (--method sppm);"
+                " for many frames of any method use 'photonmap render-sequence'"
+            )
         with console.status(f"loading {scene}") if interactive() else nullcontext():
             mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
         if method is None and builtin is not None:
@@ -220,7 +232,11 @@ def render(
             check_image_memory(method, *size, params.get("spp", 1))
             if size != tuple(int(c) for c in film):
                 pipe.set_camera(width=size[0], height=size[1])
-            if method == "sppm":
+            if workers is not None or ray_address is not None:
+                xml = {k: v for k, v in _split_sets(set_ or []).items() if k not in sets}
+                job = _job(scene, method, params, xml, size)
+                image = _distribute(job, output, time, preview_every, workers, ray_address)
+            elif method == "sppm":
                 image = _iterate(pipe, scene, output, time, "iterations" in params, preview_every)
             else:
                 with stage_progress(pipe.stages, f"rendering {scene}", console=console) as report:
@@ -282,6 +298,136 @@ def _iterate(pipe, scene, outputs, seconds, iterations_set, preview_every):
             _say(f"interrupted: writing the image of {pipe.iterations} iterations")
     _say(f"sppm: {pipe.iterations} iterations, mean radius {pipe.mean_radius:.4g}")
     return pipe.image()
+
+
+def _job(scene, method, params, scene_params, size):
+    from .cluster.job import SceneJob
+
+    return SceneJob(scene, method, params, scene_params, *size)
+
+
+def _distribute(job, outputs, seconds, preview_every, workers, address):
+    """``render --workers/--ray``: memoryless iterations in blocks on Ray workers
+    (:mod:`photonmap.cluster.progressive`), previews as blocks arrive, Ctrl-C keeps the merge."""
+    from rich.progress import Progress
+
+    from .cluster.progressive import render_progressive
+    from .core.errors import PhotonmapError
+    from .core.image import write_image
+    from .core.progress import interactive
+
+    iterations = job.params.get("iterations", 64 if seconds is None else None)
+
+    def preview(image):
+        for out in outputs:
+            write_image(out, image)
+
+    with Progress(console=console, transient=True, disable=not interactive()) as bar:
+        task = bar.add_task("sppm on Ray workers", total=iterations or seconds)
+
+        def on_block(done, info):
+            bar.update(task, completed=done if iterations else min(seconds, info["seconds"]),
+                       description=f"sppm: {done} iterations merged")
+
+        res = render_progressive(
+            job, iterations, seconds, workers, address, preview=preview,
+            preview_every=preview_every or float("inf"), on_block=on_block,
+        )  # fmt: skip
+    for text in res.warnings():
+        _say(f"warning: {text}")
+    if res.sums is None:
+        raise PhotonmapError("interrupted before any block of iterations finished: no image")
+    if res.interrupted:
+        _say(f"interrupted: writing the image of {res.iterations} iterations")
+    pids = {(b["node"], b["pid"]) for b in res.blocks}
+    _say(f"sppm: {res.iterations} iterations in {len(res.blocks)} blocks on {len(pids)} "
+         f"worker(s), {res.seconds:.1f} s")
+    return res.sums.image()
+
+
+@app.command("render-sequence")
+def render_sequence(
+    scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
+    frames: Annotated[str, typer.Option(help="frame spec (JSON): a camera or light path, or a "
+                                              "list of parameter sets (README)")],
+    output: Annotated[
+        list[str], typer.Option("-o", "--output", help="out/%04d.png or .exr (repeatable)")
+    ],
+    workers: Annotated[int | None, typer.Option(help="N local Ray workers (default: one per core)")]
+    = None,
+    ray_address: Annotated[
+        str | None, typer.Option("--ray", help="the Ray cluster at HOST:PORT")
+    ] = None,
+    width: Annotated[int | None, typer.Option(help="image width (overrides the spec's)")] = None,
+    height: Annotated[int | None, typer.Option(help="image height (overrides the spec's)")] = None,
+    skip_existing: Annotated[
+        bool, typer.Option("--skip-existing", help="leave out frames already written (resume)")
+    ] = False,
+):
+    """Render a sequence of frames of SCENE, one Ray task per frame, each frame written as it
+    finishes; every worker keeps its pipeline's cached stages between the frames it renders."""
+    from . import METHODS, PhotonmapError
+    from .cluster.frames import load_frames
+    from .cluster.job import FrameState
+    from .cluster.sequence import check_outputs
+    from .cluster.sequence import render_sequence as run
+    from .core.memory import check_side
+    from .core.scene_info import pick_method
+
+    try:
+        check_outputs(output)
+        check_side("--width", width)
+        check_side("--height", height)
+        spec = load_frames(frames)
+        mi_scene, builtin, _ = _load(scene, {})
+        method = spec.method or (builtin.pipeline if builtin else pick_method(mi_scene))
+        if method not in METHODS:
+            raise PhotonmapError(f"unknown method {method!r}; available: {', '.join(METHODS)}")
+        job, todo = _sequence_job(scene, method, spec, width, height)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the workers report them
+            state = FrameState(job)
+            for frame in todo:  # every frame's settings are checked before any work
+                state.apply(frame)
+        done, seen = 0, set()
+        try:
+            for index, paths, info in run(job, todo, output, workers, ray_address,
+                                          skip_existing):
+                done += 1
+                for text in set(info["warnings"]) - seen:
+                    _say(f"warning: {text}")
+                seen |= set(info["warnings"])
+                reran = info["recomputed"]
+                reran = "" if reran is None else f", reran {len(reran)} stage(s)"
+                _say(f"wrote {', '.join(paths)} (frame {index}, {done}/{len(todo)}; worker "
+                     f"{info['node']}:{info['pid']}, {info['seconds']:.2f} s{reran})")
+        except KeyboardInterrupt:
+            _say(f"interrupted: {done} of {len(todo)} frames written")
+            raise typer.Exit(130) from None
+    except PhotonmapError as exc:
+        raise _error(exc) from None
+
+
+def _sequence_job(scene, method, spec, width, height):
+    """The job (settings equal in every frame go to the pipeline's constructor) and the frames
+    with only what changes between them."""
+    import dataclasses as dc
+
+    from .cluster.job import SceneJob
+
+    first = spec.frames[0].set
+    fixed = {k: v for k, v in first.items() if all(f.set.get(k) == v for f in spec.frames)}
+    xml = {}
+    if os.path.isfile(scene):
+        with open(scene, errors="replace") as f:
+            text = f.read()
+        xml = {k: str(v) for k, v in fixed.items() if f"${k}" in text}
+    params = {k: v for k, v in fixed.items() if k not in xml}
+    job = SceneJob(scene, method, params, xml, width or spec.width, height or spec.height)
+    frames = [
+        dc.replace(f, set={k: v for k, v in f.set.items() if k not in fixed}) for f in spec.frames
+    ]
+    return job, frames
 
 
 @app.command()
