@@ -64,6 +64,7 @@ def _batch(n=3000, width=24, height=20, seed=3):
     d = rng.normal(size=(n, 3))
     return GatherBatch(
         position=rng.random((n, 3)).astype(np.float32) * 2 - 1,
+        normal=np.tile(np.float32([0, 1, 0]), (n, 1)),
         direction=d / np.linalg.norm(d, axis=1, keepdims=True),
         pixel=pixel,
         ray=ray,

@@ -136,6 +136,7 @@ def _ordered_lookup(lookup, layout: RequestLayout, si_y, found, query, i, direct
         query.numpy()[host],
         i.numpy()[host],
         si_y.p.numpy().reshape(3, -1).T[host],
+        si_y.sh_frame.n.numpy().reshape(3, -1).T[host],
         direction.numpy().reshape(3, -1).T[host],
     )
     if layout.keep:

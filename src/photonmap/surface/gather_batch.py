@@ -70,13 +70,15 @@ class OrderParams:
 @dataclass
 class GatherBatch:
     """Final-gather requests (host arrays, one row per gather, in generation order: pixel-major,
-    ray index minor). ``position`` (N, 3) float32: the gather point y; ``direction`` (N, 3): the
+    ray index minor). ``position`` (N, 3) float32: the gather point y, ``normal`` its shading normal
+    (the k-NN normal test); ``direction`` (N, 3): the
     world direction ω_i of the ray that reached y; ``pixel`` (N,): destination pixel (scanline
     index); ``ray`` (N,): ray index within the pixel; ``specular`` (N,): the pixel's eye ray
     passed a specular surface. ``width``/``height``: the image; ``bounds``: the scene's AABB
     (lo, hi), the frame of the hash grid and the Hilbert grid."""
 
     position: np.ndarray
+    normal: np.ndarray
     direction: np.ndarray
     pixel: np.ndarray
     ray: np.ndarray
@@ -223,11 +225,12 @@ class RequestLayout:
     keep: bool = False
     batches: list | None = None
 
-    def batch(self, query, ray, position, direction) -> GatherBatch:
+    def batch(self, query, ray, position, normal, direction) -> GatherBatch:
         """The batch of requests of query points ``query`` and ray indices ``ray`` (NumPy)."""
         query = np.asarray(query, np.int64)
         return GatherBatch(
             position=np.asarray(position, np.float32).reshape(-1, 3),
+            normal=np.asarray(normal, np.float32).reshape(-1, 3),
             direction=np.asarray(direction, np.float32).reshape(-1, 3),
             pixel=query // self.spp,
             ray=(query % self.spp) * (1 << 20) + np.asarray(ray, np.int64),

@@ -150,6 +150,7 @@ class SurfacePipeline(MovableCamera):
         self._extra = None  # (lookup key, irradiance or filtered map), for self._maps
         self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
         self._step = None  # (volume key, automatic march step, precomputed density or None)
+        self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
 
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`SurfaceParams` fields)."""
@@ -249,6 +250,8 @@ class SurfacePipeline(MovableCamera):
             (np.array(bbox.min), np.array(bbox.max)),
             p.gather_order,
             OrderParams(tile=p.tile),
+            keep=self.kept_requests is not None,
+            batches=self.kept_requests,
         )
 
     def render(self, progress=None) -> mi.TensorXf:
