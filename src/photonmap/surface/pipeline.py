@@ -93,7 +93,8 @@ class SurfaceParams:
     volume_k: int = 50  # volume photons per in-scattering estimate (scenes with media)
     volume_radius: float = 0.0  # maximum volume gather radius; 0 = automatic
     march_step: float = 0.0  # ray-marching step in media; 0 = half the median k-NN radius
-    gather_order: str = "naive"  # order of the k-NN final gathers (Steinhurst Ch. 3)
+    gather_order: str = "hilbert"  # order of the k-NN final gathers (Steinhurst Ch. 3): the
+    # fastest on the CPU (benchmarks/steinhurst_tables.py), the image is the same in every order
     tile: int = 16  # screen tile edge for the tiled gather orders
 
     def validate(self) -> None:
