@@ -27,6 +27,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/knn_throughput.py
 	$(PY) benchmarks/screen_table1.py
 	$(PY) benchmarks/volume_vs_volpath.py
+	$(PY) benchmarks/steinhurst_tables.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

@@ -23,6 +23,7 @@ associative; 8-way set-associative beside it). Bytes are scaled from the window 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -74,7 +75,7 @@ DOC = {
 # window of the 512² image (x, y, w, h), surface parameters, hash grid G (Cornell 5, Sponza 8)
 SCENES = {
     "cornell_steinhurst": ((192, 288, 64, 32), dict(photons=100_000, fg_rays=32), 5),
-    "cornell_bushes": ((224, 320, 32, 32), dict(photons=100_000, fg_rays=32, max_radius=0.02), 8),
+    "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=32, max_radius=0.02), 8),
 }
 QUICK = ((240, 288, 16, 16), dict(photons=5000, fg_rays=4), None)
 
@@ -120,11 +121,10 @@ def study(name: str, window, surface: dict, grid: int, quick: bool, sweeps: bool
         }
     out["table"] = table
     out["cache_sweep_GB"] = {o: [v * scale / 1e9 for v in c] for o, c in curves.items()}
-    if sweeps:  # Figs 3.5 and 4.1 (Cornell): the 16×16 / 128 B points are those of the table
+    if sweeps:  # Figs 3.5 and 4.1 (Cornell); the 16×16 points are those of the table
         sweep_orders = ("tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
         tiles = [t for t in TILES if w % t == 0 and h % t == 0 and t != 16]
-        lines = [x for x in LINES if x != 128]
-        out["tiles"], out["lines"] = tiles, lines
+        out["tiles"], out["lines"] = tiles, LINES
         out["tile_sweep_GB"] = {
             o: [v * scale / 1e9 for v in c]
             for o, c in tile_sweep(trace, sweep_orders, tiles, params=order_params).items()
@@ -255,9 +255,19 @@ def main(argv=None) -> dict:
     ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
     ap.add_argument("--out-dir", default=str(common.RESULTS))
     ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
+    ap.add_argument(
+        "--scenes",
+        default=",".join(SCENES),
+        help="scenes to run; the others keep their results of the previous run's JSON",
+    )
     args = ap.parse_args(argv)
-    scenes = {}
+    out = Path(args.out_dir)
+    stem = NAME + ("_quick" if args.quick else "")
+    previous = out / f"{stem}.json"
+    scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
     for name, (window, surface, grid) in SCENES.items():
+        if name not in args.scenes.split(","):
+            continue
         if args.quick:
             window, surface, _ = QUICK
         sweeps = not args.quick and name == "cornell_steinhurst"
@@ -292,8 +302,6 @@ def main(argv=None) -> dict:
         "scenes": scenes,
         "headline": headline,
     }
-    out = Path(args.out_dir)
-    stem = NAME + ("_quick" if args.quick else "")
     common.write_json(out / f"{stem}.json", result)
     common.write_text(out / f"{stem}.md", markdown(result))
     if not args.quick:
