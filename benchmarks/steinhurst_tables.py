@@ -78,6 +78,29 @@ SCENES = {
     "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=32, max_radius=0.02), 8),
 }
 QUICK = ((240, 288, 16, 16), dict(photons=5000, fg_rays=4), None)
+# Fig 6.17 / O26: the glossy floor's lobe narrowed (Beckmann α; Phong n ≈ 2/α² − 2), window on it
+GLOSSY = ((224, 432, 64, 32), dict(photons=100_000, fg_rays=32), (0.3, 0.1, 0.03), 0.8)
+GLOSSY_ORDERS = ("naive", "tiled_dirbin_hashed", "tiled_hilbert")
+
+
+def glossy_sweep(quick: bool) -> dict:
+    """GB per image of three orders as the floor's glossy lobe narrows (Fig 6.17, O26: naive
+    order falls, the coherent orders stay about constant)."""
+    window, surface, roughness, weight = GLOSSY
+    if quick:
+        window, surface, _ = QUICK
+        roughness = roughness[:1]
+    x, y, w, h = window
+    out = {"window": window, "glossy_weight": weight, "roughness": list(roughness), "GB": {}}
+    for alpha in roughness:
+        scene = cropped_scene(
+            "cornell_glossy_floor", 512, (x, y), (w, h), roughness=alpha, glossy=weight
+        )
+        trace = trace_final_gathers(scene, **surface, caustic_photons=0, emitter_spp=0, k=100)
+        curves = cache_sweep(trace, GLOSSY_ORDERS, [128 * 1024], 128, OrderParams(grid=5))
+        for order, c in curves.items():
+            out["GB"].setdefault(order, []).append(c[0] * 512 * 512 / (w * h) / 1e9)
+    return out
 
 
 def study(name: str, window, surface: dict, grid: int, quick: bool, sweeps: bool) -> dict:
@@ -245,6 +268,19 @@ def markdown(result: dict) -> str:
             )
         )
         parts.append("")
+    glossy = result.get("glossy")
+    if glossy:
+        parts.append(
+            f"## glossy floor (Fig 6.17, O26)\n\nwindow {glossy['window']}, glossy weight "
+            f"{glossy['glossy_weight']}, GB/image at 128 KB against the Beckmann roughness:\n"
+        )
+        parts.append(
+            common.markdown_table(
+                ["order", *[f"α {a}" for a in glossy["roughness"]]],
+                [[o, *[common.fmt(v, 2) for v in c]] for o, c in glossy["GB"].items()],
+            )
+        )
+        parts.append("")
     parts.append("## headline\n")
     parts.append("\n".join(f"- {k}: {v}" for k, v in result["headline"].items()))
     return "\n".join(parts) + "\n"
@@ -257,7 +293,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
     ap.add_argument(
         "--scenes",
-        default=",".join(SCENES),
+        default=",".join([*SCENES, "glossy_floor"]),
         help="scenes to run; the others keep their results of the previous run's JSON",
     )
     args = ap.parse_args(argv)
@@ -273,6 +309,9 @@ def main(argv=None) -> dict:
         sweeps = not args.quick and name == "cornell_steinhurst"
         scenes[name] = study(name, window, surface, grid or 5, args.quick, sweeps)
         print(f"{name}: done", flush=True)
+    previous_glossy = json.loads(previous.read_text()).get("glossy") if previous.is_file() else None
+    glossy = glossy_sweep(args.quick) if "glossy_floor" in args.scenes.split(",") else None
+    glossy = glossy or previous_glossy
     headline = {}
     for name, s in scenes.items():
         t = s["table"]
@@ -300,6 +339,7 @@ def main(argv=None) -> dict:
         "doc_table_3_1_GB": DOC,
         "doc_table_7_10": TABLE_7_10,
         "scenes": scenes,
+        "glossy": glossy,
         "headline": headline,
     }
     common.write_json(out / f"{stem}.json", result)
