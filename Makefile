@@ -31,6 +31,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/viewer_latency.py
 	$(PY) benchmarks/caustics_vs_path.py
 	$(PY) benchmarks/scale_out.py
+	$(PY) benchmarks/steinhurst_tables.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 
 from ..core.errors import ParameterError, SceneError
-from . import cornell, ispm, volume_scenes
+from . import bushes, cornell, ispm, volume_scenes
 
 
 @dataclass(frozen=True)
@@ -74,6 +74,13 @@ SCENES: dict[str, Builtin] = {
             "Steinhurst Fig 7.5: Cornell box, Lambertian + glossy floor, checkerboard back wall "
             "(params: roughness, glossy)",
             cornell.cornell_glossy_floor,
+            pipeline="surface",
+        ),
+        Builtin(
+            "cornell_bushes",
+            "Steinhurst Fig 5.5: Cornell box with bushes of many small diffuse leaves "
+            "(params: bushes, leaves, seed)",
+            bushes.cornell_bushes,
             pipeline="surface",
         ),
         Builtin(

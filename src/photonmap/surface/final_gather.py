@@ -18,7 +18,10 @@ hits (``fused=False``).
 
 The rays are issued in explicit batches of photon-map queries — as many final-gather rays of every
 query point at a time as fit in ``BATCH_RAYS`` (2²¹) rays per batch — the unit that gather
-reordering works on.
+reordering works on. With a ``layout`` (:class:`~.gather_batch.RequestLayout`) the k-NN lookups of
+a batch run as a :class:`~.gather_batch.GatherBatch` of the hits, in one of Steinhurst's gather
+orders (Ch. 3); each ray's result goes back to its lane before the per-pixel sums, so the image is
+bit-identical in every order (spec oracle O1).
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import mitsuba as mi
 
 from ..core.media import Inscatter, enter
 from ..core.sampling import rng, rotated_hammersley
+from .gather_batch import RequestLayout, gather_order
 from .trace import follow_specular, follow_specular_media
 
 FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
@@ -47,6 +51,7 @@ def final_gather(
     null_shapes: bool | None = None,
     medium: mi.MediumPtr | None = None,
     inscatter: Inscatter | None = None,
+    layout: RequestLayout | None = None,
 ) -> mi.Spectrum:
     """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
     returns the radiance leaving y towards x (lazily if ``fused``). The rays pass through
@@ -54,7 +59,8 @@ def final_gather(
     :func:`~photonmap.surface.trace.follow_specular`). In a scene with participating media
     (``medium``: the medium at each ``si``; ``inscatter``: the eye pass's in-scattered light) the
     rays fly through the media by free-flight sampling and a ray that scatters reads the
-    in-scattered radiance there (:func:`~photonmap.surface.trace.follow_specular_media`)."""
+    in-scattered radiance there (:func:`~photonmap.surface.trace.follow_specular_media`).
+    ``layout`` (k-NN lookups, ``fused=False``): issue each batch's gathers in ``layout.order``."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
     smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
@@ -107,8 +113,38 @@ def final_gather(
             )
         if not fused:
             dr.eval(si_y, throughput, found)  # the k-NN gathers run several kernels over these
-        L = dr.select(found, throughput * lookup(si_y, si_y.bsdf(), found), 0.0) + L_medium
+        if layout is None or fused:
+            L_y = lookup(si_y, si_y.bsdf(), found)
+        else:
+            L_y = _ordered_lookup(lookup, layout, si_y, found, query, i, ray.d)
+        L = dr.select(found, throughput * L_y, 0.0) + L_medium
         dr.eval(L)  # once: each channel's block sum below would otherwise rerun the kernel
         total += mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, m) for c in L])
         dr.eval(total)
     return total / rays
+
+
+def _ordered_lookup(lookup, layout: RequestLayout, si_y, found, query, i, direction) -> mi.Spectrum:
+    """``lookup`` at the found hits as a request batch in ``layout.order``; the results are
+    scattered back to their lanes (Steinhurst §3.2: a reordering changes only the order)."""
+    lanes = dr.compress(found)
+    dr.eval(lanes)
+    host = lanes.numpy()
+    if len(host) == 0:
+        return dr.zeros(mi.Spectrum, dr.width(found))
+    batch = layout.batch(
+        query.numpy()[host],
+        i.numpy()[host],
+        si_y.p.numpy().reshape(3, -1).T[host],
+        si_y.sh_frame.n.numpy().reshape(3, -1).T[host],
+        direction.numpy().reshape(3, -1).T[host],
+    )
+    if layout.keep:
+        layout.batches.append(batch)
+    issued = dr.gather(
+        mi.UInt32, lanes, mi.UInt32(gather_order(batch, layout.order, layout.params))
+    )
+    si = dr.gather(mi.SurfaceInteraction3f, si_y, issued)
+    L = dr.zeros(mi.Spectrum, dr.width(found))
+    dr.scatter(L, lookup(si, si.bsdf(), dr.full(mi.Bool, True, dr.width(issued))), issued)
+    return L

@@ -36,6 +36,10 @@ if ``δ² ≤ min(max_radius², d²_k)``. Without a near child, pop entries unti
 that bound. Ties are kept (``≤``), so a photon at exactly the k-th distance with a lower index is
 still found, and float32 rounding is monotone, so ``δ²`` never exceeds a far-side photon's ``d²``:
 the results are exact. The stack holds at most one entry per tree level (≤ 32).
+
+**Address trace** (:meth:`KDTree.visits`, for :mod:`photonmap.analysis`): the same search also
+counts the nodes each query visits and can write their heap slots, in visiting order, to a buffer
+— the exact stream of record reads of a gather (spec §2.6).
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import numpy as np
 
 from ..core.errors import ParameterError
 from ..core.knn import (
+    COS_NORMAL,
     PhotonSearch,
     accept,
     finish,
@@ -56,6 +61,7 @@ from ..core.knn import (
     photon_key,
     read_record,
     squared_distance,
+    squared_radius,
 )
 
 STACK_SIZE = 32
@@ -132,8 +138,29 @@ class KDTree(PhotonSearch):
         self.record = pack_records(points.T[:, order], order | (axis << 30))
         self._count = dr.opaque(mi.UInt32, count)
 
+    def visits(self, query, k, radius, query_normal, normals, directions):
+        """The nodes each query's gather visits, as NumPy ``(count (Q,), slots)``: query ``q``'s
+        heap slots in visiting order are ``slots[o_q : o_q + count[q]]``, ``o`` the exclusive
+        prefix sum of ``count``. Same arguments as :meth:`knn` with the normal test (one pass
+        counts, a second writes; fewer than 2³² visits per call)."""
+        args = (
+            mi.Point3f(query),
+            int(k),
+            dr.opaque(mi.Float, squared_radius(radius)),
+            mi.Vector3f(query_normal),
+            self._stored(normals),
+            self._stored(directions),
+            dr.opaque(mi.Float, COS_NORMAL),
+        )
+        count = self._search(*args, trace=(None, None))[-1].numpy().astype(np.int64)
+        offset = np.cumsum(count) - count
+        buffer = dr.zeros(mi.UInt32, max(int(count.sum()), 1))
+        self._search(*args, trace=(buffer, mi.UInt32(offset.astype(np.uint32))))
+        dr.eval(buffer)
+        return count, buffer.numpy()[: count.sum()]
+
     @dr.syntax
-    def _search(self, query, k, radius2, query_normal, normals, directions, cos_normal):
+    def _search(self, query, k, radius2, query_normal, normals, directions, cos_normal, trace=None):
         lanes = dr.width(query)
         heap = new_heap(k, lanes)
         found = dr.zeros(mi.UInt32, lanes)
@@ -144,10 +171,15 @@ class KDTree(PhotonSearch):
         iterations = dr.zeros(mi.UInt32, lanes)
         cap = 2 * count + 2  # every node is visited and popped at most once
         active = dr.all(dr.isfinite(query))  # a query at infinity or NaN finds nothing
+        visited = dr.zeros(mi.UInt32, lanes)
+        buffer, offset = trace if trace is not None else (None, None)
         while active:
             bound = dr.minimum(radius2, heap_bound2(heap, k, found))
             if node != 0:
                 # ---- visit: offer the node's photon, go to the near child, push the far child
+                if dr.hint(buffer is not None, mode="scalar"):
+                    dr.scatter(buffer, node, offset + visited)
+                visited += 1
                 p, flag = read_record(self.record, node - 1)
                 d2 = squared_distance(p, query)
                 ok = accept(d2, radius2, query_normal, normals, directions, node - 1, cos_normal)
@@ -175,4 +207,4 @@ class KDTree(PhotonSearch):
             iterations += 1
             active &= iterations < cap
         index, radius2_found = finish(heap, k, found, lanes)
-        return index, found, radius2_found
+        return (index, found, radius2_found) + ((visited,) if trace is not None else ())

@@ -51,6 +51,7 @@ from ..core.timer import StageTimer
 from .direct import direct_lighting
 from .final_gather import final_gather
 from .gather import radiance_estimate
+from .gather_batch import ORDERS, OrderParams, RequestLayout
 from .irradiance import lookup_radiance, precompute_irradiance
 from .photon_map import STRUCTURES, build_media_maps, build_photon_maps, photon_map
 from .trace import follow_specular, follow_specular_media
@@ -92,6 +93,9 @@ class SurfaceParams:
     volume_k: int = 50  # volume photons per in-scattering estimate (scenes with media)
     volume_radius: float = 0.0  # maximum volume gather radius; 0 = automatic
     march_step: float = 0.0  # ray-marching step in media; 0 = half the median k-NN radius
+    gather_order: str = "hilbert"  # order of the k-NN final gathers (Steinhurst Ch. 3): the
+    # fastest on the CPU (benchmarks/steinhurst_tables.py), the image is the same in every order
+    tile: int = 16  # screen tile edge for the tiled gather orders
 
     def validate(self) -> None:
         """Types (:func:`~photonmap.core.params.check_fields`: integers, finite numbers, the seed
@@ -105,6 +109,7 @@ class SurfaceParams:
             ("irradiance_every", "irradiance precomputed at every m-th photon"),
             ("spp", "eye rays per pixel"),
             ("volume_k", "volume photons per in-scattering estimate"),
+            ("tile", "screen tile edge in pixels for the tiled gather orders"),
         ):
             check_range(key, getattr(self, key), 1, None, hint)
         check_range("caustic_photons", self.caustic_photons, 0, None, "0 = no caustic map")
@@ -115,6 +120,7 @@ class SurfaceParams:
         check_choice("structure", self.structure, tuple(STRUCTURES), "the photon search structure")
         check_choice("lookup", self.lookup, LOOKUPS, "the final gather's secondary lookup")
         check_choice("fg_sampling", self.fg_sampling, FG_SAMPLING, "final-gather directions")
+        check_choice("gather_order", self.gather_order, ORDERS, "the final gathers' order")
 
 
 class SurfacePipeline(MovableCamera):
@@ -145,6 +151,7 @@ class SurfacePipeline(MovableCamera):
         self._extra = None  # (lookup key, irradiance or filtered map), for self._maps
         self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
         self._step = None  # (volume key, automatic march step, precomputed density or None)
+        self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
 
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`SurfaceParams` fields)."""
@@ -229,6 +236,24 @@ class SurfacePipeline(MovableCamera):
         found = vmap.grid.knn(at, k=k, max_radius=radius)
         r2 = dr.select(found.count < k, radius**2, found.radius2)
         return 0.5 * float(np.sqrt(np.median(r2.numpy())))
+
+    def request_layout(self, w: int, h: int, bounces: mi.UInt32) -> RequestLayout | None:
+        """How the final gather emits and orders its k-NN requests (``lookup="knn"``)."""
+        p = self.params
+        if p.lookup != "knn":
+            return None
+        bbox = self.scene.bbox()
+        return RequestLayout(
+            w,
+            h,
+            p.spp,
+            bounces.numpy() > 0,
+            (np.array(bbox.min), np.array(bbox.max)),
+            p.gather_order,
+            OrderParams(tile=p.tile),
+            keep=self.kept_requests is not None,
+            batches=self.kept_requests,
+        )
 
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance."""
@@ -321,6 +346,7 @@ class SurfacePipeline(MovableCamera):
                     null_shapes=self.null_shapes,
                     medium=medium,
                     inscatter=inscatter,
+                    layout=self.request_layout(w, h, bounces),
                 )
             dr.eval(L)
         image = pixel_means(L, p.spp)

@@ -1,0 +1,368 @@
+"""Steinhurst 2007's reordering results reproduced on our scenes (issue 13 items 3, 4, 7, 8; spec
+seed-001 §3.3, §3.7, oracles O16–O21, O27).
+
+For the Cornell box (``cornell_steinhurst``, the dissertation's Fig 1.2) and the bushy box
+(``cornell_bushes``, many small occluders in Sponza's role) the surface method renders a window
+of the 512 × 512 image (the dissertation's pixel footprint; spec A17) with exact k = 100 k-NN
+final gathers on the heap-order kd-tree; every gather is traced and its exact stream of 20-byte
+photon-record reads goes through the LRU cache simulator (128 KB, 128-byte lines, fully
+associative; 8-way set-associative beside it). Bytes are scaled from the window to a full
+512 × 512 image. Written beside the dissertation's numbers:
+
+- Table 3.1 (bytes per image by gather order) and the reduction of each order against the
+  uncached naive figure (20 B per visited node, §3.5) — O16, O17;
+- Fig 3.9 (bytes vs cache size, one stack-distance pass per order; plot in ``docs/``) — O19;
+- Fig 3.5 (bytes vs tile size) — O18; Fig 4.1 / Table 4.1 (bytes vs line size) — O21;
+- 8-way set-associative vs fully associative misses — O20;
+- the chip model of Ch. 7 fed with these counts: tiles/s at 90 GB/s per order — O27;
+- CPU wall time of the final gathers (Dr.Jit k-NN on this machine) per order, medians of runs.
+
+    PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_tables.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402
+import photonmap  # noqa: E402,F401
+from photonmap.analysis.bandwidth import (  # noqa: E402
+    WAYS,
+    cache_sweep,
+    line_sweep,
+    plot_sweep,
+    tile_sweep,
+)
+from photonmap.analysis.cache import merge_repeats, set_associative_misses  # noqa: E402
+from photonmap.analysis.hardware import TABLE_7_10, from_trace  # noqa: E402
+from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
+from photonmap.surface.gather_batch import ORDERS, OrderParams  # noqa: E402
+from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
+
+NAME = "steinhurst_tables"
+CACHE_KB = [8, 16, 32, 64, 128, 256, 512, 1024]
+LINES = [64, 128, 256, 512, 1024]
+TILES = [4, 8, 16, 32]
+PRACTICAL = ("tiled", "tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert", "hilbert")
+
+# Table 3.1 (GB per 512 × 512 image; Sponza's column for the bushy scene) and the uncached naive
+# figures of §2.6.4; whole-image Hilbert on Cornell: 15 MB (§3.4.1)
+DOC = {
+    "cornell_steinhurst": {
+        "uncached": 50.0,
+        "tiled": 50.0,
+        "tiled_dirbin": 13.0,
+        "tiled_dirbin_hashed": 12.0,
+        "tiled_hilbert": 9.0,
+        "hilbert": 0.015,
+    },
+    "cornell_bushes": {
+        "uncached": 367.0,
+        "tiled": 357.0,
+        "tiled_dirbin": 58.0,
+        "tiled_dirbin_hashed": 31.0,
+        "tiled_hilbert": 19.0,
+    },
+}
+# window of the 512² image (x, y, w, h), surface parameters, hash grid G (Cornell 5, Sponza 8)
+SCENES = {
+    "cornell_steinhurst": ((192, 288, 64, 32), dict(photons=100_000, fg_rays=32), 5),
+    "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=32, max_radius=0.02), 8),
+}
+QUICK = ((240, 288, 16, 16), dict(photons=5000, fg_rays=4), None)
+# Fig 6.17 / O26: the glossy floor's lobe narrowed (Beckmann α; Phong n ≈ 2/α² − 2), window on it
+GLOSSY = ((224, 432, 64, 32), dict(photons=100_000, fg_rays=32), (0.3, 0.1, 0.03), 0.8)
+GLOSSY_ORDERS = ("naive", "tiled_dirbin_hashed", "tiled_hilbert")
+
+
+def glossy_sweep(quick: bool) -> dict:
+    """GB per image of three orders as the floor's glossy lobe narrows (Fig 6.17, O26: naive
+    order falls, the coherent orders stay about constant)."""
+    window, surface, roughness, weight = GLOSSY
+    if quick:
+        window, surface, _ = QUICK
+        roughness = roughness[:1]
+    x, y, w, h = window
+    out = {"window": window, "glossy_weight": weight, "roughness": list(roughness), "GB": {}}
+    for alpha in roughness:
+        scene = cropped_scene(
+            "cornell_glossy_floor", 512, (x, y), (w, h), roughness=alpha, glossy=weight
+        )
+        trace = trace_final_gathers(scene, **surface, caustic_photons=0, emitter_spp=0, k=100)
+        curves = cache_sweep(trace, GLOSSY_ORDERS, [128 * 1024], 128, OrderParams(grid=5))
+        for order, c in curves.items():
+            out["GB"].setdefault(order, []).append(c[0] * 512 * 512 / (w * h) / 1e9)
+    out["load_average"] = os.getloadavg()
+    return out
+
+
+def study(name: str, window, surface: dict, grid: int, quick: bool, sweeps: bool) -> dict:
+    x, y, w, h = window
+    scene = cropped_scene(name, 512, (x, y), (w, h))
+    params = dict(surface, caustic_photons=0, emitter_spp=0, k=100)
+    start = time.perf_counter()
+    trace = trace_final_gathers(scene, **params)
+    trace_s = time.perf_counter() - start
+    scale = 512 * 512 / (w * h)  # bytes of the window → bytes of the full image
+    order_params = OrderParams(grid=grid)
+    uncached = trace.uncached_bytes()
+    out = {
+        "window": window,
+        "params": params,
+        "hash_grid": grid,
+        "gathers": len(trace.batch),
+        "node_visits": trace.visits,
+        "visits_per_gather": trace.visits / len(trace.batch),
+        "photons": trace.photons,
+        "map_lines_128B": trace.footprint_lines(128),
+        "trace_s": trace_s,
+        "uncached_GB_per_image": uncached * scale / 1e9,
+        "load_average": os.getloadavg(),
+    }
+    # one stack-distance pass per order: Table 3.1 at 128 KB and the whole Fig 3.9 curve
+    start = time.perf_counter()
+    curves = cache_sweep(trace, ORDERS, [kb * 1024 for kb in CACHE_KB], 128, order_params)
+    out["cache_sweep_s"] = time.perf_counter() - start
+    at128 = CACHE_KB.index(128)
+    table = {}
+    for order in ORDERS:
+        b = curves[order][at128]
+        stream = merge_repeats(trace.lines(order, 128, order_params))
+        full_misses = b // 128
+        set_misses = set_associative_misses(stream, 1024 // WAYS, WAYS)
+        table[order] = {
+            "GB_per_image": b * scale / 1e9,
+            "reduction_vs_uncached": uncached / max(b, 1),
+            "fetches_per_map_line": full_misses / trace.footprint_lines(128),
+            "set_associative_ratio": set_misses / max(full_misses, 1),
+        }
+    out["table"] = table
+    out["cache_sweep_GB"] = {o: [v * scale / 1e9 for v in c] for o, c in curves.items()}
+    if sweeps:  # Figs 3.5 and 4.1 (Cornell); the 16×16 points are those of the table
+        sweep_orders = ("tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
+        tiles = [t for t in TILES if w % t == 0 and h % t == 0 and t != 16]
+        out["tiles"], out["lines"] = tiles, LINES
+        out["tile_sweep_GB"] = {
+            o: [v * scale / 1e9 for v in c]
+            for o, c in tile_sweep(trace, sweep_orders, tiles, params=order_params).items()
+        }
+        out["line_sweep_GB"] = {
+            o: [v * scale / 1e9 for v in c]
+            for o, c in line_sweep(
+                trace,
+                ("naive", "tiled_dirbin_hashed", "tiled_hilbert"),
+                LINES,
+                params=order_params,
+            ).items()
+        }
+    out["hardware"] = from_trace(
+        trace, {o: table[o]["GB_per_image"] * 1e9 / scale for o in ORDERS}, w * h
+    )
+    out["cpu"] = cpu_times(scene, params, 1 if quick else 3)
+    return out
+
+
+def cpu_times(scene, params: dict, repeats: int) -> dict:
+    """Milliseconds of the final-gather stage (Dr.Jit k-NN gathers on the kd-tree and the hash
+    grid, this CPU) per order: medians of ``repeats`` renders after a warm-up render."""
+    out = {}
+    for structure in ("kdtree", "hash"):
+        pipe = SurfacePipeline(scene, **params, lookup="knn", structure=structure)
+        pipe.render()  # photon maps and kernel compilation
+        runs = {o: [] for o in ORDERS}
+        for _ in range(repeats):
+            for order in ORDERS:
+                pipe.set_params(gather_order=order)
+                pipe.render()
+                runs[order].append(pipe.timer.ms["final gather"])
+        out[structure] = {o: common.summarize(r) for o, r in runs.items()}
+    return out
+
+
+def markdown(result: dict) -> str:
+    parts = ["# Steinhurst 2007 tables reproduced\n"]
+    for name, s in result["scenes"].items():
+        doc = DOC[name]
+        parts.append(
+            f"## {name}\n\nwindow {s['window']} of 512×512, {s['gathers']:,} final gathers "
+            f"(N_FG {s['params']['fg_rays']}, k 100), {s['visits_per_gather']:.0f} kd-tree nodes "
+            f"per gather, {s['photons']:,} photons ({s['map_lines_128B']:,} lines of 128 B); "
+            f"uncached naive {s['uncached_GB_per_image']:.1f} GB/image (dissertation "
+            f"{doc['uncached']:g} GB{'' if name == 'cornell_steinhurst' else ', Sponza'}); "
+            f"load average {s.get('load_average', 'not recorded')}\n"
+        )
+        rows = []
+        for order, r in s["table"].items():
+            d = doc.get(order)
+            rows.append(
+                [
+                    order,
+                    common.fmt(r["GB_per_image"], 2),
+                    common.fmt(r["reduction_vs_uncached"], 1) + "×",
+                    common.fmt(d, 3) if d else "—",
+                    common.fmt(doc["uncached"] / d, 1) + "×" if d else "—",
+                    common.fmt(r["fetches_per_map_line"], 2),
+                    common.fmt(r["set_associative_ratio"], 2),
+                    common.fmt(s["cpu"]["kdtree"][order]["median"], 0),
+                    common.fmt(s["cpu"]["hash"][order]["median"], 0),
+                ]
+            )
+        parts.append(
+            common.markdown_table(
+                [
+                    "order",
+                    "GB/image",
+                    "vs uncached",
+                    "doc GB",
+                    "doc vs uncached",
+                    "fetches/line",
+                    "8-way/full",
+                    "CPU ms kd",
+                    "CPU ms hash",
+                ],
+                rows,
+            )
+        )
+        parts.append("\nGB/image vs cache size (KB " + ", ".join(map(str, CACHE_KB)) + "):\n")
+        parts.append(
+            common.markdown_table(
+                ["order", *[f"{kb}K" for kb in CACHE_KB]],
+                [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["cache_sweep_GB"].items()],
+            )
+        )
+        if "tile_sweep_GB" in s:
+            parts.append("\nGB/image vs tile edge:\n")
+            parts.append(
+                common.markdown_table(
+                    ["order", *map(str, s["tiles"])],
+                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["tile_sweep_GB"].items()],
+                )
+            )
+            parts.append("\nGB/image vs line size (128 KB):\n")
+            parts.append(
+                common.markdown_table(
+                    ["order", *map(str, s["lines"])],
+                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["line_sweep_GB"].items()],
+                )
+            )
+        hw = s["hardware"]
+        parts.append("\nChip model (Ch. 7) fed with these counts, R_IC = 0:\n")
+        parts.append(
+            common.markdown_table(
+                ["order", "GB/image", "GFLOPs/image", "tiles/s (90 GB/s)", "tiles/s (500 GFLOPS)"],
+                [
+                    [
+                        o,
+                        common.fmt(h["GB_per_image"], 2),
+                        common.fmt(h["GFLOPs_per_image"], 1),
+                        common.fmt(h["tiles_per_s_memory"], 0),
+                        common.fmt(h["tiles_per_s_compute"], 0),
+                    ]
+                    for o, h in hw.items()
+                ],
+            )
+        )
+        parts.append("")
+    glossy = result.get("glossy")
+    if glossy:
+        parts.append(
+            f"## glossy floor (Fig 6.17, O26)\n\nwindow {glossy['window']}, glossy weight "
+            f"{glossy['glossy_weight']}, GB/image at 128 KB against the Beckmann roughness:\n"
+        )
+        parts.append(
+            common.markdown_table(
+                ["order", *[f"α {a}" for a in glossy["roughness"]]],
+                [[o, *[common.fmt(v, 2) for v in c]] for o, c in glossy["GB"].items()],
+            )
+        )
+        parts.append("")
+    parts.append("## headline\n")
+    parts.append("\n".join(f"- {k}: {v}" for k, v in result["headline"].items()))
+    return "\n".join(parts) + "\n"
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
+    ap.add_argument("--out-dir", default=str(common.RESULTS))
+    ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
+    ap.add_argument(
+        "--scenes",
+        default=",".join([*SCENES, "glossy_floor"]),
+        help="scenes to run; the others keep their results of the previous run's JSON",
+    )
+    args = ap.parse_args(argv)
+    out = Path(args.out_dir)
+    stem = NAME + ("_quick" if args.quick else "")
+    previous = out / f"{stem}.json"
+    scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
+    for name, (window, surface, grid) in SCENES.items():
+        if name not in args.scenes.split(","):
+            continue
+        if args.quick:
+            window, surface, _ = QUICK
+        sweeps = not args.quick and name == "cornell_steinhurst"
+        scenes[name] = study(name, window, surface, grid or 5, args.quick, sweeps)
+        print(f"{name}: done", flush=True)
+    previous_glossy = json.loads(previous.read_text()).get("glossy") if previous.is_file() else None
+    glossy = glossy_sweep(args.quick) if "glossy_floor" in args.scenes.split(",") else None
+    glossy = glossy or previous_glossy
+    headline = {
+        "traffic_reduction_dirbin_hashed": {},  # uncached naive bytes / order's bytes, per scene
+        "traffic_reduction_tiled_hilbert": {},
+        "set_associative_ratio": {},  # 8-way / fully associative misses, dir-binning + hashed
+        "cpu_speedup_best_order_per_scene": {},  # naive / best practical order, kd-tree gathers
+        "cpu_best_order": {},
+    }
+    for name, s in scenes.items():
+        t = s["table"]
+        headline["traffic_reduction_dirbin_hashed"][name] = t["tiled_dirbin_hashed"][
+            "reduction_vs_uncached"
+        ]
+        headline["traffic_reduction_tiled_hilbert"][name] = t["tiled_hilbert"][
+            "reduction_vs_uncached"
+        ]
+        headline["set_associative_ratio"][name] = t["tiled_dirbin_hashed"]["set_associative_ratio"]
+        cpu = s["cpu"]["kdtree"]
+        best = min(PRACTICAL, key=lambda o: cpu[o]["median"])
+        speedup = cpu["naive"]["median"] / cpu[best]["median"]
+        headline["cpu_speedup_best_order_per_scene"][name] = speedup
+        headline["cpu_best_order"][name] = best
+    headline["cpu_speedup_best_order"] = min(headline["cpu_speedup_best_order_per_scene"].values())
+    result = {
+        "name": NAME,
+        "quick": args.quick,
+        "machine": common.machine_info(),
+        "load_average": os.getloadavg(),  # at the end of this run; per scene in its study
+        "doc_table_3_1_GB": DOC,
+        "doc_table_7_10": TABLE_7_10,
+        "scenes": scenes,
+        "glossy": glossy,
+        "headline": headline,
+    }
+    common.write_json(out / f"{stem}.json", result)
+    common.write_text(out / f"{stem}.md", markdown(result))
+    if not args.quick:
+        cornell = scenes["cornell_steinhurst"]
+        plot_sweep(
+            {o: np.asarray(c) * 1e9 for o, c in cornell["cache_sweep_GB"].items()},
+            CACHE_KB,
+            "cache size (KB)",
+            args.plot,
+            "Cornell box, 512×512 (window), 128 B lines",
+            cornell["uncached_GB_per_image"] * 1e9,
+        )
+    print(markdown(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()

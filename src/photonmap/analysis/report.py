@@ -1,0 +1,84 @@
+"""The text report of ``photonmap analyze bandwidth`` (Steinhurst 2007 Table 3.1, Figs 3.5, 3.9,
+4.1): validates the options, traces the scene's final gathers once and prints one row per gather
+order, or the curves of a sweep."""
+
+from __future__ import annotations
+
+from ..core.errors import ParameterError
+from ..surface.gather_batch import ORDERS, OrderParams
+from .bandwidth import SWEEP_ORDERS, SWEEPS, WAYS, bandwidth_table, plot_sweep, sweep
+from .cache import parse_size
+from .stream import cropped_scene, photons_per_line, trace_final_gathers
+
+
+def _crop(text: str | None, size: int):
+    if text is None:
+        return None
+    try:
+        x, y, w, h = (int(v) for v in text.split(","))
+    except ValueError:
+        raise ParameterError(f"--crop expects X,Y,W,H (four integers), got {text!r}") from None
+    return (x, y), (w, h)
+
+
+def bandwidth_report(
+    scene, builtin, orders, cache, line, tile, sweep_kind, plot, size, crop, params
+) -> str:
+    """The report text; ``params``: typed surface-method and scene parameters."""
+    cache_bytes, line_bytes = parse_size(cache), parse_size(line)
+    photons_per_line(line_bytes)
+    if cache_bytes < line_bytes:
+        raise ParameterError(f"the cache ({cache_bytes} B) is smaller than one line")
+    orders = list(orders or (SWEEP_ORDERS if sweep_kind else ORDERS))
+    for o in orders:
+        if o not in ORDERS:
+            raise ParameterError(f"unknown --order {o!r}; choose from {', '.join(ORDERS)}")
+    if sweep_kind is not None and sweep_kind not in SWEEPS:
+        raise ParameterError(f"--sweep must be one of {', '.join(SWEEPS)}, got {sweep_kind!r}")
+    if plot is not None and (sweep_kind is None or not plot.lower().endswith(".png")):
+        raise ParameterError("--plot needs --sweep and a .png path")
+    order_params = OrderParams(tile=tile)
+    order_params.validate()
+    window = _crop(crop, size)
+    scene_params = {k: v for k, v in params.items() if builtin and k in builtin.params}
+    surface = {k: v for k, v in params.items() if k not in scene_params}
+    if builtin is not None:
+        offset, extent = window or ((0, 0), (size, size))
+        target = cropped_scene(builtin.name, size, offset, extent, **scene_params)
+    elif window is not None:
+        raise ParameterError("--crop applies to built-in scenes only")
+    else:
+        target = scene
+    trace = trace_final_gathers(target, **surface)
+    head = (
+        f"{scene}: {len(trace.batch):,} final gathers, {trace.visits:,} kd-tree node visits "
+        f"({trace.visits / max(len(trace.batch), 1):.0f} per gather), {trace.photons:,} photons; "
+        f"uncached naive (20 B per node): {trace.uncached_bytes() / 1e6:,.1f} MB"
+    )
+    if sweep_kind is None:
+        rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
+        lines = [
+            head,
+            f"cache {cache_bytes // 1024} KB fully associative LRU, {line_bytes} B lines, "
+            f"{tile}x{tile} tiles",
+            f"{'order':<22}{'misses':>12}{'MB':>10}{'vs uncached':>13}{'8-way/full':>12}",
+        ]
+        for r in rows:
+            lines.append(
+                f"{r['order']:<22}{r['misses']:>12,}{r['bytes'] / 1e6:>10.2f}"
+                f"{r['reduction_vs_uncached']:>12.1f}x{r['set_associative_ratio']:>12.2f}"
+            )
+        return "\n".join(lines)
+    xlabel, _ = SWEEPS[sweep_kind]
+    xs, curves = sweep(trace, sweep_kind, orders, cache_bytes, line_bytes, order_params)
+    lines = [
+        head,
+        f"MB per image against {xlabel}",
+        f"{'order':<22}" + "".join(f"{x:>9}" for x in xs),
+    ]
+    for o, ys in curves.items():
+        lines.append(f"{o:<22}" + "".join(f"{y / 1e6:>9.2f}" for y in ys))
+    if plot:
+        plot_sweep(curves, xs, xlabel, plot, f"{scene}: photon-map traffic", trace.uncached_bytes())
+        lines.append(f"wrote {plot}")
+    return "\n".join(lines)

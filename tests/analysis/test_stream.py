@@ -1,0 +1,82 @@
+"""The address stream of a render's final gathers (spec seed-001 §2.3, §2.6) and the
+``photonmap analyze bandwidth`` command."""
+
+from __future__ import annotations
+
+import mitsuba as mi
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from photonmap.analysis.bandwidth import bandwidth_table
+from photonmap.analysis.stream import cropped_scene, trace_final_gathers
+from photonmap.cli import app
+from photonmap.surface.gather_batch import ORDERS
+from photonmap.surface.pipeline import SurfacePipeline
+
+SMALL = dict(photons=4000, caustic_photons=0, fg_rays=4, k=20, emitter_spp=0)
+
+
+@pytest.fixture(scope="module")
+def trace():
+    return trace_final_gathers(
+        cropped_scene("cornell_steinhurst", 128, (48, 64), (16, 16)), **SMALL
+    )
+
+
+def test_visits_are_kd_tree_traversals(trace):
+    """Each gather's visit list starts at the root, visits a node at most once and only after its
+    parent, and contains the k photons the gather returns (the exact record reads of Jensen's
+    locate)."""
+    assert len(trace.batch) > 500 and trace.count.min() >= 1
+    pipe = SurfacePipeline(
+        cropped_scene("cornell_steinhurst", 128, (48, 64), (16, 16)),
+        **SMALL,
+        lookup="knn",
+        structure="kdtree",
+    )
+    gmap = pipe.photon_maps()[0]
+    picked = np.arange(0, len(trace.batch), 37)
+    found = gmap.knn(
+        mi.Point3f(*trace.batch.position[picked].T),
+        mi.Vector3f(*trace.batch.normal[picked].T),
+        20,
+        pipe.radii()[1],
+    )
+    index, count, _ = found.numpy()
+    slot_of = np.empty(gmap.size, np.int64)
+    slot_of[gmap.structure.order.numpy()] = np.arange(1, gmap.size + 1)
+    for row, r in enumerate(picked):
+        nodes = trace.slots[trace.offset[r] : trace.offset[r] + trace.count[r]].astype(np.int64)
+        assert nodes[0] == 1 and len(np.unique(nodes)) == len(nodes)
+        assert nodes.max() <= trace.photons
+        seen = {int(n): i for i, n in enumerate(nodes)}
+        assert all(seen[n // 2] < seen[n] for n in nodes[1:])
+        assert set(slot_of[index[row, : count[row]]]) <= set(seen)
+
+
+def test_orders_permute_the_same_reads(trace):
+    """O2: every order reads the same multiset of lines; the uncached figure is 20 B a node."""
+    naive = np.sort(trace.lines("naive", 128))
+    assert len(naive) == trace.visits and trace.uncached_bytes() == 20 * trace.visits
+    for order in ORDERS[1:]:
+        assert np.array_equal(np.sort(trace.lines(order, 128)), naive), order
+    rows = {r["order"]: r for r in bandwidth_table(trace, ("naive", "hilbert"), ways=8)}
+    assert rows["hilbert"]["misses"] < rows["naive"]["misses"]
+    assert rows["hilbert"]["misses"] >= len(np.unique(naive // 6))
+
+
+def test_analyze_bandwidth_cli(tmp_path):
+    runner = CliRunner()
+    args = ["analyze", "bandwidth", "cornell_steinhurst", "--size", "128", "--crop", "48,64,16,16"]
+    sets = [x for k, v in SMALL.items() for x in ("--set", f"{k}={v}")]
+    plot = tmp_path / "cache.png"
+    result = runner.invoke(
+        app, [*args, *sets, "--sweep", "cache", "--order", "tiled", "--plot", str(plot)]
+    )
+    assert result.exit_code == 0, result.output
+    assert "tiled" in result.output and plot.stat().st_size > 1000
+    bad = runner.invoke(app, [*args, "--order", "zigzag"])
+    assert bad.exit_code == 2 and "zigzag" in bad.output
+    bad = runner.invoke(app, [*args, "--cache", "lots"])
+    assert bad.exit_code == 2 and "size" in bad.output
