@@ -154,12 +154,13 @@ def sampling_table(
     return cdf
 
 
-def sample_table(cdf: mi.Float, query: mi.UInt32, sample: mi.Point2f):
-    """Alg 6.2 for the rays of ``query`` (one lane per ray): ``(local direction, solid-angle
-    pdf)``. The cell is the first whose cdf exceeds ``ζ₁ · cdf[C_J − 1]`` (binary search)."""
+def sample_cell(cdf: mi.Float, query: mi.UInt32, zeta: mi.Float):
+    """Alg 6.2's cell choice for one lane per sample: the first cell of ``query`` whose cdf
+    exceeds ``ζ · cdf[C_J − 1]`` (a binary search), the remainder ``s ∈ [0, 1)`` of ``ζ`` within
+    that cell and the cell's probability: ``(cell, s, P[cell])``."""
     base = query * CELLS
     total = dr.gather(mi.Float, cdf, base + CELLS - 1)
-    zeta = sample.x * total
+    zeta = zeta * total
     cell = dr.zeros(mi.UInt32, dr.width(query))
     step = CELLS // 2
     while step >= 1:  # a fixed unrolled binary search (5 steps for 32 cells)
@@ -169,7 +170,13 @@ def sample_table(cdf: mi.Float, query: mi.UInt32, sample: mi.Point2f):
     cell = dr.minimum(cell, CELLS - 1)
     high = dr.gather(mi.Float, cdf, base + cell)
     low = dr.select(cell > 0, dr.gather(mi.Float, cdf, base + dr.maximum(cell, 1) - 1), 0.0)
-    p_cell = (high - low) / total
     s = dr.clip((zeta - low) / dr.maximum(high - low, 1e-30), 0.0, 0.99999994)
+    return cell, s, (high - low) / total
+
+
+def sample_table(cdf: mi.Float, query: mi.UInt32, sample: mi.Point2f):
+    """Alg 6.2 for the rays of ``query`` (one lane per ray): ``(local direction, solid-angle
+    pdf C_J · P[c] · cos θ / π)``."""
+    cell, s, p_cell = sample_cell(cdf, query, sample.x)
     wo = cell_direction(cell, s, sample.y)
     return wo, CELLS * p_cell * wo.z / math.pi

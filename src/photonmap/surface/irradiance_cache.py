@@ -219,7 +219,7 @@ def _greedy_records(i, j, eligible, order, cache) -> np.ndarray:
         mi.UInt32(start.astype(np.uint32)),
         mi.UInt32(length.astype(np.uint32)),
         mi.UInt32(ptr),
-        mi.UInt32(j[by_lane].astype(np.uint32)),
+        mi.UInt32(np.append(j[by_lane], 0).astype(np.uint32)),  # never empty (Dr.Jit loops)
         mi.Bool(eligible),
         n,
     )
