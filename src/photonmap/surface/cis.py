@@ -11,6 +11,11 @@ solid-angle density ``p(ω) = C_J · P[c] · cos θ / π`` (spec §2.10.3 [DERIV
 - ``jensen`` (Alg 6.1): the k nearest photons of the global map at x (spec §2.4 with its normal
   test, so they arrive from above the tangent plane) add their energy (RGB mean of the flux) to
   the cell of their incoming direction; empty cells receive ``0.05 · total / C_J``; normalised.
+  Only photons of the light the final gather integrates count — those that arrived after a
+  diffuse bounce (the "indirect" map of spec §2.1): a photon straight from a light (or through
+  mirrors and glass) points where the final gather finds nothing, since direct light and
+  caustics at x are computed separately. Measured on the glossy-floor box before this filter:
+  Jensen needed 8× the rays of cosine sampling on the diffuse walls.
 - ``cis`` (Alg 6.3): the average, cell by cell, of Jensen's table and a BRDF table — the BRDF
   ``f(x, ω_c, ω_o)`` at each cell's centre direction ω_c, with the same donation to zero cells —
   a one-strategy balance-heuristic mixture with ``N_B/N = N_P/N = ½`` (Eq 6.10).
@@ -73,7 +78,11 @@ def photon_table(
     index = dr.gather(mi.UInt32, nb.index, lane, ok)
     frame = dr.gather(mi.Frame3f, si.sh_frame, query, ok)
     local = frame.to_local(-dr.gather(mi.Vector3f, pmap.photons.direction, index, ok))
-    ok &= local.z > 0
+    # only the light the final gather integrates: photons after a diffuse bounce, neither
+    # straight from a light nor through mirrors and glass (direct light and caustics at x are
+    # computed separately; the final gather finds nothing in those directions)
+    depth = dr.gather(mi.UInt32, pmap.photons.depth, index, ok)
+    ok &= (local.z > 0) & (depth > 1) & ~dr.gather(mi.Bool, pmap.photons.caustic, index, ok)
     energy = dr.mean(dr.gather(mi.Color3f, pmap.photons.power, index, ok))
     dr.scatter_reduce(dr.ReduceOp.Add, table, energy, query * CELLS + cell_of(local), ok)
     dr.eval(table)
