@@ -345,6 +345,20 @@ def precomputed_vs_direct(pipe: SurfacePipeline, error: float) -> dict:
 
 
 # ------------------------------------------------------------------------------------- report
+def dict_table(rows: list[dict], columns: list[tuple[str, str, int | None]]) -> str:
+    """A markdown table of ``rows``: per column (header, key, digits or None for text)."""
+    return common.markdown_table(
+        [c[0] for c in columns],
+        [
+            [
+                r[k] if d is None else (common.fmt(r[k], d) if r[k] is not None else "–")
+                for _, k, d in columns
+            ]
+            for r in rows
+        ],
+    )
+
+
 def markdown(result: dict) -> str:
     ic = result["irradiance_cache"]
     lines = ["# Steinhurst Ch. 5–6: irradiance caching and combined importance sampling", ""]
@@ -393,63 +407,28 @@ def markdown(result: dict) -> str:
         f"CIS {tb['cis']['us_per_query']:.2f} µs/query."
     )
     lines += ["", "## Table 5.1 / O22–O24: irradiance caching", ""]
-    lines.append(
-        common.markdown_table(
-            [
-                "scene",
-                "cache",
-                "ε_max",
-                "R_IC",
-                "gathers saved",
-                "photon gathers vs none",
-                "rel. RMSE",
-                "seam ratio",
-                "FG ms",
-            ],
-            [
-                [
-                    r["scene"],
-                    r["mode"],
-                    common.fmt(r["ic_error"], 3) if r["ic_error"] else "–",
-                    common.fmt(r["hit_rate"], 3),
-                    common.fmt(r["gathers_saved"], 3),
-                    common.fmt(r["gathers_vs_none"], 3),
-                    common.fmt(r["rel_rmse"], 4),
-                    common.fmt(r["seam_ratio"], 3),
-                    common.fmt(r["final_gather_ms"], 0),
-                ]
-                for r in ic["rows"]
-            ],
-        )
-    )
-    lines += [
-        "",
-        "R_avg precomputed at photons vs cast at the hit (tiled cache, ε_max = 0.05):",
-        "",
+    ic_columns = [
+        ("scene", "scene", None),
+        ("cache", "mode", None),
+        ("ε_max", "ic_error", 3),
+        ("R_IC", "hit_rate", 3),
+        ("gathers saved", "gathers_saved", 3),
+        ("photon gathers vs none", "gathers_vs_none", 3),
+        ("rel. RMSE", "rel_rmse", 4),
+        ("seam ratio", "seam_ratio", 3),
+        ("FG ms", "final_gather_ms", 0),
     ]
-    lines.append(
-        common.markdown_table(
-            [
-                "scene",
-                "median R_pre/R_direct",
-                "median |log ratio|",
-                "R_IC pre",
-                "R_IC direct",
-                "same decision",
-            ],
-            [
-                [
-                    r["scene"],
-                    common.fmt(r["median_ratio_precomputed_over_direct"], 3),
-                    common.fmt(r["median_abs_log_ratio"], 3),
-                    common.fmt(r["hit_rate_precomputed"], 3),
-                    common.fmt(r["hit_rate_direct"], 3),
-                    common.fmt(r["same_decision"], 3),
-                ]
-                for r in ic["ravg"]
-            ],
-        )
-    )
+    lines.append(dict_table(ic["rows"], ic_columns))
+    lines += ["", "R_avg precomputed at photons vs cast at the hit (tiled cache, ε_max = 0.05):"]
+    ravg_columns = [
+        ("scene", "scene", None),
+        ("median R_pre/R_direct", "median_ratio_precomputed_over_direct", 3),
+        ("median abs(log ratio)", "median_abs_log_ratio", 3),
+        ("R_IC pre", "hit_rate_precomputed", 3),
+        ("R_IC direct", "hit_rate_direct", 3),
+        ("same decision", "same_decision", 3),
+    ]
+    lines += ["", dict_table(ic["ravg"], ravg_columns)]
     lines.append("")
     return "\n".join(lines)
 
