@@ -17,10 +17,10 @@ otherwise it gathers and is inserted as a record.
 **Modes**:
 
 - ``ward`` (§2.9.1, the baseline): one cache for the whole image, hits taken in scanline order,
-  ``R_j`` the harmonic mean distance (Eq 5.8) of ``RAVG_RAYS`` cosine rays cast at the record itself.
-  Steinhurst takes R_j from the record's own final-gather rays; distances from separate rays of
-  the same distribution make the same decisions in distribution and let every ``R`` be known
-  before any decision.
+  ``R_j`` the harmonic mean distance (Eq 5.8) of ``RAVG_RAYS`` cosine rays cast at the record
+  itself. Steinhurst takes R_j from the record's own final-gather rays; distances from separate
+  rays of the same distribution make the same decisions in distribution and let every ``R`` be
+  known before any decision. The dependence stays sequential (one SIMD lane walks the image).
 - ``tiled`` (§2.9.2, §2.9.3): a new empty cache per ``TILE × TILE`` pixel tile, and ``R`` read
   from the nearest (facing the same way) of the points at every ``RAVG_EVERY``-th photon where it
   was precomputed once per photon map (:func:`precompute_ravg`; spec A4: 1/8 of the photons,
