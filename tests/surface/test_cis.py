@@ -9,6 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from photonmap.core.camera import pixel_rays
 from photonmap.core.errors import ParameterError
 from photonmap.scenes import cornell
 from photonmap.surface.cis import (
@@ -18,8 +19,10 @@ from photonmap.surface.cis import (
     cell_direction,
     cell_of,
     normalised,
+    photon_table,
     sample_cell,
     sample_table,
+    sampling_table,
 )
 from photonmap.surface.pipeline import SurfacePipeline
 
@@ -153,6 +156,28 @@ def test_every_sampling_is_unbiased(glossy_box, sampling):
     diff = (np.array(pipe.render()) - reference).mean(axis=2).ravel()
     standard_error = diff.std() / math.sqrt(diff.size)
     assert abs(diff.mean()) < 4 * standard_error, (diff.mean(), standard_error)
+
+
+def test_cis_table_averages_the_photon_and_brdf_pdfs(glossy_box):
+    """Alg 6.3 at the eye-ray hits of the glossy box: the cdf of ``cis`` is the running sum of
+    ½ (donated, normalised photon table + donated, normalised BRDF table), each per Alg 6.1."""
+    pipe, _ = glossy_box
+    ray, _ = pixel_rays(pipe.sensor, dr.arange(mi.UInt32, 40 * 30), mi.Point2f(0.5, 0.5))
+    si = pipe.scene.ray_intersect(ray)
+    gmap, radius = pipe.photon_maps()[0], pipe.radii()[1]
+
+    def alg_6_1(table):
+        table = table.numpy().reshape(-1, CELLS).astype(np.float64)
+        total = table.sum(1, keepdims=True)
+        filled = np.where(table > 0, table, np.where(total > 0, 0.05 * total / CELLS, 1.0))
+        return filled / filled.sum(1, keepdims=True)  # no energy at all: uniform
+
+    energy = photon_table(gmap, si, si.is_valid(), 100, radius)
+    pdf = 0.5 * (alg_6_1(energy) + alg_6_1(brdf_table(si, si.is_valid())))
+    cdf = sampling_table("cis", gmap, si, si.is_valid(), 100, radius).numpy().reshape(-1, CELLS)
+    assert np.allclose(cdf, np.cumsum(pdf, axis=1), atol=2e-6)
+    jensen = sampling_table("jensen", gmap, si, si.is_valid(), 100, radius).numpy()
+    assert np.allclose(jensen.reshape(-1, CELLS), np.cumsum(alg_6_1(energy), axis=1), atol=2e-6)
 
 
 def test_bad_sampling_names_the_choices():
