@@ -14,6 +14,7 @@ from photonmap.surface.gather_batch import (
     ORDERS,
     GatherBatch,
     OrderParams,
+    RequestLayout,
     _hashed,
     direction_bin,
     gather_order,
@@ -124,3 +125,44 @@ def test_bad_order_parameters():
         gather_order(b, "hashed", OrderParams(slots=0))
     with pytest.raises(ParameterError, match="gather_order"):
         SurfacePipeline("cornell_steinhurst", width=8, height=8, gather_order="zigzag")
+
+
+def test_orders_with_the_irradiance_cache():
+    """With the tiled irradiance cache only the planned hits gather: their requests carry their
+    own pixels (not the lane's index in the plan) and every order still gives the same image."""
+    pipe = SurfacePipeline(
+        "cornell_steinhurst",
+        width=16,
+        height=16,
+        photons=4000,
+        caustic_photons=2000,
+        fg_rays=4,
+        k=20,
+        lookup="knn",
+        emitter_spp=0,
+        tile=8,
+        irradiance_cache="tiled",
+        ic_error=0.1,
+    )
+    images = {}
+    for order in ("naive", "hilbert"):
+        pipe.kept_requests = []
+        pipe.set_params(gather_order=order)
+        images[order] = np.array(pipe.render())
+    assert np.array_equal(images["naive"], images["hilbert"])
+    gathered = pipe.stats["ic_final_gathers"]
+    assert 0 < gathered < 16 * 16
+    assert sum(len(b.pixel) for b in pipe.kept_requests) <= gathered * 4
+
+
+def test_a_request_of_a_planned_lane_carries_its_query_points_pixel():
+    """``RequestLayout.lanes`` maps the gathering lanes back to their query points."""
+    spp = 2
+    layout = RequestLayout(
+        4, 4, spp, np.zeros(32, bool), (np.zeros(3), np.ones(3)), lanes=np.array([5, 9, 30])
+    )
+    xyz = np.zeros((4, 3))
+    batch = layout.batch(np.array([0, 1, 1, 2]), np.array([0, 0, 1, 0]), xyz, xyz, xyz)
+    assert list(batch.pixel) == [2, 4, 4, 15]
+    assert list(batch.ray % (1 << 20)) == [0, 0, 1, 0]
+    assert list(batch.ray >> 20) == [1, 1, 1, 0]

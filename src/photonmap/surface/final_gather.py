@@ -3,9 +3,12 @@ a Monte Carlo integral over the hemisphere::
 
     L_indirect(x, ω_o) = (1/N) Σ_i f_r(x, ω_i, ω_o) · L(y_i → x) · (ω_i · n) / p(ω_i)
 
-Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``) or
-cosine-weighted hemisphere sampling (``"cosine"``) — the N_FG directions of a point warped from a
-randomly shifted Hammersley set (:func:`~photonmap.core.sampling.rotated_hammersley`) — passes
+Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``),
+cosine-weighted (``"cosine"``) or uniform (``"uniform"``, the naive algorithm's "visible
+hemisphere uniformly", spec §3.1) hemisphere sampling, or from a per-point tabular pdf — Jensen's
+photon-map pdf or Steinhurst's combined importance sampling (``"jensen"``, ``"cis"``: Ch. 6,
+:mod:`.cis`) — the N_FG directions of a point warped from a randomly shifted Hammersley set
+(:func:`~photonmap.core.sampling.rotated_hammersley`) — passes
 through purely specular surfaces and reads the photon map at the first non-specular hit y_i —
 emitters met on the way add nothing (direct light and caustics at x are computed separately).
 ``L(y_i → x)`` comes from irradiance precomputed at photon positions (default) or from an exact
@@ -31,6 +34,7 @@ import mitsuba as mi
 
 from ..core.media import Inscatter, enter
 from ..core.sampling import rng, rotated_hammersley
+from .cis import sample_table
 from .gather_batch import RequestLayout, gather_order
 from .trace import follow_specular, follow_specular_media
 
@@ -52,6 +56,8 @@ def final_gather(
     medium: mi.MediumPtr | None = None,
     inscatter: Inscatter | None = None,
     layout: RequestLayout | None = None,
+    table: mi.Float | None = None,
+    irradiance: mi.Bool | None = None,
 ) -> mi.Spectrum:
     """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
     returns the radiance leaving y towards x (lazily if ``fused``). The rays pass through
@@ -76,14 +82,23 @@ def final_gather(
         gen = rng(count * m, seed, FG_STREAM + first)
         i = first + dr.arange(mi.UInt32, count * m) % m
         u = rotated_hammersley(rays, i, dr.gather(mi.Point2f, shift, query))
-        if sampling == "cosine":
-            wo = mi.warp.square_to_cosine_hemisphere(u)
-            pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+        if sampling == "bsdf":
+            bs, weight = bsdf.sample(smooth, x, gen.next_float32(), u, ok)
+            wo, pdf, ok = bs.wo, bs.pdf, ok & (bs.pdf > 0)
+        else:
+            if sampling == "cosine":
+                wo = mi.warp.square_to_cosine_hemisphere(u)
+                pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+            elif sampling == "uniform":
+                wo = mi.warp.square_to_uniform_hemisphere(u)
+                pdf = mi.warp.square_to_uniform_hemisphere_pdf(wo)
+            else:
+                wo, pdf = sample_table(table, query, u)
             weight = bsdf.eval(smooth, x, wo, ok) / dr.maximum(pdf, 1e-12)
             ok &= pdf > 0
-        else:
-            bs, weight = bsdf.sample(smooth, x, gen.next_float32(), u, ok)
-            wo, ok = bs.wo, ok & (bs.pdf > 0)
+        if irradiance is not None:
+            cos_pdf = mi.Spectrum(dr.maximum(wo.z, 0.0) / dr.maximum(pdf, 1e-12))
+            weight = dr.select(dr.gather(mi.Bool, irradiance, query), cos_pdf, weight)
         ray = x.spawn_ray(x.to_world(wo))
         if medium is None:
             si_y, throughput, _, found, _ = follow_specular(

@@ -213,7 +213,9 @@ class RequestLayout:
     in ``order``: the image (``width``, ``height``, ``spp`` eye samples per pixel, query point
     ``q`` belongs to pixel ``q // spp``), ``specular`` (per query point, NumPy bool: its eye ray
     passed a specular surface), the scene ``bounds``, the :class:`OrderParams`. With ``keep``, the
-    batches issued are appended to ``batches`` (in generation order) for the cache simulator."""
+    batches issued are appended to ``batches`` (in generation order) for the cache simulator.
+    ``lanes`` (NumPy int, optional): the query point of each final-gather lane, when only some
+    query points gather (the irradiance cache's plan, Steinhurst Ch. 5)."""
 
     width: int
     height: int
@@ -224,10 +226,13 @@ class RequestLayout:
     params: OrderParams | None = None
     keep: bool = False
     batches: list | None = None
+    lanes: np.ndarray | None = None
 
     def batch(self, query, ray, position, normal, direction) -> GatherBatch:
         """The batch of requests of query points ``query`` and ray indices ``ray`` (NumPy)."""
         query = np.asarray(query, np.int64)
+        if self.lanes is not None:
+            query = np.asarray(self.lanes, np.int64)[query]
         return GatherBatch(
             position=np.asarray(position, np.float32).reshape(-1, 3),
             normal=np.asarray(normal, np.float32).reshape(-1, 3),

@@ -12,7 +12,11 @@ non-specular surface x, where
 - ``L_direct``: emitter sampling and BSDF sampling with MIS (:mod:`.direct`);
 - ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6), once per
   pixel where all its samples see one surface directly (:func:`caustic_radiance`);
-- ``L_indirect``: final gather of ``fg_rays`` rays (:mod:`.final_gather`) whose secondary hits read
+- ``L_indirect``: final gather of ``fg_rays`` rays (:mod:`.final_gather`; directions by
+  ``fg_sampling``: BSDF, cosine, uniform, Jensen's photon pdf or combined importance sampling,
+  Steinhurst Ch. 6, :mod:`.cis`), optionally through an irradiance cache (``irradiance_cache``:
+  Ward's or Steinhurst's tiled cache with precomputed R_avg, Ch. 5, :mod:`.irradiance_cache`),
+  whose secondary hits read
   irradiance precomputed at photon positions (``lookup="irradiance"``, default), or run an exact
   k-NN gather per ray (``lookup="knn"``, the dissertation's naive algorithm); ``lookup="direct"``
   skips the final gather and reads the global map at x (photons after ≥ 1 diffuse bounce).
@@ -48,16 +52,27 @@ from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import has_media
 from ..core.timer import StageTimer
+from .cis import TABLE_SAMPLING, sampling_table
 from .direct import direct_lighting
 from .final_gather import final_gather
 from .gather import radiance_estimate
 from .gather_batch import ORDERS, OrderParams, RequestLayout
 from .irradiance import lookup_radiance, precompute_irradiance
+from .irradiance_cache import (
+    MODES,
+    RAVG_RAYS,
+    apply_cache,
+    cache_order,
+    harmonic_mean_distance,
+    plan_cache,
+    precompute_ravg,
+    ravg_limits,
+)
 from .photon_map import STRUCTURES, build_media_maps, build_photon_maps, photon_map
 from .trace import follow_specular, follow_specular_media
 
 LOOKUPS = ("irradiance", "knn", "direct")
-FG_SAMPLING = ("bsdf", "cosine")
+FG_SAMPLING = ("bsdf", "cosine", "uniform") + TABLE_SAMPLING
 STAGES = (
     "photon maps",
     "irradiance",
@@ -86,7 +101,9 @@ class SurfaceParams:
     max_depth: int = 8  # bounces of photon paths and specular chains
     seed: int = 0
     lookup: str = "irradiance"  # final-gather secondary lookup: irradiance | knn | direct
-    fg_sampling: str = "bsdf"  # final-gather directions: bsdf | cosine
+    fg_sampling: str = "bsdf"  # final-gather directions: bsdf | cosine | uniform | jensen | cis
+    irradiance_cache: str = "none"  # none | ward (one sequential cache) | tiled (Steinhurst Ch. 5)
+    ic_error: float = 0.05  # the irradiance cache's ε_max
     irradiance_every: int = 4  # precompute irradiance at every m-th photon (Christensen 1999)
     spp: int = 1  # eye rays per pixel
     emitter_spp: int = 64  # extra samples of the lights' direct and specular images (0 = none)
@@ -121,6 +138,8 @@ class SurfaceParams:
         check_choice("lookup", self.lookup, LOOKUPS, "the final gather's secondary lookup")
         check_choice("fg_sampling", self.fg_sampling, FG_SAMPLING, "final-gather directions")
         check_choice("gather_order", self.gather_order, ORDERS, "the final gathers' order")
+        check_choice("irradiance_cache", self.irradiance_cache, MODES, "the irradiance cache")
+        check_range("ic_error", self.ic_error, 1e-6, None, "the irradiance cache's ε_max")
 
 
 class SurfacePipeline(MovableCamera):
@@ -152,6 +171,7 @@ class SurfacePipeline(MovableCamera):
         self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
         self._step = None  # (volume key, automatic march step, precomputed density or None)
         self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
+        self._ravg = None  # (tracing key, R_avg precomputed at photons), for self._maps
 
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`SurfaceParams` fields)."""
@@ -237,8 +257,10 @@ class SurfacePipeline(MovableCamera):
         r2 = dr.select(found.count < k, radius**2, found.radius2)
         return 0.5 * float(np.sqrt(np.median(r2.numpy())))
 
-    def request_layout(self, w: int, h: int, bounces: mi.UInt32) -> RequestLayout | None:
-        """How the final gather emits and orders its k-NN requests (``lookup="knn"``)."""
+    def request_layout(self, w: int, h: int, bounces: mi.UInt32, lanes=None) -> RequestLayout | None:
+        """How the final gather emits and orders its k-NN requests (``lookup="knn"``);
+        ``lanes``: the query point of each gathering lane when only some gather (the irradiance
+        cache's plan)."""
         p = self.params
         if p.lookup != "knn":
             return None
@@ -253,7 +275,91 @@ class SurfacePipeline(MovableCamera):
             OrderParams(tile=p.tile),
             keep=self.kept_requests is not None,
             batches=self.kept_requests,
+            lanes=lanes,
         )
+
+    def indirect(
+        self, si, bsdf, found, lookup, size, bounces, medium=None, inscatter=None
+    ) -> mi.Spectrum:
+        """``L_indirect`` at the eye-ray hits: the final gather, sampled by ``fg_sampling``,
+        at every hit or — with an irradiance cache — at the hits its plan gathers
+        (:func:`~.irradiance_cache.plan_cache`), the others interpolating."""
+        p = self.params
+        plan, irradiance, at, ok = None, None, si, found
+        if p.irradiance_cache != "none":
+            plan = self.cache_plan(si, bsdf, found, size)
+            lanes = mi.UInt32(plan.gather.astype(np.uint32))
+            at, ok = dr.gather(type(si), si, lanes), dr.gather(mi.Bool, found, lanes)
+            medium = None if medium is None else dr.gather(mi.MediumPtr, medium, lanes)
+            irradiance = mi.Bool(plan.record)
+        table = None
+        if p.fg_sampling in TABLE_SAMPLING:
+            table = sampling_table(p.fg_sampling, self._maps[1][0], at, ok, p.k, self.radii()[1])
+        L = dr.zeros(mi.Spectrum, 0)
+        if dr.width(ok):
+            L = final_gather(
+                self.scene,
+                at,
+                ok,
+                lookup,
+                p.fg_rays,
+                p.seed,
+                p.max_depth,
+                p.fg_sampling,
+                fused=p.lookup == "irradiance",
+                null_shapes=self.null_shapes,
+                medium=medium,
+                inscatter=inscatter,
+                table=table,
+                irradiance=irradiance,
+                layout=self.request_layout(
+                    *size, bounces, None if plan is None else plan.gather
+                ),
+            )
+        if plan is None:
+            return L
+        rho = bsdf.eval_diffuse_reflectance(si, found)
+        return apply_cache(plan, L, rho, dr.width(found))
+
+    def cache_plan(self, si, bsdf, found, size):
+        """The irradiance cache's decisions (:func:`~.irradiance_cache.plan_cache`) for the
+        eye-ray hits: R_avg cast at each hit (``ward``) or read at the nearest photon where it
+        was precomputed (``tiled``); only purely Lambertian hits take part."""
+        p = self.params
+        limits = ravg_limits(self.scene)
+        normal = si.sh_frame.n
+        if p.irradiance_cache == "ward":
+            R = harmonic_mean_distance(
+                self.scene, si.p, normal, RAVG_RAYS, p.seed, limits, self.null_shapes
+            )
+        else:
+            if self._ravg is None or self._ravg[0] != self._maps[0]:
+                points = precompute_ravg(self.scene, self._maps[1][0], p.seed, self.null_shapes)
+                self._ravg = (self._maps[0], points)
+            R = self._ravg[1].lookup(si, found, self.radii()[1], limits[0])
+        flags = mi.UInt32(bsdf.flags())
+        other = mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta | mi.BSDFFlags.DiffuseTransmission
+        lambertian = ((flags & int(other)) == 0) & (
+            (flags & int(mi.BSDFFlags.DiffuseReflection)) > 0
+        )
+        order, cache = cache_order(p.irradiance_cache, *size, p.spp)
+        plan = plan_cache(
+            si.p.numpy().reshape(3, -1).T.astype(np.float64),
+            normal.numpy().reshape(3, -1).T.astype(np.float64),
+            R.numpy().astype(np.float64),
+            lambertian.numpy(),
+            found.numpy(),
+            order,
+            cache,
+            p.ic_error,
+        )
+        self.stats.update(
+            ic_final_gathers=len(plan.gather),
+            ic_records=int(plan.record.sum()),
+            ic_interpolated=len(plan.interpolate),
+            ic_hit_rate=plan.hit_rate,
+        )
+        return plan
 
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance."""
@@ -333,21 +439,7 @@ class SurfacePipeline(MovableCamera):
             if p.lookup == "direct":
                 L += beta * radiance_estimate(extra, si, bsdf, p.k, r_global, found)
             else:
-                L += beta * final_gather(
-                    self.scene,
-                    si,
-                    found,
-                    lookup,
-                    p.fg_rays,
-                    p.seed,
-                    p.max_depth,
-                    p.fg_sampling,
-                    fused=p.lookup == "irradiance",
-                    null_shapes=self.null_shapes,
-                    medium=medium,
-                    inscatter=inscatter,
-                    layout=self.request_layout(w, h, bounces),
-                )
+                L += beta * self.indirect(si, bsdf, found, lookup, (w, h), bounces, medium, inscatter)
             dr.eval(L)
         image = pixel_means(L, p.spp)
         if progress:
