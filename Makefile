@@ -32,6 +32,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/caustics_vs_path.py
 	$(PY) benchmarks/scale_out.py
 	$(PY) benchmarks/steinhurst_tables.py
+	$(PY) benchmarks/steinhurst_ic_cis.py
+	$(PY) benchmarks/volume_box_grid.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks
