@@ -326,6 +326,19 @@ class VolumeMap:
     def size(self) -> int:
         return self.photons.count
 
+    def march_step(self, k: int, radius: float, samples: int = 4096) -> float:
+        """An automatic ray-marching step: half the median distance of the ``k``-th nearest
+        photon (``radius`` where fewer lie within it) over up to ``samples`` of the photons —
+        the step follows the photon density, as the radius of the estimate does."""
+        if self.size == 0:
+            return radius
+        every = max(1, self.size // samples)
+        index = dr.arange(mi.UInt32, 0, self.size, every)
+        at = dr.gather(mi.Point3f, self.photons.position, index)
+        found = self.grid.knn(at, k=k, max_radius=radius)
+        r2 = dr.select(found.count < k, radius**2, found.radius2)
+        return 0.5 * float(np.sqrt(np.median(r2.numpy())))
+
 
 def inscattered(
     vmap: VolumeMap, mei: mi.MediumInteraction3f, k: int, max_radius: float, active: mi.Bool
