@@ -91,7 +91,7 @@ class SPPMParams:
                     hi_open=True)
         check_choice("mode", self.mode, MODES, "progressive per-pixel radii or memoryless")
         check_range("volume_k", self.volume_k, 1, 1024, "volume photons per estimate")
-        check_range("volume_radius", self.volume_radius, 0, None, "ρ_1; 0 = automatic")
+        check_range("volume_radius", self.volume_radius, 0, None, "the first volume radius; 0 = auto")
 
 
 @dataclass
