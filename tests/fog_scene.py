@@ -4,6 +4,7 @@ test_fog_env, test_fog_area_light): a 3 × 2 × 2 ``cube`` holding the medium ``
 light several of them use."""
 
 import mitsuba as mi
+import numpy as np
 
 T = mi.ScalarTransform4f
 W, H = 48, 36
@@ -45,4 +46,19 @@ def spot_in_fog() -> dict:
         "to_world": T().look_at(origin=[0, 0.9, 0], target=[0.3, -1, 0], up=[0, 0, 1]),
         "intensity": 10.0,
         "medium": FOG,
+    }
+
+
+def heterogeneous_fog() -> dict:
+    """A ``heterogeneous`` medium filling the box: σ_t from a random 12 x 8 x 8 grid in
+    [0.3, 2], albedo 0.8, isotropic."""
+    grid = 0.3 + 1.7 * np.random.default_rng(0).random((8, 8, 12, 1))
+    return {
+        "type": "heterogeneous",
+        "albedo": 0.8,
+        "sigma_t": {
+            "type": "gridvolume",
+            "data": mi.TensorXf(grid.astype(np.float32)),
+            "to_world": T().translate([-1.5, -1, -1]).scale([3, 2, 2]),
+        },
     }

@@ -32,6 +32,8 @@ SMALL = {"photons_per_iteration": 5_000, "seed": 2}
         ({"max_depth": 0}, "max_depth must be >= 1"),
         ({"alpha": float("nan")}, "alpha must be a finite number"),
         ({"iterations": 2.5}, "iterations must be an integer"),
+        ({"volume_k": 0}, r"volume_k must lie in \[1, 1024\]"),
+        ({"volume_radius": -1.0}, "volume_radius must be >= 0"),
     ],
 )
 def test_bad_parameters(params, message):

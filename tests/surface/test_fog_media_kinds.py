@@ -21,16 +21,7 @@ def fog_box(kind: str) -> mi.Scene:
     """The 3 x 2 x 2 fog box with the spot light, its medium ``heterogeneous`` (σ_t from a random
     12 x 8 x 8 grid in [0.3, 2], albedo 0.8) or homogeneous with an ``hg`` phase (g = 0.6)."""
     if kind == "heterogeneous":
-        grid = 0.3 + 1.7 * np.random.default_rng(0).random((8, 8, 12, 1))
-        fog = {
-            "type": "heterogeneous",
-            "albedo": 0.8,
-            "sigma_t": {
-                "type": "gridvolume",
-                "data": mi.TensorXf(grid.astype(np.float32)),
-                "to_world": T().translate([-1.5, -1, -1]).scale([3, 2, 2]),
-            },
-        }
+        fog = fog_scene.heterogeneous_fog()
     else:
         fog = {
             "type": "homogeneous",

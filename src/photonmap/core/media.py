@@ -326,6 +326,19 @@ class VolumeMap:
     def size(self) -> int:
         return self.photons.count
 
+    def march_step(self, k: int, radius: float, samples: int = 4096) -> float:
+        """An automatic ray-marching step: half the median distance of the ``k``-th nearest
+        photon (``radius`` where fewer lie within it) over up to ``samples`` of the photons —
+        the step follows the photon density, as the radius of the estimate does."""
+        if self.size == 0:
+            return radius
+        every = max(1, self.size // samples)
+        index = dr.arange(mi.UInt32, 0, self.size, every)
+        at = dr.gather(mi.Point3f, self.photons.position, index)
+        found = self.grid.knn(at, k=k, max_radius=radius)
+        r2 = dr.select(found.count < k, radius**2, found.radius2)
+        return 0.5 * float(np.sqrt(np.median(r2.numpy())))
+
 
 def inscattered(
     vmap: VolumeMap, mei: mi.MediumInteraction3f, k: int, max_radius: float, active: mi.Bool
@@ -525,10 +538,12 @@ class Inscatter:
           sampled in proportion, where uniform steps would miss or hit it.
 
         Both are unbiased estimates of their integrals for any step. The points are evaluated
-        for runs of whole segments of at most :data:`CHUNK` points each."""
-        L = dr.zeros(mi.Spectrum, lanes)
+        for runs of whole segments of at most :data:`CHUNK` points each, and their terms summed
+        per lane in a fixed order (``np.bincount``), so the result does not depend on the order
+        of threads (atomic float additions would: SPPM's iterations must repeat exactly)."""
         if segments.count == 0:
-            return L
+            return dr.zeros(mi.Spectrum, lanes)
+        L = np.zeros((3, lanes))
         steps = np.clip(np.ceil(segments.length.numpy() / self.step), 1, MAX_STEPS)
         steps = steps.astype(np.int64)
         gen = rng(segments.count, self.seed, stream)
@@ -559,10 +574,11 @@ class Inscatter:
                 stream + 4 * first,
             )
             first = last
-        return L
+        return mi.Spectrum(*(mi.Float(c.astype(np.float32)) for c in L))
 
     def _march_run(self, segments, seg, k, steps, jitter, centre, L, stream: int) -> None:
-        """:meth:`march` at the points ``k`` (0 … N−1) of the segments ``seg``, added to ``L``."""
+        """:meth:`march` at the points ``k`` (0 … N−1) of the segments ``seg``, added to ``L``
+        (NumPy, 3 × lanes)."""
         origin = dr.gather(mi.Point3f, segments.origin, seg)
         d = dr.gather(mi.Vector3f, segments.direction, seg)
         medium = dr.gather(mi.MediumPtr, segments.medium, seg)
@@ -582,13 +598,13 @@ class Inscatter:
         t_direct = dr.clip(delta + D * dr.tan(theta), 0.0, ell)
         pdf = D / ((theta_b - theta_a) * (dr.square(D) + dr.square(t_direct - delta)))
         inv_pdf = dr.select(pdf > 0, 1.0 / (n * pdf), 0.0)
-        L_direct = self._term(origin, d, t_direct, medium, weight * inv_pdf, stream + 1, True)
-        dr.scatter_reduce(dr.ReduceOp.Add, L, L_direct, lane)
+        terms = self._term(origin, d, t_direct, medium, weight * inv_pdf, stream + 1, True)
         if self.vmap.size:
             t_map = (k + u) * ell / n
-            L_map = self._term(origin, d, t_map, medium, weight * ell / n, stream + 2, False)
-            dr.scatter_reduce(dr.ReduceOp.Add, L, L_map, lane)
-        dr.eval(L)
+            terms += self._term(origin, d, t_map, medium, weight * ell / n, stream + 2, False)
+        index = lane.numpy()
+        for c, value in enumerate(np.asarray(terms, np.float64).reshape(3, -1)):
+            L[c] += np.bincount(index, value, minlength=L.shape[1])
 
     def _term(self, origin, d, t, medium, weight, stream: int, direct: bool) -> mi.Spectrum:
         """``weight · T(t) · L_s(t)`` (its direct or its volume-map term) at ``origin + t d``."""

@@ -2,7 +2,8 @@
 
 .. pluginparameters::
 
- * - iterations, photons_per_iteration, radius, alpha, seed, max_depth, mode
+ * - iterations, photons_per_iteration, radius, alpha, seed, max_depth, mode, aim, volume_k,
+     volume_radius
    - see :class:`photonmap.sppm.pipeline.SPPMParams`
    - ``iterations`` SPPM iterations per ``mi.render`` (each one eye path per pixel and
      ``photons_per_iteration`` photon paths); ``radius`` 0 = automatic; α = 2/3;

@@ -7,6 +7,12 @@ The records from the second interaction on are kept: the first hits are the dire
 eye pass already computed by emitter sampling (:mod:`.visible`). The powers carry the ``1/M`` of
 the iteration, so a density estimate over one iteration's photons is the iteration's estimate of
 the reflected indirect radiance.
+
+In a scene with participating media (issue 11 item 5) the photons fly through the media with the
+surface method's tracer (:func:`~photonmap.core.photon_trace.trace_photons_media`; no aiming) and
+the iteration's volume photons that did not come straight from an emitter form its volume map
+(Jensen & Christensen 1998), as :func:`photonmap.surface.photon_map.build_media_maps` does: the
+eye pass computes single scattering of direct light with shadow rays.
 """
 
 from __future__ import annotations
@@ -17,6 +23,8 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.aim import trace_aimed_photons
+from ..core.media import VolumeMap
+from ..core.photon_trace import trace_photons_media
 
 
 @dataclass
@@ -29,17 +37,25 @@ class Photons:
     paths: int  # photon paths traced (M)
     aimed: int  # of them, aimed at specular shapes (core.aim)
     caustic_fraction: float  # of the aimed paths, those that met a specular shape first
+    volume: VolumeMap | None = None  # scenes with media: the iteration's volume map
 
     @property
     def count(self) -> int:
         return dr.width(self.position)
 
 
-def photon_pass(scene: mi.Scene, paths: int, seed: int, max_depth: int, aim: float) -> Photons:
+def photon_pass(
+    scene: mi.Scene, paths: int, seed: int, max_depth: int, aim: float, media: bool = False
+) -> Photons:
     """Trace ``paths`` photon paths (random numbers from ``seed``, the iteration's seed), the
     fraction ``aim`` of the area lights' paths aimed at the specular shapes
     (:func:`~photonmap.core.aim.trace_aimed_photons`), and keep the records after the first
-    interaction."""
+    interaction. ``media``: through participating media, with a volume map (module docstring)."""
+    if media:
+        records, volume = trace_photons_media(scene, paths, max_depth=max_depth, seed=seed)
+        kept = records.select(records.depth > 1) if records.count else records  # fog alone
+        vmap = VolumeMap.build(volume.select(~volume.direct))
+        return Photons(kept.position, kept.power, kept.direction, paths, 0, 0.0, vmap)
     traced = trace_aimed_photons(scene, paths, aim, max_depth=max_depth, seed=seed)
     kept = traced.records.select(traced.records.depth > 1)
     return Photons(

@@ -18,13 +18,26 @@ per-pixel state, whatever the number of iterations.
 distance of the surfaces the camera sees; in ``sppm`` mode the first iteration then shrinks each
 pixel's radius to hold about :data:`FIRST_PHOTONS` photons (:meth:`.gather.PixelState.updated`:
 small radii where photons are dense, in caustics). A given ``radius`` is every pixel's start.
+
+**Participating media** (issue 11 item 5; Jensen & Christensen 1998): each iteration's photon
+pass also builds a volume map (:mod:`.photons`), and its eye pass marches through the media with
+it (:mod:`.visible`), both with the surface method's machinery. The volume part is memoryless in
+both modes: iteration ``i``'s in-scattered light is a density estimate of its own volume map in
+spheres of radius ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates:
+the variance of one estimate grows as ``1/ρ³``), at most ``volume_k`` photons (the nearest; a
+smaller sphere where more lie within ``ρ_i``), averaged over the iterations as ``L_d`` is. As
+``ρ_i`` shrinks the chance that ``volume_k`` photons lie within it vanishes, the estimate becomes
+the fixed-radius one and its bias shrinks with ``ρ_i`` while the averaged variance falls as
+``1/i^α``: the volume part converges too. ``ρ_1``: ``volume_radius``, or the surface method's
+automatic volume radius (:data:`~photonmap.surface.pipeline.VOLUME_RADIUS` × the scene
+diagonal); the march step is half the median ``volume_k``-th photon distance within ``ρ_i``
+(:meth:`~photonmap.core.media.VolumeMap.march_step`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import time
-import warnings
 from dataclasses import dataclass
 
 import drjit as dr
@@ -33,16 +46,18 @@ import numpy as np
 
 from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_rays, scene_bounds
-from ..core.errors import ParameterError, PhotonmapWarning, SceneError
+from ..core.errors import ParameterError, SceneError
+from ..core.media import Inscatter
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import has_media
 from ..core.timer import StageTimer
+from ..surface.pipeline import STEP_SAMPLES, VOLUME_RADIUS
 from .gather import PixelState, gather, iteration_image, memoryless_radius
 from .photons import photon_pass
 from .visible import eye_pass
 
 MODES = ("sppm", "memoryless")
-STAGES = ("eye pass", "photon pass", "gather")
+STAGES = ("photon pass", "eye pass", "gather")
 RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
 FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
 
@@ -59,6 +74,8 @@ class SPPMParams:
     max_depth: int = 8  # bounces of photon paths and of the eye paths' specular chains
     mode: str = "sppm"  # "sppm" (per-pixel radii) | "memoryless" (Knaus & Zwicker 2011)
     aim: float = 0.5  # fraction of the area lights' photons aimed at specular shapes (0 = none)
+    volume_k: int = 50  # scenes with media: volume photons per in-scattering estimate, at most
+    volume_radius: float = 0.0  # scenes with media: first volume radius ρ_1; 0 = automatic
 
     def validate(self) -> None:
         """Types (:func:`~photonmap.core.params.check_fields`), then ranges and choices."""
@@ -73,6 +90,8 @@ class SPPMParams:
         check_range("aim", self.aim, 0, 1, "fraction of photons aimed at specular shapes",
                     hi_open=True)
         check_choice("mode", self.mode, MODES, "progressive per-pixel radii or memoryless")
+        check_range("volume_k", self.volume_k, 1, 1024, "volume photons per estimate")
+        check_range("volume_radius", self.volume_radius, 0, None, "the first volume radius; 0 = auto")
 
 
 @dataclass
@@ -123,13 +142,7 @@ class SPPMPipeline(MovableCamera):
         self.sensor = self.scene.sensors()[0] if self.scene.sensors() else None
         if self.sensor is None:
             raise ParameterError("the scene has no sensor (camera) to render from")
-        if has_media(self.scene):
-            warnings.warn(
-                "the sppm method renders participating media as vacuum; use --method surface "
-                "or volume for fog",
-                PhotonmapWarning,
-                stacklevel=2,
-            )
+        self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
         self.null_shapes = has_null_shapes(self.scene)
         self.params = SPPMParams()
         self.set_params(**{k: v for k, v in params.items() if k in defaults})
@@ -155,7 +168,7 @@ class SPPMPipeline(MovableCamera):
         self.iterations = 0
         self.stats = {
             "photons": 0, "photon_records": 0, "gathers": 0, "aimed_photons": 0,
-            "aimed_on_specular": 0.0,
+            "aimed_on_specular": 0.0, "volume_photons": 0,
         }  # fmt: skip
         if hasattr(self, "timer"):
             self.timer.reset()
@@ -203,11 +216,14 @@ class SPPMPipeline(MovableCamera):
         """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one)."""
         p = self.params
         eye_seed, photon_seed = iteration_seeds(p.seed, i)
-        with self.timer("eye pass"):
-            points = eye_pass(self.scene, self.sensor, eye_seed, p.max_depth, self.null_shapes)
         with self.timer("photon pass"):
             photons = photon_pass(
-                self.scene, p.photons_per_iteration, photon_seed, p.max_depth, p.aim
+                self.scene, p.photons_per_iteration, photon_seed, p.max_depth, p.aim, self.media
+            )
+        with self.timer("eye pass"):
+            inscatter = self.inscatter(photons, i, eye_seed) if self.media else None
+            points = eye_pass(
+                self.scene, self.sensor, eye_seed, p.max_depth, self.null_shapes, inscatter
             )
         with self.timer("gather"):
             got = gather(points, radius, photons)
@@ -217,6 +233,20 @@ class SPPMPipeline(MovableCamera):
         self.stats["aimed_on_specular"] += photons.caustic_fraction * photons.aimed
         self.stats["gathers"] += dr.width(points.found)
         return points, got
+
+    def volume_radius_at(self, i: int) -> float:
+        """``ρ_i = ρ_1 · i^((α−1)/3)``, the volume estimate's radius in iteration ``i`` (module
+        docstring)."""
+        p = self.params
+        r1 = p.volume_radius if p.volume_radius > 0 else VOLUME_RADIUS * scene_bounds(self.scene)[1]
+        return r1 * i ** ((p.alpha - 1.0) / 3.0)
+
+    def inscatter(self, photons, i: int, seed: int) -> Inscatter:
+        """Iteration ``i``'s in-scattered light from its volume map (module docstring)."""
+        k, radius = self.params.volume_k, self.volume_radius_at(i)
+        step = photons.volume.march_step(k, radius, STEP_SAMPLES)
+        self.stats["volume_photons"] += photons.volume.size
+        return Inscatter(self.scene, photons.volume, k, radius, step, None, seed)
 
     def _memoryless_image(self, i: int) -> np.ndarray:
         radius = self.radius_at(i)

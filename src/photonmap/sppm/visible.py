@@ -12,6 +12,15 @@ arriving straight from the emitters (emitter sampling and BSDF sampling with MIS
 method's :func:`~photonmap.surface.direct.direct_lighting`) and the emission met on the way
 (lights seen directly or through mirrors and glass, from :data:`LIGHT_SPP` paths of their own).
 Photons therefore count from their second interaction on (:mod:`.photons`).
+
+In a scene with participating media (issue 11 item 5; Jensen & Christensen 1998, spec
+beyond-seeds §4) the eye path runs through the media exactly as the surface method's eye rays
+do (:func:`~photonmap.surface.trace.follow_specular_media`): the throughput ``β`` carries the
+transmittance to the visible point, each piece of the path inside a medium is ray-marched for
+its in-scattered light (:class:`~photonmap.core.media.Inscatter`: single scattering of direct
+light by transmittance shadow rays, the rest from the iteration's volume map), which joins
+``L_d``; the shadow rays of the direct light at ``x`` and the emission seen carry the
+transmittance.
 """
 
 from __future__ import annotations
@@ -22,9 +31,10 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.camera import pixel_means, pixel_rays
+from ..core.media import Inscatter, broadcast
 from ..core.sampling import rng
 from ..surface.direct import direct_lighting
-from ..surface.trace import follow_specular
+from ..surface.trace import follow_specular, follow_specular_media
 
 
 @dataclass
@@ -50,22 +60,22 @@ def eye_pass(
     seed: int,
     max_depth: int,
     null_shapes: bool,
+    inscatter: Inscatter | None = None,
 ) -> VisiblePoints:
     """Trace one jittered eye path per pixel of ``sensor``'s film crop (random numbers from
     ``seed``, the iteration's seed) to its visible point; evaluated before returning. The
     emission met on the way is the mean of :data:`LIGHT_SPP` further jittered paths per pixel
     (specular chains only, cheap): the lights' images in mirrors and glass are bright and small,
     and one sample per iteration leaves a pixel that catches one a spike of the light's radiance
-    over the iteration count — the noisiest part of the image for hundreds of iterations."""
+    over the iteration count — the noisiest part of the image for hundreds of iterations.
+    ``inscatter``: the scene has media, and this is the iteration's in-scattered light (module
+    docstring)."""
     w, h = (int(c) for c in sensor.film().crop_size())
     lanes = w * h
     pixel = dr.arange(mi.UInt32, lanes)
     gen = rng(lanes, seed, 0)
     jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
     ray, weight = pixel_rays(sensor, pixel, jitter)
-    si, beta, _, found, _ = follow_specular(
-        scene, ray, weight, dr.ones(mi.Bool, lanes), max_depth, gen, False, null_shapes
-    )
     many = lanes * LIGHT_SPP
     extra = rng(many, seed, 1)
     ray_l, weight_l = pixel_rays(
@@ -73,13 +83,28 @@ def eye_pass(
         dr.arange(mi.UInt32, many) // LIGHT_SPP,
         mi.Point2f(extra.next_float32(), extra.next_float32()),
     )
-    _, _, seen, _, _ = follow_specular(
-        scene, ray_l, weight_l, dr.ones(mi.Bool, many), max_depth, extra, True, null_shapes
-    )
+    medium, medium_light = None, dr.zeros(mi.Spectrum, lanes)
+    if inscatter is None:
+        si, beta, _, found, _ = follow_specular(
+            scene, ray, weight, dr.ones(mi.Bool, lanes), max_depth, gen, False, null_shapes
+        )
+        _, _, seen, _, _ = follow_specular(
+            scene, ray_l, weight_l, dr.ones(mi.Bool, many), max_depth, extra, True, null_shapes
+        )
+    else:
+        start = sensor.get_medium()
+        si, beta, _, found, _, medium, medium_light = follow_specular_media(
+            scene, ray, weight, broadcast(start, lanes), dr.ones(mi.Bool, lanes), max_depth,
+            gen, False, inscatter,
+        )  # fmt: skip
+        _, _, seen, _, _, _, _ = follow_specular_media(
+            scene, ray_l, weight_l, broadcast(start, many), dr.ones(mi.Bool, many), max_depth,
+            extra, True, None,
+        )  # fmt: skip
     emitted = pixel_means(seen, LIGHT_SPP)
     u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
-    direct = emitted + beta * direct_lighting(
-        scene, si, si.bsdf(), u_light, gen, found, null_shapes
+    direct = emitted + medium_light + beta * direct_lighting(
+        scene, si, si.bsdf(), u_light, gen, found, null_shapes, medium
     )
     dr.eval(si, beta, found, direct)
     return VisiblePoints(si, beta, found, direct)

@@ -242,20 +242,9 @@ class SurfacePipeline(MovableCamera):
                 density = ScatteredDensity.build(
                     self._volume, p.irradiance_every, p.volume_k, radius
                 )
-            self._step = (key, self._automatic_step(p.volume_k, radius), density)
+            self._step = (key, self._volume.march_step(p.volume_k, radius, STEP_SAMPLES), density)
         step = p.march_step if p.march_step > 0 else self._step[1]
         return Inscatter(self.scene, self._volume, p.volume_k, radius, step, self._step[2], p.seed)
-
-    def _automatic_step(self, k: int, radius: float) -> float:
-        vmap = self._volume
-        if vmap.size == 0:
-            return radius
-        every = max(1, vmap.size // STEP_SAMPLES)
-        index = dr.arange(mi.UInt32, 0, vmap.size, every)
-        at = dr.gather(mi.Point3f, vmap.photons.position, index)
-        found = vmap.grid.knn(at, k=k, max_radius=radius)
-        r2 = dr.select(found.count < k, radius**2, found.radius2)
-        return 0.5 * float(np.sqrt(np.median(r2.numpy())))
 
     def request_layout(self, w: int, h: int, bounces: mi.UInt32, lanes=None) -> RequestLayout | None:
         """How the final gather emits and orders its k-NN requests (``lookup="knn"``);
