@@ -1,0 +1,39 @@
+"""A light that shines past every shape stores no photons: SPPM renders the black image Mitsuba
+renders, instead of failing inside Dr.Jit on an empty photon array."""
+
+import mitsuba as mi
+import numpy as np
+
+from photonmap import SPPMPipeline
+
+
+def test_a_light_shining_past_the_scene_renders_black():
+    scene = {
+        "type": "scene",
+        "sensor": {
+            "type": "perspective",
+            "to_world": mi.ScalarTransform4f().look_at(
+                origin=[0, 1, 3], target=[0, 0, 0], up=[0, 1, 0]
+            ),
+            "film": {"type": "hdrfilm", "width": 16, "height": 12},
+        },
+        "floor": {
+            "type": "rectangle",
+            "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90),
+            "bsdf": {"type": "diffuse"},
+        },
+        "light": {
+            "type": "spot",
+            "to_world": mi.ScalarTransform4f().look_at(
+                origin=[0, 1, 0], target=[0, 5, 0], up=[0, 0, 1]
+            ),
+            "intensity": 10.0,
+        },
+    }
+    for mode in ("sppm", "memoryless"):
+        image = np.array(
+            SPPMPipeline(scene, iterations=2, photons_per_iteration=500, mode=mode).render()
+        )
+        assert image.shape == (12, 16, 3) and np.all(image == 0), mode
+    reference = np.array(mi.render(mi.load_dict(scene | {"integrator": {"type": "path"}}), spp=4))
+    assert np.all(reference == 0)
