@@ -155,3 +155,16 @@ def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
         assert frame.passes == 1 and pipe.iterations >= 1  # restarted, refining again
     finally:
         viewer.close()
+
+
+def test_a_preview_budget_the_method_refuses_stays_the_users():
+    """Adaptive emission needs more photons than pilots (Pfeuti §3.2): 128²/16 = 32² pilots is
+    refused, so the preview of a light drag traces the user's 128² photons."""
+    from photonmap.viewer.volume_adapter import VolumeAdapter
+
+    overrides = {"grid": 16, "photons": 128**2, "emission": "adaptive", "pilot_photons": 32**2}
+    a = VolumeAdapter("volume", "glass_sphere_fog", overrides, (16, 12))
+    new = a.check(a.state, {"lights": [{"intensity": 20}]})
+    a.apply(changes(a.state, new), new)
+    a.render((8, 8), preview=True)
+    assert a.reduced == {} and a.pipe.params.photons == 128**2

@@ -233,7 +233,7 @@ class Adapter(ABC):
         user = {k: self.state["params"][k] for k in self.preview_divisors
                 if k in self.state["params"]}  # fmt: skip
         divisors = self.preview_divisors if reduce else {}
-        reduced = {k: max(1, v // divisors[k]) for k, v in user.items() if k in divisors}
+        reduced = {k: max(1, v // divisors[k]) for k, v in user.items() if k in divisors and v > 1}
         try:
             updated(self.pipe.params, reduced, self.method)
         except ParameterError:

@@ -8,8 +8,9 @@ difference from what the pipeline holds, and renders. While a drag sends ``previ
 frames are rendered at 1/``preview_scale`` of the size; once no update has come for ``settle``
 seconds the same state is rendered at full size. A preview after a light, material or parameter
 change also traces a reduced photon budget (:attr:`.adapters.Adapter.preview_divisors`; the
-frame's ``reduced`` names it), the full-size frame the user's. A progressive adapter then keeps refining
-until a change arrives. Brush strokes and resets are actions, applied in order, never dropped.
+frame's ``reduced`` names it), the full-size frame the user's. A progressive adapter then keeps
+refining until a change arrives. Brush strokes and resets are actions, applied in order, never
+dropped.
 
 Frames are 8-bit sRGB (Mitsuba's sRGB curve, as ``photonmap render`` writes PNGs), streamed as
 JPEG (quality :data:`PREVIEW_QUALITY` for previews, :data:`QUALITY` at full size: ≈ 5 ms for
