@@ -8,8 +8,9 @@ alternates between two positions, so every update needs new work (the stage cach
 per stage). Per update it records the latency to the PNG, the latency to the frame's arrival on
 the WebSocket stream (what the page waits for: a JPEG), the render thread's own time (applying
 the change through the pipeline's setters, rendering, sRGB conversion and JPEG encoding) and
-the stages that reran. A light drag is measured too: the same moves sent as ``"preview": true``
-updates, timed to the first preview frame on the stream (¼ size, a reduced photon budget: the
+the stages that reran. A light drag is measured too: light moves sent as ``"preview": true``
+updates at a new light position each (from the first position to the second, as a drag
+moves it), timed to the first preview frame on the stream (¼ size, a reduced photon budget: the
 frame's ``reduced``) and to the full-size frame that follows once updates stop (the viewer's
 settle time, 0.25 s, included).
 For scale, the same run times one frame of Mitsuba's own integrator on the same scene at 1 spp
@@ -82,6 +83,11 @@ def measure(http: httpx.Client, ws, base: str, updates: list[dict]) -> list[dict
     return out
 
 
+def step(a: list[float], b: list[float], t: float) -> list[float]:
+    """The point a fraction ``t`` of the way from ``a`` to ``b``."""
+    return [x + t * (y - x) for x, y in zip(a, b, strict=True)]
+
+
 def measure_drag(http: httpx.Client, ws, base: str, updates: list[dict]) -> list[dict]:
     """Each update sent as a drag's (``"preview": true``): the times to its preview frame and to
     the full-size frame after it."""
@@ -129,8 +135,8 @@ def run_case(name: str, runs: int) -> dict:
                 light = measure(http, ws, base, [
                     {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)
                 ])[1:]  # fmt: skip
-                drag = measure_drag(http, ws, base, [
-                    {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)
+                drag = measure_drag(http, ws, base, [  # a new position each time, as a drag
+                    {"lights": [{"position": step(*lights, i / runs)}]} for i in range(runs + 1)
                 ])[1:]  # fmt: skip
                 camera = measure(http, ws, base, [
                     {"camera": {"origin": origins[i % 2]}} for i in range(runs + 1)
