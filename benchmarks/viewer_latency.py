@@ -8,7 +8,11 @@ alternates between two positions, so every update needs new work (the stage cach
 per stage). Per update it records the latency to the PNG, the latency to the frame's arrival on
 the WebSocket stream (what the page waits for: a JPEG), the render thread's own time (applying
 the change through the pipeline's setters, rendering, sRGB conversion and JPEG encoding) and
-the stages that reran.
+the stages that reran. A light drag is measured too: light moves sent as ``"preview": true``
+updates at a new light position each (from the first position to the second, as a drag
+moves it), timed to the first preview frame on the stream (¼ size, a reduced photon budget: the
+frame's ``reduced``) and to the full-size frame that follows once updates stop (the viewer's
+settle time, 0.25 s, included).
 For scale, the same run times one frame of Mitsuba's own integrator on the same scene at 1 spp
 (``volpath`` with fog, else ``path``): the ratio says how many such frames one update costs.
 
@@ -47,14 +51,15 @@ CASES = {  # name → (scene, method, overrides, two light positions, two camera
 }  # fmt: skip
 
 
-def streamed(ws, version: int) -> dict:
-    """Read the frame stream up to the full-size frame of ``version``; returns its message."""
+def streamed(ws, version: int, preview: bool = False) -> dict:
+    """Read the frame stream up to the full-size (``preview``: the preview) frame of
+    ``version``; returns its message."""
     while True:
         message = json.loads(ws.recv())
         if message["type"] == "error":
             raise RuntimeError(message["message"])
         ws.recv()  # the image
-        if message["version"] >= version and not message["preview"]:
+        if message["version"] >= version and message["preview"] == preview:
             return message
 
 
@@ -75,6 +80,31 @@ def measure(http: httpx.Client, ws, base: str, updates: list[dict]) -> list[dict
                     "render_ms": meta["render_ms"], "encode_ms": meta["encode_ms"],
                     "png_bytes": len(frame.content), "recomputed": meta["recomputed"],
                     "timings": meta["timings"]})  # fmt: skip
+    return out
+
+
+def step(a: list[float], b: list[float], t: float) -> list[float]:
+    """The point a fraction ``t`` of the way from ``a`` to ``b``."""
+    return [x + t * (y - x) for x, y in zip(a, b, strict=True)]
+
+
+def measure_drag(http: httpx.Client, ws, base: str, updates: list[dict]) -> list[dict]:
+    """Each update sent as a drag's (``"preview": true``): the times to its preview frame and to
+    the full-size frame after it."""
+    out = []
+    for update in updates:
+        start = time.perf_counter()
+        reply = http.post(base + "/api/update", json={**update, "preview": True})
+        reply.raise_for_status()
+        version = reply.json()["version"]
+        preview = streamed(ws, version, preview=True)
+        preview_ms = 1e3 * (time.perf_counter() - start)
+        full = streamed(ws, version)
+        out.append({"preview_ms": preview_ms, "full_ms": 1e3 * (time.perf_counter() - start),
+                    "preview_frame_ms": preview["ms"], "full_frame_ms": full["ms"],
+                    "reduced": preview["reduced"], "size": [preview["width"], preview["height"]],
+                    "recomputed": preview["recomputed"],
+                    "timings": preview["timings"]})  # fmt: skip
     return out
 
 
@@ -105,6 +135,9 @@ def run_case(name: str, runs: int) -> dict:
                 light = measure(http, ws, base, [
                     {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)
                 ])[1:]  # fmt: skip
+                drag = measure_drag(http, ws, base, [  # a new position each time, as a drag
+                    {"lights": [{"position": step(*lights, i / runs)}]} for i in range(runs + 1)
+                ])[1:]  # fmt: skip
                 camera = measure(http, ws, base, [
                     {"camera": {"origin": origins[i % 2]}} for i in range(runs + 1)
                 ])[1:]  # fmt: skip
@@ -125,7 +158,21 @@ def run_case(name: str, runs: int) -> dict:
             "latency_over_mitsuba_1spp": common.median(s["latency_ms"] for s in samples)
             / mitsuba["median"],
         }
+    result["light_drag"] = {
+        **{key: common.summarize([s[key] for s in drag])
+           for key in ("preview_ms", "full_ms", "preview_frame_ms", "full_frame_ms")},
+        "preview_size": drag[-1]["size"], "reduced": drag[-1]["reduced"],
+        "preview_stages_ms": common.stage_medians([s["timings"] for s in drag]),
+        "preview_recomputed": drag[-1]["recomputed"],
+    }  # fmt: skip
     return result
+
+
+def drag_cells(drag: dict) -> list[str]:
+    """The light drag's table cells: to the preview frame, to the full frame, the budget."""
+    budget = ", ".join(f"{k} {v:,}" for k, v in drag["reduced"].items()) or "full"
+    return [common.fmt(drag["preview_ms"]["median"]), common.fmt(drag["full_ms"]["median"]),
+            f"{budget} at {drag['preview_size'][0]}×{drag['preview_size'][1]}"]  # fmt: skip
 
 
 def main(argv=None) -> dict:
@@ -145,15 +192,17 @@ def main(argv=None) -> dict:
             rows.append([
                 scene, r["method"], f"{r['size'][0]}×{r['size'][1]}", move,
                 common.fmt(m["latency_ms"]["median"]), common.fmt(m["stream_ms"]["median"]),
+                *(drag_cells(r["light_drag"]) if move == "light" else ["–"] * 3),
                 common.fmt(m["apply_ms"]["median"]),
                 common.fmt(m["render_ms"]["median"]), common.fmt(m["encode_ms"]["median"]),
                 common.fmt(r["mitsuba_1spp_frame_ms"]["median"]),
                 common.fmt(m["latency_over_mitsuba_1spp"], 2), ", ".join(m["recomputed"]),
             ])  # fmt: skip
     table = common.markdown_table(
-        ["scene", "method", "size", "move", "latency ms (PNG)", "stream ms", "apply ms",
+        ["scene", "method", "size", "move", "latency ms (PNG)", "stream ms",
+         "drag: preview ms", "drag: full ms", "preview budget", "apply ms",
          "render ms", "encode ms", "Mitsuba 1 spp ms", "latency / Mitsuba frame",
-         "stages rerun"], rows, "llllrrrrrrrl",
+         "stages rerun"], rows, "llllrrrrlrrrrrl",
     )  # fmt: skip
     load = results["machine"].get("load_average")
     text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"

@@ -22,6 +22,23 @@ def change(adapter, update):
     return np.asarray(adapter.render(SMALL))
 
 
+def drag(adapter, update, stage):
+    """``update`` as a drag makes it: a ¼-size preview, then the full frame (returned). The
+    preview reruns ``stage`` with each of the adapter's budget parameters divided, the full
+    frame with the user's (the state never changes them)."""
+    params = dict(adapter.state["params"])
+    new = adapter.check(adapter.state, update)
+    adapter.apply(changes(adapter.state, new), new)
+    adapter.render((SMALL[0] // 4, SMALL[1] // 4), preview=True)
+    reduced = {k: params[k] // d for k, d in adapter.preview_divisors.items()}
+    assert adapter.reduced == reduced and stage in adapter.recomputed
+    assert {k: getattr(adapter.pipe.params, k) for k in reduced} == reduced
+    image = np.asarray(adapter.render(SMALL))
+    assert adapter.reduced == {} and stage in adapter.recomputed
+    assert adapter.state["params"] == params
+    return image
+
+
 def set_eta(pipe, name, eta):
     shape = next(s for s in pipe.scene.shapes() if s.id() == name)
     params = mi.traverse(shape.bsdf())
@@ -45,6 +62,9 @@ def test_screen_light_material_camera():
     set_eta(ref, "glass_sphere", 1.2)
     ref.invalidate()
     np.testing.assert_array_equal(glass, np.asarray(ref.render()))
+    dragged = drag(a, {"lights": [{"position": [0.1, 0.5, 0.2]}]}, "photon tracing")
+    ref.set_light(position=[0.1, 0.5, 0.2])
+    np.testing.assert_array_equal(dragged, np.asarray(ref.render()))
     change(a, {"camera": {"origin": [0.3, 0.3, -0.7]}})
     assert "light G-buffer" not in a.recomputed and "photon tracing" not in a.recomputed
     with pytest.raises(ParameterError, match="light_res"):
@@ -57,8 +77,8 @@ def test_surface_light_material_camera():
     assert [light["kind"] for light in a.state["lights"]] == ["area"]
     assert "position" not in a.state["lights"][0]  # area lights move with their shape
     a.render(SMALL)
-    brighter = change(a, {"lights": [{"intensity": 2 * a.state["lights"][0]["intensity"]}],
-                          "materials": {"glass_sphere": {"ior": 1.3}}})  # fmt: skip
+    brighter = drag(a, {"lights": [{"intensity": 2 * a.state["lights"][0]["intensity"]}],
+                        "materials": {"glass_sphere": {"ior": 1.3}}}, "photon maps")  # fmt: skip
     assert "photon maps" in a.recomputed
     ref = SurfacePipeline("cornell_steinhurst", **SURFACE)
     ref.set_camera(width=SMALL[0], height=SMALL[1])  # as the viewer and `photonmap render` do
@@ -135,3 +155,16 @@ def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
         assert frame.passes == 1 and pipe.iterations >= 1  # restarted, refining again
     finally:
         viewer.close()
+
+
+def test_a_preview_budget_the_method_refuses_stays_the_users():
+    """Adaptive emission needs more photons than pilots (Pfeuti §3.2): 128²/16 = 32² pilots is
+    refused, so the preview of a light drag traces the user's 128² photons."""
+    from photonmap.viewer.volume_adapter import VolumeAdapter
+
+    overrides = {"grid": 16, "photons": 128**2, "emission": "adaptive", "pilot_photons": 32**2}
+    a = VolumeAdapter("volume", "glass_sphere_fog", overrides, (16, 12))
+    new = a.check(a.state, {"lights": [{"intensity": 20}]})
+    a.apply(changes(a.state, new), new)
+    a.render((8, 8), preview=True)
+    assert a.reduced == {} and a.pipe.params.photons == 128**2

@@ -230,6 +230,37 @@ def test_preview_then_full_resolution(viewer):
     )
 
 
+def test_light_drag_previews_fewer_photons_then_the_full_render(viewer, client):
+    """A light dragged (preview updates): the preview frame retraces 1/16 of the photons at ¼
+    size, the full frame when the drag stops is a fresh render of the full settings, and the
+    state keeps the user's photon count throughout; a camera drag then keeps the photons."""
+    worker, photons = viewer.worker, OVERRIDES["photons"]
+    worker.wait_frame()
+    frames = []
+    worker.subscribe(lambda meta, frame: frames.append((meta, frame)))
+    position = [0.4, 3.0, 0.6]
+    update = {"lights": [{"position": position, "intensity": 40}], "preview": True}
+    assert client.post("/api/update", json=update).status_code == 200
+    worker.wait_frame()
+    assert client.get("/api/state").json()["params"]["photons"] == photons
+    (preview, small), (full, frame) = frames
+    assert preview["preview"] and preview["reduced"] == {"photons": photons // 16}
+    assert "photon tracing" in preview["recomputed"] and small.pixels.shape[:2] == (18, 24)
+    assert not full["preview"] and full["reduced"] == {} and "photon tracing" in full["recomputed"]
+
+    def moved(pipe, budget=photons):
+        pipe.set_params(photons=budget)
+        pipe.set_light(0, position=position, intensity=[40, 40, 40])
+
+    np.testing.assert_array_equal(small.pixels, direct(lambda p: moved(p, photons // 16),
+                                                       size=(24, 18)))  # fmt: skip
+    np.testing.assert_array_equal(frame.pixels, direct(moved))
+    frames.clear()
+    worker.update({"camera": {"origin": [1.5, 1.0, 2.0]}, "preview": True})
+    worker.wait_frame()
+    assert [(m["reduced"], m["recomputed"]) for m, _ in frames] == [({}, ["viewing"])] * 2
+
+
 def test_progressive_method_refines_and_restarts(monkeypatch):
     """How an sppm method is offered: refine while idle (the mean of renders with seeds 0, 1,
     2, ...), restart on any change."""

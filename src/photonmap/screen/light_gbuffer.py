@@ -168,7 +168,8 @@ def light_gbuffer(
     n = width * height
     i = dr.arange(mi.UInt32, n)
     cu, cv = (mi.Float(i % width) + 0.5) / width, (mi.Float(i // width) + 0.5) / height
-    origin = mi.Point3f(*light.position.tolist())
+    # opaque: a literal would compile a new kernel for each light position (~70 ms a drag step)
+    origin = mi.Point3f(*(dr.opaque(mi.Float, float(c)) for c in light.position))
     if light.kind == "area":
         jitter = mi.sample_tea_float32(i, mi.UInt32(seed), 4)
         jitter2 = mi.sample_tea_float32(i, mi.UInt32(seed + 0x9E37), 4)

@@ -4,6 +4,15 @@ reruns only the stages it needs (Sun et al. 2008 §6.1–6.2, seed 002; spec see
 seed-004 §7). The adapters are in :mod:`.volume_adapter` and :mod:`.mitsuba_adapters`;
 :data:`.methods.ADAPTERS` maps a method name to its adapter (a new method is one line there).
 
+During a drag (``preview`` frames, :mod:`.worker`) a change that makes the pipeline trace its
+photons again (a light, a material, a parameter, the volume) is rendered with a reduced photon
+budget: each parameter of :attr:`Adapter.preview_divisors` divided (the volume method's photons
+by 16, the screen method's ``light_res`` by 4: light_res² photons), so that the preview costs
+about 1/16 of the photon tracing that dominates a light move (Sun et al. 2008 §6: the preview
+while the user drags, the converged image when they stop; issue 14 item 2). The next full-size
+frame restores the user's budget, so it is the render of the full settings; the state keeps the
+user's values throughout. A camera-only drag keeps whatever photons the pipeline holds.
+
 An adapter with ``progressive = True`` keeps refining while nothing changes and restarts on any
 change: a pipeline with ``reset()``, ``step()`` and ``image()`` (the ``sppm`` method: one
 iteration per step) refines itself; any other renders again with the next seed and averages (the
@@ -68,6 +77,8 @@ class Adapter(ABC):
 
     params: tuple[str, ...] = ()  # the method parameters the page offers
     progressive = False
+    # method parameter → divisor during a drag, for the parameters setting the photon count
+    preview_divisors: dict[str, int] = {}
 
     def __init__(self, method: str, scene, overrides: dict | None = None, size=None):
         self.method = method
@@ -78,6 +89,8 @@ class Adapter(ABC):
         self._seed0 = getattr(self._params0, "seed", 0)
         self._passes = 0
         self._mean = None
+        self._drafting = False  # a change since the last full frame needs new photons
+        self.reduced: dict = {}  # the reduced budget of the last render ({}: the user's)
         self.state = {
             "camera": _camera_state(self.sensor, self.centre),
             "lights": self._lights(),
@@ -171,8 +184,8 @@ class Adapter(ABC):
             for name in diff.get("materials", {}):
                 self._set_material(name, new["materials"][name])
                 done["materials"][name] = new["materials"][name]
-            if "params" in diff:
-                self.pipe.set_params(**diff["params"])
+            if "params" in diff:  # all of them: a preview's reduced budget is replaced too
+                self.pipe.set_params(**new["params"])
                 done["params"] = new["params"]
             if "volume" in diff:  # only a VolumeAdapter's check lets it through
                 self._set_volume(new["volume"])
@@ -180,6 +193,7 @@ class Adapter(ABC):
         finally:
             self.state = done
             self._passes = 0
+            self._drafting = self._drafting or any(k != "camera" for k in diff)
 
     @abstractmethod
     def _set_light(self, index: int, light: dict) -> None:
@@ -190,9 +204,13 @@ class Adapter(ABC):
         """Give material ``name`` of the pipeline the values of ``material``."""
 
     # --------------------------------------------------------------- frames (render thread)
-    def render(self, size: tuple[int, int]) -> np.ndarray:
+    def render(self, size: tuple[int, int], preview: bool = False) -> np.ndarray:
         """The image at ``size`` (width, height): float32 (h, w, 3), linear radiance. A
-        progressive adapter restarts its refinement here."""
+        ``preview`` after a change that needs new photons traces the reduced budget (the module
+        docstring); any other frame the user's. A progressive adapter restarts here."""
+        self._set_budget(preview and self._drafting)
+        if not preview:
+            self._drafting = False
         film = tuple(int(c) for c in self.sensor.film().size())
         if film != tuple(size):
             self.pipe.set_camera(width=int(size[0]), height=int(size[1]))
@@ -207,6 +225,24 @@ class Adapter(ABC):
             self.pipe.set_params(seed=self._seed0)
         self._mean = as_rgb(self.pipe.render())
         return self._mean
+
+    def _set_budget(self, reduce: bool) -> None:
+        """Give the pipeline the user's photon budget, or (``reduce``) each of
+        :attr:`preview_divisors` divided; a reduced budget the method refuses (e.g. adaptive
+        emission's photons below its pilots) stays the user's. Sets :attr:`reduced`."""
+        user = {k: self.state["params"][k] for k in self.preview_divisors
+                if k in self.state["params"]}  # fmt: skip
+        divisors = self.preview_divisors if reduce else {}
+        reduced = {k: max(1, v // divisors[k]) for k, v in user.items() if k in divisors and v > 1}
+        try:
+            updated(self.pipe.params, reduced, self.method)
+        except ParameterError:
+            reduced = {}
+        want = {**user, **reduced}
+        changed = {k: v for k, v in want.items() if getattr(self.pipe.params, k) != v}
+        if changed:
+            self.pipe.set_params(**changed)
+        self.reduced = reduced
 
     def refine(self) -> np.ndarray | None:
         """A progressive adapter's next pass folded into the image (None when done)."""

@@ -40,6 +40,7 @@ class ScreenAdapter(MitsubaAdapter):
     (``light_res``² × ``bounces``) and the indirect light's subsampling."""
 
     params = ("light_res", "bounces", "subsample")
+    preview_divisors = {"light_res": 4}  # light_res² · bounces photons: 1/16
 
     def _lights(self):
         light = self.pipe.light
@@ -65,6 +66,7 @@ class SurfaceAdapter(MitsubaAdapter):
     them."""
 
     params = ("photons", "caustic_photons")
+    preview_divisors = {"photons": 16, "caustic_photons": 16}
 
     def _emitters(self) -> list:
         kinds = ("PointLight", "SpotLight", "AreaLight")

@@ -20,6 +20,7 @@ class VolumeAdapter(Adapter):
     (:meth:`paint`; Sun §6.2.1)."""
 
     params = ("photons", "emission")
+    preview_divisors = {"photons": 16}
 
     def __init__(self, method, scene, overrides=None, size=None, frames=None):
         super().__init__(method, scene, overrides, size)
@@ -126,8 +127,8 @@ class VolumeAdapter(Adapter):
             raise ParameterError("render once before painting or playing volumes")
         return self._own
 
-    def render(self, size):
-        image = super().render(size)
+    def render(self, size, preview=False):
+        image = super().render(size, preview)
         if self._own is None and self.pipe.scene.grids is None:
             mats, h = self.pipe.cache.get("materials"), self.pipe.scene.box.h
             self._own = {

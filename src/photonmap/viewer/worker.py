@@ -6,8 +6,11 @@ target state (:meth:`.adapters.Adapter.check`) and merges it in; the thread wake
 whole target state as it is then (every update since the last frame at once), applies only its
 difference from what the pipeline holds, and renders. While a drag sends ``preview`` updates the
 frames are rendered at 1/``preview_scale`` of the size; once no update has come for ``settle``
-seconds the same state is rendered at full size. A progressive adapter then keeps refining
-until a change arrives. Brush strokes and resets are actions, applied in order, never dropped.
+seconds the same state is rendered at full size. A preview after a light, material or parameter
+change also traces a reduced photon budget (:attr:`.adapters.Adapter.preview_divisors`; the
+frame's ``reduced`` names it), the full-size frame the user's. A progressive adapter then keeps
+refining until a change arrives. Brush strokes and resets are actions, applied in order, never
+dropped.
 
 Frames are 8-bit sRGB (Mitsuba's sRGB curve, as ``photonmap render`` writes PNGs), streamed as
 JPEG (quality :data:`PREVIEW_QUALITY` for previews, :data:`QUALITY` at full size: ≈ 5 ms for
@@ -51,6 +54,7 @@ class Frame:
     passes: int = 1  # progressive methods: passes averaged
     parts: dict[str, float] = field(default_factory=dict)  # apply, render, encode: ms each
     error: str | None = None  # why the changes before it were undone (the pipeline refused)
+    reduced: dict = field(default_factory=dict)  # a preview's reduced photon budget
     _png: bytes | None = None
 
     @property
@@ -67,6 +71,7 @@ class Frame:
             "width": w, "height": h, "mime": "image/jpeg", "ms": round(self.ms, 2),
             "timings": {k: round(v, 2) for k, v in self.timings.items()},
             "recomputed": self.recomputed, "fps": round(self.fps, 2), "passes": self.passes,
+            "reduced": self.reduced,
             **{f"{k}_ms": round(v, 2) for k, v in self.parts.items()},
             **({"error": self.error} if self.error else {}),
         }  # fmt: skip
@@ -220,7 +225,7 @@ class RenderWorker:
                     for action in actions:
                         action()
                     applied_at = time.perf_counter()
-                    image = self.adapter.render(self._size(preview))
+                    image = self.adapter.render(self._size(preview), preview)
                     self._refining = self.adapter.progressive and not preview
             except Exception as exc:  # the thread lives on; the page shows the reason
                 if not isinstance(exc, PhotonmapError):
@@ -242,7 +247,7 @@ class RenderWorker:
                 seq, version, preview, pixels, data,
                 1e3 * (end - start), self.adapter.timings, self.adapter.recomputed,
                 len(recent) / 2.0, self.adapter.passes,
-                {k: 1e3 * v for k, v in parts.items()},
+                {k: 1e3 * v for k, v in parts.items()}, reduced=dict(self.adapter.reduced),
             )  # fmt: skip
             with self._cond:
                 frame.error, self.error = self.error, None  # the failure this frame undid

@@ -254,6 +254,7 @@ function showStats(meta) {
   $("stats").textContent =
     `${meta.width}×${meta.height}${meta.preview ? " (preview)" : ""} · ${fmt(meta.ms)} ms · ` +
     `${fmt(meta.fps)} fps · frame ${meta.seq}` + (meta.passes > 1 ? ` · pass ${meta.passes}` : "") +
+    Object.entries(meta.reduced || {}).map(([k, v]) => ` · ${k} ${v} (preview)`).join("") +
     ` · reran ${meta.recomputed.length} of ${viewer.state ? viewer.state.stages.length : "?"} stages`;
   const stages = viewer.state ? viewer.state.stages : Object.keys(meta.timings);
   $("timings").innerHTML = stages.map((name) => {
