@@ -31,6 +31,7 @@ import mitsuba as mi  # noqa: E402
 import common  # noqa: E402
 import photonmap  # noqa: E402,F401
 from photonmap.core.camera import pixel_rays  # noqa: E402
+from photonmap.core.eye_trace import follow_specular  # noqa: E402
 from photonmap.core.hashgrid import HashGrid  # noqa: E402
 from photonmap.core.image import compare, write_image  # noqa: E402
 from photonmap.core.photon_trace import trace_photons  # noqa: E402
@@ -38,7 +39,6 @@ from photonmap.core.sampling import rng  # noqa: E402
 from photonmap.scenes import SCENES  # noqa: E402
 from photonmap.surface.kdtree import KDTree  # noqa: E402
 from photonmap.surface.pipeline import STAGES, SurfacePipeline  # noqa: E402
-from photonmap.surface.trace import follow_specular  # noqa: E402
 
 PATH_TARGET_S = 60.0
 

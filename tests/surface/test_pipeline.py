@@ -188,10 +188,10 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     import drjit as dr
 
     from photonmap.core.camera import pixel_rays
+    from photonmap.core.eye_trace import follow_specular
     from photonmap.core.sampling import rng
     from photonmap.surface.gather import radiance_estimate
     from photonmap.surface.pipeline import caustic_radiance
-    from photonmap.surface.trace import follow_specular
 
     pipe = SurfacePipeline("cornell_steinhurst", photons=2000, caustic_photons=100_000)
     _, caustic_map, _ = pipe.photon_maps()

@@ -311,6 +311,10 @@ class VolumePhotons:
         return VolumePhotons(*(dr.gather(type(f), f, index) for f in fields))
 
 
+VOLUME_RADIUS = 0.1  # automatic volume gather radius, × scene diagonal
+STEP_SAMPLES = 4096  # volume photons whose k-NN radius sets the automatic march step
+
+
 @dataclass
 class VolumeMap:
     """Volume photons and a hash grid over their positions (k-NN without the normal test)."""
@@ -326,7 +330,7 @@ class VolumeMap:
     def size(self) -> int:
         return self.photons.count
 
-    def march_step(self, k: int, radius: float, samples: int = 4096) -> float:
+    def march_step(self, k: int, radius: float, samples: int = STEP_SAMPLES) -> float:
         """An automatic ray-marching step: half the median distance of the ``k``-th nearest
         photon (``radius`` where fewer lie within it) over up to ``samples`` of the photons —
         the step follows the photon density, as the radius of the estimate does."""

@@ -29,7 +29,7 @@ smaller sphere where more lie within ``ρ_i``), averaged over the iterations as 
 ``ρ_i`` shrinks the chance that ``volume_k`` photons lie within it vanishes, the estimate becomes
 the fixed-radius one and its bias shrinks with ``ρ_i`` while the averaged variance falls as
 ``1/i^α``: the volume part converges too. ``ρ_1``: ``volume_radius``, or the surface method's
-automatic volume radius (:data:`~photonmap.surface.pipeline.VOLUME_RADIUS` × the scene
+automatic volume radius (:data:`~photonmap.core.media.VOLUME_RADIUS` × the scene
 diagonal); the march step is half the median ``volume_k``-th photon distance within ``ρ_i``
 (:meth:`~photonmap.core.media.VolumeMap.march_step`).
 """
@@ -47,11 +47,10 @@ import numpy as np
 from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
-from ..core.media import Inscatter
+from ..core.media import STEP_SAMPLES, VOLUME_RADIUS, Inscatter
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import has_media
 from ..core.timer import StageTimer
-from ..surface.pipeline import STEP_SAMPLES, VOLUME_RADIUS
 from .gather import PixelState, gather, iteration_image, memoryless_radius
 from .photons import photon_pass
 from .visible import eye_pass

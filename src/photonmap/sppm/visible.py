@@ -3,19 +3,19 @@
 
 Rule for glossy surfaces (the spec asks to choose one): an eye path stops at its first vertex
 whose BSDF has a smooth (diffuse *or* glossy) lobe, and the visible point is stored there — the
-rule of the surface method's eye pass (:func:`photonmap.surface.trace.follow_specular`); only
+rule of the surface method's eye pass (:func:`photonmap.core.eye_trace.follow_specular`); only
 purely specular (delta) BSDFs are followed. Glossy reflections are then the photons' density
 estimate at the visible point, which the shrinking radius makes consistent.
 
 At the visible point ``x`` the pass also adds, to the pixel's direct term ``L_d``, the light
 arriving straight from the emitters (emitter sampling and BSDF sampling with MIS, the surface
-method's :func:`~photonmap.surface.direct.direct_lighting`) and the emission met on the way
+method's :func:`~photonmap.core.direct.direct_lighting`) and the emission met on the way
 (lights seen directly or through mirrors and glass, from :data:`LIGHT_SPP` paths of their own).
 Photons therefore count from their second interaction on (:mod:`.photons`).
 
 In a scene with participating media (issue 11 item 5; Jensen & Christensen 1998, spec
 beyond-seeds §4) the eye path runs through the media exactly as the surface method's eye rays
-do (:func:`~photonmap.surface.trace.follow_specular_media`): the throughput ``β`` carries the
+do (:func:`~photonmap.core.eye_trace.follow_specular_media`): the throughput ``β`` carries the
 transmittance to the visible point, each piece of the path inside a medium is ray-marched for
 its in-scattered light (:class:`~photonmap.core.media.Inscatter`: single scattering of direct
 light by transmittance shadow rays, the rest from the iteration's volume map), which joins
@@ -31,10 +31,10 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.camera import pixel_means, pixel_rays
+from ..core.direct import direct_lighting
+from ..core.eye_trace import follow_specular, follow_specular_media
 from ..core.media import Inscatter, broadcast
 from ..core.sampling import rng
-from ..surface.direct import direct_lighting
-from ..surface.trace import follow_specular, follow_specular_media
 
 
 @dataclass

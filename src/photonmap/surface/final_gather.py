@@ -32,11 +32,11 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..core.eye_trace import follow_specular, follow_specular_media
 from ..core.media import Inscatter, enter
 from ..core.sampling import rng, rotated_hammersley
 from .cis import sample_table
 from .gather_batch import RequestLayout, gather_order
-from .trace import follow_specular, follow_specular_media
 
 FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
 BATCH_RAYS = 1 << 21  # final-gather rays traced per batch
@@ -62,10 +62,10 @@ def final_gather(
     """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
     returns the radiance leaving y towards x (lazily if ``fused``). The rays pass through
     ``null``-BSDF shapes (``null_shapes``: whether the scene has any, see
-    :func:`~photonmap.surface.trace.follow_specular`). In a scene with participating media
+    :func:`~photonmap.core.eye_trace.follow_specular`). In a scene with participating media
     (``medium``: the medium at each ``si``; ``inscatter``: the eye pass's in-scattered light) the
     rays fly through the media by free-flight sampling and a ray that scatters reads the
-    in-scattered radiance there (:func:`~photonmap.surface.trace.follow_specular_media`).
+    in-scattered radiance there (:func:`~photonmap.core.eye_trace.follow_specular_media`).
     ``layout`` (k-NN lookups, ``fused=False``): issue each batch's gathers in ``layout.order``."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))

@@ -28,7 +28,7 @@ Participating media (Jensen & Christensen 1998; spec beyond-seeds §4; issue 11 
 with fog (homogeneous or ``heterogeneous`` Mitsuba media, bounded by ``null``, dielectric or any
 medium-transition shapes, around the sensor or the emitters) the photons fly through the media and
 a third map holds the volume photons (:func:`~.photon_map.build_media_maps`). Eye rays march
-through the media (:func:`~.trace.follow_specular_media`): transmittance to the surface they
+through the media (:func:`~photonmap.core.eye_trace.follow_specular_media`): transmittance to the surface they
 reach, plus the in-scattered light of every step — single scattering of direct light by a
 transmittance shadow ray, the rest from the volume map's k-NN estimate
 (:class:`~photonmap.core.media.Inscatter`, ``volume_k`` photons within ``volume_radius``, steps of
@@ -46,14 +46,23 @@ import numpy as np
 
 from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
+from ..core.direct import direct_lighting
 from ..core.errors import ParameterError, SceneError
-from ..core.media import Inscatter, ScatteredDensity, VolumeMap, broadcast, isotropic
+from ..core.eye_trace import follow_specular, follow_specular_media
+from ..core.media import (
+    STEP_SAMPLES,
+    VOLUME_RADIUS,
+    Inscatter,
+    ScatteredDensity,
+    VolumeMap,
+    broadcast,
+    isotropic,
+)
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import has_media
 from ..core.timer import StageTimer
 from .cis import TABLE_SAMPLING, sampling_table
-from .direct import direct_lighting
 from .final_gather import final_gather
 from .gather import radiance_estimate
 from .gather_batch import ORDERS, OrderParams, RequestLayout
@@ -69,7 +78,6 @@ from .irradiance_cache import (
     ravg_limits,
 )
 from .photon_map import STRUCTURES, build_media_maps, build_photon_maps, photon_map
-from .trace import follow_specular, follow_specular_media
 
 LOOKUPS = ("irradiance", "knn", "direct")
 FG_SAMPLING = ("bsdf", "cosine", "uniform") + TABLE_SAMPLING
@@ -84,8 +92,6 @@ STAGES = (
 )
 CAUSTIC_RADIUS = 0.05  # automatic caustic gather radius, × scene diagonal (spec A12)
 GLOBAL_RADIUS = 0.1  # automatic global gather radius, × scene diagonal (A12 says unbounded)
-VOLUME_RADIUS = 0.1  # automatic volume gather radius, × scene diagonal
-STEP_SAMPLES = 4096  # volume photons whose k-NN radius sets the automatic march step
 
 
 @dataclasses.dataclass

@@ -1,6 +1,7 @@
 """Direct lighting at the non-specular eye-ray hit: emitter sampling and BSDF sampling combined by
 multiple importance sampling (power heuristic) — the shadow rays of Steinhurst §7.3.2 ("area light
-sources ... accommodated using importance sampling"), written after Mitsuba's ``path`` integrator.
+sources ... accommodated using importance sampling"), written after Mitsuba's ``path`` integrator;
+shared by the surface method and SPPM's visible points.
 
 ``null``-BSDF shapes (fog boxes) are invisible to the shadow rays and to the BSDF-sampled rays
 (:func:`photonmap.core.bsdf.occluded`, :func:`~photonmap.core.bsdf.intersect_visible`), where
@@ -16,8 +17,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.bsdf import intersect_visible, occluded
-from ..core.media import channel, enter, transmittance
+from .bsdf import intersect_visible, occluded
+from .media import channel, enter, transmittance
 
 
 def _power_heuristic(a, b):

@@ -1,4 +1,5 @@
-"""Eye-side ray tracing shared by the eye pass and the final gather (Steinhurst 2007 §2.6.2, §7.3.2).
+"""Eye-side ray tracing shared by the surface method's eye pass and final gather and by SPPM's eye
+pass (Steinhurst 2007 §2.6.2, §7.3.2; Hachisuka & Jensen 2009 §4).
 
 "If the surface is highly specular (mirror/glass), reflect/refract and continue until a non-specular
 object is found", multiplying the specular reflectances into the path weight; glossy surfaces count
@@ -19,8 +20,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.bsdf import MAX_NULL_CROSSINGS, has_null_shapes, intersect_visible, is_null, is_specular
-from ..core.media import (
+from .bsdf import MAX_NULL_CROSSINGS, has_null_shapes, intersect_visible, is_null, is_specular
+from .media import (
     Inscatter,
     Segments,
     channel,
