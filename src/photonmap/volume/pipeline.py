@@ -42,7 +42,8 @@ from ..core.grid import filter_separable
 from ..core.params import updated
 from ..core.stages import StageCache, StagedPipeline, cache_key
 from . import adaptive, emit, march, mipmap, pilot
-from .materials import MaterialGrids, from_arrays, gradient, material_grids
+from .material_stages import fog_boundaries, voxelized_materials
+from .materials import MaterialGrids, from_arrays, gradient
 from .medium_grid import KAPPA_TOLERANCE
 from .octree import build_octree
 from .params import (
@@ -58,7 +59,6 @@ from .params import (
 from .scene import Light, VolumeScene, check_has_fog, from_mitsuba
 from .smooth import BINOMIAL, smooth
 from .view import ViewGrids, ViewSettings, render_view, sensor_key
-from .voxelize import voxelize
 
 
 class VolumePipeline(StagedPipeline):
@@ -229,83 +229,8 @@ class VolumePipeline(StagedPipeline):
         self.cache.stage(name, key, lambda: value)
 
     def _materials(self) -> tuple[MaterialGrids, tuple, tuple, tuple]:
-        """S1 + S2 (cached); returns the grids and the cache keys of n, κ and σ_s separately."""
-        s, p = self.scene, self.params
-        box = s.box
-        if s.grids is not None:
-            # separate keys, so that painting σ_s with κ unchanged reruns S9 only (spec §4.1)
-            ior_key = ("grids", cache_key(s.grids["n"]), cache_key(box))
-            kappa_key = ("grids", cache_key(s.grids["kappa"]), cache_key(box))
-            key = (ior_key, kappa_key, cache_key(s.grids["sigma_s"]))
-            mats = self.cache.stage("materials", key, lambda: from_arrays(s.grids, box))
-            return mats, ior_key, kappa_key, key
-        shapes = [o.shape for o in s.objects] + [v.shape for v in s.fog_volumes]
-        geo = (
-            self._geometry_version,
-            tuple(id(shape) for shape in shapes),
-            cache_key(box),
-            p.supersample,
-        )
-        covs = self.cache.stage(
-            "voxelization", geo, lambda: [voxelize(shape, box, p.supersample) for shape in shapes]
-        )
-        k = len(s.objects)
-        surrounding, fog_media = s.surrounding, [v.medium for v in s.fog_volumes]
-        noise = (p.ior_noise, p.sigma_s_noise, p.noise_scale, p.seed)
-        key = (
-            geo,
-            cache_key(surrounding),
-            cache_key(fog_media),
-            cache_key([o.medium for o in s.objects]),
-            p.blur_all,
-            noise,
-        )
-        mats = self.cache.stage(
-            "materials",
-            key,
-            lambda: material_grids(
-                list(zip(covs[:k], [o.medium for o in s.objects], strict=True)),
-                surrounding,
-                box,
-                blur_all=p.blur_all,
-                ior_noise=p.ior_noise,
-                sigma_s_noise=p.sigma_s_noise,
-                noise_scale=p.noise_scale,
-                noise_seed=p.seed,
-                media=list(zip(covs[k:], fog_media, strict=True)),
-            ),
-        )
-        ior_key = (
-            geo,
-            surrounding.ior,
-            tuple(o.medium.ior for o in s.objects),
-            p.ior_noise,
-            p.noise_scale,
-            p.seed,
-        )
-        kappa_key = (
-            geo,
-            cache_key(surrounding.extinction_key),
-            cache_key([m.extinction_key for m in fog_media]),
-            cache_key([o.medium.extinction_key for o in s.objects]),
-            p.blur_all,
-            noise,
-        )
-        return mats, ior_key, kappa_key, key
-
-    def _fog_boundaries(self) -> mi.TensorXf | None:
-        """The coverages of the fog volumes (n_z, n_y, n_x, V) from the cached voxelization, for
-        the octree (which splits its nodes at their boundaries); None without fog volumes."""
-        s = self.scene
-        if s.grids is not None or not s.fog_volumes:
-            return None
-        covs = self.cache.get("voxelization")[len(s.objects) :]
-        voxels, count = s.box.voxels, len(covs)
-        out = dr.zeros(mi.Float, voxels * count)
-        index = dr.arange(mi.UInt32, voxels) * count
-        for c, coverage in enumerate(covs):
-            dr.scatter(out, coverage.array, index + c)
-        return mi.TensorXf(out, (*s.box.shape, count))
+        """S1 + S2 (cached; :func:`.material_stages.voxelized_materials`)."""
+        return voxelized_materials(self.cache, self.scene, self.params, self._geometry_version)
 
     def render(self, progress=None) -> mi.TensorXf:
         """Run (or reuse) every stage and return the image (height, width, 3), linear radiance.
@@ -338,7 +263,7 @@ class VolumePipeline(StagedPipeline):
                 p.ds_max,
                 kappa=mats.kappa if varying else None,
                 eps_kappa=KAPPA_TOLERANCE,
-                boundaries=self._fog_boundaries(),
+                boundaries=fog_boundaries(self.cache, s),
             ),
         )
         phase_k = self.phase_k
