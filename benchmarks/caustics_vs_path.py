@@ -42,7 +42,7 @@ import common  # noqa: E402
 import photonmap  # noqa: E402,F401
 from photonmap.core.image import block_means, write_image  # noqa: E402
 from photonmap.scenes import load_scene  # noqa: E402
-from photonmap.sppm import SPPMParams, SPPMPipeline  # noqa: E402
+from photonmap.sppm import SPPMPipeline  # noqa: E402
 from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
 from surface_vs_path import light_image_mask, loglog_time_for  # noqa: E402
 
@@ -202,10 +202,7 @@ def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny images and budgets (smoke)")
     parser.add_argument("--seconds", type=float, default=30.0, help="SPPM compute time")
-    parser.add_argument(
-        "--photons", type=int, default=SPPMParams().photons_per_iteration,
-        help="SPPM photons/iteration (default: the pipeline's)",
-    )
+    parser.add_argument("--photons", type=int, default=100_000, help="SPPM photons/iteration")
     parser.add_argument("--ref-spp", type=int, default=16384, help="path reference spp")
     parser.add_argument("--scenes", default=",".join(SCENES), help="comma-separated subset")
     parser.add_argument("--out-dir", type=Path, default=common.RESULTS)

@@ -67,7 +67,7 @@ class SPPMParams:
     """Parameters of the SPPM pipeline (the ``sppm`` plugin and ``--set`` keys)."""
 
     iterations: int = 64  # iterations of render() (run() takes its own budget)
-    photons_per_iteration: int = 30_000  # photon paths per iteration (M; few: more iterations)
+    photons_per_iteration: int = 200_000  # photon paths traced per iteration (M)
     radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
     alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
     seed: int = 0
