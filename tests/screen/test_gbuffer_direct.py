@@ -143,8 +143,9 @@ def test_textured_albedo():
 
 def test_moving_the_light_reuses_the_light_gbuffer_kernels():
     """The light position enters the light G-buffer as opaque values, not literals: a moved
-    light (each step of a drag in the viewer) runs the same compiled kernels (same IR hashes)
-    instead of compiling new ones (~70 ms each on cornell_ispm)."""
+    light (each step of a drag in the viewer) runs kernels found in Dr.Jit's in-memory kernel
+    cache instead of compiling new ones (~70 ms each on cornell_ispm). (Kernel hashes are not
+    compared: equal IR has been seen to report different hashes.)"""
     import dataclasses
 
     from photonmap.scenes import load_scene
@@ -159,9 +160,11 @@ def test_moving_the_light_reuses_the_light_gbuffer_kernels():
             dr.kernel_history()  # clear it
             moved = dataclasses.replace(light, position=np.asarray(position))
             light_gbuffer(scene, moved, 8, 8)
-            return [k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+            return [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
         finally:
             dr.set_flag(dr.JitFlag.KernelHistory, False)
 
     first = kernels([0.2, 0.5, 0.3])
-    assert first and kernels([0.25, 0.5, 0.3]) == first
+    moved = kernels([0.25, 0.5, 0.3])
+    assert first and len(moved) == len(first)
+    assert all(k["cache_hit"] for k in moved), [k["cache_hit"] for k in moved]
