@@ -76,6 +76,12 @@ class PhotonRecords:
             *(dr.gather(type(f), f, index) for f in fields), self.paths, self.emitted_power
         )
 
+    def after_first(self) -> PhotonRecords:
+        """The records from the second interaction on — the first hits are the direct light that
+        the eye pass computes by emitter sampling; none when no photon hit anything (a light
+        shining past the scene: Dr.Jit cannot compare a width-0 array with a literal)."""
+        return self.select(self.depth > 1) if self.count else self
+
 
 def emitter_powers(scene: mi.Scene, samples: int = 2**16, seed: int = 0) -> np.ndarray:
     """The power ``Φ_e`` (RGB, W) of each of ``scene.emitters()``, shape ``(n_emitters, 3)``.

@@ -53,17 +53,12 @@ def photon_pass(
     interaction. ``media``: through participating media, with a volume map (module docstring)."""
     if media:
         records, volume = trace_photons_media(scene, paths, max_depth=max_depth, seed=seed)
-        kept = _after_first(records)
+        kept = records.after_first()
         vmap = VolumeMap.build(volume.select(~volume.direct))
         return Photons(kept.position, kept.power, kept.direction, paths, 0, 0.0, vmap)
     traced = trace_aimed_photons(scene, paths, aim, max_depth=max_depth, seed=seed)
-    kept = _after_first(traced.records)
+    kept = traced.records.after_first()
     return Photons(
         kept.position, kept.power, kept.direction, paths, traced.aimed_paths, traced.caustic_fraction
     )
 
-
-def _after_first(records):
-    """The records from the second interaction on; none when no photon hit anything (a light
-    that shines past the scene: Dr.Jit cannot compare a width-0 array with a literal)."""
-    return records.select(records.depth > 1) if records.count else records

@@ -229,8 +229,8 @@ class SurfacePipeline(MovableCamera):
                 with self.timer("irradiance"):
                     extra = precompute_irradiance(global_map, p.irradiance_every, p.k, r_global)
             elif p.lookup == "direct":  # direct visualisation: only photons after a diffuse bounce
-                keep = (global_map.photons.depth > 1) & ~global_map.photons.caustic
-                extra = photon_map(global_map.photons.select(keep), p.structure)
+                later = global_map.photons.after_first()
+                extra = photon_map(later.select(~later.caustic), p.structure)
             self._extra = (extra_key, extra)
         return global_map, caustic_map, self._extra[1]
 

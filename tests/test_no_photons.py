@@ -1,10 +1,11 @@
-"""A light that shines past every shape stores no photons: SPPM renders the black image Mitsuba
-renders, instead of failing inside Dr.Jit on an empty photon array."""
+"""A light that shines past every shape stores no photons: SPPM and the surface method (its
+direct-visualisation lookup included) render the black image Mitsuba renders, instead of failing
+inside Dr.Jit on an empty photon array (``PhotonRecords.after_first``)."""
 
 import mitsuba as mi
 import numpy as np
 
-from photonmap import SPPMPipeline
+from photonmap import SPPMPipeline, SurfacePipeline
 
 
 def test_a_light_shining_past_the_scene_renders_black():
@@ -30,10 +31,16 @@ def test_a_light_shining_past_the_scene_renders_black():
             "intensity": 10.0,
         },
     }
-    for mode in ("sppm", "memoryless"):
-        image = np.array(
-            SPPMPipeline(scene, iterations=2, photons_per_iteration=500, mode=mode).render()
-        )
-        assert image.shape == (12, 16, 3) and np.all(image == 0), mode
+    pipelines = [
+        SPPMPipeline(scene, iterations=2, photons_per_iteration=500, mode=mode)
+        for mode in ("sppm", "memoryless")
+    ]
+    pipelines += [
+        SurfacePipeline(scene, photons=500, caustic_photons=500, lookup=lookup)
+        for lookup in ("irradiance", "direct")
+    ]
+    for pipe in pipelines:
+        image = np.array(pipe.render())
+        assert image.shape == (12, 16, 3) and np.all(image == 0), pipe
     reference = np.array(mi.render(mi.load_dict(scene | {"integrator": {"type": "path"}}), spp=4))
     assert np.all(reference == 0)
