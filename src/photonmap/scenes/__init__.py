@@ -7,6 +7,7 @@ loaded ``mi.Scene``. Built-ins also carry the photonmap pipeline they are made f
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import os
 from collections.abc import Callable
@@ -109,6 +110,17 @@ SCENES: dict[str, Builtin] = {
 def list_scenes() -> list[Builtin]:
     """The built-in scenes, in registration order."""
     return list(SCENES.values())
+
+
+def load_with_sensor(scene, params_type, params: dict) -> tuple[mi.Scene, mi.Sensor, dict]:
+    """:func:`load_scene` for a pipeline that renders from the scene's first sensor: ``params``
+    split into the fields of the dataclass ``params_type`` (returned) and scene parameters
+    (passed to :func:`load_scene`); a scene without a sensor is refused."""
+    own = {f.name for f in dataclasses.fields(params_type)}
+    mi_scene, _ = load_scene(scene, **{k: v for k, v in params.items() if k not in own})
+    if not mi_scene.sensors():
+        raise ParameterError("the scene has no sensor (camera) to render from")
+    return mi_scene, mi_scene.sensors()[0], {k: v for k, v in params.items() if k in own}
 
 
 def load_scene(scene, **params) -> tuple[mi.Scene, dict]:

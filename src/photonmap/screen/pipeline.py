@@ -193,16 +193,11 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
     stages = STAGES
 
     def __init__(self, scene, light: int = 0, **params):
-        from ..scenes import load_scene
+        from ..scenes import load_with_sensor
 
-        fields = {f.name for f in dataclasses.fields(ScreenParams)}
-        scene_params = {k: v for k, v in params.items() if k not in fields}
-        self.scene, _ = load_scene(scene, **scene_params)
-        if not self.scene.sensors():
-            raise ParameterError("the scene has no sensor (camera) to render from")
-        self.sensor = self.scene.sensors()[0]
+        self.scene, self.sensor, own = load_with_sensor(scene, ScreenParams, params)
         self.params = ScreenParams()
-        self.set_params(**{k: v for k, v in params.items() if k in fields})
+        self.set_params(**own)
         warn_unmodelled_media(self.scene, "screen")  # rendered as in vacuum (fog boxes: null)
         check_dielectrics(self.scene)
         self.light_index = light

@@ -36,7 +36,6 @@ diagonal); the march step is half the median ``volume_k``-th photon distance wit
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from dataclasses import dataclass
 
@@ -133,18 +132,13 @@ class SPPMPipeline(MovableCamera):
     stages = STAGES
 
     def __init__(self, scene, **params):
-        from ..scenes import load_scene
+        from ..scenes import load_with_sensor
 
-        defaults = {f.name for f in dataclasses.fields(SPPMParams)}
-        scene_params = {k: v for k, v in params.items() if k not in defaults}
-        self.scene, _ = load_scene(scene, **scene_params)
-        self.sensor = self.scene.sensors()[0] if self.scene.sensors() else None
-        if self.sensor is None:
-            raise ParameterError("the scene has no sensor (camera) to render from")
+        self.scene, self.sensor, own = load_with_sensor(scene, SPPMParams, params)
         self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
         self.null_shapes = has_null_shapes(self.scene)
         self.params = SPPMParams()
-        self.set_params(**{k: v for k, v in params.items() if k in defaults})
+        self.set_params(**own)
         self.timer = StageTimer()
         self.stats: dict[str, float] = {}
         self._r1 = None

@@ -47,7 +47,7 @@ import numpy as np
 from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
-from ..core.errors import ParameterError, SceneError
+from ..core.errors import SceneError
 from ..core.eye_trace import follow_specular, follow_specular_media
 from ..core.media import (
     STEP_SAMPLES,
@@ -158,18 +158,13 @@ class SurfacePipeline(MovableCamera):
     stages = STAGES  # the names render() reports to its progress callback, in order
 
     def __init__(self, scene, **params):
-        from ..scenes import load_scene
+        from ..scenes import load_with_sensor
 
-        defaults = {f.name for f in dataclasses.fields(SurfaceParams)}
-        scene_params = {k: v for k, v in params.items() if k not in defaults}
-        self.scene, _ = load_scene(scene, **scene_params)
-        self.sensor = self.scene.sensors()[0] if self.scene.sensors() else None
-        if self.sensor is None:
-            raise ParameterError("the scene has no sensor (camera) to render from")
+        self.scene, self.sensor, own = load_with_sensor(scene, SurfaceParams, params)
         self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
         self.null_shapes = has_null_shapes(self.scene)  # invisible fog boxes (issue 10)
         self.params = SurfaceParams()
-        self.set_params(**{k: v for k, v in params.items() if k in defaults})
+        self.set_params(**own)
         self.timer = StageTimer()
         self.stats: dict[str, float] = {}
         self._maps = None  # (tracing key, (global map, caustic map))
