@@ -439,6 +439,14 @@ def isotropic(scene: mi.Scene) -> bool:
     )
 
 
+def within_extent(mei: mi.MediumInteraction3f) -> mi.Bool:
+    """Whether ``mei.p`` lies where ``mei.medium`` exists: inside a grid volume's bounding box
+    (Mitsuba's heterogeneous medium has interactions only there, while its grid lookups clamp
+    to the border values outside it), everywhere for a homogeneous medium."""
+    hit, mint, maxt = mei.medium.intersect_aabb(mi.Ray3f(mei.p, mi.Vector3f(0, 0, 1)))
+    return hit & (mint <= 0) & (maxt >= 0)
+
+
 def direct_inscattered(
     scene: mi.Scene,
     mei: mi.MediumInteraction3f,
@@ -512,7 +520,7 @@ class Inscatter:
         for first in range(0, count, CHUNK):
             index = dr.arange(mi.UInt32, first, min(count, first + CHUNK))
             m = dr.gather(mi.MediumInteraction3f, mei, index)
-            ok = dr.gather(mi.Bool, active, index)
+            ok = dr.gather(mi.Bool, active, index) & within_extent(m)
             L = dr.zeros(mi.Spectrum, dr.width(index))
             if direct:
                 gen = rng(dr.width(index), self.seed, stream + first)
