@@ -192,3 +192,34 @@ def test_energy_albedo_one_fog_loses_nothing():
     # (survival 0.9 without the division): 0.751
     assert abs(ratio - 1) < 0.015, ratio
     assert volume.count > surface.count
+
+
+def test_a_grid_medium_exists_only_inside_its_box():
+    """Mitsuba's heterogeneous medium has interactions only inside its grid's box (its lookups
+    clamp to the border values outside): the in-scattering estimates (``within_extent``) and the
+    volume method's per-voxel coefficients read zero there; a homogeneous medium is everywhere."""
+    import mitsuba as mi
+
+    from photonmap.core.media import within_extent
+    from photonmap.volume.medium_grid import coefficients_at
+
+    grid = mi.TensorXf(np.full((2, 2, 2, 1), 3.0, np.float32))
+    T = mi.ScalarTransform4f
+    medium = mi.load_dict(
+        {
+            "type": "heterogeneous",
+            "albedo": 0.5,
+            "sigma_t": {"type": "gridvolume", "data": grid, "to_world": T().scale([1, 1, 1])},
+        }
+    )
+    points = mi.Point3f([0.5, 1.5, -0.5], [0.5, 0.5, 0.5], [0.5, 0.5, 0.5])
+    sigma_s, sigma_t = coefficients_at(medium, points)
+    assert np.allclose(np.array(sigma_t)[0], [3, 0, 0]) and np.allclose(
+        np.array(sigma_s)[0], [1.5, 0, 0]
+    )
+    mei = dr.zeros(mi.MediumInteraction3f, 3)
+    mei.p, mei.medium = points, mi.MediumPtr(medium)
+    assert list(np.array(within_extent(mei))) == [True, False, False]
+    homogeneous = mi.load_dict({"type": "homogeneous"})  # kept alive: MediumPtr holds no reference
+    mei.medium = mi.MediumPtr(homogeneous)
+    assert np.all(np.array(within_extent(mei)))

@@ -20,6 +20,7 @@ import numpy as np
 
 from ..core.errors import SceneError
 from ..core.grid import GridBox, voxel_count, voxel_of
+from ..core.media import within_extent
 
 SUPERSAMPLE = 2  # points per voxel and axis at which a heterogeneous medium is evaluated
 KAPPA_TOLERANCE = 0.01  # octree eps_kappa (A50) with a heterogeneous medium: κ range per node,
@@ -27,11 +28,15 @@ KAPPA_TOLERANCE = 0.01  # octree eps_kappa (A50) with a heterogeneous medium: κ
 
 
 def coefficients_at(medium, points: mi.Point3f) -> tuple[mi.Color3f, mi.Color3f]:
-    """``(σ_s, σ_t)`` of the Mitsuba ``medium`` at world ``points`` (Mitsuba's own evaluation)."""
+    """``(σ_s, σ_t)`` of the Mitsuba ``medium`` at world ``points`` (Mitsuba's own evaluation;
+    zero outside a grid volume's box, where Mitsuba's medium has no interactions:
+    :func:`~photonmap.core.media.within_extent`)."""
     mei = dr.zeros(mi.MediumInteraction3f, dr.width(points))
     mei.p = points
+    mei.medium = mi.MediumPtr(medium)
     sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei)
-    return mi.Color3f(sigma_s), mi.Color3f(sigma_t)
+    inside = within_extent(mei)
+    return mi.Color3f(dr.select(inside, sigma_s, 0.0)), mi.Color3f(dr.select(inside, sigma_t, 0.0))
 
 
 def medium_on_grid(
