@@ -2,12 +2,13 @@
 seed-001 §3.3, §3.7, oracles O16–O21, O27).
 
 For the Cornell box (``cornell_steinhurst``, the dissertation's Fig 1.2) and the bushy box
-(``cornell_bushes``, many small occluders in Sponza's role) the surface method renders a window
-of the 512 × 512 image (the dissertation's pixel footprint; spec A17) with exact k = 100 k-NN
-final gathers on the heap-order kd-tree; every gather is traced and its exact stream of 20-byte
-photon-record reads goes through the LRU cache simulator (128 KB, 128-byte lines, fully
-associative; 8-way set-associative beside it). Bytes are scaled from the window to a full
-512 × 512 image. Written beside the dissertation's numbers:
+(``cornell_bushes``, many small occluders in Sponza's role) the surface method renders the whole
+512 × 512 image with exact k = 100 k-NN final gathers on the heap-order kd-tree; every gather's
+exact stream of 20-byte photon-record reads (about 2 G reads per order) is streamed through the
+cache simulator (fully associative LRU at 8 KB–1 MB, 128-byte lines; 8-way set-associative at
+128 KB beside it) — Table 3.1 at the dissertation's full scale. The tile and line-size sweeps and
+the CPU timings use a window of the 512² image (the dissertation's pixel footprint; spec A17),
+scaled to the image. Written beside the dissertation's numbers:
 
 - Table 3.1 (bytes per image by gather order) and the reduction of each order against the
   uncached naive figure (20 B per visited node, §3.5) — O16, O17;
@@ -27,6 +28,7 @@ import json
 import os
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +43,6 @@ from photonmap.analysis.bandwidth import (  # noqa: E402
     plot_sweep,
     tile_sweep,
 )
-from photonmap.analysis.cache import merge_repeats, set_associative_misses  # noqa: E402
 from photonmap.analysis.hardware import TABLE_7_10, from_trace  # noqa: E402
 from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
 from photonmap.surface.gather_batch import ORDERS, OrderParams  # noqa: E402
@@ -104,18 +105,40 @@ def glossy_sweep(quick: bool) -> dict:
     return out
 
 
-def study(name: str, window, surface: dict, grid: int, quick: bool, sweeps: bool) -> dict:
-    x, y, w, h = window
-    scene = cropped_scene(name, 512, (x, y), (w, h))
-    params = dict(surface, caustic_photons=0, emitter_spp=0, k=100)
+def full_image_table(name: str, params: dict, grid: int, size: int) -> dict:
+    """Table 3.1, Fig 3.9 and O20 on the whole ``size``² image: every final gather of the render
+    streamed through the caches, one pass per order (two orders at a time, one per core)."""
     start = time.perf_counter()
-    trace = trace_final_gathers(scene, **params)
+    trace = trace_final_gathers(cropped_scene(name, size, (0, 0), (size, size)), **params)
     trace_s = time.perf_counter() - start
-    scale = 512 * 512 / (w * h)  # bytes of the window → bytes of the full image
     order_params = OrderParams(grid=grid)
+    caps = [128 * 1024] + [kb * 1024 for kb in CACHE_KB if kb != 128]  # 8-way at the first
+
+    def run(order):
+        t = time.perf_counter()
+        c = trace.simulate(order, [128], caps, ways=WAYS, params=order_params)
+        return c, time.perf_counter() - t
+
+    start = time.perf_counter()
+    with ThreadPoolExecutor(2) as pool:
+        counts = dict(zip(ORDERS, pool.map(run, ORDERS), strict=True))
+    simulate_s = time.perf_counter() - start
     uncached = trace.uncached_bytes()
-    out = {
-        "window": window,
+    scale = 512 * 512 / (size * size)
+    table = {}
+    for order, (c, seconds) in counts.items():
+        missed = int(c.misses[0, 0])
+        table[order] = {
+            "GB_per_image": missed * 128 * scale / 1e9,
+            "reduction_vs_uncached": uncached / max(missed * 128, 1),
+            "fetches_per_map_line": missed / trace.footprint_lines(128),
+            "set_associative_ratio": int(c.set_associative[0]) / max(missed, 1),
+            "simulate_s": seconds,
+        }
+    sizes = [128] + [kb for kb in CACHE_KB if kb != 128]
+    by_size = np.argsort(sizes)
+    return {
+        "image": size,
         "params": params,
         "hash_grid": grid,
         "gathers": len(trace.batch),
@@ -124,49 +147,52 @@ def study(name: str, window, surface: dict, grid: int, quick: bool, sweeps: bool
         "photons": trace.photons,
         "map_lines_128B": trace.footprint_lines(128),
         "trace_s": trace_s,
+        "simulate_s": simulate_s,
+        "ns_per_visit_per_order": simulate_s * 2 / len(ORDERS) / trace.visits * 1e9,
         "uncached_GB_per_image": uncached * scale / 1e9,
         "load_average": os.getloadavg(),
+        "table": table,
+        "cache_sweep_GB": {
+            o: [int(c.misses[0, i]) * 128 * scale / 1e9 for i in by_size]
+            for o, (c, _) in counts.items()
+        },
+        "hardware": from_trace(
+            trace, {o: t["GB_per_image"] * 1e9 / scale for o, t in table.items()}, size * size
+        ),
     }
-    # one stack-distance pass per order: Table 3.1 at 128 KB and the whole Fig 3.9 curve
-    start = time.perf_counter()
-    curves = cache_sweep(trace, ORDERS, [kb * 1024 for kb in CACHE_KB], 128, order_params)
-    out["cache_sweep_s"] = time.perf_counter() - start
-    at128 = CACHE_KB.index(128)
-    table = {}
-    for order in ORDERS:
-        b = curves[order][at128]
-        stream = merge_repeats(trace.lines(order, 128, order_params))
-        full_misses = b // 128
-        set_misses = set_associative_misses(stream, 1024 // WAYS, WAYS)
-        table[order] = {
-            "GB_per_image": b * scale / 1e9,
-            "reduction_vs_uncached": uncached / max(b, 1),
-            "fetches_per_map_line": full_misses / trace.footprint_lines(128),
-            "set_associative_ratio": set_misses / max(full_misses, 1),
-        }
-    out["table"] = table
-    out["cache_sweep_GB"] = {o: [v * scale / 1e9 for v in c] for o, c in curves.items()}
-    if sweeps:  # Figs 3.5 and 4.1 (Cornell); the 16×16 points are those of the table
-        sweep_orders = ("tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
-        tiles = [t for t in TILES if w % t == 0 and h % t == 0 and t != 16]
-        out["tiles"], out["lines"] = tiles, LINES
-        out["tile_sweep_GB"] = {
-            o: [v * scale / 1e9 for v in c]
-            for o, c in tile_sweep(trace, sweep_orders, tiles, params=order_params).items()
-        }
-        out["line_sweep_GB"] = {
-            o: [v * scale / 1e9 for v in c]
-            for o, c in line_sweep(
-                trace,
-                ("naive", "tiled_dirbin_hashed", "tiled_hilbert"),
-                LINES,
-                params=order_params,
-            ).items()
-        }
-    out["hardware"] = from_trace(
-        trace, {o: table[o]["GB_per_image"] * 1e9 / scale for o in ORDERS}, w * h
-    )
-    out["cpu"] = cpu_times(scene, params, 1 if quick else 3)
+
+
+def window_sweeps(name: str, window, params: dict, grid: int) -> dict:
+    """Figs 3.5 and 4.1 on a window of the 512² image (the dissertation's pixel footprint, so
+    each tile's gathers are as coherent as at full size; spec A17): bytes scaled to the image."""
+    x, y, w, h = window
+    trace = trace_final_gathers(cropped_scene(name, 512, (x, y), (w, h)), **params)
+    scale = 512 * 512 / (w * h)
+    order_params = OrderParams(grid=grid)
+    tiles = [t for t in TILES if w % t == 0 and h % t == 0]
+    sweep_orders = ("tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
+    tile_curves = tile_sweep(trace, sweep_orders, tiles, params=order_params)
+    line_orders = ("naive", "tiled_dirbin_hashed", "tiled_hilbert")
+    line_curves = line_sweep(trace, line_orders, LINES, params=order_params)
+    return {
+        "window": window,
+        "gathers": len(trace.batch),
+        "tiles": tiles,
+        "lines": LINES,
+        "tile_sweep_GB": {o: [v * scale / 1e9 for v in c] for o, c in tile_curves.items()},
+        "line_sweep_GB": {o: [v * scale / 1e9 for v in c] for o, c in line_curves.items()},
+        "load_average": os.getloadavg(),
+    }
+
+
+def study(name: str, window, surface: dict, grid: int, quick: bool, sweeps: bool) -> dict:
+    params = dict(surface, caustic_photons=0, emitter_spp=0, k=100)
+    out = full_image_table(name, params, grid, 64 if quick else 512)
+    if sweeps:
+        out["window_sweeps"] = window_sweeps(name, window, params, grid)
+    x, y, w, h = window
+    out["cpu_window"] = window
+    out["cpu"] = cpu_times(cropped_scene(name, 512, (x, y), (w, h)), params, 1 if quick else 3)
     return out
 
 
@@ -192,8 +218,11 @@ def markdown(result: dict) -> str:
     for name, s in result["scenes"].items():
         doc = DOC[name]
         parts.append(
-            f"## {name}\n\nwindow {s['window']} of 512×512, {s['gathers']:,} final gathers "
-            f"(N_FG {s['params']['fg_rays']}, k 100), {s['visits_per_gather']:.0f} kd-tree nodes "
+            f"## {name}\n\nthe whole {s['image']}×{s['image']} image, {s['gathers']:,} final "
+            f"gathers (N_FG {s['params']['fg_rays']}, k 100, {s['params']['photons']:,} photon "
+            f"paths), {s['node_visits']:,} node reads ({s['visits_per_gather']:.0f} per gather) "
+            f"simulated in {s['simulate_s']:.0f} s for the {len(s['table'])} orders "
+            f"({s['ns_per_visit_per_order']:.0f} ns per read and order); kd-tree nodes "
             f"per gather, {s['photons']:,} photons ({s['map_lines_128B']:,} lines of 128 B); "
             f"uncached naive {s['uncached_GB_per_image']:.1f} GB/image (dissertation "
             f"{doc['uncached']:g} GB{'' if name == 'cornell_steinhurst' else ', Sponza'}); "
@@ -238,19 +267,22 @@ def markdown(result: dict) -> str:
                 [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["cache_sweep_GB"].items()],
             )
         )
-        if "tile_sweep_GB" in s:
-            parts.append("\nGB/image vs tile edge:\n")
+        if "window_sweeps" in s:
+            ws = s["window_sweeps"]
+            parts.append(
+                f"\nGB/image vs tile edge (window {ws['window']} of the 512² image, scaled):\n"
+            )
             parts.append(
                 common.markdown_table(
-                    ["order", *map(str, s["tiles"])],
-                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["tile_sweep_GB"].items()],
+                    ["order", *map(str, ws["tiles"])],
+                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in ws["tile_sweep_GB"].items()],
                 )
             )
-            parts.append("\nGB/image vs line size (128 KB):\n")
+            parts.append("\nGB/image vs line size (128 KB, same window):\n")
             parts.append(
                 common.markdown_table(
-                    ["order", *map(str, s["lines"])],
-                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["line_sweep_GB"].items()],
+                    ["order", *map(str, ws["lines"])],
+                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in ws["line_sweep_GB"].items()],
                 )
             )
         hw = s["hardware"]
@@ -357,7 +389,7 @@ def main(argv=None) -> dict:
             CACHE_KB,
             "cache size (KB)",
             args.plot,
-            "Cornell box, 512×512 (window), 128 B lines",
+            "Cornell box, whole 512×512 image, 128 B lines",
             cornell["uncached_GB_per_image"] * 1e9,
         )
     print(markdown(result))

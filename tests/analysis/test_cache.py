@@ -8,13 +8,7 @@ import pytest
 from lru_reference import lru_misses
 
 from photonmap import ParameterError
-from photonmap.analysis.cache import (
-    merge_repeats,
-    misses,
-    parse_size,
-    set_associative_misses,
-    stack_distances,
-)
+from photonmap.analysis.cache import parse_size, simulate_lines
 
 
 def _streams():
@@ -30,32 +24,34 @@ def _streams():
 CAPACITIES = [1, 2, 3, 8, 16, 64, 256]
 
 
-def test_stack_distances_give_lru_misses_of_every_capacity():
+def _misses(lines, capacities, sets=0, ways=8):
+    return simulate_lines(np.asarray(lines, np.int64), np.diff(capacities, prepend=0), sets, ways)
+
+
+def test_one_pass_gives_lru_misses_of_every_capacity():
     """One pass gives the misses of every fully associative LRU capacity (Mattson et al.)."""
     for lines in _streams():
-        d = stack_distances(merge_repeats(lines))
-        assert list(misses(d, CAPACITIES)) == [lru_misses(lines, c) for c in CAPACITIES]
-        bounded = stack_distances(merge_repeats(lines), floor=8)
-        assert list(misses(bounded, CAPACITIES[3:])) == [
-            lru_misses(lines, c) for c in CAPACITIES[3:]
-        ]
+        missed, _, _ = _misses(lines, CAPACITIES)
+        assert list(missed) == [lru_misses(lines, c) for c in CAPACITIES]
+        missed, _, _ = _misses(lines, CAPACITIES[3:5])  # a bank of two capacities only
+        assert list(missed) == [lru_misses(lines, c) for c in CAPACITIES[3:5]]
 
 
 def test_set_associative_matches_per_set_lru():
     for lines in _streams():
-        merged = merge_repeats(lines)
         for sets in (1, 2, 4, 16):
-            assert set_associative_misses(merged, sets, 8) == lru_misses(lines, 8 * sets, sets)
+            _, missed, _ = _misses(lines, [8 * sets], sets, 8)
+            assert missed == lru_misses(lines, 8 * sets, sets)
 
 
 def test_inclusion_and_compulsory_misses():
     """O4: misses never grow with the capacity; they never fall below the distinct lines, and
     equal them once the cache holds the footprint."""
     for lines in _streams():
-        curve = misses(stack_distances(merge_repeats(lines)), [1, 4, 16, 64, 256, 1024])
+        curve, _, compulsory = _misses(lines, [1, 4, 16, 64, 256, 1024])
         assert np.all(np.diff(curve) <= 0)
         distinct = len(np.unique(lines))
-        assert curve.min() >= distinct
+        assert compulsory == distinct and curve.min() >= distinct
         if distinct <= 1024:
             assert curve[-1] == distinct
 
@@ -66,5 +62,3 @@ def test_parse_size():
     for bad in ("", "big", "-1K", "0"):
         with pytest.raises(ParameterError, match="size"):
             parse_size(bad)
-    with pytest.raises(ParameterError, match="set"):
-        set_associative_misses(np.arange(4), 0, 8)

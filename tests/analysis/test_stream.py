@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from photonmap.analysis.bandwidth import bandwidth_table
+from photonmap.analysis.cache import simulate_lines
 from photonmap.analysis.stream import cropped_scene, trace_final_gathers
 from photonmap.cli import app
 from photonmap.surface.gather_batch import ORDERS
@@ -80,3 +81,56 @@ def test_analyze_bandwidth_cli(tmp_path):
     assert bad.exit_code == 2 and "zigzag" in bad.output
     bad = runner.invoke(app, [*args, "--cache", "lots"])
     assert bad.exit_code == 2 and "size" in bad.output
+
+
+def test_compiled_walk_is_the_renderers_traversal(trace):
+    """The compiled walk visits exactly the heap slots, in the same order, as the renderer's
+    Dr.Jit traversal (KDTree.visits) — the stream the simulator counts is the real one."""
+    pipe = SurfacePipeline(
+        cropped_scene("cornell_steinhurst", 128, (48, 64), (16, 16)),
+        **SMALL,
+        lookup="knn",
+        structure="kdtree",
+    )
+    gmap = pipe.photon_maps()[0]
+    count, slots = gmap.structure.visits(
+        mi.Point3f(*trace.batch.position.T),
+        SMALL["k"],
+        pipe.radii()[1],
+        mi.Vector3f(*trace.batch.normal.T),
+        gmap.photons.normal,
+        gmap.photons.direction,
+    )
+    assert np.array_equal(count, trace.count)
+    assert np.array_equal(slots.astype(np.int64), trace.slots)
+
+
+def test_recorded_requests_are_the_rendered_ones(trace):
+    """Recording the requests without gathering them (the simulator's fast path) keeps the
+    requests of a full render."""
+    pipe = SurfacePipeline(
+        cropped_scene("cornell_steinhurst", 128, (48, 64), (16, 16)),
+        **SMALL,
+        lookup="knn",
+        structure="kdtree",
+    )
+    pipe.kept_requests = []
+    pipe.render()
+    (batch,) = pipe.kept_requests
+    for field in ("position", "normal", "direction", "pixel", "ray", "specular"):
+        assert np.array_equal(getattr(batch, field), getattr(trace.batch, field)), field
+
+
+def test_streamed_simulation_equals_the_stored_stream(trace):
+    """The fused walk + cache bank (full-scale path) counts the same misses as the stored line
+    stream fed to the same caches, for every order, capacity, line size and the 8-way cache."""
+    caps = [2048, 8192, 32768]
+    for order in ORDERS:
+        fused = trace.simulate(order, [64, 128], caps, ways=8)
+        assert fused.visits == trace.visits
+        for row, line in enumerate((64, 128)):
+            stream = trace.lines(order, line)
+            per_cap = np.diff(np.array(caps) // line, prepend=0)
+            missed, sa, compulsory = simulate_lines(stream, per_cap, caps[0] // line // 8, 8)
+            assert list(fused.misses[row]) == list(missed), (order, line)
+            assert fused.set_associative[row] == sa and fused.compulsory[row] == compulsory

@@ -14,22 +14,37 @@ from dataclasses import replace
 import numpy as np
 
 from ..surface.gather_batch import ORDERS, OrderParams
-from .cache import merge_repeats, misses, set_associative_misses, stack_distances
-from .stream import GatherTrace
+from .cache import simulate_lines
+from .stream import CacheCounts
 
-FLOOR_BYTES = 8 * 1024  # smallest cache any sweep reports: distances below are left as bounds
 WAYS = 8  # the set-associative option (spec §2.6: 8-way ≈ +39 % fetches)
 
 
-def _curve(trace, order, line_bytes, capacities_bytes, params) -> np.ndarray:
-    """Misses of a fully associative LRU cache of each capacity (bytes) for ``order``."""
-    stream = merge_repeats(trace.lines(order, line_bytes, params))
-    floor = max(1, min(FLOOR_BYTES, min(capacities_bytes)) // line_bytes)
-    return misses(stack_distances(stream, floor), np.asarray(capacities_bytes) // line_bytes)
+def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> CacheCounts:
+    """Misses of ``order`` for every line size and capacity: streamed by the trace itself
+    (:meth:`.stream.GatherTrace.simulate`) or, for a trace that only gives its line stream
+    (``trace.lines(order, line_bytes, params)``, e.g. another data structure), the same caches fed
+    with that stream."""
+    if hasattr(trace, "simulate"):
+        return trace.simulate(order, lines_bytes, capacities_bytes, ways, params)
+    rows, sa, compulsory = [], [], []
+    caps = np.asarray(capacities_bytes, np.int64)
+    for line in lines_bytes:
+        stream = np.asarray(trace.lines(order, line, params), np.int64)
+        capacity = np.maximum(caps // line, 1)
+        distinct = np.unique(capacity)
+        sets = max(1, int(capacity.max()) // ways) if ways else 0
+        m, s, c = simulate_lines(stream, np.diff(distinct, prepend=0), sets, max(ways, 1))
+        rows.append(m[np.searchsorted(distinct, capacity)])
+        sa.append(s)
+        compulsory.append(c)
+    return CacheCounts(
+        np.array(rows), np.array(sa) if ways else None, np.array(compulsory), trace.visits
+    )
 
 
 def bandwidth_table(
-    trace: GatherTrace,
+    trace,
     orders=ORDERS,
     cache_bytes: int = 128 * 1024,
     line_bytes: int = 128,
@@ -42,17 +57,17 @@ def bandwidth_table(
     rows = []
     uncached = trace.uncached_bytes()
     for order in orders:
-        missed = int(_curve(trace, order, line_bytes, [cache_bytes], params)[0])
+        c = counts(trace, order, [line_bytes], [cache_bytes], ways or 0, params)
+        missed = int(c.misses[0, 0])
         row = {
             "order": order,
             "misses": missed,
             "bytes": missed * line_bytes,
             "reduction_vs_uncached": uncached / max(missed * line_bytes, 1),
+            "compulsory": int(c.compulsory[0]),
         }
         if ways:
-            stream = merge_repeats(trace.lines(order, line_bytes, params))
-            sets = max(1, cache_bytes // line_bytes // ways)
-            row["misses_set_associative"] = set_associative_misses(stream, sets, ways)
+            row["misses_set_associative"] = int(c.set_associative[0])
             row["set_associative_ratio"] = row["misses_set_associative"] / max(missed, 1)
         rows.append(row)
     naive = next((r["bytes"] for r in rows if r["order"] == "naive"), None)
@@ -63,31 +78,32 @@ def bandwidth_table(
 
 
 def cache_sweep(trace, orders, sizes_bytes, line_bytes=128, params=None) -> dict:
-    """Bytes per image for each cache size (Fig 3.9): one stack-distance pass per order."""
+    """Bytes per image for each cache size (Fig 3.9): one pass per order gives every size."""
     return {
-        o: (_curve(trace, o, line_bytes, sizes_bytes, params) * line_bytes).tolist() for o in orders
+        o: (counts(trace, o, [line_bytes], sizes_bytes, 0, params).misses[0] * line_bytes).tolist()
+        for o in orders
     }
 
 
 def line_sweep(trace, orders, lines_bytes, cache_bytes=128 * 1024, params=None) -> dict:
-    """Bytes per image for each line size at a fixed cache size (Fig 4.1, kd-tree)."""
-    return {
-        o: [int(_curve(trace, o, line, [cache_bytes], params)[0]) * line for line in lines_bytes]
-        for o in orders
-    }
+    """Bytes per image for each line size at a fixed cache size (Fig 4.1, kd-tree): one pass per
+    order feeds every line size."""
+    out = {}
+    for o in orders:
+        m = counts(trace, o, lines_bytes, [cache_bytes], 0, params).misses[:, 0]
+        out[o] = [int(x) * line for x, line in zip(m, lines_bytes, strict=True)]
+    return out
 
 
 def tile_sweep(trace, orders, tiles, cache_bytes=128 * 1024, line_bytes=128, params=None) -> dict:
     """Bytes per image for each tile edge (Fig 3.5)."""
     params = params or OrderParams()
-    return {
-        o: [
-            int(_curve(trace, o, line_bytes, [cache_bytes], replace(params, tile=t))[0])
-            * line_bytes
-            for t in tiles
-        ]
-        for o in orders
-    }
+
+    def bytes_at(order, tile):
+        c = counts(trace, order, [line_bytes], [cache_bytes], 0, replace(params, tile=tile))
+        return int(c.misses[0, 0]) * line_bytes
+
+    return {o: [bytes_at(o, t) for t in tiles] for o in orders}
 
 
 def plot_sweep(curves: dict, xs, xlabel: str, path: str, title: str, uncached=None) -> None:

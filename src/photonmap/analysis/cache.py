@@ -1,123 +1,127 @@
 """Cache simulator for photon-map memory traffic (Steinhurst 2007 §3.2, §3.5; spec seed-001 §2.6,
-ambiguities A17; oracles O4, O20).
+ambiguity A17; oracles O4, O19, O20).
 
-A stream of cache-line ids (the exact record reads of a batch of gathers) goes through a
-**fully associative LRU** cache. LRU is a stack algorithm (Mattson et al. 1970): an access hits in
-a cache of ``C`` lines iff its *stack distance* — the number of distinct lines touched since the
-previous access to its line — is below ``C``. One pass over the stream therefore gives the misses
-of every cache size (the Fig 3.9 curve at once).
+A stream of cache-line reads goes through a bank of caches at once, compiled with Numba:
 
-**Stack distances without a sequential loop.** With ``prev[t]`` the previous access to the line of
-access ``t`` (−1 if none), the lines touched in ``(prev[t], t)`` are those whose first access in
-that window is some ``j`` with ``prev[j] < prev[t]``, and every ``j ≤ prev[t]`` has
-``prev[j] < j ≤ prev[t]``, so::
+- **fully associative LRU** caches of several capacities ``c_0 < … < c_{K−1}`` lines. LRU is a
+  stack algorithm (Mattson et al. 1970): one recency list serves every capacity, cut into segments
+  ``[c_{j−1}, c_j)`` by K markers. A read of a line in segment ``s`` misses in the caches ``j < s``
+  and hits in the others; the line moves to the front, and the last line of each segment before
+  ``s`` slides into the next one — ``O(s) ≤ K`` work per read, no search (lines past ``c_{K−1}``
+  leave the list). One pass gives the Fig 3.9 curve;
+- a ``ways``-way **set-associative** LRU cache (set = line mod sets, MRU-first tag rows);
+- the **compulsory** misses (first reads of a line: the distinct lines read).
 
-    distance(t) = #{ j < t : prev[j] < prev[t] } − (prev[t] + 1)
-
-— an offline dominance count, done here for all ``t`` at once with a wavelet matrix over
-``prev`` (one stable partition per bit of ``prev``, ``O(n log n)`` vectorised NumPy; the
-Fenwick-tree sweep of the classic algorithm is the same count taken sequentially). Consecutive
-accesses to one line are merged first: they hit in any cache and leave every other distance alone.
-
-**Set-associative** (``ways``-way, set = line mod sets, LRU per set): the same distances computed
-per set on the stream stably grouped by set; an access misses iff its distance is ≥ ``ways``.
-Bandwidth is misses × line size [DOC §3.5].
+A read of the line read just before hits in every cache and changes nothing (the fast path of
+runs of reads within one line). Bandwidth is misses × line size [DOC §3.5]. The full-scale kd-tree
+streams feed these banks straight from the gathers (:mod:`.kdwalk`); :func:`simulate_lines` takes
+an explicit stream.
 """
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from ..core.errors import ParameterError
 
-COMPULSORY = -1
-"""Stack distance of a line's first access: a miss in every cache."""
+
+@numba.njit(cache=True, nogil=True)
+def _feed(lines, count, base, div, seg, prv, nxt, tail, size, segcap, tags, misses, state):
+    """Reads of lines ``(lines[:count] − base) // div`` through one bank (see the module docstring):
+    ``seg``/``prv``/``nxt`` (lines,): each line's segment (K: evicted, K + 1: never read) and
+    neighbours in the recency list; ``tail``/``size``/``segcap`` (K,): each segment's last line,
+    its size and its capacity; ``tags`` (sets, ways): the set-associative cache, MRU first, −1
+    empty (0 sets: none); ``misses`` (K,); ``state``: most recent line, compulsory misses,
+    set-associative misses."""
+    K = segcap.shape[0]
+    sets, ways = tags.shape
+    head, compulsory, sa_misses = state[0], state[1], state[2]
+    for r in range(count):
+        x = (lines[r] - base) // div
+        if x == head:
+            continue  # the line just read: a hit in every cache
+        s = seg[x]
+        if s > K:
+            compulsory += 1
+            s = K
+        for j in range(s):
+            misses[j] += 1
+        if s < K:  # unlink x from segment s
+            p, n = prv[x], nxt[x]
+            nxt[p] = n  # p ≥ 0: x is not the head
+            if n >= 0:
+                prv[n] = p
+            if tail[s] == x:
+                tail[s] = p if seg[p] == s else -1
+            size[s] -= 1
+        nxt[x] = head
+        prv[x] = -1
+        if head >= 0:
+            prv[head] = x
+        head = x
+        seg[x] = 0
+        size[0] += 1
+        if tail[0] < 0:
+            tail[0] = x
+        j = 0
+        while j < K and size[j] > segcap[j]:  # the segment's last line slides into the next
+            t = tail[j]
+            before = prv[t]
+            tail[j] = before
+            size[j] -= 1
+            if j + 1 < K:
+                seg[t] = j + 1
+                if tail[j + 1] < 0:
+                    tail[j + 1] = t
+                size[j + 1] += 1
+            else:  # past the largest cache: leaves the list
+                seg[t] = K
+                nxt[before] = -1
+                prv[t] = -1
+            j += 1
+        if sets > 0:
+            row = x % sets
+            at = ways - 1
+            hit = False
+            for w in range(ways):
+                if tags[row, w] == x:
+                    at = w
+                    hit = True
+                    break
+            sa_misses += not hit
+            for w in range(at, 0, -1):
+                tags[row, w] = tags[row, w - 1]
+            tags[row, 0] = x
+    state[0], state[1], state[2] = head, compulsory, sa_misses
 
 
-def merge_repeats(lines: np.ndarray) -> np.ndarray:
-    """``lines`` without accesses to the line just accessed (hits in any cache)."""
-    lines = np.asarray(lines)
-    if len(lines) < 2:
-        return lines
-    return lines[np.r_[True, lines[1:] != lines[:-1]]]
+@numba.njit(cache=True, nogil=True)
+def bank(lines, segcap, sets, ways):
+    """Empty caches for :func:`_feed` over ``lines`` line ids, with segment capacities
+    ``segcap`` (K,) and a ``ways``-way cache of ``sets`` sets (0: none)."""
+    K = segcap.shape[0]
+    return (
+        np.full(lines, K + 1, np.int32),
+        np.full(lines, -1, np.int32),
+        np.full(lines, -1, np.int32),
+        np.full(K, -1, np.int32),
+        np.zeros(K, np.int64),
+        segcap,
+        np.full((sets, ways), -1, np.int64),
+        np.zeros(K, np.int64),
+        np.array([-1, 0, 0], np.int64),
+    )
 
 
-def previous_access(lines: np.ndarray) -> np.ndarray:
-    """Index of the previous access to the same line, −1 for a first access (int64)."""
-    n = len(lines)
-    by_line = np.argsort(lines, kind="stable")
-    prev = np.full(n, -1, np.int64)
-    same = lines[by_line][1:] == lines[by_line][:-1]
-    prev[by_line[1:][same]] = by_line[:-1][same]
-    return prev
-
-
-def stack_distances(lines: np.ndarray, floor: int = 0) -> np.ndarray:
-    """LRU stack distance of every access of ``lines`` (:data:`COMPULSORY` for first accesses).
-
-    With ``floor`` > 0, an access whose reuse window (accesses since the previous one to its
-    line) is shorter than ``floor`` gets that window length, an upper bound below ``floor``:
-    misses are then exact for every capacity ≥ ``floor`` lines, and the count runs only for the
-    other accesses."""
-    lines = np.asarray(lines)
-    n = len(lines)
-    prev = previous_access(lines)
-    value = (prev + 1).astype(np.int64)  # 0 = first access; values in [0, n]
-    dist = np.full(n, COMPULSORY, np.int64)
-    window = np.arange(n) - value  # accesses strictly between the previous one and this
-    short = (value > 0) & (window < floor)
-    dist[short] = window[short]
-    asked = np.flatnonzero((value > 0) & ~short)
-    if len(asked) == 0:
-        return dist
-    below = _count_earlier_below(value, asked, value[asked])
-    dist[asked] = below - value[asked]
-    return dist
-
-
-def _count_earlier_below(seq: np.ndarray, t: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``#{j < t_i : seq[j] < v_i}`` for every query ``i`` (wavelet matrix rank, MSB first)."""
-    n = len(seq)
-    itype = np.int32 if n < 2**31 - 1 else np.int64
-    seq = seq.astype(itype)
-    v = v.astype(itype)
-    lo = np.zeros(len(t), itype)  # each query's interval [lo, hi) at the current level
-    hi = t.astype(itype)
-    count = np.zeros(len(t), itype)
-    ones_before = np.zeros(n + 1, itype)
-    position = np.arange(n, dtype=itype)
-    for bit in range(max(int(seq.max()), int(v.max()), 1).bit_length() - 1, -1, -1):
-        one = (seq >> bit) & 1
-        np.cumsum(one, out=ones_before[1:])
-        zeros = n - ones_before[n]
-        olo, ohi = ones_before[lo], ones_before[hi]
-        vbit = ((v >> bit) & 1).astype(bool)
-        count += np.where(vbit, (hi - ohi) - (lo - olo), 0)
-        lo = np.where(vbit, zeros + olo, lo - olo)
-        hi = np.where(vbit, zeros + ohi, hi - ohi)
-        target = np.where(one.astype(bool), zeros + ones_before[:-1], position - ones_before[:-1])
-        shuffled = np.empty_like(seq)
-        shuffled[target] = seq
-        seq = shuffled
-    return count
-
-
-def misses(distances: np.ndarray, capacities) -> np.ndarray:
-    """Fully associative LRU misses for each capacity (in lines) given the stack distances."""
-    d = np.asarray(distances)
-    compulsory = int(np.count_nonzero(d == COMPULSORY))
-    sorted_d = np.sort(d[d != COMPULSORY])
-    caps = np.asarray(capacities, np.int64)
-    return compulsory + len(sorted_d) - np.searchsorted(sorted_d, caps, side="left")
-
-
-def set_associative_misses(lines: np.ndarray, sets: int, ways: int) -> int:
-    """Misses of a ``ways``-way set-associative LRU cache of ``sets`` sets (set = line mod sets)."""
-    if sets < 1 or ways < 1:
-        raise ParameterError(f"a cache needs >= 1 set and way, got {sets} sets of {ways} ways")
-    lines = np.asarray(lines, np.int64)
-    grouped = lines[np.argsort(lines % sets, kind="stable")]
-    return int(misses(stack_distances(grouped, floor=ways), [ways])[0])
+@numba.njit(cache=True, nogil=True)
+def simulate_lines(lines, segcap, sets, ways):
+    """Misses of an explicit stream of line ids: ``(misses (K,), set-associative misses,
+    compulsory)`` for the capacities with segment sizes ``segcap`` (K,) and a ``ways``-way cache
+    of ``sets`` sets (0: none)."""
+    b = bank(lines.max() + 1 if len(lines) else 1, segcap, sets, ways)
+    _feed(lines, len(lines), 0, 1, *b)
+    return b[7], b[8][2], b[8][1]
 
 
 def parse_size(text: str | int) -> int:

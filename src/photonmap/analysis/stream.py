@@ -3,11 +3,13 @@ spec seed-001 §2.3, §2.6, ambiguities A6, A17, A20).
 
 A render of the surface method with exact k-NN final gathers on the heap-order kd-tree
 (``lookup="knn"``, ``structure="kdtree"``) keeps its request batches
-(:class:`~photonmap.surface.gather_batch.GatherBatch`). Each request's gather is then run once more
-with the traversal recording the heap slots it visits, in visiting order
-(:meth:`~photonmap.surface.kdtree.KDTree.visits`): the exact record reads of that gather. A gather
-order is a permutation of the requests, so the stream of an order is the concatenation of the
-requests' visit lists in that order.
+(:class:`~photonmap.surface.gather_batch.GatherBatch`) without running the gathers. Each request's
+gather is then run by the compiled walk of :mod:`.kdwalk`, which visits the heap slots the
+renderer's traversal visits (:meth:`~photonmap.surface.kdtree.KDTree.visits`), in visiting order:
+the exact record reads of that gather. A gather order is a permutation of the requests, so the
+stream of an order is the concatenation of the requests' visit lists in that order; it is either
+materialised (small traces: :meth:`GatherTrace.lines`) or streamed straight into the caches
+(:meth:`GatherTrace.simulate`, the full 512 × 512 image).
 
 **Address model** (spec §2.3): Jensen's 20-byte photon records in heap order, node ``i`` (1-based)
 in line ``(i − 1) div ⌊line_bytes / 20⌋`` (no record straddles two lines; the rest of a line is the
@@ -21,33 +23,106 @@ in a disjoint address range and are the same in every order).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError
+from ..core.knn import COS_NORMAL, squared_radius
 from ..surface.gather_batch import GatherBatch, OrderParams, gather_order
 from ..surface.pipeline import SurfacePipeline
+from . import kdwalk
 
 RECORD_BYTES = 20  # Jensen's compact photon (spec §2.3)
-TRACE_CHUNK = 1 << 17  # gathers traced per kernel launch
-MAX_VISITS = 200_000_000  # node visits a trace may hold (4 bytes each, and 8 per stream entry)
+MAX_SLOTS = 200_000_000  # node visits :attr:`GatherTrace.slots` may hold (8 bytes each)
+
+
+@dataclass(frozen=True)
+class KDRecords:
+    """What a gather reads, as host arrays for the compiled walk (:mod:`.kdwalk`): the tree's
+    16-byte records in heap order (``record`` (N, 4) float32: x, y, z, and photon index | split
+    axis << 30 as uint32 bits), the photons' ``normal`` and ``direction`` (N, 3) in heap order for
+    the normal test, ``k``, the squared maximum radius and the normal test's cosine (float32)."""
+
+    record: np.ndarray
+    normal: np.ndarray
+    direction: np.ndarray
+    k: int
+    radius2: np.float32
+    cos_normal: np.float32
+
+    @classmethod
+    def of(cls, photon_map, k: int, radius: float) -> KDRecords:
+        tree = photon_map.structure
+        record = tree.record.numpy().reshape(-1, 4)
+        order = tree.order.numpy()
+
+        def heap(v):
+            return np.ascontiguousarray(mi.Vector3f(v).numpy().reshape(3, -1)[:, order].T)
+
+        return cls(
+            np.ascontiguousarray(record, np.float32),
+            heap(photon_map.photons.normal),
+            heap(photon_map.photons.direction),
+            int(k),
+            squared_radius(radius),
+            np.float32(COS_NORMAL),
+        )
+
+    def args(self) -> tuple:
+        return (
+            self.record,
+            self.record.view(np.uint32),
+            self.normal,
+            self.direction,
+            self.k,
+            self.radius2,
+            self.cos_normal,
+        )
 
 
 @dataclass
 class GatherTrace:
-    """Final-gather requests of one render and the kd-tree nodes each visits: request ``r``'s
-    heap slots are ``slots[offset[r] : offset[r] + count[r]]``."""
+    """Final-gather requests of one render and the kd-tree they gather from. The node visits are
+    recomputed by the compiled walk when asked: request ``r``'s heap slots are
+    ``slots[offset[r] : offset[r] + count[r]]`` (held in memory only for small traces);
+    :meth:`simulate` streams them through caches without storing them."""
 
     batch: GatherBatch
-    count: np.ndarray
-    offset: np.ndarray
-    slots: np.ndarray
-    photons: int
+    tree: KDRecords
+    _visits: int | None = None
+
+    @property
+    def photons(self) -> int:
+        return len(self.tree.record)
+
+    def _queries(self):
+        return self.batch.position, self.batch.normal
+
+    @cached_property
+    def count(self) -> np.ndarray:
+        return kdwalk.visit_counts(*self._queries(), *self.tree.args())
+
+    @property
+    def offset(self) -> np.ndarray:
+        return np.cumsum(self.count) - self.count
+
+    @cached_property
+    def slots(self) -> np.ndarray:
+        if self.visits > MAX_SLOTS:
+            raise ParameterError(
+                f"the final gathers visit {self.visits:,} kd-tree nodes, more than the "
+                f"{MAX_SLOTS:,} a stored trace may hold; use the streaming simulation "
+                "(GatherTrace.simulate) or trace a smaller crop"
+            )
+        return kdwalk.visit_slots(*self._queries(), *self.tree.args(), self.offset, self.visits)
 
     @property
     def visits(self) -> int:
+        """Nodes visited by all gathers (known after any :meth:`simulate`)."""
+        if "count" not in self.__dict__ and self._visits is not None:
+            return self._visits
         return int(self.count.sum())
 
     def uncached_bytes(self) -> int:
@@ -65,7 +140,41 @@ class GatherTrace:
         total = int(count.sum())
         start = np.repeat(self.offset[perm] - (np.cumsum(count) - count), count)
         slots = self.slots[start + np.arange(total)]
-        return (slots.astype(np.int64) - 1) // photons_per_line(line_bytes)
+        return (slots - 1) // photons_per_line(line_bytes)
+
+    def simulate(
+        self, order: str, lines_bytes, capacities_bytes, ways: int = 0, params=None
+    ) -> CacheCounts:
+        """Stream the gathers in ``order`` through fully associative LRU caches of every
+        capacity and line size (and, with ``ways``, a ``ways``-way set-associative cache of the
+        first capacity) without storing the stream (:func:`.kdwalk.simulate`)."""
+        perm = gather_order(self.batch, order, params)
+        lines_bytes = [int(x) for x in lines_bytes]
+        caps = np.array([[max(int(c) // x, 1) for c in capacities_bytes] for x in lines_bytes])
+        distinct = np.unique(caps)
+        per_line = np.array([photons_per_line(x) for x in lines_bytes], np.int64)
+        segcap = np.tile(np.diff(distinct, prepend=0), (len(lines_bytes), 1))
+        sets = np.array([max(1, c // ways) if ways else 0 for c in caps[:, 0]], np.int64)
+        misses, sa, compulsory, visits = kdwalk.simulate(
+            perm, *self._queries(), *self.tree.args(), per_line, segcap, sets, max(ways, 1)
+        )
+        self._visits = int(visits)
+        at = np.searchsorted(distinct, caps)
+        return CacheCounts(
+            np.take_along_axis(misses, at, axis=1), sa if ways else None, compulsory, visits
+        )
+
+
+@dataclass
+class CacheCounts:
+    """Line misses of one gather order: ``misses[l, c]`` for line size ``l`` and capacity ``c``
+    (in the order asked), ``set_associative[l]`` (or None), ``compulsory[l]``: distinct lines
+    read, ``visits``: kd-tree nodes read."""
+
+    misses: np.ndarray
+    set_associative: np.ndarray | None
+    compulsory: np.ndarray
+    visits: int
 
 
 def photons_per_line(line_bytes: int) -> int:
@@ -79,45 +188,27 @@ def photons_per_line(line_bytes: int) -> int:
 
 
 def trace_final_gathers(scene, **params) -> GatherTrace:
-    """Render ``scene`` with the surface method (``params``: its parameters and scene
-    parameters) using exact k-NN final gathers on the kd-tree, and trace every gather."""
+    """The final-gather requests of ``scene`` rendered by the surface method (``params``: its
+    parameters and scene parameters) with exact k-NN final gathers on the kd-tree. Only the
+    requests are recorded; the gathers themselves are not run (the image is not needed), so a
+    full 512 × 512 image at N_FG = 100 takes seconds."""
     pipe = SurfacePipeline(
         scene, **{**params, "lookup": "knn", "structure": "kdtree", "gather_order": "naive"}
     )
     pipe.kept_requests = []
+    pipe.requests_only = True
     pipe.render()
     batches = pipe.kept_requests
+    if not batches:
+        raise ParameterError("the render made no final-gather requests (nothing visible?)")
     batch = GatherBatch(
         *(np.concatenate([getattr(b, f) for b in batches]) for f in _ARRAYS),
         width=batches[0].width,
         height=batches[0].height,
         bounds=batches[0].bounds,
     )
-    global_map = pipe.photon_maps()[0]
     _, radius = pipe.radii()
-    counts, slots = [], []
-    for first in range(0, len(batch), TRACE_CHUNK):
-        part = slice(first, first + TRACE_CHUNK)
-        c, s = global_map.structure.visits(
-            mi.Point3f(*batch.position[part].T),
-            pipe.params.k,
-            radius,
-            mi.Vector3f(*batch.normal[part].T),
-            global_map.photons.normal,
-            global_map.photons.direction,
-        )
-        counts.append(c)
-        slots.append(s)
-        if sum(len(x) for x in slots) > MAX_VISITS:
-            raise ParameterError(
-                f"the final gathers visit more than {MAX_VISITS:,} kd-tree nodes; trace a "
-                "smaller image or crop, fewer fg_rays, or a smaller max_radius"
-            )
-    dr.sync_thread()
-    count = np.concatenate(counts)
-    return GatherTrace(
-        batch, count, np.cumsum(count) - count, np.concatenate(slots), global_map.size
-    )
+    return GatherTrace(batch, KDRecords.of(pipe.photon_maps()[0], pipe.params.k, radius))
 
 
 _ARRAYS = ("position", "normal", "direction", "pixel", "ray", "specular")

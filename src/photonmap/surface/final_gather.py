@@ -156,6 +156,8 @@ def _ordered_lookup(lookup, layout: RequestLayout, si_y, found, query, i, direct
     )
     if layout.keep:
         layout.batches.append(batch)
+    if layout.record_only:
+        return dr.zeros(mi.Spectrum, dr.width(found))
     issued = dr.gather(
         mi.UInt32, lanes, mi.UInt32(gather_order(batch, layout.order, layout.params))
     )

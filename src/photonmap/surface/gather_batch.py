@@ -215,7 +215,9 @@ class RequestLayout:
     passed a specular surface), the scene ``bounds``, the :class:`OrderParams`. With ``keep``, the
     batches issued are appended to ``batches`` (in generation order) for the cache simulator.
     ``lanes`` (NumPy int, optional): the query point of each final-gather lane, when only some
-    query points gather (the irradiance cache's plan, Steinhurst Ch. 5)."""
+    query points gather (the irradiance cache's plan, Steinhurst Ch. 5). With ``record_only``
+    the batches are kept but not gathered (their radiance is zero): the cache simulator needs the
+    requests, not the image."""
 
     width: int
     height: int
@@ -227,6 +229,7 @@ class RequestLayout:
     keep: bool = False
     batches: list | None = None
     lanes: np.ndarray | None = None
+    record_only: bool = False
 
     def batch(self, query, ray, position, normal, direction) -> GatherBatch:
         """The batch of requests of query points ``query`` and ray indices ``ray`` (NumPy)."""

@@ -172,6 +172,7 @@ class SurfacePipeline(MovableCamera):
         self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
         self._step = None  # (volume key, automatic march step, precomputed density or None)
         self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
+        self.requests_only = False  # with kept_requests: keep them without gathering
         self._ravg = None  # (tracing key, R_avg precomputed at photons), for self._maps
 
     def set_params(self, **params) -> None:
@@ -266,6 +267,7 @@ class SurfacePipeline(MovableCamera):
             keep=self.kept_requests is not None,
             batches=self.kept_requests,
             lanes=lanes,
+            record_only=self.requests_only,
         )
 
     def indirect(
