@@ -10,7 +10,7 @@ from typer.testing import CliRunner
 
 from photonmap.analysis.bandwidth import bandwidth_table
 from photonmap.analysis.cache import simulate_lines
-from photonmap.analysis.stream import cropped_scene, trace_final_gathers
+from photonmap.analysis.stream import GatherTrace, cropped_scene, trace_final_gathers
 from photonmap.cli import app
 from photonmap.surface.gather_batch import ORDERS
 from photonmap.surface.pipeline import SurfacePipeline
@@ -134,3 +134,10 @@ def test_streamed_simulation_equals_the_stored_stream(trace):
             missed, sa, compulsory = simulate_lines(stream, per_cap, caps[0] // line // 8, 8)
             assert list(fused.misses[row]) == list(missed), (order, line)
             assert fused.set_associative[row] == sa and fused.compulsory[row] == compulsory
+    stored = GatherTrace(trace.batch, trace.tree)  # the same gathers, reads kept and replayed
+    assert stored.store_reads(128) and stored.visits == trace.visits
+    for order in ORDERS:
+        fused, replayed = (t.simulate(order, [128], caps, ways=8) for t in (trace, stored))
+        assert np.array_equal(fused.misses, replayed.misses), order
+        assert fused.set_associative == replayed.set_associative
+        assert fused.compulsory == replayed.compulsory

@@ -9,6 +9,8 @@ dissertation does (spec A6), and against the cached naive order.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 
 import numpy as np
@@ -33,7 +35,7 @@ def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> 
         stream = np.asarray(trace.lines(order, line, params), np.int64)
         capacity = np.maximum(caps // line, 1)
         distinct = np.unique(capacity)
-        sets = max(1, int(capacity.max()) // ways) if ways else 0
+        sets = max(1, int(capacity[0]) // ways) if ways else 0
         m, s, c = simulate_lines(stream, np.diff(distinct, prepend=0), sets, max(ways, 1))
         rows.append(m[np.searchsorted(distinct, capacity)])
         sa.append(s)
@@ -41,6 +43,15 @@ def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> 
     return CacheCounts(
         np.array(rows), np.array(sa) if ways else None, np.array(compulsory), trace.visits
     )
+
+
+def _each(trace, fn, items) -> list:
+    """``fn`` over ``items``; for a streaming trace on one thread per core (the compiled
+    simulation releases the GIL and each order's caches are independent)."""
+    if not hasattr(trace, "simulate") or len(items) < 2:
+        return [fn(x) for x in items]
+    with ThreadPoolExecutor(max(1, min(len(items), os.cpu_count() or 1))) as pool:
+        return list(pool.map(fn, items))
 
 
 def bandwidth_table(
@@ -54,10 +65,13 @@ def bandwidth_table(
     """One row per order: line misses, bytes, reduction vs the uncached naive figure and vs the
     cached naive order; with ``ways``, also the misses of a ``ways``-way set-associative cache of
     the same size and their ratio to the fully associative misses (O20)."""
-    rows = []
+    orders = list(orders)
+    results = _each(
+        trace, lambda o: counts(trace, o, [line_bytes], [cache_bytes], ways or 0, params), orders
+    )
     uncached = trace.uncached_bytes()
-    for order in orders:
-        c = counts(trace, order, [line_bytes], [cache_bytes], ways or 0, params)
+    rows = []
+    for order, c in zip(orders, results, strict=True):
         missed = int(c.misses[0, 0])
         row = {
             "order": order,
@@ -79,20 +93,22 @@ def bandwidth_table(
 
 def cache_sweep(trace, orders, sizes_bytes, line_bytes=128, params=None) -> dict:
     """Bytes per image for each cache size (Fig 3.9): one pass per order gives every size."""
-    return {
-        o: (counts(trace, o, [line_bytes], sizes_bytes, 0, params).misses[0] * line_bytes).tolist()
-        for o in orders
-    }
+    orders = list(orders)
+    results = _each(trace, lambda o: counts(trace, o, [line_bytes], sizes_bytes, 0, params), orders)
+    return {o: (c.misses[0] * line_bytes).tolist() for o, c in zip(orders, results, strict=True)}
 
 
 def line_sweep(trace, orders, lines_bytes, cache_bytes=128 * 1024, params=None) -> dict:
     """Bytes per image for each line size at a fixed cache size (Fig 4.1, kd-tree): one pass per
     order feeds every line size."""
-    out = {}
-    for o in orders:
-        m = counts(trace, o, lines_bytes, [cache_bytes], 0, params).misses[:, 0]
-        out[o] = [int(x) * line for x, line in zip(m, lines_bytes, strict=True)]
-    return out
+    orders = list(orders)
+    results = _each(
+        trace, lambda o: counts(trace, o, lines_bytes, [cache_bytes], 0, params), orders
+    )
+    return {
+        o: [int(x) * line for x, line in zip(c.misses[:, 0], lines_bytes, strict=True)]
+        for o, c in zip(orders, results, strict=True)
+    }
 
 
 def tile_sweep(trace, orders, tiles, cache_bytes=128 * 1024, line_bytes=128, params=None) -> dict:
@@ -103,7 +119,9 @@ def tile_sweep(trace, orders, tiles, cache_bytes=128 * 1024, line_bytes=128, par
         c = counts(trace, order, [line_bytes], [cache_bytes], 0, replace(params, tile=tile))
         return int(c.misses[0, 0]) * line_bytes
 
-    return {o: [bytes_at(o, t) for t in tiles] for o in orders}
+    pairs = [(o, t) for o in orders for t in tiles]
+    values = iter(_each(trace, lambda pair: bytes_at(*pair), pairs))
+    return {o: [next(values) for _ in tiles] for o in orders}
 
 
 def plot_sweep(curves: dict, xs, xlabel: str, path: str, title: str, uncached=None) -> None:

@@ -27,17 +27,17 @@ from ..core.errors import ParameterError
 
 
 @numba.njit(cache=True, nogil=True)
-def _feed(lines, count, base, div, seg, prv, nxt, tail, size, segcap, tags, misses, state):
-    """Reads of lines ``(lines[:count] − base) // div`` through one bank (see the module docstring):
-    ``seg``/``prv``/``nxt`` (lines,): each line's segment (K: evicted, K + 1: never read) and
-    neighbours in the recency list; ``tail``/``size``/``segcap`` (K,): each segment's last line,
-    its size and its capacity; ``tags`` (sets, ways): the set-associative cache, MRU first, −1
-    empty (0 sets: none); ``misses`` (K,); ``state``: most recent line, compulsory misses,
-    set-associative misses."""
+def _feed(lines, start, count, base, div, seg, prv, nxt, tail, size, segcap, tags, misses, state):
+    """Reads of lines ``(lines[start : start + count] − base) // div`` through one bank (see the
+    module docstring): ``seg``/``prv``/``nxt`` (lines,): each line's segment (K: evicted, K + 1:
+    never read) and neighbours in the recency list; ``tail``/``size``/``segcap`` (K,): each
+    segment's last line, its size and its capacity; ``tags`` (sets, ways): the set-associative
+    cache, MRU first, −1 empty (0 sets: none); ``misses`` (K,); ``state``: most recent line,
+    compulsory misses, set-associative misses."""
     K = segcap.shape[0]
     sets, ways = tags.shape
     head, compulsory, sa_misses = state[0], state[1], state[2]
-    for r in range(count):
+    for r in range(start, start + count):
         x = (lines[r] - base) // div
         if x == head:
             continue  # the line just read: a hit in every cache
@@ -53,7 +53,7 @@ def _feed(lines, count, base, div, seg, prv, nxt, tail, size, segcap, tags, miss
             if n >= 0:
                 prv[n] = p
             if tail[s] == x:
-                tail[s] = p if seg[p] == s else -1
+                tail[s] = p  # x was not alone: the refill below brings p back otherwise
             size[s] -= 1
         nxt[x] = head
         prv[x] = -1
@@ -75,10 +75,8 @@ def _feed(lines, count, base, div, seg, prv, nxt, tail, size, segcap, tags, miss
                 if tail[j + 1] < 0:
                     tail[j + 1] = t
                 size[j + 1] += 1
-            else:  # past the largest cache: leaves the list
+            else:  # past the largest cache: leaves the list (its links are rewritten on return)
                 seg[t] = K
-                nxt[before] = -1
-                prv[t] = -1
             j += 1
         if sets > 0:
             row = x % sets
@@ -115,12 +113,22 @@ def bank(lines, segcap, sets, ways):
 
 
 @numba.njit(cache=True, nogil=True)
+def simulate_reads(order, offset, count, lines, segcap, sets, ways):
+    """:func:`simulate_lines` of the stream made of the runs ``lines[offset[g] : offset[g] +
+    count[g]]`` taken in ``order`` (each gather's stored reads, in a gather order)."""
+    b = bank(lines.max() + 1 if len(lines) else 1, segcap, sets, ways)
+    for g in order:
+        _feed(lines, offset[g], count[g], 0, 1, *b)
+    return b[7], b[8][2], b[8][1]
+
+
+@numba.njit(cache=True, nogil=True)
 def simulate_lines(lines, segcap, sets, ways):
     """Misses of an explicit stream of line ids: ``(misses (K,), set-associative misses,
     compulsory)`` for the capacities with segment sizes ``segcap`` (K,) and a ``ways``-way cache
     of ``sets`` sets (0: none)."""
     b = bank(lines.max() + 1 if len(lines) else 1, segcap, sets, ways)
-    _feed(lines, len(lines), 0, 1, *b)
+    _feed(lines, 0, len(lines), 0, 1, *b)
     return b[7], b[8][2], b[8][1]
 
 

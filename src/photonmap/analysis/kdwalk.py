@@ -194,10 +194,43 @@ def simulate(
         )
         visits += v
         for b in range(L):
-            _feed(out, v, 1, per_line[b], *banks[b])
+            _feed(out, 0, v, 1, per_line[b], *banks[b])
     misses = np.empty((L, segcap.shape[1]), np.int64)
     state = np.empty((L, 3), np.int64)
     for b in range(L):
         misses[b] = banks[b][7]
         state[b] = banks[b][8]
     return misses, state[:, 2], state[:, 1], visits
+
+
+@numba.njit(cache=True, nogil=True)
+def read_lines(qpos, qnrm, pos, flag, pnrm, pdir, k, radius2, cos_normal, per_line, kind, size):
+    """Every gather's line reads with runs within one line merged (hits in every cache that
+    change nothing), concatenated in gather order into a buffer of ``kind``'s dtype, first
+    ``size`` long (grown by half when full): ``(count (Q,), buffer, used, visits)``."""
+    m = qpos.shape[0]
+    n = pos.shape[0]
+    count = np.zeros(m, np.int64)
+    lines = np.empty(max(size, 1024), kind.dtype)
+    used = 0
+    visits = 0
+    hd, hi, sd, sn, out = _scratch(k, n)
+    for g in range(m):
+        v = walk(
+            qpos[g], qnrm[g], pos, flag, pnrm, pdir, k, radius2, cos_normal, hd, hi, sd, sn, out
+        )
+        visits += v
+        if used + v > lines.shape[0]:
+            grown = np.empty(max(lines.shape[0] * 3 // 2, used + v), kind.dtype)
+            grown[:used] = lines[:used]
+            lines = grown
+        start = used
+        last = -1
+        for t in range(v):
+            x = (out[t] - 1) // per_line
+            if x != last:
+                lines[used] = x
+                used += 1
+                last = x
+        count[g] = used - start
+    return count, lines, used, visits

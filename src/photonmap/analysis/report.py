@@ -50,13 +50,17 @@ def bandwidth_report(
     else:
         target = scene
     trace = trace_final_gathers(target, **surface)
+    if sweep_kind is None:
+        rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
+    else:
+        xlabel, _ = SWEEPS[sweep_kind]
+        xs, curves = sweep(trace, sweep_kind, orders, cache_bytes, line_bytes, order_params)
     head = (
         f"{scene}: {len(trace.batch):,} final gathers, {trace.visits:,} kd-tree node visits "
         f"({trace.visits / max(len(trace.batch), 1):.0f} per gather), {trace.photons:,} photons; "
         f"uncached naive (20 B per node): {trace.uncached_bytes() / 1e6:,.1f} MB"
     )
     if sweep_kind is None:
-        rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
         lines = [
             head,
             f"cache {cache_bytes // 1024} KB fully associative LRU, {line_bytes} B lines, "
@@ -69,8 +73,6 @@ def bandwidth_report(
                 f"{r['reduction_vs_uncached']:>12.1f}x{r['set_associative_ratio']:>12.2f}"
             )
         return "\n".join(lines)
-    xlabel, _ = SWEEPS[sweep_kind]
-    xs, curves = sweep(trace, sweep_kind, orders, cache_bytes, line_bytes, order_params)
     lines = [
         head,
         f"MB per image against {xlabel}",

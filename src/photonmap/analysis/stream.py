@@ -22,7 +22,7 @@ in a disjoint address range and are the same in every order).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import mitsuba as mi
@@ -33,9 +33,11 @@ from ..core.knn import COS_NORMAL, squared_radius
 from ..surface.gather_batch import GatherBatch, OrderParams, gather_order
 from ..surface.pipeline import SurfacePipeline
 from . import kdwalk
+from .cache import simulate_reads
 
 RECORD_BYTES = 20  # Jensen's compact photon (spec §2.3)
 MAX_SLOTS = 200_000_000  # node visits :attr:`GatherTrace.slots` may hold (8 bytes each)
+READS_BUDGET = 4 << 30  # bytes :meth:`GatherTrace.store_reads` may keep
 
 
 @dataclass(frozen=True)
@@ -92,6 +94,7 @@ class GatherTrace:
     batch: GatherBatch
     tree: KDRecords
     _visits: int | None = None
+    _reads: dict = field(default_factory=dict)
 
     @property
     def photons(self) -> int:
@@ -142,12 +145,33 @@ class GatherTrace:
         slots = self.slots[start + np.arange(total)]
         return (slots - 1) // photons_per_line(line_bytes)
 
+    def store_reads(self, line_bytes: int) -> bool:
+        """Walk every gather once and keep its line reads (runs within a line merged) so that
+        :meth:`simulate` at this line size only replays them, order after order, instead of
+        walking the tree again (the walk is most of the cost). Returns False and keeps nothing
+        when they would take more than :data:`READS_BUDGET` bytes (estimated on 2,000 gathers)."""
+        if line_bytes in self._reads:
+            return True
+        per_line = photons_per_line(line_bytes)
+        kind = np.empty(0, np.uint16 if self.footprint_lines(line_bytes) < 1 << 16 else np.uint32)
+        args = (*self.tree.args(), per_line, kind)
+        pick = np.random.default_rng(0).choice(len(self.batch), min(2000, len(self.batch)), False)
+        sample, *_ = kdwalk.read_lines(*(q[pick] for q in self._queries()), *args, 0)
+        estimate = int(sample.mean() * len(self.batch) * 1.05) + 1024
+        if estimate * kind.itemsize > READS_BUDGET:
+            return False
+        count, lines, used, visits = kdwalk.read_lines(*self._queries(), *args, estimate)
+        self._reads[line_bytes] = (count, np.cumsum(count) - count, lines[:used])
+        self._visits = int(visits)
+        return True
+
     def simulate(
         self, order: str, lines_bytes, capacities_bytes, ways: int = 0, params=None
     ) -> CacheCounts:
         """Stream the gathers in ``order`` through fully associative LRU caches of every
         capacity and line size (and, with ``ways``, a ``ways``-way set-associative cache of the
-        first capacity) without storing the stream (:func:`.kdwalk.simulate`)."""
+        first capacity): walking the tree without storing the stream (:func:`.kdwalk.simulate`),
+        or replaying the reads kept by :meth:`store_reads`."""
         perm = gather_order(self.batch, order, params)
         lines_bytes = [int(x) for x in lines_bytes]
         caps = np.array([[max(int(c) // x, 1) for c in capacities_bytes] for x in lines_bytes])
@@ -155,10 +179,15 @@ class GatherTrace:
         per_line = np.array([photons_per_line(x) for x in lines_bytes], np.int64)
         segcap = np.tile(np.diff(distinct, prepend=0), (len(lines_bytes), 1))
         sets = np.array([max(1, c // ways) if ways else 0 for c in caps[:, 0]], np.int64)
-        misses, sa, compulsory, visits = kdwalk.simulate(
-            perm, *self._queries(), *self.tree.args(), per_line, segcap, sets, max(ways, 1)
-        )
-        self._visits = int(visits)
+        if len(lines_bytes) == 1 and lines_bytes[0] in self._reads:
+            count, offset, lines = self._reads[lines_bytes[0]]
+            m, sa, c = simulate_reads(perm, offset, count, lines, segcap[0], sets[0], max(ways, 1))
+            misses, sa, compulsory, visits = m[None], np.array([sa]), np.array([c]), self._visits
+        else:
+            misses, sa, compulsory, visits = kdwalk.simulate(
+                perm, *self._queries(), *self.tree.args(), per_line, segcap, sets, max(ways, 1)
+            )
+            self._visits = int(visits)
         at = np.searchsorted(distinct, caps)
         return CacheCounts(
             np.take_along_axis(misses, at, axis=1), sa if ways else None, compulsory, visits
