@@ -45,6 +45,11 @@ class GatherTrace:
     offset: np.ndarray
     slots: np.ndarray
     photons: int
+    # the gathers' parameters and the global map's photons (N, 3) float32 each, original order:
+    # position, normal, direction — what other structures need to rerun the same gathers
+    k: int = 0
+    radius: float = 0.0
+    photon_data: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     @property
     def visits(self) -> int:
@@ -115,8 +120,23 @@ def trace_final_gathers(scene, **params) -> GatherTrace:
             )
     dr.sync_thread()
     count = np.concatenate(counts)
+    photon_data = tuple(
+        np.asarray(v.numpy(), np.float32).reshape(3, -1).T.copy()
+        for v in (
+            global_map.photons.position,
+            global_map.photons.normal,
+            global_map.photons.direction,
+        )
+    )
     return GatherTrace(
-        batch, count, np.cumsum(count) - count, np.concatenate(slots), global_map.size
+        batch,
+        count,
+        np.cumsum(count) - count,
+        np.concatenate(slots),
+        global_map.size,
+        pipe.params.k,
+        radius,
+        photon_data,
     )
 
 
