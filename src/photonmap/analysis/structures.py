@@ -717,6 +717,13 @@ def fetches_per_block(trace, order: str, cache_bytes: int, line_bytes: int, para
     return {"misses": missed, "distinct_lines": distinct, "fetches_per_block": missed / distinct}
 
 
+def recall(found: np.ndarray, exact: np.ndarray) -> float:
+    """Fraction of the exact k nearest (rows of photon indices, −1 unused) that ``found`` holds,
+    over all queries (the accuracy of block hashing's approximate gathers)."""
+    hits = sum(len(np.intersect1d(a[a >= 0], b[b >= 0])) for a, b in zip(found, exact, strict=True))
+    return hits / max(int(np.count_nonzero(exact >= 0)), 1)
+
+
 def structure_trace(trace, structure: str, **options):
     """``trace`` itself for ``"kdtree"``, else a :class:`StructureTrace` of its gathers."""
     if structure == "kdtree":
