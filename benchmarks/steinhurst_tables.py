@@ -174,16 +174,14 @@ def structures_study(quick: bool) -> dict:
         accuracy[a] = {
             "recall": recall(found[sample], exact),
             "reads_per_gather": reads.mean(),
-            **{
-                o: fetches_per_block(t, o, 128 * 1024, 128, order_params)["fetches_per_block"]
-                for o in LINE_ORDERS
-            },
+            **{o: fetches_per_block(t, o, 128 * 1024, 128, order_params) for o in LINE_ORDERS},
         }
     return {
         "window": window,
         "params": params,
         "gathers": len(trace.batch),
         "photons": trace.photons,
+        "image_scale": scale,  # bytes of the window → bytes of a 512 × 512 image
         "table": table,
         "doc_table_4_1": DOC_TABLE_4_1,
         "structures": facts,
@@ -240,6 +238,23 @@ def structures_markdown(s: dict) -> str:
             rows,
         )
     )
+    gb = 128 * s["image_scale"] / 1e9  # GB per image of one miss
+    parts.append("\nGB per 512 × 512 image (misses × 128 B) and distinct lines touched:\n")
+    parts.append(
+        common.markdown_table(
+            ["order", *[f"{x} GB" for x in STRUCTURES]],
+            [
+                [order, *[common.fmt(r[x]["misses"] * gb, 2) for x in STRUCTURES]]
+                for order, r in s["table"].items()
+            ]
+            + [
+                [
+                    "distinct lines",
+                    *[common.fmt(s["table"]["naive"][x]["distinct_lines"]) for x in STRUCTURES],
+                ]
+            ],
+        )
+    )
     parts.append("\nGB/image vs line size (128 KB cache), kd-tree vs kdB-tree (Fig 4.1):\n")
     parts.append(
         common.markdown_table(
@@ -259,13 +274,20 @@ def structures_markdown(s: dict) -> str:
     parts.append("Block hashing's accuracy A (blocks read per gather at most), 128 B lines:\n")
     parts.append(
         common.markdown_table(
-            ["A", "recall", "lines/gather", *[f"fetches/block {o}" for o in LINE_ORDERS]],
+            [
+                "A",
+                "recall",
+                "lines/gather",
+                *[f"fetches/block {o}" for o in LINE_ORDERS],
+                *[f"GB {o}" for o in LINE_ORDERS],
+            ],
             [
                 [
                     a,
                     common.fmt(r["recall"], 3),
                     common.fmt(r["reads_per_gather"], 1),
-                    *[common.fmt(r[o], 2) for o in LINE_ORDERS],
+                    *[common.fmt(r[o]["fetches_per_block"], 2) for o in LINE_ORDERS],
+                    *[common.fmt(r[o]["misses"] * gb, 2) for o in LINE_ORDERS],
                 ]
                 for a, r in s["blockhash_accuracy"].items()
             ],
@@ -497,11 +519,18 @@ def main(argv=None) -> dict:
         "--only", choices=["structures"], help="run only this study (same as --scenes structures)"
     )
     args = ap.parse_args(argv)
-    if args.only:
-        args.scenes = args.only
     out = Path(args.out_dir)
     stem = NAME + ("_quick" if args.quick else "")
     previous = out / f"{stem}.json"
+    if args.only:  # this study alone, written into the previous run's results
+        structures = structures_study(args.quick)
+        result = json.loads(previous.read_text()) if previous.is_file() else {}
+        result["structures"] = structures
+        common.write_json(out / f"{stem}.json", result)
+        if "scenes" in result:
+            common.write_text(out / f"{stem}.md", markdown(result))
+        print(structures_markdown(structures))
+        return result
     scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
     for name, (window, surface, grid) in SCENES.items():
         if name not in args.scenes.split(","):
@@ -557,9 +586,6 @@ def main(argv=None) -> dict:
     }
     common.write_json(out / f"{stem}.json", result)
     common.write_text(out / f"{stem}.md", markdown(result))
-    if args.only:
-        print(structures_markdown(structures))
-        return result
     if not args.quick:
         cornell = scenes["cornell_steinhurst"]
         plot_sweep(
