@@ -191,3 +191,21 @@ def test_bad_parameters(cloud, fake_trace):
         structure_trace(fake_trace, "octree")
     with pytest.raises(ParameterError, match="k must"):
         KDBTree(p, 128).knn(p[:2], p[:2], p, p, 0, 1.0)
+
+
+def test_analyze_bandwidth_structure_cli():
+    """``photonmap analyze bandwidth --structure kdbtree`` prints the orders' table on the
+    kdB-tree; an unknown structure is refused."""
+    from typer.testing import CliRunner
+
+    from photonmap.cli import app
+
+    args = ["analyze", "bandwidth", "cornell_steinhurst", "--size", "128", "--crop", "56,64,8,8"]
+    small = dict(photons=2000, caustic_photons=0, fg_rays=2, k=10, emitter_spp=0)
+    sets = [x for k, v in small.items() for x in ("--set", f"{k}={v}")]
+    runner = CliRunner()
+    result = runner.invoke(app, [*args, *sets, "--structure", "kdbtree", "--order", "hilbert"])
+    assert result.exit_code == 0, result.output
+    assert "on the kdbtree" in result.output and "hilbert" in result.output
+    bad = runner.invoke(app, [*args, "--structure", "octree"])
+    assert bad.exit_code == 2 and "kdbtree" in bad.output
