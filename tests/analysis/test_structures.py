@@ -20,7 +20,7 @@ from photonmap.analysis.structures import (
 )
 from photonmap.core.errors import ParameterError
 from photonmap.core.knn import COS_NORMAL
-from photonmap.surface.gather_batch import ORDERS, GatherBatch
+from photonmap.surface.gather_batch import ORDERS, GatherBatch, gather_order
 from photonmap.surface.kdtree import KDTree
 
 RNG = np.random.default_rng(7)
@@ -96,6 +96,7 @@ def test_kdb_layout_and_streams(cloud):
     tree = KDBTree(p, 128)
     leaves = tree.kind == 1
     assert tree.leaf_capacity == 6 and tree.fan_out == 4
+    assert (KDBTree(p, 64).leaf_capacity, KDBTree(p, 1024).fan_out) == (2, 36)
     assert np.count_nonzero(leaves) == -(-len(p) // 6)
     assert np.count_nonzero(tree.count[leaves] < 6) <= 1 and tree.count[~leaves].max() <= 4
     assert np.array_equal(np.sort(tree.perm), np.arange(len(p)))
@@ -114,7 +115,8 @@ def test_kdb_layout_and_streams(cloud):
 
 def test_block_hash_streams_and_recall(cloud):
     """Each gather reads its bucket in every table, then at most A blocks listed in them; recall
-    of the exact k nearest is measured (0.61 on this cloud at A = 20) and bounded below."""
+    of the exact k nearest is measured (0.91 on this cloud at A = 20, 0.97 at A = 60) and bounded
+    below; no bucket holds more pointers than its line."""
     p, normals, directions, q, qn = cloud
     bh = BlockHash(p, 128, k=20, accuracy=20)
     found, reads, lines = bh.knn(q, qn, normals, directions, 20, 0.25)
@@ -132,8 +134,9 @@ def test_block_hash_streams_and_recall(cloud):
         )
         assert np.all(np.isin(blocks, listed)) and len(np.unique(blocks)) == len(blocks)
     exact = brute_force(p, normals, directions, q, qn, 20, 0.25)
+    assert bh.bucket_count.max() <= bh.bucket_capacity == 32
     measured = recall(found, exact)
-    assert measured >= 0.5
+    assert measured >= 0.85
     more = BlockHash(p, 128, k=20, accuracy=60).knn(q, qn, normals, directions, 20, 0.25)[0]
     assert recall(more, exact) > measured
 
@@ -162,9 +165,14 @@ def fake_trace(cloud):
 
 @pytest.mark.parametrize("structure", ["kdbtree", "blockhash"])
 def test_structure_traces_in_the_cache_simulator(fake_trace, structure):
-    """Every order reads the same lines; a cache larger than the structure misses each distinct
-    line once (compulsory misses only); bandwidth_table works unchanged."""
+    """An order's stream is its gathers' line lists in that order, the same lines in every
+    order; a cache larger than the structure misses each distinct line once (compulsory misses
+    only); bandwidth_table works unchanged."""
     trace = structure_trace(fake_trace, structure)
+    _, _, reads, offset, lines = trace.build(128)
+    perm = gather_order(fake_trace.batch, "hilbert")
+    expected = np.concatenate([lines[offset[r] : offset[r] + reads[r]] for r in perm])
+    assert np.array_equal(trace.lines("hilbert", 128), expected)
     naive = np.sort(trace.lines("naive", 128))
     for order in ORDERS[1:]:
         assert np.array_equal(np.sort(trace.lines(order, 128)), naive), order
