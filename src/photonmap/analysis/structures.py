@@ -124,21 +124,26 @@ def _offer(heap, found, k, key):
             i = parent
         heap[i] = key
         return found + 1
-    if key >= heap[0]:
-        return found
+    if key < heap[0]:
+        _sift_down(heap, k, key)
+    return found
+
+
+@numba.njit(cache=True)
+def _sift_down(heap, size, key):
+    """Put ``key`` at the root of the max-heap ``heap[:size]`` and sift it down."""
     i = 0
     while True:
         child = 2 * i + 1
-        if child >= k:
+        if child >= size:
             break
-        if child + 1 < k and heap[child + 1] > heap[child]:
+        if child + 1 < size and heap[child + 1] > heap[child]:
             child += 1
         if heap[child] <= key:
             break
         heap[i] = heap[child]
         i = child
     heap[i] = key
-    return found
 
 
 @numba.njit(cache=True)
@@ -169,9 +174,22 @@ def _test(p, nrm, drc, i, q, qn, radius2, cos_normal, scratch):
 @numba.njit(cache=True)
 def _emit(heap, found, k, out, row):
     """Heap-sort ``heap[:found]`` into ``out[row]`` nearest first (photon indices; -1 unused)."""
-    keys = np.sort(heap[:found])
+    for size in range(found - 1, 0, -1):
+        last = heap[size]
+        heap[size] = heap[0]
+        _sift_down(heap, size, last)
     for j in range(k):
-        out[row, j] = np.int64(keys[j] & np.uint64(0xFFFFFFFF)) if j < found else -1
+        out[row, j] = np.int64(heap[j] & np.uint64(0xFFFFFFFF)) if j < found else -1
+
+
+@numba.njit(cache=True)
+def _insert(order, used, value, keys):
+    """Insert ``value`` into ``order[:used]``, kept ascending by ``keys[value]`` (stable)."""
+    i = used
+    while i > 0 and keys[order[i - 1]] > keys[value]:
+        order[i] = order[i - 1]
+        i -= 1
+    order[i] = value
 
 
 @numba.njit(cache=True)
@@ -184,6 +202,18 @@ def _grow(buffer, used, extra):
 
 
 # ------------------------------------------------------------------------------------ kdB-tree
+@numba.njit(cache=True)
+def _box(pts, a, b, lo, hi):
+    """The AABB of ``pts[a:b]`` into ``lo``, ``hi``."""
+    for ax in range(3):
+        lo[ax] = pts[a, ax]
+        hi[ax] = pts[a, ax]
+    for i in range(a + 1, b):
+        for ax in range(3):
+            lo[ax] = min(lo[ax], pts[i, ax])
+            hi[ax] = max(hi[ax], pts[i, ax])
+
+
 @numba.njit(cache=True)
 def _kdb_build(points, m, fanout):
     """Bulk-load the kdB-tree (module docstring). Returns ``(perm, kind, first, count, lo, hi,
@@ -215,6 +245,8 @@ def _kdb_build(points, m, fanout):
     sg = np.zeros(128, np.int64)
     seg_a = np.zeros(fanout, np.int64)
     seg_b = np.zeros(fanout, np.int64)
+    box_lo = np.zeros(3, np.float32)
+    box_hi = np.zeros(3, np.float32)
     while todo > 0:
         todo -= 1
         a, b, parent = todo_a[todo], todo_b[todo], todo_e[todo]
@@ -245,23 +277,23 @@ def _kdb_build(points, m, fanout):
             base, extra = cl // cg, cl % cg
             left_l = left_g * base + min(extra, left_g)
             mid = ca + left_l * m
+            _box(pts, ca, cb, box_lo, box_hi)
             axis, widest = 0, np.float32(-1)
             for ax in range(3):
-                extent = pts[ca:cb, ax].max() - pts[ca:cb, ax].min()
-                if extent > widest:
-                    axis, widest = ax, extent
-            order = np.argsort(pts[ca:cb, axis], kind="mergesort")
-            perm[ca:cb] = perm[ca:cb][order]
-            pts[ca:cb] = pts[ca:cb][order]
+                if box_hi[ax] - box_lo[ax] > widest:
+                    axis, widest = ax, box_hi[ax] - box_lo[ax]
+            order = ca + np.argsort(pts[ca:cb, axis], kind="mergesort")
+            moved_perm = perm[order]
+            for ax in range(3):
+                column = pts[order, ax]
+                pts[ca:cb, ax] = column
+            perm[ca:cb] = moved_perm
             # right part below the left one on the stack: the left is split first (pre-order)
             sa[top], sb[top], sl[top], sg[top] = mid, cb, cl - left_l, cg - left_g
             sa[top + 1], sb[top + 1], sl[top + 1], sg[top + 1] = ca, mid, left_l, left_g
             top += 2
         for j in range(g):
-            e = entries + j
-            for ax in range(3):
-                lo[e, ax] = pts[seg_a[j] : seg_b[j], ax].min()
-                hi[e, ax] = pts[seg_a[j] : seg_b[j], ax].max()
+            _box(pts, seg_a[j], seg_b[j], lo[entries + j], hi[entries + j])
         for j in range(g - 1, -1, -1):  # first child on top: pre-order numbering
             todo_a[todo], todo_b[todo], todo_e[todo] = seg_a[j], seg_b[j], entries + j
             todo += 1
@@ -291,6 +323,7 @@ def _kdb_search(
     stack_node = np.zeros(MAX_STACK, np.int64)
     stack_d2 = np.zeros(MAX_STACK, np.float32)
     child_d2 = np.zeros(max(count.max(), 1), np.float32)
+    order = np.zeros(len(child_d2), np.int64)
     scratch = np.zeros(1, np.float32)
     for r in range(queries):
         q = qp[r]
@@ -328,7 +361,8 @@ def _kdb_search(
                         gap = q[ax] - hi[e, ax]
                     d2 = d2 + gap * gap  # (x² + y²) + z², as a photon's d²
                 child_d2[j] = d2
-            order = np.argsort(child_d2[:g], kind="mergesort")
+            for j in range(g):
+                _insert(order, j, j, child_d2)
             for j in range(g - 1, -1, -1):  # nearest on top
                 c = order[j]
                 if child_d2[c] <= bound:
@@ -425,6 +459,8 @@ def _bh_search(
     votes = np.zeros(blocks, np.int64)
     seen = np.zeros(blocks, np.int64)  # first appearance + 1 in this query (0: not yet)
     candidates = np.zeros(entries.shape[0] + 1, np.int64)
+    rank = np.zeros(entries.shape[0] + 1, np.int64)
+    order = np.zeros(accuracy, np.int64)
     scratch = np.zeros(1, np.float32)
     for r in range(queries):
         q = qp[r]
@@ -445,12 +481,16 @@ def _bh_search(
                         n_cand += 1
                         seen[b] = n_cand
                     votes[b] += 1
-            rank = np.empty(n_cand, np.int64)
-            for j in range(n_cand):  # votes descending, then first appearance
+            chosen = 0  # the best ``accuracy`` by votes descending, then first appearance
+            for j in range(n_cand):
                 b = candidates[j]
                 rank[j] = -votes[b] * (n_cand + 1) + seen[b]
-            order = np.argsort(rank)
-            for j in range(min(accuracy, n_cand)):
+                if chosen < accuracy:
+                    _insert(order, chosen, j, rank)
+                    chosen += 1
+                elif rank[j] < rank[order[chosen - 1]]:
+                    _insert(order, chosen - 1, j, rank)
+            for j in range(chosen):
                 b = candidates[order[j]]
                 lines[used] = b
                 used += 1
