@@ -79,7 +79,6 @@ REFERENCE_LINE = 128  # line size of the uncached byte counts (the dissertation'
 QUERY_CHUNK = 1 << 15  # queries per compiled call
 ACCURACY = 20  # block hashing's A [DOC §4.4]
 TABLES = 4  # block hashing's hash tables
-MAX_STACK = 4096  # kdB traversal stack entries per query (≥ depth × fan-out)
 
 
 def leaf_capacity(line_bytes: int) -> int:
@@ -320,8 +319,9 @@ def _kdb_search(
     lines = np.empty(max(64 * queries, 1024), np.int64)
     used = 0
     heap = np.zeros(k, np.uint64)
-    stack_node = np.zeros(MAX_STACK, np.int64)
-    stack_d2 = np.zeros(MAX_STACK, np.float32)
+    # depth-first: at most F − 1 waiting siblings per level plus F children, < 64 levels
+    stack_node = np.zeros(64 * max(count.max(), 2), np.int64)
+    stack_d2 = np.zeros(len(stack_node), np.float32)
     child_d2 = np.zeros(max(count.max(), 1), np.float32)
     order = np.zeros(len(child_d2), np.int64)
     scratch = np.zeros(1, np.float32)
@@ -379,13 +379,7 @@ class KDBTree:
         self.line_bytes = int(line_bytes)
         self.leaf_capacity = leaf_capacity(line_bytes)
         self.fan_out = fan_out(line_bytes)
-        points = np.ascontiguousarray(positions, np.float32)
-        if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
-            raise ParameterError(
-                f"a kdB-tree needs photon positions (N >= 1, 3), got {points.shape}"
-            )
-        if not np.all(np.isfinite(points)):
-            raise ParameterError("photon positions must be finite")
+        points = _positions(positions)
         self.perm, self.kind, self.first, self.count, self.lo, self.hi, self.child = _kdb_build(
             points, self.leaf_capacity, self.fan_out
         )
@@ -407,22 +401,10 @@ class KDBTree:
         — the k-NN gather of :mod:`photonmap.core.knn` with the normal test (``normals``,
         ``directions``: (N, 3) per photon in the original order)."""
         args = _gather_args(query, query_normal, k, max_radius, cos_normal)
+        tree = (self.kind, self.first, self.count, self.lo, self.hi, self.child)
+        photons = _photons(self.points, self.perm, normals, directions)
         return _chunked(
-            lambda s: _kdb_search(
-                args[0][s],
-                args[1][s],
-                *args[2:],
-                self.kind,
-                self.first,
-                self.count,
-                self.lo,
-                self.hi,
-                self.child,
-                self.points,
-                _stored(normals, self.perm),
-                _stored(directions, self.perm),
-                self.perm.astype(np.uint64),
-            ),
+            lambda s: _kdb_search(args[0][s], args[1][s], *args[2:], *tree, *photons),
             len(args[0]),
         )
 
@@ -534,13 +516,7 @@ class BlockHash:
         self.block_capacity = leaf_capacity(line_bytes)
         self.bucket_capacity = self.line_bytes // POINTER_BYTES
         self.tables, self.accuracy = int(tables), int(accuracy)
-        points = np.ascontiguousarray(positions, np.float32)
-        if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
-            raise ParameterError(
-                f"block hashing needs photon positions (N >= 1, 3), got {points.shape}"
-            )
-        if not np.all(np.isfinite(points)):
-            raise ParameterError("photon positions must be finite")
+        points = _positions(positions)
         lo, hi = points.min(axis=0), points.max(axis=0)
         cells = np.clip((points - lo) / np.maximum(hi - lo, 1e-30) * 1024, 0, 1023).astype(np.int64)
         self.perm = np.argsort(hilbert3_index(cells, 10), kind="stable")
@@ -631,23 +607,18 @@ class BlockHash:
         qbucket = np.stack(
             [self._bucket(self._cells(safe, t), t) for t in range(self.tables)], axis=1
         )
+        tables = (
+            self.bucket_first,
+            self.bucket_count,
+            self.entries,
+            self.blocks,
+            self.block_first,
+            self.block_count,
+        )
+        photons = _photons(self.points, self.perm, normals, directions)
         return _chunked(
             lambda s: _bh_search(
-                args[0][s],
-                args[1][s],
-                *args[2:],
-                self.accuracy,
-                qbucket[s],
-                self.bucket_first,
-                self.bucket_count,
-                self.entries,
-                self.blocks,
-                self.block_first,
-                self.block_count,
-                self.points,
-                _stored(normals, self.perm),
-                _stored(directions, self.perm),
-                self.perm.astype(np.uint64),
+                args[0][s], args[1][s], *args[2:], self.accuracy, qbucket[s], *tables, *photons
             ),
             len(args[0]),
         )
@@ -666,13 +637,28 @@ def _gather_args(query, query_normal, k, max_radius, cos_normal) -> tuple:
     return q, n, int(k), squared_radius(max_radius), np.float32(cos_normal)
 
 
-def _stored(values, perm) -> np.ndarray:
-    values = np.asarray(values, np.float32)
-    if values.shape != (len(perm), 3):
-        raise ParameterError(
-            f"photon normals/directions of shape {values.shape}, need ({len(perm)}, 3)"
-        )
-    return np.ascontiguousarray(values[perm])
+def _positions(positions) -> np.ndarray:
+    """Photon positions as a contiguous float32 (N ≥ 1, 3) array of finite values."""
+    points = np.ascontiguousarray(positions, np.float32)
+    if points.ndim != 2 or points.shape[1] != 3 or len(points) == 0:
+        raise ParameterError(f"expected photon positions of shape (N >= 1, 3), got {points.shape}")
+    if not np.all(np.isfinite(points)):
+        raise ParameterError("photon positions must be finite")
+    return points
+
+
+def _photons(points, perm, normals, directions) -> tuple:
+    """The kernels' photon arrays in storage order: positions, normals, directions (N, 3)
+    float32 and original indices (uint64)."""
+    stored = []
+    for values in (normals, directions):
+        values = np.asarray(values, np.float32)
+        if values.shape != (len(perm), 3):
+            raise ParameterError(
+                f"photon normals/directions of shape {values.shape}, need ({len(perm)}, 3)"
+            )
+        stored.append(np.ascontiguousarray(values[perm]))
+    return points, *stored, perm.astype(np.uint64)
 
 
 def _chunked(search, queries: int):
