@@ -16,9 +16,13 @@ scaled to the image. Written beside the dissertation's numbers:
 - Fig 3.5 (bytes vs tile size) — O18; Fig 4.1 / Table 4.1 (bytes vs line size) — O21;
 - 8-way set-associative vs fully associative misses — O20;
 - the chip model of Ch. 7 fed with these counts: tiles/s at 90 GB/s per order — O27;
-- CPU wall time of the final gathers (Dr.Jit k-NN on this machine) per order, medians of runs.
+- CPU wall time of the final gathers (Dr.Jit k-NN on this machine) per order, medians of runs;
+- Table 4.1 and Fig 4.1 (``structures``): the Cornell window's gathers on the kd-tree, the
+  kdB-tree and block hashing (:mod:`photonmap.analysis.structures`), fetches per distinct block
+  (spec A7) per order, and bytes vs line size for kd vs kdB — O21.
 
     PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_tables.py [--quick]
+    PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_tables.py --only structures
 """
 
 from __future__ import annotations
@@ -45,6 +49,12 @@ from photonmap.analysis.bandwidth import (  # noqa: E402
 )
 from photonmap.analysis.hardware import TABLE_7_10, from_trace  # noqa: E402
 from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
+from photonmap.analysis.structures import (  # noqa: E402
+    STRUCTURES,
+    fetches_per_block,
+    recall,
+    structure_trace,
+)
 from photonmap.surface.gather_batch import ORDERS, OrderParams  # noqa: E402
 from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
 
@@ -82,6 +92,209 @@ QUICK = ((240, 288, 16, 16), dict(photons=5000, fg_rays=4), None)
 # Fig 6.17 / O26: the glossy floor's lobe narrowed (Beckmann α; Phong n ≈ 2/α² − 2), window on it
 GLOSSY = ((224, 432, 64, 32), dict(photons=100_000, fg_rays=32), (0.3, 0.1, 0.03), 0.8)
 GLOSSY_ORDERS = ("naive", "tiled_dirbin_hashed", "tiled_hilbert")
+# Table 4.1: "average number of memory-block fetches" (read as fetches per distinct block, A7);
+# Cornell box, 16×16 tiles, 128 KB cache, 128 B lines
+STRUCTURE_ORDERS = ("naive", "tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert", "hilbert")
+DOC_TABLE_4_1 = {
+    "naive": {"kdtree": 23_045, "kdbtree": 11_755, "blockhash": 73_523},
+    "tiled_dirbin": {"kdtree": 3_927, "kdbtree": 4_397, "blockhash": 20_316},
+    "tiled_dirbin_hashed": {"kdtree": 2_590, "kdbtree": 2_870, "blockhash": 9_912},
+    "tiled_hilbert": {"kdtree": 1_215, "kdbtree": 1_134, "blockhash": 2_350},
+    "hilbert": {"kdtree": 1.6, "kdbtree": 1.8, "blockhash": 3.1},
+}
+LINE_ORDERS = ("naive", "tiled_hilbert")  # Fig 4.1 (a) and (b)
+BH_ACCURACY = (20, 40, 80)  # block hashing's A: the dissertation's 20, then more blocks read
+
+
+def structures_study(quick: bool) -> dict:
+    """Table 4.1 and Fig 4.1 on the Cornell window: the same final gathers on the kd-tree, the
+    kdB-tree and block hashing (O21)."""
+    window, surface, grid = QUICK if quick else SCENES["cornell_steinhurst"]
+    x, y, w, h = window
+    scene = cropped_scene("cornell_steinhurst", 512, (x, y), (w, h))
+    params = dict(surface, caustic_photons=0, emitter_spp=0, k=100)
+    start = time.perf_counter()
+    trace = trace_final_gathers(scene, **params)
+    scale = 512 * 512 / (w * h)
+    order_params = OrderParams(grid=grid or 5)
+    traces = {s: structure_trace(trace, s) for s in STRUCTURES}
+    table = {
+        o: {s: fetches_per_block(t, o, 128 * 1024, 128, order_params) for s, t in traces.items()}
+        for o in STRUCTURE_ORDERS
+    }
+    kdb, found_kdb = traces["kdbtree"].build(128)[:2]
+    bh, found_bh, reads_bh = traces["blockhash"].build(128)[:3]
+    sample = slice(None, None, 8)
+    exact = found_kdb[sample]
+    facts = {
+        "kdtree": {
+            "reads_per_gather": trace.visits / len(trace.batch),
+            "structure_lines": trace.footprint_lines(128),
+        },
+        "kdbtree": {
+            "reads_per_gather": traces["kdbtree"].build(128)[2].mean(),
+            "structure_lines": kdb.lines,
+            "leaves": int(np.count_nonzero(kdb.kind == 1)),
+            "fan_out": kdb.fan_out,
+            "leaf_photons": kdb.leaf_capacity,
+        },
+        "blockhash": {
+            "reads_per_gather": reads_bh.mean(),
+            "structure_lines": bh.lines,
+            "blocks": bh.blocks,
+            "orphaned_blocks": bh.orphaned,
+            "dropped_bucket_entries": bh.dropped,
+            "recall": recall(found_bh[sample], exact),
+        },
+    }
+    lines = LINES[:2] if quick else LINES
+    line_sweep_gb = {
+        s: {
+            o: [v * scale / 1e9 for v in c]
+            for o, c in line_sweep(traces[s], LINE_ORDERS, lines, params=order_params).items()
+        }
+        for s in ("kdtree", "kdbtree")
+    }
+    crossover = {
+        o: next(
+            (
+                line
+                for line, kd, kdb_gb in zip(
+                    lines, line_sweep_gb["kdtree"][o], line_sweep_gb["kdbtree"][o], strict=True
+                )
+                if kdb_gb < kd
+            ),
+            None,
+        )
+        for o in LINE_ORDERS
+    }
+    accuracy = {}
+    for a in BH_ACCURACY[:1] if quick else BH_ACCURACY:
+        t = structure_trace(trace, "blockhash", accuracy=a)
+        found, reads = t.build(128)[1:3]
+        accuracy[a] = {
+            "recall": recall(found[sample], exact),
+            "reads_per_gather": reads.mean(),
+            **{o: fetches_per_block(t, o, 128 * 1024, 128, order_params) for o in LINE_ORDERS},
+        }
+    return {
+        "window": window,
+        "params": params,
+        "gathers": len(trace.batch),
+        "photons": trace.photons,
+        "image_scale": scale,  # bytes of the window → bytes of a 512 × 512 image
+        "table": table,
+        "doc_table_4_1": DOC_TABLE_4_1,
+        "structures": facts,
+        "lines": lines,
+        "line_sweep_GB": line_sweep_gb,
+        "kdb_beats_kd_from_line": crossover,
+        "blockhash_accuracy": accuracy,
+        "seconds": time.perf_counter() - start,
+        "load_average": os.getloadavg(),
+    }
+
+
+def structures_markdown(s: dict) -> str:
+    """Table 4.1 (measured beside the dissertation's) and the Fig 4.1 line sweep."""
+    f = s["structures"]
+    parts = [
+        "## Data structures (Table 4.1, Fig 4.1, O21)\n",
+        f"Cornell window {s['window']} of 512×512, {s['gathers']:,} final gathers (k 100), "
+        f"{s['photons']:,} photons; 128 KB fully associative LRU, 128 B lines. Fetches per "
+        "distinct block = misses / distinct lines of the structure the gathers touch (spec A7). "
+        f"Lines read per gather: kd-tree {f['kdtree']['reads_per_gather']:.0f} (20-byte "
+        f"records), kdB-tree {f['kdbtree']['reads_per_gather']:.1f}, block hashing "
+        f"{f['blockhash']['reads_per_gather']:.1f} (recall of the exact k nearest "
+        f"{f['blockhash']['recall']:.2f}, {f['blockhash']['orphaned_blocks']:,} of "
+        f"{f['blockhash']['blocks']:,} blocks orphaned); load average {s['load_average']}\n",
+    ]
+    rows = []
+    for order, r in s["table"].items():
+        doc = s["doc_table_4_1"][order]
+        rows.append(
+            [
+                order,
+                *[common.fmt(r[x]["fetches_per_block"], 2) for x in STRUCTURES],
+                *[common.fmt(doc[x], 1) for x in STRUCTURES],
+                common.fmt(r["kdbtree"]["fetches_per_block"] / r["kdtree"]["fetches_per_block"], 2),
+                common.fmt(doc["kdbtree"] / doc["kdtree"], 2),
+                common.fmt(r["kdbtree"]["misses"] / max(r["kdtree"]["misses"], 1), 2),
+            ]
+        )
+    parts.append(
+        common.markdown_table(
+            [
+                "order",
+                "kd",
+                "kdB",
+                "BH",
+                "doc kd",
+                "doc kdB",
+                "doc BH",
+                "kdB/kd",
+                "doc kdB/kd",
+                "kdB/kd bytes",
+            ],
+            rows,
+        )
+    )
+    gb = 128 * s["image_scale"] / 1e9  # GB per image of one miss
+    parts.append("\nGB per 512 × 512 image (misses × 128 B) and distinct lines touched:\n")
+    parts.append(
+        common.markdown_table(
+            ["order", *[f"{x} GB" for x in STRUCTURES]],
+            [
+                [order, *[common.fmt(r[x]["misses"] * gb, 2) for x in STRUCTURES]]
+                for order, r in s["table"].items()
+            ]
+            + [
+                [
+                    "distinct lines",
+                    *[common.fmt(s["table"]["naive"][x]["distinct_lines"]) for x in STRUCTURES],
+                ]
+            ],
+        )
+    )
+    parts.append("\nGB/image vs line size (128 KB cache), kd-tree vs kdB-tree (Fig 4.1):\n")
+    parts.append(
+        common.markdown_table(
+            ["structure", "order", *map(str, s["lines"])],
+            [
+                [st, o, *[common.fmt(v, 2) for v in c]]
+                for st, curves in s["line_sweep_GB"].items()
+                for o, c in curves.items()
+            ],
+        )
+    )
+    parts.append(
+        "\nkdB-tree below the kd-tree from line size (bytes): "
+        + ", ".join(f"{o} {v}" for o, v in s["kdb_beats_kd_from_line"].items())
+        + " (dissertation: 256 B in naive order)\n"
+    )
+    parts.append("Block hashing's accuracy A (blocks read per gather at most), 128 B lines:\n")
+    parts.append(
+        common.markdown_table(
+            [
+                "A",
+                "recall",
+                "lines/gather",
+                *[f"fetches/block {o}" for o in LINE_ORDERS],
+                *[f"GB {o}" for o in LINE_ORDERS],
+            ],
+            [
+                [
+                    a,
+                    common.fmt(r["recall"], 3),
+                    common.fmt(r["reads_per_gather"], 1),
+                    *[common.fmt(r[o]["fetches_per_block"], 2) for o in LINE_ORDERS],
+                    *[common.fmt(r[o]["misses"] * gb, 2) for o in LINE_ORDERS],
+                ]
+                for a, r in s["blockhash_accuracy"].items()
+            ],
+        )
+    )
+    return "\n".join(parts) + "\n"
 
 
 def glossy_sweep(quick: bool) -> dict:
@@ -316,6 +529,8 @@ def markdown(result: dict) -> str:
             )
         )
         parts.append("")
+    if result.get("structures"):
+        parts.append(structures_markdown(result["structures"]))
     parts.append("## headline\n")
     parts.append("\n".join(f"- {k}: {v}" for k, v in result["headline"].items()))
     return "\n".join(parts) + "\n"
@@ -328,13 +543,26 @@ def main(argv=None) -> dict:
     ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
     ap.add_argument(
         "--scenes",
-        default=",".join([*SCENES, "glossy_floor"]),
-        help="scenes to run; the others keep their results of the previous run's JSON",
+        default=",".join([*SCENES, "glossy_floor", "structures"]),
+        help="scenes (and the glossy_floor / structures studies) to run; the others keep their "
+        "results of the previous run's JSON",
+    )
+    ap.add_argument(
+        "--only", choices=["structures"], help="run only this study (same as --scenes structures)"
     )
     args = ap.parse_args(argv)
     out = Path(args.out_dir)
     stem = NAME + ("_quick" if args.quick else "")
     previous = out / f"{stem}.json"
+    if args.only:  # this study alone, written into the previous run's results
+        structures = structures_study(args.quick)
+        result = json.loads(previous.read_text()) if previous.is_file() else {}
+        result["structures"] = structures
+        common.write_json(out / f"{stem}.json", result)
+        if "scenes" in result:
+            common.write_text(out / f"{stem}.md", markdown(result))
+        print(structures_markdown(structures))
+        return result
     scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
     for name, (window, surface, grid) in SCENES.items():
         if name not in args.scenes.split(","):
@@ -347,6 +575,13 @@ def main(argv=None) -> dict:
     previous_glossy = json.loads(previous.read_text()).get("glossy") if previous.is_file() else None
     glossy = glossy_sweep(args.quick) if "glossy_floor" in args.scenes.split(",") else None
     glossy = glossy or previous_glossy
+    structures = (
+        structures_study(args.quick)
+        if "structures" in args.scenes.split(",")
+        else json.loads(previous.read_text()).get("structures")
+        if previous.is_file()
+        else None
+    )
     headline = {
         "traffic_reduction_dirbin_hashed": {},  # uncached naive bytes / order's bytes, per scene
         "traffic_reduction_tiled_hilbert": {},
@@ -378,6 +613,7 @@ def main(argv=None) -> dict:
         "doc_table_7_10": TABLE_7_10,
         "scenes": scenes,
         "glossy": glossy,
+        "structures": structures,
         "headline": headline,
     }
     common.write_json(out / f"{stem}.json", result)

@@ -644,6 +644,9 @@ def analyze_bandwidth(
     tile: Annotated[int, typer.Option(help="tile edge in pixels")] = 16,
     sweep: Annotated[str | None, typer.Option(help="tile | cache | line: print curves")] = None,
     plot: Annotated[str | None, typer.Option(help="PNG of the sweep's curves")] = None,
+    structure: Annotated[
+        str, typer.Option(help="photon map layout: kdtree | kdbtree | blockhash (Ch. 4)")
+    ] = "kdtree",
     size: Annotated[int, typer.Option(help="image side of a built-in scene")] = 512,
     crop: Annotated[
         str | None, typer.Option(help="X,Y,W,H: trace only this window of a built-in's image")
@@ -663,7 +666,7 @@ def analyze_bandwidth(
         mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
         params = _typed_params("surface", sets, builtin)
         text = bandwidth_report(
-            scene, builtin, order, cache, line, tile, sweep, plot, size, crop, params
+            scene, builtin, order, cache, line, tile, sweep, plot, size, crop, params, structure
         )
         Console().print(text, markup=False, highlight=False, soft_wrap=True)
     except PhotonmapError as exc:

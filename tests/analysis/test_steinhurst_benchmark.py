@@ -20,4 +20,6 @@ def test_quick_run_writes_tables(tmp_path):
         # O16's end points hold even at this tiny size: whole-image Hilbert moves the least
         assert table["hilbert"]["GB_per_image"] <= table["naive"]["GB_per_image"]
     assert headline["cpu_speedup_best_order"] > 0
+    structures = data["structures"]["table"]  # Table 4.1: every order on the three structures
+    assert all(len(row) == 3 and row["kdtree"]["misses"] > 0 for row in structures.values())
     assert len(data["load_average"]) == 3 and result["headline"] == headline

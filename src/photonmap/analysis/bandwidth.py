@@ -29,10 +29,11 @@ def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> 
     with that stream."""
     if hasattr(trace, "simulate"):
         return trace.simulate(order, lines_bytes, capacities_bytes, ways, params)
-    rows, sa, compulsory = [], [], []
+    rows, sa, compulsory, reads = [], [], [], 0
     caps = np.asarray(capacities_bytes, np.int64)
     for line in lines_bytes:
         stream = np.asarray(trace.lines(order, line, params), np.int64)
+        reads = reads or len(stream)
         capacity = np.maximum(caps // line, 1)
         distinct = np.unique(capacity)
         sets = max(1, int(capacity[0]) // ways) if ways else 0
@@ -40,9 +41,7 @@ def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> 
         rows.append(m[np.searchsorted(distinct, capacity)])
         sa.append(s)
         compulsory.append(c)
-    return CacheCounts(
-        np.array(rows), np.array(sa) if ways else None, np.array(compulsory), trace.visits
-    )
+    return CacheCounts(np.array(rows), np.array(sa) if ways else None, np.array(compulsory), reads)
 
 
 def _each(trace, fn, items) -> list:

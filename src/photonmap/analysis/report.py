@@ -9,6 +9,7 @@ from ..surface.gather_batch import ORDERS, OrderParams
 from .bandwidth import SWEEP_ORDERS, SWEEPS, WAYS, bandwidth_table, plot_sweep, sweep
 from .cache import parse_size
 from .stream import cropped_scene, photons_per_line, trace_final_gathers
+from .structures import STRUCTURES, structure_trace
 
 
 def _crop(text: str | None, size: int):
@@ -22,11 +23,25 @@ def _crop(text: str | None, size: int):
 
 
 def bandwidth_report(
-    scene, builtin, orders, cache, line, tile, sweep_kind, plot, size, crop, params
+    scene,
+    builtin,
+    orders,
+    cache,
+    line,
+    tile,
+    sweep_kind,
+    plot,
+    size,
+    crop,
+    params,
+    structure="kdtree",
 ) -> str:
-    """The report text; ``params``: typed surface-method and scene parameters."""
+    """The report text; ``params``: typed surface-method and scene parameters; ``structure``:
+    the photon map's layout (:data:`.structures.STRUCTURES`, Ch. 4)."""
     cache_bytes, line_bytes = parse_size(cache), parse_size(line)
     photons_per_line(line_bytes)
+    if structure not in STRUCTURES:
+        raise ParameterError(f"--structure must be one of {', '.join(STRUCTURES)}")
     if cache_bytes < line_bytes:
         raise ParameterError(f"the cache ({cache_bytes} B) is smaller than one line")
     orders = list(orders or (SWEEP_ORDERS if sweep_kind else ORDERS))
@@ -60,6 +75,13 @@ def bandwidth_report(
         f"({trace.visits / max(len(trace.batch), 1):.0f} per gather), {trace.photons:,} photons; "
         f"uncached naive (20 B per node): {trace.uncached_bytes() / 1e6:,.1f} MB"
     )
+    if structure != "kdtree":  # the same gathers on a line-organised structure (Ch. 4)
+        trace = structure_trace(trace, structure)
+        head += (
+            f"\non the {structure}: {trace.footprint_lines(line_bytes):,} lines of "
+            f"{line_bytes} B; uncached (records read at 128 B lines): "
+            f"{trace.uncached_bytes() / 1e6:,.1f} MB"
+        )
     if sweep_kind is None:
         lines = [
             head,

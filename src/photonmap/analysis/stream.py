@@ -45,13 +45,13 @@ class KDRecords:
     """What a gather reads, as host arrays for the compiled walk (:mod:`.kdwalk`): the tree's
     16-byte records in heap order (``record`` (N, 4) float32: x, y, z, and photon index | split
     axis << 30 as uint32 bits), the photons' ``normal`` and ``direction`` (N, 3) in heap order for
-    the normal test, ``k``, the squared maximum radius and the normal test's cosine (float32)."""
+    the normal test, ``k``, the maximum gather radius and the normal test's cosine (float32)."""
 
     record: np.ndarray
     normal: np.ndarray
     direction: np.ndarray
     k: int
-    radius2: np.float32
+    radius: float
     cos_normal: np.float32
 
     @classmethod
@@ -68,7 +68,7 @@ class KDRecords:
             heap(photon_map.photons.normal),
             heap(photon_map.photons.direction),
             int(k),
-            squared_radius(radius),
+            float(radius),
             np.float32(COS_NORMAL),
         )
 
@@ -79,7 +79,7 @@ class KDRecords:
             self.normal,
             self.direction,
             self.k,
-            self.radius2,
+            squared_radius(self.radius),
             self.cos_normal,
         )
 
@@ -99,6 +99,26 @@ class GatherTrace:
     @property
     def photons(self) -> int:
         return len(self.tree.record)
+
+    @property
+    def k(self) -> int:
+        return self.tree.k
+
+    @property
+    def radius(self) -> float:
+        return self.tree.radius
+
+    @property
+    def photon_data(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The global map's photons in their original order, (N, 3) float32 each: position,
+        normal, direction — what other structures need to rerun the same gathers."""
+        index = self.tree.record.view(np.uint32)[:, 3] & kdwalk.INDEX_MASK
+        out = []
+        for heap in (self.tree.record[:, :3], self.tree.normal, self.tree.direction):
+            original = np.empty_like(heap)
+            original[index] = heap
+            out.append(original)
+        return tuple(out)
 
     def _queries(self):
         return self.batch.position, self.batch.normal
@@ -198,7 +218,7 @@ class GatherTrace:
 class CacheCounts:
     """Line misses of one gather order: ``misses[l, c]`` for line size ``l`` and capacity ``c``
     (in the order asked), ``set_associative[l]`` (or None), ``compulsory[l]``: distinct lines
-    read, ``visits``: kd-tree nodes read."""
+    read, ``visits``: kd-tree nodes read (for an explicit line stream: its reads)."""
 
     misses: np.ndarray
     set_associative: np.ndarray | None
