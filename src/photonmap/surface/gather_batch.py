@@ -12,9 +12,9 @@ Orders (:data:`ORDERS`; ``tile`` × ``tile`` screen tiles, row-major over the im
 
 - ``naive`` — pixels in scanline order, each pixel's rays in index order (§2.7.1);
 - ``tiled`` — tiles in row-major order, scanline order inside a tile (§2.7.2);
-- ``tiled_dirbin`` — per tile, rays sorted by world-space direction bin (32 equal-solid-angle
-  bins: 4 bands uniform in ``ω·up`` × 8 azimuth sectors, A1), then pixel, then ray; pixels whose
-  eye ray met a specular surface go last (§2.7.3, A18);
+- ``tiled_dirbin`` — per tile, rays sorted by world-space direction bin (``bins`` = 32
+  equal-solid-angle bins by default: 4 bands uniform in ``ω·up`` × 8 azimuth sectors, A1), then
+  pixel, then ray; pixels whose eye ray met a specular surface go last (§2.7.3, A18);
 - ``hashed`` — the naive stream through ``queues`` (17) hashed queues of ``slots`` (128) over a
   ``grid``³ world grid, one stream for the whole image (§2.7.6);
 - ``tiled_dirbin_hashed`` — ``tiled_dirbin`` through the hashed queues, flushed per tile (§2.7.7);
@@ -59,12 +59,15 @@ class OrderParams:
     queues: int = 17  # hashed queues p (a prime)
     slots: int = 128  # requests per queue s
     grid: int = 5  # world-grid intervals per axis for the hash (Cornell 5, Sponza 8)
+    bins: int = DIR_BANDS * DIR_SECTORS  # direction bins, a power of two (A1: swept 8 … 128)
 
     def validate(self) -> None:
-        for key in ("tile", "queues", "slots", "grid"):
+        for key in ("tile", "queues", "slots", "grid", "bins"):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
                 raise ParameterError(f"{key} must be a positive integer, got {value!r}")
+        if self.bins & (self.bins - 1):
+            raise ParameterError(f"bins must be a power of two (8, 16, 32, …), got {self.bins}")
 
 
 @dataclass
@@ -115,20 +118,24 @@ def gather_order(batch: GatherBatch, order: str, params: OrderParams | None = No
         return np.lexsort((batch.ray, in_tile, tile))
     if order == "tiled_hilbert":
         return np.lexsort((index, _hilbert_keys(batch), tile))
-    binned = np.lexsort((batch.ray, in_tile, direction_bin(batch.direction), batch.specular, tile))
+    dbin = direction_bin(batch.direction, params.bins)
+    binned = np.lexsort((batch.ray, in_tile, dbin, batch.specular, tile))
     if order == "tiled_dirbin":
         return binned
     return binned[_hashed(tile[binned], _queue(batch, params)[binned], params)]
 
 
-def direction_bin(direction: np.ndarray) -> np.ndarray:
-    """World-space direction bin (0..31) of unit vectors (N, 3): 4 bands of equal solid angle in
-    ``d_y`` (+y is up) × 8 azimuth sectors (spec A1)."""
+def direction_bin(direction: np.ndarray, bins: int = DIR_BANDS * DIR_SECTORS) -> np.ndarray:
+    """World-space direction bin (0 … bins − 1) of unit vectors (N, 3): bands of equal solid
+    angle in ``d_y`` (+y is up) × azimuth sectors (spec A1); ``bins`` = 2^b splits into 2^⌊b/2⌋
+    bands × 2^⌈b/2⌉ sectors (32 → 4 × 8, the default; 8 → 2 × 4; 128 → 8 × 16)."""
+    bands = 1 << (int(bins).bit_length() - 1) // 2
+    sectors = int(bins) // bands
     d = np.asarray(direction, np.float64)
-    band = np.clip(((d[:, 1] + 1) * 0.5 * DIR_BANDS).astype(np.int64), 0, DIR_BANDS - 1)
+    band = np.clip(((d[:, 1] + 1) * 0.5 * bands).astype(np.int64), 0, bands - 1)
     phi = np.arctan2(d[:, 2], d[:, 0]) + math.pi
-    sector = np.clip((phi / (2 * math.pi) * DIR_SECTORS).astype(np.int64), 0, DIR_SECTORS - 1)
-    return band * DIR_SECTORS + sector
+    sector = np.clip((phi / (2 * math.pi) * sectors).astype(np.int64), 0, sectors - 1)
+    return band * sectors + sector
 
 
 def _cells(batch: GatherBatch, per_axis: int) -> np.ndarray:

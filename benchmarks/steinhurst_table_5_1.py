@@ -1,0 +1,239 @@
+"""Steinhurst 2007 Table 5.1 reproduced: photon-map bandwidth per gather order with and without
+the tiled irradiance cache (issue 13 item 5; spec seed-001 §2.9, §3.5, oracles O22, O23,
+ambiguities A3, A17, A20).
+
+Three scenes as in the dissertation's rows: the bare box, the box with two and with six bushes
+(``cornell_bushes`` with ``bushes`` = 0, 2, 6: the same walls and ceiling light, Fig 5.5's
+scenes; ``cornell_steinhurst``'s mirror sphere fills this window, so it is not the bare row, and
+every pixel there would be a specular one). Each renders the
+same window of the 512 × 512 image (A17) with exact k = 100 k-NN final gathers on the heap-order
+kd-tree, once without an irradiance cache and once with the tiled cache (``irradiance_cache=
+tiled``, ε_max = 0.05, Fig 5.5's value; R_avg precomputed at photons, §2.9.3), and every gather of
+both renders is traced (with the cache only the planned record and non-Lambertian pixels gather).
+Each trace goes through the LRU simulator (128 KB, 128-byte lines, fully associative, 16 × 16
+tiles) in the orders naive, tiled direction-binning, + hashed, tiled Hilbert. Bytes are % of the
+naive order without the cache (the cached naive simulation; also given: % of the uncached naive
+figure, 20 B per visited node). Only the final gathers' global-map reads are counted (A20); the
+cache's one R_avg lookup per pixel reads a separate point set and is left out.
+
+R_IC (O23) is the fraction of the cache's (purely Lambertian) pixels that interpolate, in the
+window and over the whole 512² image (the plan only: the decisions need no final gather).
+
+    PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_table_5_1.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import common  # noqa: E402
+import photonmap  # noqa: E402,F401
+from photonmap.analysis.bandwidth import bandwidth_table  # noqa: E402
+from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
+from photonmap.scenes import SCENES as BUILT_IN  # noqa: E402
+from photonmap.surface.gather_batch import OrderParams  # noqa: E402
+from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
+
+NAME = "steinhurst_table_5_1"
+ORDERS = ("naive", "tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
+IC_ERROR = 0.05  # ε_max of Fig 5.5 (spec §3.5)
+# Table 5.1 as printed: % of the naive order without IC, (without IC, with IC) per order
+DOC = {
+    "bare box": ((100.0, 12.7, 9.6, 5.6), (1.8, 1.2, 1.2, 1.1)),
+    "two bushes": ((100.0, 23.0, 11.4, 6.3), (8.5, 3.8, 2.9, 2.4)),
+    "many bushes": ((100.0, 23.9, 12.0, 6.0), (12.6, 5.4, 3.7, 2.9)),
+}
+# row label: (built-in scene, scene parameters, surface parameters, hash grid G)
+SCENES = {
+    "bare box": ("cornell_bushes", dict(bushes=0), dict(max_radius=0.02), 5),
+    "two bushes": ("cornell_bushes", dict(bushes=2), dict(max_radius=0.02), 8),
+    "many bushes": ("cornell_bushes", dict(bushes=6), dict(max_radius=0.02), 8),
+}
+# one window of the 512² image for every scene: a strip across the bushes, the floor and a wall
+WINDOW = (128, 336, 128, 16)
+SURFACE = dict(photons=100_000, fg_rays=50, caustic_photons=0, emitter_spp=0, k=100)
+QUICK = ((240, 288, 32, 16), dict(photons=5000, fg_rays=4, caustic_photons=0, emitter_spp=0, k=20))
+
+
+def hit_rate(scene, surface: dict) -> float:
+    """R_IC of the tiled cache's plan (``pipe.stats["ic_hit_rate"]``) for ``scene``, rendered
+    with one final-gather ray (the plan does not depend on the rays)."""
+    pipe = SurfacePipeline(
+        scene, **{**surface, "fg_rays": 1, "irradiance_cache": "tiled", "ic_error": IC_ERROR}
+    )
+    pipe.render()
+    return pipe.stats["ic_hit_rate"]
+
+
+def scene_rows(label: str, window, surface: dict, quick: bool) -> dict:
+    name, scene_params, extra, grid = SCENES[label]
+    x, y, w, h = window
+    scene = cropped_scene(name, 512, (x, y), (w, h), **scene_params)
+    params = {**surface, **extra}
+    out = {"scene": name, "scene_params": scene_params, "surface": params, "hash_grid": grid}
+    traces = {}
+    for cache in ("none", "tiled"):
+        start = time.perf_counter()
+        traces[cache] = trace_final_gathers(
+            scene, **params, irradiance_cache=cache, ic_error=IC_ERROR
+        )
+        out[f"trace_{cache}_s"] = time.perf_counter() - start
+    none, tiled = traces["none"], traces["tiled"]
+    rows = {
+        cache: {r["order"]: r for r in bandwidth_table(t, ORDERS, params=OrderParams(grid=grid))}
+        for cache, t in traces.items()
+    }
+    naive = rows["none"]["naive"]["bytes"]
+    uncached = none.uncached_bytes()
+    out["gathers"] = {"none": len(none.batch), "tiled": len(tiled.batch)}
+    out["gathers_saved"] = 1 - len(tiled.batch) / len(none.batch)
+    out["pixels_gathering"] = {c: int(len(set(t.batch.pixel.tolist()))) for c, t in traces.items()}
+    out["visits_per_gather"] = {c: t.visits / len(t.batch) for c, t in traces.items()}
+    out["uncached_bytes"] = {c: t.uncached_bytes() for c, t in traces.items()}
+    out["bytes"] = {c: {o: r["bytes"] for o, r in rs.items()} for c, rs in rows.items()}
+    out["percent_of_naive"] = {
+        c: {o: 100 * r["bytes"] / naive for o, r in rs.items()} for c, rs in rows.items()
+    }
+    out["percent_of_uncached_naive"] = {
+        c: {o: 100 * r["bytes"] / uncached for o, r in rs.items()} for c, rs in rows.items()
+    }
+    out["R_IC_window"] = hit_rate(scene, params)
+    if not quick:
+        out["R_IC_image"] = hit_rate(
+            BUILT_IN[name].build(width=512, height=512, **scene_params), params
+        )
+    out["load_average"] = os.getloadavg()
+    return out
+
+
+def claims(scenes: dict) -> dict:
+    """O22's and O23's qualitative claims, each True/False on our numbers."""
+    out = {}
+    for label, s in scenes.items():
+        p = s["percent_of_naive"]
+        out[f"{label}: with IC, reordering still reduces bandwidth"] = all(
+            p["tiled"][o] < p["tiled"]["naive"] for o in ORDERS[1:]
+        )
+        if label == "bare box":
+            out["bare box: IC alone (naive) < every reordering without IC"] = all(
+                p["tiled"]["naive"] < p["none"][o] for o in ORDERS[1:]
+            )
+        else:
+            out[f"{label}: tiled Hilbert without IC < IC alone (naive)"] = (
+                p["none"]["tiled_hilbert"] < p["tiled"]["naive"]
+            )
+    key = "R_IC_image" if all("R_IC_image" in s for s in scenes.values()) else "R_IC_window"
+    r = [scenes[label][key] for label in SCENES if label in scenes]
+    out[f"R_IC ({key}) falls as bushes are added (O23)"] = all(
+        a > b for a, b in zip(r, r[1:], strict=False)
+    )
+    return out
+
+
+def markdown(result: dict) -> str:
+    parts = [
+        "# Steinhurst Table 5.1: bandwidth with and without the irradiance cache\n",
+        f"Window {result['window']} of the 512×512 image, surface {result['surface']}, tiled "
+        f"irradiance cache ε_max = {result['ic_error']} (16×16 tiles); 128 KB fully associative "
+        "LRU, 128-byte lines; % of the naive order without IC (cached simulation); doc = "
+        f"Table 5.1 as printed. Load average {result['load_average']}, "
+        f"{result['elapsed_s']:.0f} s in all.\n",
+    ]
+    rows = []
+    for label, s in result["scenes"].items():
+        doc = DOC[label]
+        for k, cache in enumerate(("none", "tiled")):
+            p = s["percent_of_naive"][cache]
+            u = s["percent_of_uncached_naive"][cache]
+            rows.append(
+                [
+                    f"{label}, {'without' if cache == 'none' else 'with'} IC",
+                    *[
+                        f"{common.fmt(p[o], 1)} ({common.fmt(d, 1)})"
+                        for o, d in zip(ORDERS, doc[k], strict=True)
+                    ],
+                    " / ".join(common.fmt(u[o], 1) for o in ORDERS),
+                ]
+            )
+    parts.append(
+        common.markdown_table(
+            ["scene / IC", *[f"{o} % (doc)" for o in ORDERS], "% of uncached naive"], rows
+        )
+    )
+    parts.append("\nPer scene:\n")
+    parts.append(
+        common.markdown_table(
+            [
+                "scene",
+                "gathers without / with IC",
+                "gathers saved",
+                "pixels gathering",
+                "R_IC window",
+                "R_IC 512²",
+            ],
+            [
+                [
+                    label,
+                    f"{s['gathers']['none']:,} / {s['gathers']['tiled']:,}",
+                    common.fmt(100 * s["gathers_saved"], 1) + " %",
+                    f"{s['pixels_gathering']['none']:,} / {s['pixels_gathering']['tiled']:,}",
+                    common.fmt(100 * s["R_IC_window"], 1) + " %",
+                    common.fmt(100 * s["R_IC_image"], 1) + " %" if "R_IC_image" in s else "—",
+                ]
+                for label, s in result["scenes"].items()
+            ],
+        )
+    )
+    parts.append("\nO22 / O23 claims on these numbers:\n")
+    parts.append(
+        "\n".join(f"- {k}: **{'holds' if v else 'fails'}**" for k, v in result["claims"].items())
+    )
+    return "\n".join(parts) + "\n"
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
+    ap.add_argument("--out-dir", default=str(common.RESULTS))
+    args = ap.parse_args(argv)
+    window, surface = (WINDOW, SURFACE) if not args.quick else QUICK
+    start = time.perf_counter()
+    scenes = {}
+    for label in SCENES:
+        scenes[label] = scene_rows(label, window, surface, args.quick)
+        print(
+            label,
+            {
+                c: {o: round(v, 2) for o, v in p.items()}
+                for c, p in scenes[label]["percent_of_naive"].items()
+            },
+            flush=True,
+        )
+    result = {
+        "name": NAME,
+        "quick": args.quick,
+        "machine": common.machine_info(),
+        "load_average": os.getloadavg(),
+        "elapsed_s": time.perf_counter() - start,
+        "window": window,
+        "surface": surface,
+        "ic_error": IC_ERROR,
+        "doc_table_5_1": DOC,
+        "scenes": scenes,
+        "claims": claims(scenes),
+    }
+    stem = NAME + ("_quick" if args.quick else "")
+    out = Path(args.out_dir)
+    common.write_json(out / f"{stem}.json", result)
+    common.write_text(out / f"{stem}.md", markdown(result))
+    print(markdown(result))
+    return result
+
+
+if __name__ == "__main__":
+    main()
