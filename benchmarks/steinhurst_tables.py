@@ -83,10 +83,14 @@ DOC = {
         "tiled_hilbert": 19.0,
     },
 }
-# window of the 512² image (x, y, w, h), surface parameters, hash grid G (Cornell 5, Sponza 8)
+READS_BUDGET = 9 << 30  # the full image's line reads held in memory (about 2 B per read)
+MANY_BINS = 128  # the direction-binned orders again with 128 bins (A1's sweep: the best here)
+BINNED = ("tiled_dirbin", "tiled_dirbin_hashed")
+# window of the 512² image (x, y, w, h) for the sweeps and CPU timings, surface parameters
+# (N_FG 50: the dissertation's Cornell figure, §2.6.2.1), hash grid G (Cornell 5, Sponza 8)
 SCENES = {
-    "cornell_steinhurst": ((192, 288, 64, 32), dict(photons=100_000, fg_rays=32), 5),
-    "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=32, max_radius=0.02), 8),
+    "cornell_steinhurst": ((192, 288, 64, 32), dict(photons=100_000, fg_rays=50), 5),
+    "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=50, max_radius=0.02), 8),
 }
 QUICK = ((240, 288, 16, 16), dict(photons=5000, fg_rays=4), None)
 # Fig 6.17 / O26: the glossy floor's lobe narrowed (Beckmann α; Phong n ≈ 2/α² − 2), window on it
@@ -320,21 +324,27 @@ def glossy_sweep(quick: bool) -> dict:
 
 def full_image_table(name: str, params: dict, grid: int, size: int) -> dict:
     """Table 3.1, Fig 3.9 and O20 on the whole ``size``² image: every final gather of the render
-    streamed through the caches, one pass per order (two orders at a time, one per core)."""
+    walked once (its line reads kept), then replayed through the caches once per order, two
+    orders at a time (one per core); the direction-binned orders also with 128 bins (A1)."""
     start = time.perf_counter()
     trace = trace_final_gathers(cropped_scene(name, size, (0, 0), (size, size)), **params)
     trace_s = time.perf_counter() - start
-    order_params = OrderParams(grid=grid)
+    start = time.perf_counter()
+    stored = trace.store_reads(128, READS_BUDGET)
+    store_s = time.perf_counter() - start
     caps = [128 * 1024] + [kb * 1024 for kb in CACHE_KB if kb != 128]  # 8-way at the first
+    runs = [(o, OrderParams(grid=grid)) for o in ORDERS]
+    runs += [(o, OrderParams(grid=grid, bins=MANY_BINS)) for o in BINNED]
 
-    def run(order):
+    def run(job):
         t = time.perf_counter()
-        c = trace.simulate(order, [128], caps, ways=WAYS, params=order_params)
+        c = trace.simulate(job[0], [128], caps, ways=WAYS, params=job[1])
         return c, time.perf_counter() - t
 
     start = time.perf_counter()
     with ThreadPoolExecutor(2) as pool:
-        counts = dict(zip(ORDERS, pool.map(run, ORDERS), strict=True))
+        labels = [o if p.bins == 32 else f"{o}@{p.bins}" for o, p in runs]
+        counts = dict(zip(labels, pool.map(run, runs), strict=True))
     simulate_s = time.perf_counter() - start
     uncached = trace.uncached_bytes()
     scale = 512 * 512 / (size * size)
@@ -360,8 +370,10 @@ def full_image_table(name: str, params: dict, grid: int, size: int) -> dict:
         "photons": trace.photons,
         "map_lines_128B": trace.footprint_lines(128),
         "trace_s": trace_s,
+        "reads_stored": stored,
+        "store_s": store_s,
         "simulate_s": simulate_s,
-        "ns_per_visit_per_order": simulate_s * 2 / len(ORDERS) / trace.visits * 1e9,
+        "ns_per_visit_per_order": simulate_s * 2 / len(runs) / trace.visits * 1e9,
         "uncached_GB_per_image": uncached * scale / 1e9,
         "load_average": os.getloadavg(),
         "table": table,
@@ -433,10 +445,10 @@ def markdown(result: dict) -> str:
         parts.append(
             f"## {name}\n\nthe whole {s['image']}×{s['image']} image, {s['gathers']:,} final "
             f"gathers (N_FG {s['params']['fg_rays']}, k 100, {s['params']['photons']:,} photon "
-            f"paths), {s['node_visits']:,} node reads ({s['visits_per_gather']:.0f} per gather) "
-            f"simulated in {s['simulate_s']:.0f} s for the {len(s['table'])} orders "
-            f"({s['ns_per_visit_per_order']:.0f} ns per read and order); kd-tree nodes "
-            f"per gather, {s['photons']:,} photons ({s['map_lines_128B']:,} lines of 128 B); "
+            f"paths), {s['node_visits']:,} kd-tree node reads ({s['visits_per_gather']:.0f} per "
+            f"gather; walked once in {s['store_s']:.0f} s, then {s['simulate_s']:.0f} s for the "
+            f"{len(s['table'])} orders on two cores), {s['photons']:,} photons "
+            f"({s['map_lines_128B']:,} lines of 128 B); "
             f"uncached naive {s['uncached_GB_per_image']:.1f} GB/image (dissertation "
             f"{doc['uncached']:g} GB{'' if name == 'cornell_steinhurst' else ', Sponza'}); "
             f"load average {s.get('load_average', 'not recorded')}\n"
@@ -453,8 +465,10 @@ def markdown(result: dict) -> str:
                     common.fmt(doc["uncached"] / d, 1) + "×" if d else "—",
                     common.fmt(r["fetches_per_map_line"], 2),
                     common.fmt(r["set_associative_ratio"], 2),
-                    common.fmt(s["cpu"]["kdtree"][order]["median"], 0),
-                    common.fmt(s["cpu"]["hash"][order]["median"], 0),
+                    *[
+                        common.fmt(s["cpu"][k][order]["median"], 0) if order in ORDERS else "—"
+                        for k in ("kdtree", "hash")
+                    ],
                 ]
             )
         parts.append(
@@ -585,6 +599,7 @@ def main(argv=None) -> dict:
     headline = {
         "traffic_reduction_dirbin_hashed": {},  # uncached naive bytes / order's bytes, per scene
         "traffic_reduction_tiled_hilbert": {},
+        "traffic_reduction_dirbin_hashed_128_bins": {},
         "set_associative_ratio": {},  # 8-way / fully associative misses, dir-binning + hashed
         "cpu_speedup_best_order_per_scene": {},  # naive / best practical order, kd-tree gathers
         "cpu_best_order": {},
@@ -597,6 +612,9 @@ def main(argv=None) -> dict:
         headline["traffic_reduction_tiled_hilbert"][name] = t["tiled_hilbert"][
             "reduction_vs_uncached"
         ]
+        headline["traffic_reduction_dirbin_hashed_128_bins"][name] = t[
+            f"tiled_dirbin_hashed@{MANY_BINS}"
+        ]["reduction_vs_uncached"]
         headline["set_associative_ratio"][name] = t["tiled_dirbin_hashed"]["set_associative_ratio"]
         cpu = s["cpu"]["kdtree"]
         best = min(PRACTICAL, key=lambda o: cpu[o]["median"])

@@ -165,11 +165,11 @@ class GatherTrace:
         slots = self.slots[start + np.arange(total)]
         return (slots - 1) // photons_per_line(line_bytes)
 
-    def store_reads(self, line_bytes: int) -> bool:
+    def store_reads(self, line_bytes: int, budget: int = READS_BUDGET) -> bool:
         """Walk every gather once and keep its line reads (runs within a line merged) so that
         :meth:`simulate` at this line size only replays them, order after order, instead of
         walking the tree again (the walk is most of the cost). Returns False and keeps nothing
-        when they would take more than :data:`READS_BUDGET` bytes (estimated on 2,000 gathers)."""
+        when they would take more than ``budget`` bytes (estimated on 2,000 gathers)."""
         if line_bytes in self._reads:
             return True
         per_line = photons_per_line(line_bytes)
@@ -178,7 +178,7 @@ class GatherTrace:
         pick = np.random.default_rng(0).choice(len(self.batch), min(2000, len(self.batch)), False)
         sample, *_ = kdwalk.read_lines(*(q[pick] for q in self._queries()), *args, 0)
         estimate = int(sample.mean() * len(self.batch) * 1.05) + 1024
-        if estimate * kind.itemsize > READS_BUDGET:
+        if estimate * kind.itemsize > budget:
             return False
         count, lines, used, visits = kdwalk.read_lines(*self._queries(), *args, estimate)
         self._reads[line_bytes] = (count, np.cumsum(count) - count, lines[:used])
