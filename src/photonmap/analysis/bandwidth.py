@@ -44,11 +44,14 @@ def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> 
     return CacheCounts(np.array(rows), np.array(sa) if ways else None, np.array(compulsory), reads)
 
 
-def _each(trace, fn, items) -> list:
+def _each(trace, fn, items, line_bytes=None) -> list:
     """``fn`` over ``items``; for a streaming trace on one thread per core (the compiled
-    simulation releases the GIL and each order's caches are independent)."""
+    simulation releases the GIL and each order's caches are independent), after walking the
+    gathers once and keeping their reads at ``line_bytes`` if they fit in memory."""
     if not hasattr(trace, "simulate") or len(items) < 2:
         return [fn(x) for x in items]
+    if line_bytes is not None:
+        trace.store_reads(line_bytes)
     with ThreadPoolExecutor(max(1, min(len(items), os.cpu_count() or 1))) as pool:
         return list(pool.map(fn, items))
 
@@ -66,7 +69,10 @@ def bandwidth_table(
     the same size and their ratio to the fully associative misses (O20)."""
     orders = list(orders)
     results = _each(
-        trace, lambda o: counts(trace, o, [line_bytes], [cache_bytes], ways or 0, params), orders
+        trace,
+        lambda o: counts(trace, o, [line_bytes], [cache_bytes], ways or 0, params),
+        orders,
+        line_bytes,
     )
     uncached = trace.uncached_bytes()
     rows = []
@@ -93,7 +99,9 @@ def bandwidth_table(
 def cache_sweep(trace, orders, sizes_bytes, line_bytes=128, params=None) -> dict:
     """Bytes per image for each cache size (Fig 3.9): one pass per order gives every size."""
     orders = list(orders)
-    results = _each(trace, lambda o: counts(trace, o, [line_bytes], sizes_bytes, 0, params), orders)
+    results = _each(
+        trace, lambda o: counts(trace, o, [line_bytes], sizes_bytes, 0, params), orders, line_bytes
+    )
     return {o: (c.misses[0] * line_bytes).tolist() for o, c in zip(orders, results, strict=True)}
 
 
@@ -119,7 +127,7 @@ def tile_sweep(trace, orders, tiles, cache_bytes=128 * 1024, line_bytes=128, par
         return int(c.misses[0, 0]) * line_bytes
 
     pairs = [(o, t) for o in orders for t in tiles]
-    values = iter(_each(trace, lambda pair: bytes_at(*pair), pairs))
+    values = iter(_each(trace, lambda pair: bytes_at(*pair), pairs, line_bytes))
     return {o: [next(values) for _ in tiles] for o in orders}
 
 
