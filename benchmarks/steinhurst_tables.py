@@ -86,6 +86,7 @@ DOC = {
 READS_BUDGET = 9 << 30  # the full image's line reads held in memory (about 2 B per read)
 MANY_BINS = 128  # the direction-binned orders again with 128 bins (A1's sweep: the best here)
 BINNED = ("tiled_dirbin", "tiled_dirbin_hashed")
+SPONZA = dict(photons=100_000, fg_rays=200, max_radius=0.02)  # bushes at Sponza's N_FG (§2.6.2.1)
 # window of the 512² image (x, y, w, h) for the sweeps and CPU timings, surface parameters
 # (N_FG 50: the dissertation's Cornell figure, §2.6.2.1), hash grid G (Cornell 5, Sponza 8)
 SCENES = {
@@ -299,6 +300,72 @@ def structures_markdown(s: dict) -> str:
         )
     )
     return "\n".join(parts) + "\n"
+
+
+def sponza_setting(quick: bool) -> dict:
+    """O17's bushy target at the dissertation's Sponza setting: N_FG = 200 (§2.6.2.1, Fig 1.3),
+    128 direction bins, G = 8, on the whole 512² image. Its line reads do not fit in memory
+    (about 12 G), so both orders walk the tree while they stream (one per core)."""
+    size = 64 if quick else 512
+    params = dict(SPONZA, caustic_photons=0, emitter_spp=0, k=100)
+    if quick:
+        params.update(photons=5000, fg_rays=8)
+    trace = trace_final_gathers(
+        cropped_scene("cornell_bushes", size, (0, 0), (size, size)), **params
+    )
+    runs = [
+        ("tiled_dirbin_hashed", OrderParams(grid=8, bins=MANY_BINS)),
+        ("tiled_hilbert", OrderParams(grid=8)),
+    ]
+    start = time.perf_counter()
+    with ThreadPoolExecutor(2) as pool:
+        counts = list(
+            pool.map(lambda r: trace.simulate(r[0], [128], [128 * 1024], WAYS, r[1]), runs)
+        )
+    uncached = trace.uncached_bytes()
+    scale = 512 * 512 / (size * size)
+    return {
+        "image": size,
+        "params": params,
+        "bins": MANY_BINS,
+        "hash_grid": 8,
+        "gathers": len(trace.batch),
+        "node_visits": trace.visits,
+        "uncached_GB_per_image": uncached * scale / 1e9,
+        "simulate_s": time.perf_counter() - start,
+        "load_average": os.getloadavg(),
+        "table": {
+            o: {
+                "GB_per_image": int(c.misses[0, 0]) * 128 * scale / 1e9,
+                "reduction_vs_uncached": uncached / max(int(c.misses[0, 0]) * 128, 1),
+                "set_associative_ratio": int(c.set_associative[0]) / max(int(c.misses[0, 0]), 1),
+            }
+            for (o, _), c in zip(runs, counts, strict=True)
+        },
+    }
+
+
+def sponza_markdown(s: dict) -> str:
+    return (
+        "## Bushy box at the Sponza setting (O17)\n\n"
+        f"cornell_bushes, the whole {s['image']}² image, N_FG {s['params']['fg_rays']}, "
+        f"{s['bins']} direction bins, G = {s['hash_grid']}: {s['gathers']:,} final gathers, "
+        f"{s['node_visits']:,} node reads (uncached naive {s['uncached_GB_per_image']:.0f} "
+        f"GB/image), streamed in {s['simulate_s']:.0f} s, load {s['load_average']}\n\n"
+        + common.markdown_table(
+            ["order", "GB/image", "vs uncached", "8-way/full"],
+            [
+                [
+                    o,
+                    common.fmt(r["GB_per_image"], 2),
+                    common.fmt(r["reduction_vs_uncached"], 1) + "×",
+                    common.fmt(r["set_associative_ratio"], 2),
+                ]
+                for o, r in s["table"].items()
+            ],
+        )
+        + "\n"
+    )
 
 
 def glossy_sweep(quick: bool) -> dict:
@@ -545,57 +612,15 @@ def markdown(result: dict) -> str:
         parts.append("")
     if result.get("structures"):
         parts.append(structures_markdown(result["structures"]))
+    if result.get("sponza_setting"):
+        parts.append(sponza_markdown(result["sponza_setting"]))
     parts.append("## headline\n")
     parts.append("\n".join(f"- {k}: {v}" for k, v in result["headline"].items()))
     return "\n".join(parts) + "\n"
 
 
-def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(common.RESULTS))
-    ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
-    ap.add_argument(
-        "--scenes",
-        default=",".join([*SCENES, "glossy_floor", "structures"]),
-        help="scenes (and the glossy_floor / structures studies) to run; the others keep their "
-        "results of the previous run's JSON",
-    )
-    ap.add_argument(
-        "--only", choices=["structures"], help="run only this study (same as --scenes structures)"
-    )
-    args = ap.parse_args(argv)
-    out = Path(args.out_dir)
-    stem = NAME + ("_quick" if args.quick else "")
-    previous = out / f"{stem}.json"
-    if args.only:  # this study alone, written into the previous run's results
-        structures = structures_study(args.quick)
-        result = json.loads(previous.read_text()) if previous.is_file() else {}
-        result["structures"] = structures
-        common.write_json(out / f"{stem}.json", result)
-        if "scenes" in result:
-            common.write_text(out / f"{stem}.md", markdown(result))
-        print(structures_markdown(structures))
-        return result
-    scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
-    for name, (window, surface, grid) in SCENES.items():
-        if name not in args.scenes.split(","):
-            continue
-        if args.quick:
-            window, surface, _ = QUICK
-        sweeps = not args.quick and name == "cornell_steinhurst"
-        scenes[name] = study(name, window, surface, grid or 5, args.quick, sweeps)
-        print(f"{name}: done", flush=True)
-    previous_glossy = json.loads(previous.read_text()).get("glossy") if previous.is_file() else None
-    glossy = glossy_sweep(args.quick) if "glossy_floor" in args.scenes.split(",") else None
-    glossy = glossy or previous_glossy
-    structures = (
-        structures_study(args.quick)
-        if "structures" in args.scenes.split(",")
-        else json.loads(previous.read_text()).get("structures")
-        if previous.is_file()
-        else None
-    )
+def headline_of(scenes: dict, sponza: dict | None) -> dict:
+    """The issue's headline numbers from the per-scene results (and the Sponza-setting run)."""
     headline = {
         "traffic_reduction_dirbin_hashed": {},  # uncached naive bytes / order's bytes, per scene
         "traffic_reduction_tiled_hilbert": {},
@@ -622,6 +647,72 @@ def main(argv=None) -> dict:
         headline["cpu_speedup_best_order_per_scene"][name] = speedup
         headline["cpu_best_order"][name] = best
     headline["cpu_speedup_best_order"] = min(headline["cpu_speedup_best_order_per_scene"].values())
+    if sponza:
+        headline["traffic_reduction_dirbin_hashed_sponza_setting"] = sponza["table"][
+            "tiled_dirbin_hashed"
+        ]["reduction_vs_uncached"]
+    return headline
+
+
+STUDIES = {
+    "structures": (structures_study, structures_markdown),
+    "sponza_setting": (sponza_setting, sponza_markdown),
+}
+
+
+def main(argv=None) -> dict:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
+    ap.add_argument("--out-dir", default=str(common.RESULTS))
+    ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
+    ap.add_argument(
+        "--scenes",
+        default=",".join([*SCENES, "glossy_floor", "structures"]),
+        help="scenes (and the glossy_floor / structures studies) to run; the others keep their "
+        "results of the previous run's JSON",
+    )
+    ap.add_argument(
+        "--only",
+        choices=list(STUDIES),
+        help="run only this study, written into the previous run's results (sponza_setting: "
+        "about 12 G node reads, 20-40 minutes)",
+    )
+    args = ap.parse_args(argv)
+    out = Path(args.out_dir)
+    stem = NAME + ("_quick" if args.quick else "")
+    previous = out / f"{stem}.json"
+    if args.only:  # this study alone, written into the previous run's results
+        study_fn, render = STUDIES[args.only]
+        found = study_fn(args.quick)
+        result = json.loads(previous.read_text()) if previous.is_file() else {}
+        result[args.only] = found
+        if "scenes" in result:
+            result["headline"] = headline_of(result["scenes"], result.get("sponza_setting"))
+            common.write_text(out / f"{stem}.md", markdown(result))
+        common.write_json(out / f"{stem}.json", result)
+        print(render(found))
+        return result
+    scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
+    for name, (window, surface, grid) in SCENES.items():
+        if name not in args.scenes.split(","):
+            continue
+        if args.quick:
+            window, surface, _ = QUICK
+        sweeps = not args.quick and name == "cornell_steinhurst"
+        scenes[name] = study(name, window, surface, grid or 5, args.quick, sweeps)
+        print(f"{name}: done", flush=True)
+    previous_glossy = json.loads(previous.read_text()).get("glossy") if previous.is_file() else None
+    glossy = glossy_sweep(args.quick) if "glossy_floor" in args.scenes.split(",") else None
+    glossy = glossy or previous_glossy
+    structures = (
+        structures_study(args.quick)
+        if "structures" in args.scenes.split(",")
+        else json.loads(previous.read_text()).get("structures")
+        if previous.is_file()
+        else None
+    )
+    sponza = json.loads(previous.read_text()).get("sponza_setting") if previous.is_file() else None
+    headline = headline_of(scenes, sponza)
     result = {
         "name": NAME,
         "quick": args.quick,
@@ -632,6 +723,7 @@ def main(argv=None) -> dict:
         "scenes": scenes,
         "glossy": glossy,
         "structures": structures,
+        "sponza_setting": sponza,
         "headline": headline,
     }
     common.write_json(out / f"{stem}.json", result)

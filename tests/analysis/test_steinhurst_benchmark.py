@@ -23,3 +23,8 @@ def test_quick_run_writes_tables(tmp_path):
     structures = data["structures"]["table"]  # Table 4.1: every order on the three structures
     assert all(len(row) == 3 and row["kdtree"]["misses"] > 0 for row in structures.values())
     assert len(data["load_average"]) == 3 and result["headline"] == headline
+    sponza = benchmark("steinhurst_tables").main(
+        ["--quick", "--only", "sponza_setting", "--out-dir", str(tmp_path)]
+    )
+    assert sponza["headline"]["traffic_reduction_dirbin_hashed_sponza_setting"] > 0
+    assert "Sponza setting" in (tmp_path / "steinhurst_tables_quick.md").read_text()
