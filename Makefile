@@ -33,6 +33,8 @@ bench: $(STAMP)
 	$(PY) benchmarks/scale_out.py
 	$(PY) benchmarks/steinhurst_tables.py
 	$(PY) benchmarks/steinhurst_ic_cis.py
+	$(PY) benchmarks/steinhurst_table_5_1.py
+	$(PY) benchmarks/steinhurst_o17_study.py
 	$(PY) benchmarks/volume_box_grid.py
 
 lint: $(STAMP)

@@ -20,9 +20,9 @@ saved, photon-map gathers per image (final-gather rays + the tiled cache's one R
 hit), the image error against a high-ray full final gather, the tile-seam ratio (mean step across
 tile borders / elsewhere; Fig 5.6's square artifacts at large ε_max). Headline
 ``ic_gathers_saved`` = gathers saved by the tiled cache at ε_max = 0.05 on the bare box. The
-bandwidth columns of Table 5.1 under reordering need the cache simulator of the gather-order work
-(branch i13-steinhurst), which this script does not have: the uncached naive column is estimated
-as the ratio of photon gathers (naive traffic is proportional to them).
+uncached naive column of Table 5.1 is estimated here as the ratio of photon gathers (naive traffic
+is proportional to them); ``steinhurst_table_5_1.py`` simulates the whole table, every order with
+and without the cache.
 
     .venv/bin/python benchmarks/steinhurst_ic_cis.py [--quick]
 """

@@ -17,7 +17,10 @@ fully associative, 16 × 16 tiles):
 2. bins ∈ {8, 16, 32, 64, 128, 256, 512} at the setting where dir-binning + hashed reduces most;
 3. the hash grid G ∈ {2, 5, 8, 16} there (at the best bin count).
 
-    PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_o17_study.py [--quick]
+    PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_o17_study.py [--quick] [--sweeps-only]
+
+(at load 3–4 on two cores: the (N_FG, photons) table ~13 min, the sweeps of both scenes ~13 min;
+``--sweeps-only`` redoes only the latter.)
 """
 
 from __future__ import annotations
@@ -244,19 +247,20 @@ gathers of one tile that land in the same part of the photon map while its lines
 3. **Direction bins**: with 32 bins, direction-binning alone gains nothing (1.0–1.15×): a bin
    (1/32 of the sphere, ~0.4 sr) seen from the 256 pixels of a tile lands on a patch of the scene
    whose photons need more lines than the cache holds, and the bin is walked pixel by pixel, so
-   the patch is streamed through the cache once per pixel. Narrower bins shrink the patch: 128
-   bins give 3.3× (Cornell) and 4.3× (bushes); the hashed queues regroup a bin's requests by
-   world cell and lift every bin count (2.9× at 8 bins → 6.8× at 128 on Cornell, 2.3× → 8.2× on
-   the bushes). The curve still rises at 128 bins (A1's "found experimentally": more bins than 128
-   were not swept).
-4. **Hash grid G**: G = 5 is best on both scenes at 128 bins; coarser cells (G = 2) put
-   distant gathers in one queue, finer ones (G = 16) spread one patch over many of the 17
-   queues (our reading of the numbers, not measured separately).
+   the patch is streamed through the cache once per pixel. Narrower bins shrink the patch:
+   dir-binning alone rises 0.6× → 1.1× → 3.3× → 7.2× at 8, 32, 128, 512 bins (Cornell) and
+   0.6× → 1.0× → 4.3× → 13× (bushes); the hashed queues regroup a bin's requests by world cell
+   and lift the small bin counts (Cornell 2.9× at 8 bins, 4.8× at 32, 6.8× at 128, 7.5× at 512;
+   bushes 2.3×, 5.7×, 8.2×, 9.1×). At 512 bins a bin is ~0.025 sr and holds ~40 of a tile's
+   gathers at N_FG = 100, and the queues add little or, on the bushes, cost (9.1× vs 13×).
+4. **Hash grid G** (at the best bin count, 512): Cornell G = 2 / 5 / 8 / 16 → 7.4× / 7.5× /
+   6.0× / 4.8×, bushes 13.5× / 10.1× / 9.1× / 9.0×: coarse cells keep a bin's already-coherent
+   requests together; fine cells spread them over the 17 queues, whose collisions flush early.
 
 The dissertation gives neither its photon count (A12) nor its bin count (A1); its 50 GB at
 N_FG = 50 imply 50 GB / 20 B / (512² · 50) ≈ 190 node visits per gather against our 300–370
-(a different traversal or map). On the low-photon side of this study our Cornell box reaches
-O17's 4×; the bushy box stays below its 10× (best figures in the verdicts above).
+(a different traversal or map). With 100 k photons and N_FG = 100 our Cornell box reaches O17's
+4× at the default 32 bins; the bushy box reaches its 10× only with 512 bins and G ≤ 5.
 """
 
 
