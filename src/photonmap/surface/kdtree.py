@@ -37,9 +37,10 @@ that bound. Ties are kept (``≤``), so a photon at exactly the k-th distance wi
 still found, and float32 rounding is monotone, so ``δ²`` never exceeds a far-side photon's ``d²``:
 the results are exact. The stack holds at most one entry per tree level (≤ 32).
 
-**Address trace** (:meth:`KDTree.visits`, for :mod:`photonmap.analysis`): the same search also
-counts the nodes each query visits and can write their heap slots, in visiting order, to a buffer
-— the exact stream of record reads of a gather (spec §2.6).
+**Address trace** (:meth:`KDTree.visits`): the same search also counts the nodes each query
+visits and can write their heap slots, in visiting order, to a buffer — the exact stream of record
+reads of a gather (spec §2.6). The cache simulator runs a compiled copy of this search
+(:mod:`photonmap.analysis.kdwalk`), tested slot for slot against this one.
 """
 
 from __future__ import annotations
