@@ -12,7 +12,7 @@ scaled to the image. Written beside the dissertation's numbers:
 
 - Table 3.1 (bytes per image by gather order) and the reduction of each order against the
   uncached naive figure (20 B per visited node, §3.5) — O16, O17;
-- Fig 3.9 (bytes vs cache size, one stack-distance pass per order; plot in ``docs/``) — O19;
+- Fig 3.9 (bytes vs cache size, one streamed pass per order gives every size; plot in ``docs/``) — O19;
 - Fig 3.5 (bytes vs tile size) — O18; Fig 4.1 / Table 4.1 (bytes vs line size) — O21;
 - 8-way set-associative vs fully associative misses — O20;
 - the chip model of Ch. 7 fed with these counts: tiles/s at 90 GB/s per order — O27;
