@@ -619,8 +619,9 @@ def markdown(result: dict) -> str:
     return "\n".join(parts) + "\n"
 
 
-def headline_of(scenes: dict, sponza: dict | None) -> dict:
-    """The issue's headline numbers from the per-scene results (and the Sponza-setting run)."""
+def headline_of(scenes: dict, sponza: dict | None, out: Path) -> dict:
+    """The issue's headline numbers from the per-scene results (and the Sponza-setting run),
+    with the irradiance-cache and CIS figures of ``steinhurst_ic_cis.py``'s results in ``out``."""
     headline = {
         "traffic_reduction_dirbin_hashed": {},  # uncached naive bytes / order's bytes, per scene
         "traffic_reduction_tiled_hilbert": {},
@@ -651,6 +652,11 @@ def headline_of(scenes: dict, sponza: dict | None) -> dict:
         headline["traffic_reduction_dirbin_hashed_sponza_setting"] = sponza["table"][
             "tiled_dirbin_hashed"
         ]["reduction_vs_uncached"]
+    ic_cis = out / "steinhurst_ic_cis.json"
+    if ic_cis.is_file():  # written by benchmarks/steinhurst_ic_cis.py
+        other = json.loads(ic_cis.read_text())["headline"]
+        for key in ("ic_gathers_saved", "cis_rays_ratio_vs_brdf"):
+            headline[key] = other[key]
     return headline
 
 
@@ -687,7 +693,7 @@ def main(argv=None) -> dict:
         result = json.loads(previous.read_text()) if previous.is_file() else {}
         result[args.only] = found
         if "scenes" in result:
-            result["headline"] = headline_of(result["scenes"], result.get("sponza_setting"))
+            result["headline"] = headline_of(result["scenes"], result.get("sponza_setting"), out)
             common.write_text(out / f"{stem}.md", markdown(result))
         common.write_json(out / f"{stem}.json", result)
         print(render(found))
@@ -712,7 +718,7 @@ def main(argv=None) -> dict:
         else None
     )
     sponza = json.loads(previous.read_text()).get("sponza_setting") if previous.is_file() else None
-    headline = headline_of(scenes, sponza)
+    headline = headline_of(scenes, sponza, out)
     result = {
         "name": NAME,
         "quick": args.quick,
