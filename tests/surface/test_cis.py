@@ -180,6 +180,30 @@ def test_cis_table_averages_the_photon_and_brdf_pdfs(glossy_box):
     assert np.allclose(jensen.reshape(-1, CELLS), np.cumsum(alg_6_1(energy), axis=1), atol=2e-6)
 
 
+def test_tables_gather_only_the_light_a_final_gather_finds(glossy_box, monkeypatch):
+    """Under the ceiling light most photons near the floor came straight from the light, where a
+    final-gather ray finds nothing: the tables are built from the map of the photons after a
+    diffuse bounce (not caustic), so all k nearest photons count. That map holds exactly those
+    global photons, and the final gather's tables are built from it."""
+    pipe, _ = glossy_box
+    records = pipe.photon_maps()[0].photons
+    keep = (records.depth.numpy() > 1) & ~records.caustic.numpy()
+    indirect = pipe.indirect_photons()
+    assert 0 < indirect.size == int(keep.sum()) < records.count
+    assert np.array_equal(
+        np.sort(indirect.photons.position.numpy(), axis=1),
+        np.sort(records.position.numpy()[:, keep], axis=1),
+    )
+    used = []
+    monkeypatch.setattr(
+        "photonmap.surface.pipeline.sampling_table",
+        lambda method, pmap, *args: used.append(pmap) or sampling_table(method, pmap, *args),
+    )
+    pipe.set_params(fg_sampling="cis", fg_rays=4)
+    pipe.render()
+    assert used and all(pmap is indirect for pmap in used)
+
+
 def test_bad_sampling_names_the_choices():
     pipe = SurfacePipeline(cornell.cornell_glossy_floor(8, 8), photons=1000, caustic_photons=0)
     with pytest.raises(ParameterError, match="fg_sampling"):

@@ -169,6 +169,7 @@ class SurfacePipeline(MovableCamera):
         self.stats: dict[str, float] = {}
         self._maps = None  # (tracing key, (global map, caustic map))
         self._extra = None  # (lookup key, irradiance or filtered map), for self._maps
+        self._indirect = None  # (maps key, the indirect photons' map)
         self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
         self._step = None  # (volume key, automatic march step, precomputed density or None)
         self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
@@ -225,10 +226,21 @@ class SurfacePipeline(MovableCamera):
                 with self.timer("irradiance"):
                     extra = precompute_irradiance(global_map, p.irradiance_every, p.k, r_global)
             elif p.lookup == "direct":  # direct visualisation: only photons after a diffuse bounce
-                later = global_map.photons.after_first()
-                extra = photon_map(later.select(~later.caustic), p.structure)
+                extra = self.indirect_photons()
             self._extra = (extra_key, extra)
         return global_map, caustic_map, self._extra[1]
+
+    def indirect_photons(self):
+        """The global map's photons that came from another surface after a diffuse bounce —
+        neither straight from a light nor through mirrors and glass (direct light and caustics
+        at x are computed separately): the light a final-gather ray can find, as its own map
+        (the direct visualisation, and the photon tables of Jensen's and Steinhurst's
+        importance sampling, whose k nearest photons should all be of that light)."""
+        if self._indirect is None or self._indirect[0] != self._maps[0]:
+            later = self._maps[1][0].photons.after_first()
+            selected = photon_map(later.select(~later.caustic), self.params.structure)
+            self._indirect = (self._maps[0], selected)
+        return self._indirect[1]
 
     def inscatter(self) -> Inscatter:
         """The eye pass's in-scattered light for the current volume map: the automatic gather
@@ -286,7 +298,8 @@ class SurfacePipeline(MovableCamera):
             irradiance = mi.Bool(plan.record)
         table = None
         if p.fg_sampling in TABLE_SAMPLING:
-            table = sampling_table(p.fg_sampling, self._maps[1][0], at, ok, p.k, self.radii()[1])
+            pmap = self.indirect_photons()
+            table = sampling_table(p.fg_sampling, pmap, at, ok, p.k, self.radii()[1])
         L = dr.zeros(mi.Spectrum, 0)
         if dr.width(ok):
             L = final_gather(
