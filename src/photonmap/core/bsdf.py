@@ -34,9 +34,18 @@ def is_null(bsdf: mi.BSDFPtr, active) -> mi.Bool:
 def has_null_shapes(scene: mi.Scene) -> bool:
     """Whether any shape of ``scene`` has a ``null`` BSDF and no emitter (an invisible boundary)."""
     return any(
-        s.bsdf() is not None and s.bsdf().flags() & _LOBES == int(mi.BSDFFlags.Null)
+        s.bsdf() is not None
+        and s.bsdf().flags() & _LOBES == int(mi.BSDFFlags.Null)
         and not s.is_emitter()
         for s in scene.shapes()
+    )
+
+
+def has_glossy_shapes(scene: mi.Scene) -> bool:
+    """Whether any shape of ``scene`` has a BSDF with a glossy lobe (rough conductors and
+    dielectrics, plastics): radiance leaving such a surface depends on the direction."""
+    return any(
+        s.bsdf() is not None and s.bsdf().flags() & int(mi.BSDFFlags.Glossy) for s in scene.shapes()
     )
 
 

@@ -44,7 +44,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import has_null_shapes
+from ..core.bsdf import has_glossy_shapes, has_null_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
 from ..core.errors import SceneError
@@ -66,7 +66,7 @@ from .cis import TABLE_SAMPLING, sampling_table
 from .final_gather import final_gather
 from .gather import radiance_estimate
 from .gather_batch import ORDERS, OrderParams, RequestLayout
-from .irradiance import lookup_radiance, precompute_irradiance
+from .irradiance import lookup_radiance, precompute_irradiance, with_glossy_estimates
 from .irradiance_cache import (
     MODES,
     RAVG_RAYS,
@@ -163,6 +163,7 @@ class SurfacePipeline(MovableCamera):
         self.scene, self.sensor, own = load_with_sensor(scene, SurfaceParams, params)
         self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
         self.null_shapes = has_null_shapes(self.scene)  # invisible fog boxes (issue 10)
+        self.glossy_shapes = has_glossy_shapes(self.scene)  # final gathers need k-NN there
         self.params = SurfaceParams()
         self.set_params(**own)
         self.timer = StageTimer()
@@ -260,7 +261,9 @@ class SurfacePipeline(MovableCamera):
         step = p.march_step if p.march_step > 0 else self._step[1]
         return Inscatter(self.scene, self._volume, p.volume_k, radius, step, self._step[2], p.seed)
 
-    def request_layout(self, w: int, h: int, bounces: mi.UInt32, lanes=None) -> RequestLayout | None:
+    def request_layout(
+        self, w: int, h: int, bounces: mi.UInt32, lanes=None
+    ) -> RequestLayout | None:
         """How the final gather emits and orders its k-NN requests (``lookup="knn"``);
         ``lanes``: the query point of each gathering lane when only some gather (the irradiance
         cache's plan)."""
@@ -317,9 +320,7 @@ class SurfacePipeline(MovableCamera):
                 inscatter=inscatter,
                 table=table,
                 irradiance=irradiance,
-                layout=self.request_layout(
-                    *size, bounces, None if plan is None else plan.gather
-                ),
+                layout=self.request_layout(*size, bounces, None if plan is None else plan.gather),
             )
         if plan is None:
             return L
@@ -375,7 +376,10 @@ class SurfacePipeline(MovableCamera):
         if p.lookup == "irradiance":
 
             def lookup(si_y, bsdf_y, active):
-                return lookup_radiance(extra, si_y, bsdf_y, active)
+                L = lookup_radiance(extra, si_y, bsdf_y, active)
+                if not self.glossy_shapes:
+                    return L
+                return with_glossy_estimates(L, global_map, si_y, bsdf_y, p.k, r_global, active)
         else:
 
             def lookup(si_y, bsdf_y, active):
@@ -444,7 +448,9 @@ class SurfacePipeline(MovableCamera):
             if p.lookup == "direct":
                 L += beta * radiance_estimate(extra, si, bsdf, p.k, r_global, found)
             else:
-                L += beta * self.indirect(si, bsdf, found, lookup, (w, h), bounces, medium, inscatter)
+                L += beta * self.indirect(
+                    si, bsdf, found, lookup, (w, h), bounces, medium, inscatter
+                )
             dr.eval(L)
         image = pixel_means(L, p.spp)
         if progress:
