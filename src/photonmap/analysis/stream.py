@@ -159,10 +159,7 @@ class GatherTrace:
     def lines(self, order: str, line_bytes: int, params: OrderParams | None = None) -> np.ndarray:
         """The stream of cache-line ids the gathers read when issued in ``order``."""
         perm = gather_order(self.batch, order, params)
-        count = self.count[perm]
-        total = int(count.sum())
-        start = np.repeat(self.offset[perm] - (np.cumsum(count) - count), count)
-        slots = self.slots[start + np.arange(total)]
+        slots = permuted_stream(self.count, self.offset, self.slots, perm)
         return (slots - 1) // photons_per_line(line_bytes)
 
     def store_reads(self, line_bytes: int, budget: int = READS_BUDGET) -> bool:
@@ -224,6 +221,14 @@ class CacheCounts:
     set_associative: np.ndarray | None
     compulsory: np.ndarray
     visits: int
+
+
+def permuted_stream(count, offset, data, perm) -> np.ndarray:
+    """The concatenation of each request's run ``data[offset[r] : offset[r] + count[r]]`` over
+    the requests ``perm`` (a gather order's stream)."""
+    count = count[perm]
+    start = np.repeat(offset[perm] - (np.cumsum(count) - count), count)
+    return data[start + np.arange(int(count.sum()))]
 
 
 def photons_per_line(line_bytes: int) -> int:

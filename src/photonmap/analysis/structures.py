@@ -70,6 +70,7 @@ from ..core.knn import COS_NORMAL, squared_radius
 from ..core.order import hilbert3_index
 from ..surface.gather_batch import OrderParams, gather_order
 from .bandwidth import counts
+from .stream import permuted_stream
 
 RECORD_BYTES = 20  # Jensen's compact photon (spec §2.3)
 HEADER_BYTES = 8  # a leaf block's bookkeeping (spec §2.3: 6 photons + 8 bytes in 128 B)
@@ -723,14 +724,6 @@ class StructureTrace:
     def footprint_lines(self, line_bytes: int) -> int:
         """Lines of the whole structure."""
         return self.build(line_bytes)[0].lines
-
-
-def permuted_stream(count, offset, data, perm) -> np.ndarray:
-    """The concatenation of each request's run ``data[offset[r] : offset[r] + count[r]]`` over
-    the requests ``perm``."""
-    count = count[perm]
-    start = np.repeat(offset[perm] - (np.cumsum(count) - count), count)
-    return data[start + np.arange(int(count.sum()))]
 
 
 def fetches_per_block(trace, order: str, cache_bytes: int, line_bytes: int, params=None) -> dict:
