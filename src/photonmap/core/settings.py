@@ -1,0 +1,107 @@
+"""The scene file's own rendering settings: the path-length limits of its ``<integrator>``.
+
+A Mitsuba file says how long its light paths may be, and Mitsuba's image of the file depends on
+it: ``max_depth`` is the longest path in segments (1: only emitters seen directly; 2: direct
+light; -1: unbounded, ended by Russian roulette), ``rr_depth`` the depth from which Russian
+roulette ends paths, ``hide_emitters`` hides the emitters (and the environment) seen directly.
+Every method takes these as its defaults, so that the same file gives the same image
+(``--set`` overrides them). Wrappers that hold another integrator (``aov``, ``moment``) pass on
+the settings of the integrator they hold; Mitsuba's ``direct`` integrator is ``max_depth`` 2.
+Without an ``<integrator>`` Mitsuba's own defaults hold: -1, 5, False.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, replace
+
+import mitsuba as mi
+
+UNBOUNDED = -1
+MITSUBA_RR_DEPTH = 5  # Mitsuba's default rr_depth
+
+
+@dataclass(frozen=True)
+class PathSettings:
+    """Path-length settings with Mitsuba's meaning (module docstring)."""
+
+    max_depth: int = UNBOUNDED
+    rr_depth: int = MITSUBA_RR_DEPTH
+    hide_emitters: bool = False
+
+    @classmethod
+    def of(cls, scene: mi.Scene, source=None) -> PathSettings:
+        """The settings of ``scene``'s ``<integrator>`` (Mitsuba's defaults without one);
+        ``source``: the XML file it was loaded from, if any, where a wrapper's inner
+        ``hide_emitters`` is read (a wrapper object does not show it)."""
+        settings = integrator_settings(scene.integrator())
+        if source is not None and is_wrapper(scene.integrator()) and not settings.hide_emitters:
+            settings = replace(settings, hide_emitters=_inner_hide_emitters(source))
+        return settings
+
+    def allows(self, segments) -> bool:
+        """Whether a path of ``segments`` segments is within ``max_depth`` (Python ints or Dr.Jit
+        arrays)."""
+        if self.max_depth == UNBOUNDED:
+            return True if isinstance(segments, int) else segments >= 0
+        return segments <= self.max_depth
+
+
+_DEPTH = re.compile(r"\bmax_depth\s*=\s*(-?\d+)")
+_RR = re.compile(r"\brr_depth\s*=\s*(-?\d+)")
+
+
+def integrator_settings(integrator) -> PathSettings:
+    """:class:`PathSettings` of a Mitsuba integrator object (None: Mitsuba's defaults).
+
+    Mitsuba's C++ integrators expose ``max_depth`` and ``rr_depth`` only in their description
+    (``PathIntegrator[max_depth = 8, rr_depth = 5]``), which also lists the integrators a wrapper
+    holds; Python integrators (``prb``, ...) have them as attributes."""
+    if integrator is None:
+        return PathSettings()
+    hide = integrator.hide_emitters
+    hide = bool(hide() if callable(hide) else hide)
+    depth = getattr(integrator, "max_depth", None)
+    rr = getattr(integrator, "rr_depth", None)
+    text = str(integrator)
+    if depth is None:
+        found = _DEPTH.search(text)
+        if found:
+            depth = int(found.group(1))
+        elif integrator.class_name() == "DirectIntegrator" or text.startswith("DirectIntegrator"):
+            depth = 2
+    if rr is None:
+        found = _RR.search(text)
+        rr = int(found.group(1)) if found else MITSUBA_RR_DEPTH
+    depth = UNBOUNDED if depth is None or not 0 < int(depth) < 2**31 else int(depth)
+    return PathSettings(depth, max(int(rr), 1), hide)
+
+
+WRAPPERS = ("AOVIntegrator", "MomentIntegrator")
+
+
+def is_wrapper(integrator) -> bool:
+    """Whether ``integrator`` holds another integrator whose image it passes on."""
+    return integrator is not None and integrator.class_name() in WRAPPERS
+
+
+def _inner_hide_emitters(source) -> bool:
+    """``hide_emitters`` of the innermost ``<integrator>`` of the XML file ``source`` (a literal
+    ``true``; False when unreadable)."""
+    try:
+        path = os.fspath(source)
+        if not os.path.isfile(path):
+            return False
+        node = ET.parse(path).getroot().find("integrator")
+    except (OSError, TypeError, ET.ParseError):
+        return False
+    while node is not None and node.find("integrator") is not None:
+        node = node.find("integrator")
+    if node is None:
+        return False
+    for flag in node.findall("boolean"):
+        if flag.get("name") == "hide_emitters":
+            return flag.get("value", "").strip().lower() == "true"
+    return False
