@@ -20,14 +20,13 @@ VOLUME_SCENES = [name for name, b in SCENES.items() if b.pipeline == "volume"]
 
 
 def test_every_builtin_takes_its_parameters_and_picks_its_method():
-    """Every built-in loads with each scene parameter it advertises (issue 10 item 3) and returns
-    its pipeline defaults; the method picked from its content (``pick_method``) is volume exactly
-    for the fog scenes (the screen scenes have no medium: surface unless asked for)."""
+    """Every built-in loads with each scene parameter it advertises and returns its pipeline
+    defaults; a file (no built-in) renders with ``sppm``, which models everything in it."""
     for name, builtin in SCENES.items():
         assert builtin.description
         scene, defaults = load_scene(name, **{**builtin.params, **SMALL})
         assert defaults == builtin.defaults
-        assert pick_method(scene) == ("volume" if builtin.pipeline == "volume" else "surface")
+        assert pick_method(scene) == "sppm"
     assert VOLUME_SCENES == ["glass_sphere_fog", "perlin_cube", "mesh_in_fog"]
     assert {"ior_noise", "sigma_s_noise", "noise_scale"} <= set(SCENES["perlin_cube"].defaults)
 

@@ -1,19 +1,19 @@
 """What a Mitsuba scene holds, as far as choosing and checking a method goes: its participating
 media (the fog) and the shapes that bound them.
 
-The CLI picks the method from this (fog → ``volume``, else ``surface``), the volume method refuses
-a scene without fog, and the screen method, which does not model media, warns once that it
-renders without them (issue 10: never a silently wrong image). The surface method renders media
-with a volume photon map (:mod:`photonmap.core.media`).
+The volume method refuses a scene without fog, and a method that does not model part of a scene
+says so (never a silently wrong image). :class:`SceneTraits` tells the transport loops what a
+scene needs.
 """
 
 from __future__ import annotations
 
-import warnings
+from dataclasses import dataclass
 
 import mitsuba as mi
 
-from .errors import PhotonmapWarning
+from .bsdf import has_null_lobes, has_null_shapes
+from .errors import SceneError
 
 
 def _name(obj) -> str:
@@ -44,21 +44,38 @@ def has_media(scene: mi.Scene) -> bool:
     return bool(media(scene))
 
 
+@dataclass(frozen=True)
+class SceneTraits:
+    """What the transport loops need to know about a scene once, to leave out the work it does
+    not need (the same code path either way): ``media`` — it holds participating media;
+    ``null_shapes`` — shapes with a ``null`` BSDF that rays cross unchanged; ``null_lobes`` —
+    BSDFs that let shadow rays through in part (``null``, ``mask``, ``thindielectric``)."""
+
+    media: bool
+    null_shapes: bool
+    null_lobes: bool
+
+    @classmethod
+    def of(cls, scene: mi.Scene) -> SceneTraits:
+        return cls(has_media(scene), has_null_shapes(scene), has_null_lobes(scene))
+
+
 def pick_method(scene: mi.Scene) -> str:
-    """The method a scene is rendered with when the user names none: ``volume`` for a scene
-    with fog (a participating medium), else ``surface``."""
-    return "volume" if has_media(scene) else "surface"
+    """The method a scene file is rendered with when the user names none: ``sppm``, the method
+    that renders everything a Mitsuba file may hold — any BSDF, glass, caustics, media, lights
+    inside reflectors — as Mitsuba's ``path``/``volpath`` does, and converges to it. The other
+    methods are faster where their assumptions hold (``surface``: final gathers of diffuse
+    interreflection; ``volume``: fog and refractive media as voxel grids; ``screen``: interactive
+    image-space photons) and are chosen with ``--method``."""
+    return "sppm"
 
 
-def warn_unmodelled_media(scene: mi.Scene, method: str) -> list[str]:
-    """Warn once (a :class:`PhotonmapWarning`) that ``method`` renders ``scene`` without its
-    media, naming each; returns the lines warned about."""
+def refuse_media(scene: mi.Scene, method: str) -> None:
+    """Raise a :class:`SceneError` naming each medium of ``scene`` when ``method`` cannot render
+    participating media (rendering the scene as if in vacuum would be a silently wrong image)."""
     found = media(scene)
     if found:
-        warnings.warn(
-            f"the {method} method does not model participating media and renders this scene "
-            f"as if in vacuum, ignoring: {'; '.join(found)}. Use --method volume for fog.",
-            PhotonmapWarning,
-            stacklevel=3,
+        raise SceneError(
+            f"the {method} method renders surfaces in vacuum and cannot render participating "
+            f"media ({'; '.join(found)}); render this scene with --method sppm (or surface)"
         )
-    return found

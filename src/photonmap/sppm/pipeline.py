@@ -19,19 +19,17 @@ distance of the surfaces the camera sees; in ``sppm`` mode the first iteration t
 pixel's radius to hold about :data:`FIRST_PHOTONS` photons (:meth:`.gather.PixelState.updated`:
 small radii where photons are dense, in caustics). A given ``radius`` is every pixel's start.
 
-**Participating media** (issue 11 item 5; Jensen & Christensen 1998): each iteration's photon
-pass also builds a volume map (:mod:`.photons`), and its eye pass marches through the media with
-it (:mod:`.visible`), both with the surface method's machinery. The volume part is memoryless in
-both modes: iteration ``i``'s in-scattered light is a density estimate of its own volume map in
+**Participating media** (Jensen & Christensen 1998; Mitsuba's ``volpath``): the eye paths run
+through the media by volumetric path tracing (:mod:`.visible`), and each iteration's photon pass
+keeps its caustic volume photons (:mod:`.photons`), read at the eye paths' medium collisions in
 spheres of radius ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates:
-the variance of one estimate grows as ``1/ρ³``), at most ``volume_k`` photons (the nearest; a
-smaller sphere where more lie within ``ρ_i``), averaged over the iterations as ``L_d`` is. As
-``ρ_i`` shrinks the chance that ``volume_k`` photons lie within it vanishes, the estimate becomes
-the fixed-radius one and its bias shrinks with ``ρ_i`` while the averaged variance falls as
-``1/i^α``: the volume part converges too. ``ρ_1``: ``volume_radius``, or the surface method's
-automatic volume radius (:data:`~photonmap.core.media.VOLUME_RADIUS` × the scene
-diagonal); the march step is half the median ``volume_k``-th photon distance within ``ρ_i``
-(:meth:`~photonmap.core.media.VolumeMap.march_step`).
+the variance of one estimate grows as ``1/ρ³``), memoryless in both modes: the bias shrinks with
+``ρ_i`` while the averaged variance falls. ``ρ_1``: ``volume_radius``, or
+:data:`VOLUME_RADIUS` × the scene diagonal.
+
+**The scene file's settings**: ``max_depth``, ``rr_depth`` and ``hide_emitters`` default to the
+file's ``<integrator>`` (:class:`~photonmap.core.settings.PathSettings`), with Mitsuba's meaning;
+a photon counts at a visible point where the two paths together fit ``max_depth``.
 """
 
 from __future__ import annotations
@@ -43,12 +41,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_rays, scene_bounds
 from ..core.errors import ParameterError, SceneError
-from ..core.media import STEP_SAMPLES, VOLUME_RADIUS, Inscatter
+from ..core.media import emitter_media
 from ..core.params import check_choice, check_fields, check_range, updated
-from ..core.scene_info import has_media
+from ..core.scene_info import SceneTraits
+from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
 from .gather import PixelState, gather, iteration_image, memoryless_radius
 from .photons import photon_pass
@@ -58,6 +56,7 @@ MODES = ("sppm", "memoryless")
 STAGES = ("photon pass", "eye pass", "gather")
 RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
 FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
+VOLUME_RADIUS = 0.1  # automatic first volume radius ρ_1, × the scene diagonal
 
 
 @dataclass
@@ -69,10 +68,11 @@ class SPPMParams:
     radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
     alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
     seed: int = 0
-    max_depth: int = 8  # bounces of photon paths and of the eye paths' specular chains
+    max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
+    rr_depth: int = 0  # depth where Russian roulette starts; 0 = the scene's
+    hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
     mode: str = "sppm"  # "sppm" (per-pixel radii) | "memoryless" (Knaus & Zwicker 2011)
     aim: float = 0.5  # fraction of the area lights' photons aimed at specular shapes (0 = none)
-    volume_k: int = 50  # scenes with media: volume photons per in-scattering estimate, at most
     volume_radius: float = 0.0  # scenes with media: first volume radius ρ_1; 0 = automatic
 
     def validate(self) -> None:
@@ -84,11 +84,10 @@ class SPPMParams:
         )
         check_range("radius", self.radius, 0, None, "the initial gather radius; 0 = automatic")
         check_range("alpha", self.alpha, 0, 1, "SPPM's α (2/3 is usual)", True, True)
-        check_range("max_depth", self.max_depth, 1, None, "bounces of photon and eye paths")
+        check_path_params(self)
         check_range("aim", self.aim, 0, 1, "fraction of photons aimed at specular shapes",
                     hi_open=True)
         check_choice("mode", self.mode, MODES, "progressive per-pixel radii or memoryless")
-        check_range("volume_k", self.volume_k, 1, 1024, "volume photons per estimate")
         check_range("volume_radius", self.volume_radius, 0, None, "the first volume radius; 0 = auto")
 
 
@@ -135,8 +134,9 @@ class SPPMPipeline(MovableCamera):
         from ..scenes import load_with_sensor
 
         self.scene, self.sensor, own = load_with_sensor(scene, SPPMParams, params)
-        self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
-        self.null_shapes = has_null_shapes(self.scene)
+        self.traits = SceneTraits.of(self.scene)
+        self.file_settings = PathSettings.of(self.scene, scene)
+        self.emitter_media = emitter_media(self.scene)
         self.params = SPPMParams()
         self.set_params(**own)
         self.timer = StageTimer()
@@ -154,6 +154,12 @@ class SPPMPipeline(MovableCamera):
         super().set_camera(*args, **kwargs)
         self._r1 = None
         self.reset()
+
+    @property
+    def settings(self) -> PathSettings:
+        """The path-length settings: the file's, with this pipeline's parameters applied."""
+        p = self.params
+        return overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters)
 
     def reset(self) -> None:
         """Forget all iterations (the next :meth:`step` is iteration 1)."""
@@ -207,19 +213,20 @@ class SPPMPipeline(MovableCamera):
     # ------------------------------------------------------------------------- one iteration
     def _iteration(self, i: int, radius):
         """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one)."""
-        p = self.params
+        p, settings = self.params, self.settings
         eye_seed, photon_seed = iteration_seeds(p.seed, i)
         with self.timer("photon pass"):
             photons = photon_pass(
-                self.scene, p.photons_per_iteration, photon_seed, p.max_depth, p.aim, self.media
-            )
+                self.scene, p.photons_per_iteration, photon_seed, settings, p.aim, self.traits,
+                self.volume_radius_at(i), self.emitter_media,
+            )  # fmt: skip
         with self.timer("eye pass"):
-            inscatter = self.inscatter(photons, i, eye_seed) if self.media else None
             points = eye_pass(
-                self.scene, self.sensor, eye_seed, p.max_depth, self.null_shapes, inscatter
-            )
+                self.scene, self.sensor, eye_seed, settings, self.traits,
+                self.volume_caustics(photons, i),
+            )  # fmt: skip
         with self.timer("gather"):
-            got = gather(points, radius, photons)
+            got = gather(points, radius, photons, settings)
         self.stats["photons"] += p.photons_per_iteration
         self.stats["photon_records"] += photons.count
         self.stats["aimed_photons"] += photons.aimed
@@ -234,12 +241,19 @@ class SPPMPipeline(MovableCamera):
         r1 = p.volume_radius if p.volume_radius > 0 else VOLUME_RADIUS * scene_bounds(self.scene)[1]
         return r1 * i ** ((p.alpha - 1.0) / 3.0)
 
-    def inscatter(self, photons, i: int, seed: int) -> Inscatter:
-        """Iteration ``i``'s in-scattered light from its volume map (module docstring)."""
-        k, radius = self.params.volume_k, self.volume_radius_at(i)
-        step = photons.volume.march_step(k, radius, STEP_SAMPLES)
-        self.stats["volume_photons"] += photons.volume.size
-        return Inscatter(self.scene, photons.volume, k, radius, step, None, seed)
+    def volume_caustics(self, photons, i: int):
+        """Iteration ``i``'s caustic volume photons as the eye paths' ``medium_light``
+        (:func:`~photonmap.core.eye_trace.trace_eye_paths`), or None where there are none."""
+        vmap = photons.volume
+        if vmap is None:
+            return None
+        self.stats["volume_photons"] += vmap.size
+        stored, radius = vmap.stored(), self.volume_radius_at(i)
+
+        def medium_light(mei, _beta, depth_left, active):
+            return vmap.phase_sum(stored, mei, radius, depth_left, active)
+
+        return medium_light
 
     def _memoryless_image(self, i: int) -> np.ndarray:
         radius = self.radius_at(i)
