@@ -18,10 +18,10 @@ import mitsuba as mi
 from .media import (
     channel,
     enter,
-    full_width,
     interaction,
     segment_transmittance,
     transmittance,
+    walk,
     within_extent,
 )
 from .scene_info import SceneTraits
@@ -90,48 +90,7 @@ def emitter_along(scene, ray, medium, gen, active, traits: SceneTraits):
     if not traits.media and not traits.null_lobes:
         si = scene.ray_intersect(ray, active)
         return si, dr.select(active, 1.0, 0.0) * mi.Spectrum(1.0)
-    return _emitter_along(scene, ray, medium, gen, channel(gen), active)
-
-
-@dr.syntax
-def _emitter_along(scene, ray, medium, gen, ch, active):
-    n = dr.width(active)
-    ray = full_width(ray, n)
-    medium = mi.MediumPtr(medium)
-    T = dr.full(mi.Spectrum, 1.0, n)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    going = mi.Bool(active)
-    crossings = dr.zeros(mi.UInt32, n)
-    while going & (crossings < 64):
-        si_next = scene.ray_intersect(ray, going)
-        si[going] = si_next
-        T[going] *= segment_transmittance(ray, si.t, medium, gen, ch, going)
-        surface = going & si.is_valid()
-        through = surface & (si.emitter(scene) == None)  # noqa: E711
-        T[through] *= mi.Spectrum(si.bsdf(ray).eval_null_transmission(si, through))
-        medium = enter(si, ray.d, medium, through)
-        ray[through] = si.spawn_ray(ray.d)
-        going = through & dr.any(T != 0.0)
-        crossings += 1
-    return si, T
-
-
-def medium_direct(
-    scene: mi.Scene, mei: mi.MediumInteraction3f, gen: mi.PCG32, active: mi.Bool, mis: bool
-) -> mi.Spectrum:
-    """Next-event estimation at a medium collision, per unit throughput: ``f_p L_e T / p`` for a
-    point on the emitters; ``mis``: weighted against phase-function sampling (power heuristic),
-    for a path that goes on by sampling the phase function."""
-    it = mi.Interaction3f(mei)
-    ds, em_weight = scene.sample_emitter_direction(
-        it, mi.Point2f(gen.next_float32(), gen.next_float32()), False, active
-    )
-    lit = active & (ds.pdf != 0)
-    T = transmittance(scene, it.spawn_ray_to(ds.p), mei.medium, gen, channel(gen), lit)
-    f, pdf = mei.medium.phase_function().eval_pdf(mi.PhaseFunctionContext(None), mei, ds.d, lit)
-    w = dr.select(ds.delta, 1.0, power_heuristic(ds.pdf, pdf)) if mis else 1.0
-    return dr.select(lit, w * f * em_weight * T, 0.0)
-
+    return walk(scene, ray, medium, gen, channel(gen), active, True)
 
 
 def inscattered_direct(

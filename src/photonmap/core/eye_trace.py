@@ -55,7 +55,6 @@ from .bsdf import intersect_visible
 from .direct import piece_direct
 from .media import (
     Segments,
-    attenuated_flight,
     channel,
     collide,
     enter,
@@ -169,6 +168,7 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
     media_mode = media_mode if media else "transmit"  # vacuum: nothing to collide with
     ch = channel(gen)
     lane = dr.arange(mi.UInt32, n)
+    stride = dr.opaque(mi.UInt32, n)  # not a literal: one kernel for every size
     pieces = dr.zeros(mi.UInt32, n)
     events = dr.zeros(mi.UInt32, n)
     while active & (events < MAX_EVENTS):
@@ -182,7 +182,7 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
             in_medium = active & (medium != None)  # noqa: E711
             length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
             record = in_medium & (pieces < max_pieces)
-            slot = pieces * n + lane
+            slot = pieces * stride + lane
             for field, value in (("origin", ray.o), ("direction", ray.d), ("length", length),
                                  ("medium", medium), ("weight", beta), ("lane", lane)):
                 dr.scatter(getattr(buffers, field), value, slot, record)  # fmt: skip
@@ -200,10 +200,8 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
             scattered, mei, weight = collide(ray, length, medium, gen, ch, in_medium)
             beta[in_medium] *= weight
         else:
-            if dr.hint(media_mode == "transmit", mode="scalar"):
-                flight = attenuated_flight(scene, ray, medium, gen, ch, active)
-            else:
-                flight = free_flight(scene, ray, medium, gen, ch, active)
+            collisions = media_mode == "end"
+            flight = free_flight(scene, ray, medium, gen, ch, active, collisions)
             si, mei = flight.si, flight.mei
             beta[active] *= flight.weight
             scattered = active & flight.scattered

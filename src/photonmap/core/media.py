@@ -118,7 +118,7 @@ def escape_length(
     _, _, sigma_t = medium.get_scattering_coefficients(
         interaction(ray.o, ray.d, 0.0, medium), active
     )
-    beyond = ESCAPE_FREE_PATHS / dr.maximum(dr.mean(sigma_t), 1e-6)
+    beyond = ESCAPE_FREE_PATHS / dr.maximum(dr.mean(sigma_t, axis=0), 1e-6)
     return dr.select(dr.isfinite(medium_exit), medium_exit, scene_exit + beyond)
 
 
@@ -256,7 +256,7 @@ def collide(
         tr, pdf = medium.transmittance_eval_pdf(m, end, going)
         p_ch = pick(pdf, ch)
         weight[going] *= dr.select(p_ch > 0, tr / p_ch, 0.0)
-        real_p = dr.select(hit, dr.mean(m.sigma_t / dr.maximum(m.combined_extinction, 1e-30)), 1.0)
+        real_p = dr.select(hit, dr.mean(m.sigma_t / dr.maximum(m.combined_extinction, 1e-30), axis=0), 1.0)
         real = hit & (gen.next_float32() < real_p)
         null_hit = hit & ~real
         weight[null_hit] *= m.sigma_n / dr.maximum(1.0 - real_p, 1e-30)
@@ -278,10 +278,13 @@ def free_flight(
     gen: mi.PCG32,
     ch: mi.UInt32,
     active: mi.Bool,
+    collisions: bool = True,
 ) -> Flight:
     """Sample where ``ray`` (unit direction) next interacts: a real collision in a medium
     (:func:`collide`, piece by piece) or the next non-``null`` surface (module docstring).
-    ``ch``: the sampling channel per lane (:func:`channel`)."""
+    ``ch``: the sampling channel per lane (:func:`channel`). Without ``collisions`` the ray goes
+    to the next non-``null`` surface (or out of the scene) and its weight is the transmittance
+    of the media on the way (:func:`segment_transmittance`)."""
     n = dr.width(active)
     ray = full_width(ray, n)
     medium = mi.MediumPtr(medium)
@@ -294,10 +297,15 @@ def free_flight(
     while going & (crossings < MAX_EVENTS):
         si_next = scene.ray_intersect(ray, going)
         si[going] = si_next
-        real, m, w = collide(ray, dr.minimum(ray.maxt, si.t), medium, gen, ch, going)
-        weight[going] *= w
-        scattered |= real
-        mei[real] = m
+        length = dr.minimum(ray.maxt, si.t)
+        if dr.hint(collisions, mode="scalar"):
+            real, m, w = collide(ray, length, medium, gen, ch, going)
+            weight[going] *= w
+            scattered |= real
+            mei[real] = m
+        else:
+            real = dr.zeros(mi.Bool, n)
+            weight[going] *= segment_transmittance(ray, length, medium, gen, ch, going)
         # the surface at the end of the piece: a null boundary switches the medium only
         surface = going & ~real & si.is_valid()
         cross = surface & is_null(si.bsdf(ray), surface) & (si.emitter(scene) == None)  # noqa: E711
@@ -308,43 +316,6 @@ def free_flight(
         going = cross & dr.any(weight != 0.0)
         crossings += 1
     return Flight(si, mei, weight, scattered, medium)
-
-
-@dr.syntax
-def attenuated_flight(
-    scene: mi.Scene,
-    ray: mi.Ray3f,
-    medium: mi.MediumPtr,
-    gen: mi.PCG32,
-    ch: mi.UInt32,
-    active: mi.Bool,
-) -> Flight:
-    """:func:`free_flight` without collisions: ``ray`` goes to the next non-``null`` surface (or
-    out of the scene), its weight the transmittance of the media on the way
-    (:func:`segment_transmittance`); ``null`` boundaries switch the medium."""
-    n = dr.width(active)
-    ray = full_width(ray, n)
-    medium = mi.MediumPtr(medium)
-    weight = dr.full(mi.Spectrum, 1.0, n)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    going = mi.Bool(active)
-    crossings = dr.zeros(mi.UInt32, n)
-    while going & (crossings < MAX_EVENTS):
-        si_next = scene.ray_intersect(ray, going)
-        si[going] = si_next
-        weight[going] *= segment_transmittance(
-            ray, dr.minimum(si.t, ray.maxt), medium, gen, ch, going
-        )
-        surface = going & si.is_valid()
-        cross = surface & is_null(si.bsdf(ray), surface) & (si.emitter(scene) == None)  # noqa: E711
-        medium = enter(si, ray.d, medium, cross)
-        crossed = si.spawn_ray(ray.d)
-        crossed.maxt = ray.maxt - si.t
-        ray[cross] = crossed
-        going = cross & dr.any(weight != 0.0)
-        crossings += 1
-    mei = dr.zeros(mi.MediumInteraction3f, n)
-    return Flight(si, mei, weight, dr.zeros(mi.Bool, n), medium)
 
 
 @dr.syntax
@@ -387,7 +358,6 @@ def segment_transmittance(
     return T
 
 
-@dr.syntax
 def transmittance(
     scene: mi.Scene,
     ray: mi.Ray3f,
@@ -399,26 +369,37 @@ def transmittance(
     """Transmittance along the finite ``ray`` (unit direction, length ``ray.maxt``) starting in
     ``medium``: the media's transmittances between the surfaces on it times each surface's
     ``eval_null_transmission`` (module docstring); zero behind an opaque surface."""
+    return walk(scene, ray, medium, gen, ch, active, False)[1]
+
+
+@dr.syntax
+def walk(scene, ray, medium, gen, ch, active, to_emitter: bool):
+    """``ray``'s walk through the surfaces that let light pass (module docstring): ``(si, T)``,
+    the surface it stopped at — with ``to_emitter`` the first emitter's (invalid where the ray
+    escaped: the environment) — and the transmittance up to there."""
     n = dr.width(active)
     ray = full_width(ray, n)
     medium = mi.MediumPtr(medium)
     T = dr.full(mi.Spectrum, 1.0, n)
     T[~active] = 0.0
+    si = dr.zeros(mi.SurfaceInteraction3f, n)
     going = mi.Bool(active)
     crossings = dr.zeros(mi.UInt32, n)
     while going & (crossings < MAX_EVENTS):
-        si = scene.ray_intersect(ray, going)
-        end = dr.minimum(si.t, ray.maxt)
-        T[going] *= segment_transmittance(ray, end, medium, gen, ch, going)
-        surface = going & si.is_valid()
-        T[surface] *= mi.Spectrum(si.bsdf(ray).eval_null_transmission(si, surface))
-        medium = enter(si, ray.d, medium, surface)
+        si_next = scene.ray_intersect(ray, going)
+        si[going] = si_next
+        T[going] *= segment_transmittance(ray, dr.minimum(si.t, ray.maxt), medium, gen, ch, going)
+        through = going & si.is_valid()
+        if dr.hint(to_emitter, mode="scalar"):
+            through &= si.emitter(scene) == None  # noqa: E711
+        T[through] *= mi.Spectrum(si.bsdf(ray).eval_null_transmission(si, through))
+        medium = enter(si, ray.d, medium, through)
         crossed = si.spawn_ray(ray.d)
         crossed.maxt = ray.maxt - si.t
-        ray[surface] = crossed
-        going = surface & dr.any(T != 0.0)
+        ray[through] = crossed
+        going = through & dr.any(T != 0.0)
         crossings += 1
-    return T
+    return si, T
 
 
 def isotropic(scene: mi.Scene) -> bool:

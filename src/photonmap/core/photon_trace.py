@@ -131,16 +131,19 @@ def trace_photons(
     caustics_only: bool = False,
     traits: SceneTraits | None = None,
     media: list | None = None,
+    powers: np.ndarray | None = None,
 ) -> Traced:
     """Emit ``paths`` light paths (:func:`~photonmap.core.emission.emit`, the fraction ``aim``
     aimed at specular shapes) and trace them (:func:`trace_light_paths`): the one way every
     method makes photons. ``settings``: the path-length settings (default Mitsuba's);
     ``caustics_only`` keeps only the caustic records (every area light's paths aimed); ``media``:
-    the emitters' media if known (:func:`~photonmap.core.media.emitter_media`)."""
+    the emitters' media and ``powers`` their checked powers, if known
+    (:func:`~photonmap.core.media.emitter_media`, :func:`~photonmap.core.emission.checked_powers`:
+    a pipeline finds them once)."""
     settings = settings or PathSettings()
     traits = traits or SceneTraits.of(scene)
     light = emit(scene, paths, seed, 1.0 if caustics_only and aim > 0 else aim, caustics_only,
-                 media)  # fmt: skip
+                 media, powers)  # fmt: skip
     records, volume = trace_light_paths(
         scene, light, rng(paths, seed, stream=1), settings, traits, caustics_only
     )
@@ -286,6 +289,7 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
     limit = dr.opaque(mi.UInt32, limit)
     rr_depth = dr.opaque(mi.UInt32, rr_depth)
     lane = dr.arange(mi.UInt32, lanes)
+    stride = dr.opaque(mi.UInt32, lanes)  # not a literal: the survivors' count varies
     ray, power, medium, depth = state.ray, state.power, state.medium, state.depth
     specular, smooth, fresh, gen = state.specular, state.smooth, state.fresh, state.gen
     delta, glossy = state.delta, state.glossy
@@ -320,7 +324,7 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
         # ---- a medium collision: a volume photon
         depth[in_medium] += 1
         if dr.hint(media and not caustics_only, mode="scalar"):
-            vslot = step * lanes + lane
+            vslot = step * stride + lane
             vstore = in_medium & (depth <= limit)
             for name, value in (("position", mei.p), ("direction", ray.d),
                                 ("power", power), ("depth", depth), ("caustic", caustic)):
@@ -328,7 +332,7 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
             dr.scatter(vstored, True, vslot, vstore)
 
         # ---- a surface: a record where the BSDF has a smooth lobe
-        slot = step * lanes + lane
+        slot = step * stride + lane
         store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (depth + 1 <= limit)
         if dr.hint(caustics_only, mode="scalar"):
             store &= caustic

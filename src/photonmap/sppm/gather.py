@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..core.camera import pixel_means
 from ..core.hashgrid import HashGrid
 from ..core.settings import UNBOUNDED, PathSettings
 from .photons import Photons
@@ -38,7 +39,8 @@ from .visible import VisiblePoints
 
 @dataclass
 class Gathered:
-    """Per visible point: the flux sum φ_j (RGB, β included) and the photon count M_j."""
+    """Per pixel: the flux sum φ_j (RGB, β included) and the photon count M_j, each the mean
+    over the pixel's visible points of the iteration."""
 
     flux: mi.Color3f
     count: mi.Float
@@ -47,13 +49,17 @@ class Gathered:
 def gather(
     points: VisiblePoints, radius: mi.Float, photons: Photons, settings: PathSettings
 ) -> Gathered:
-    """φ_j and M_j of every visible point within its ``radius`` (per point, or one value); a
-    photon counts where its path and the eye path together fit Mitsuba's ``max_depth``
-    (``depth_p + depth_j ≤ max_depth``)."""
+    """φ_j and M_j of every pixel within its ``radius`` (per pixel, or one value): the mean over
+    its visible points of the sums at each; a photon counts where its path and the eye path
+    together fit Mitsuba's ``max_depth`` (``depth_p + depth_j ≤ max_depth``)."""
     lanes = dr.width(points.found)
-    radius = dr.opaque(mi.Float, radius, lanes) if isinstance(radius, float) else mi.Float(radius)
+    pixels = lanes // points.spp
+    if isinstance(radius, float):
+        radius = dr.opaque(mi.Float, radius, lanes)
+    else:
+        radius = dr.gather(mi.Float, mi.Float(radius), dr.arange(mi.UInt32, lanes) // points.spp)
     if photons.count == 0:
-        return Gathered(dr.zeros(mi.Color3f, lanes), dr.zeros(mi.Float, lanes))
+        return Gathered(dr.zeros(mi.Color3f, pixels), dr.zeros(mi.Float, pixels))
     largest = dr.max(dr.select(points.found, radius, 0.0), axis=None)[0]
     grid = HashGrid(photons.position, cell_size=max(largest, 1e-6))
     power = dr.gather(mi.Color3f, photons.power, grid.order)
@@ -72,9 +78,11 @@ def gather(
     zero = dr.zeros(mi.Vector4f, lanes)
     total = grid.sum_within(si.p, dr.square(radius), flux, zero, points.found)
     flux_sum = mi.Color3f(total.x, total.y, total.z) * points.beta
-    count = mi.Float(total.w)
-    dr.eval(flux_sum, count)
-    return Gathered(flux_sum, count)
+    dr.eval(flux_sum, total.w)
+    per_pixel = pixel_means(mi.Spectrum(flux_sum), points.spp)
+    count = dr.block_reduce(dr.ReduceOp.Add, mi.Float(total.w), points.spp) / points.spp
+    dr.eval(per_pixel, count)
+    return Gathered(mi.Color3f(per_pixel), count)
 
 
 MAX_FIRST_SHRINK = 8.0  # the first iteration shrinks a radius by at most this factor
@@ -112,7 +120,7 @@ class PixelState:
         2008 set the first radius from the photons). The update keeps the law's form: with
         ``s = R_new/R_old`` ≤ the SPPM value, ``N_new = (N + M)·s²`` and ``τ_new = (τ + φ)·s²``
         (the photons and flux inside the smaller disk, for a locally uniform density)."""
-        m = dr.select(points.found, got.count, 0.0)
+        m = got.count
         total = self.photons + m
         shrink2 = (self.photons + alpha * m) / dr.maximum(total, 1e-30)
         if target is not None:
@@ -121,7 +129,7 @@ class PixelState:
         shrink2 = dr.select(m > 0, shrink2, 1.0)
         radius = self.radius * dr.sqrt(shrink2)
         n_new = total * shrink2
-        tau = (self.tau + dr.select(points.found, got.flux, 0.0)) * shrink2
+        tau = (self.tau + got.flux) * shrink2
         direct = self.direct + mi.Color3f(points.direct)
         dr.eval(radius, n_new, tau, direct)
         return PixelState(radius, n_new, tau, direct, self.iterations + 1)
@@ -134,7 +142,7 @@ class PixelState:
 
 def iteration_image(points: VisiblePoints, got: Gathered, radius: float) -> mi.Color3f:
     """One memoryless iteration's image ``L_d,i + φ_i / (π r_i²)`` (Knaus & Zwicker 2011)."""
-    indirect = dr.select(points.found, got.flux, 0.0) * dr.opaque(mi.Float, 1 / (math.pi * radius**2))
+    indirect = got.flux * dr.opaque(mi.Float, 1 / (math.pi * radius**2))
     return mi.Color3f(points.direct) + indirect
 
 

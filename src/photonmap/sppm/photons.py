@@ -55,12 +55,16 @@ def photon_pass(
     traits: SceneTraits,
     volume_radius: float = 0.0,
     media: list | None = None,
+    powers=None,
 ) -> Photons:
     """Trace ``paths`` photon paths (random numbers from ``seed``, the iteration's seed), the
     fraction ``aim`` of the area lights' paths aimed at the specular shapes, and keep the records
     after the first interaction; in a scene with media also the caustic volume photons, in a grid
-    of cell ``volume_radius`` (module docstring). ``media``: the emitters' media, if known."""
-    traced = trace_photons(scene, paths, settings, seed, aim, traits=traits, media=media)
+    of cell ``volume_radius`` (module docstring). ``media``, ``powers``: the emitters' media and
+    checked powers, if known."""
+    traced = trace_photons(
+        scene, paths, settings, seed, aim, traits=traits, media=media, powers=powers
+    )
     kept = traced.records.after_first()
     vmap = None
     if traced.volume is not None:

@@ -1,9 +1,11 @@
 """``SPPMPipeline`` — stochastic progressive photon mapping (Hachisuka & Jensen 2009) and its
-memoryless variant (Knaus & Zwicker 2011); spec beyond-seeds §1–2, issue 12.
+memoryless variant (Knaus & Zwicker 2011); spec beyond-seeds §1–2.
 
-One iteration ``i`` (1-based) is an eye pass (:mod:`.visible`: one visible point per pixel and
-the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons_per_iteration`` paths) and a
-gather at the visible points (:mod:`.gather`). Its random numbers come from ``(seed, i)`` alone,
+One iteration ``i`` (1-based) is an eye pass (:mod:`.visible`: ``spp`` visible points per pixel
+and the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons_per_iteration`` paths)
+and a gather at the visible points (:mod:`.gather`: a pixel's photon count and flux are the means
+over its visible points, so one iteration with ``spp`` points is one SPPM pass whose estimate
+has less variance). Its random numbers come from ``(seed, i)`` alone,
 so an iteration's work is the same whatever ran before, and memory is one iteration's plus the
 per-pixel state, whatever the number of iterations.
 
@@ -42,6 +44,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.camera import MovableCamera, pixel_rays, scene_bounds
+from ..core.emission import checked_powers
 from ..core.errors import ParameterError, SceneError
 from ..core.media import emitter_media
 from ..core.params import check_choice, check_fields, check_range, updated
@@ -57,6 +60,7 @@ STAGES = ("photon pass", "eye pass", "gather")
 RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
 FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
 VOLUME_RADIUS = 0.1  # automatic first volume radius ρ_1, × the scene diagonal
+MAX_SPP = 64  # eye paths per pixel and iteration at most
 
 
 @dataclass
@@ -65,6 +69,7 @@ class SPPMParams:
 
     iterations: int = 64  # iterations of render() (run() takes its own budget)
     photons_per_iteration: int = 200_000  # photon paths traced per iteration (M)
+    spp: int = 0  # eye paths per pixel and iteration; 0 = automatic (about one per photon path)
     radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
     alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
     seed: int = 0
@@ -82,6 +87,7 @@ class SPPMParams:
         check_range(
             "photons_per_iteration", self.photons_per_iteration, 1, None, "photon paths each"
         )
+        check_range("spp", self.spp, 0, MAX_SPP, "eye paths per pixel and iteration; 0 = automatic")
         check_range("radius", self.radius, 0, None, "the initial gather radius; 0 = automatic")
         check_range("alpha", self.alpha, 0, 1, "SPPM's α (2/3 is usual)", True, True)
         check_path_params(self)
@@ -137,6 +143,7 @@ class SPPMPipeline(MovableCamera):
         self.traits = SceneTraits.of(self.scene)
         self.file_settings = PathSettings.of(self.scene, scene)
         self.emitter_media = emitter_media(self.scene)
+        self.emitter_powers = checked_powers(self.scene, 0)
         self.params = SPPMParams()
         self.set_params(**own)
         self.timer = StageTimer()
@@ -171,6 +178,16 @@ class SPPMPipeline(MovableCamera):
         }  # fmt: skip
         if hasattr(self, "timer"):
             self.timer.reset()
+
+    @property
+    def eye_spp(self) -> int:
+        """Eye paths per pixel and iteration: ``spp``, or about as many eye paths as photon paths
+        (pbrt's balance of SPPM's two passes), 1 to :data:`MAX_SPP` — a small image then runs
+        several eye paths per pixel in each iteration, which the iteration's photons serve."""
+        if self.params.spp:
+            return self.params.spp
+        w, h = self.size
+        return int(np.clip(round(self.params.photons_per_iteration / (w * h)), 1, MAX_SPP))
 
     @property
     def size(self) -> tuple[int, int]:
@@ -218,12 +235,12 @@ class SPPMPipeline(MovableCamera):
         with self.timer("photon pass"):
             photons = photon_pass(
                 self.scene, p.photons_per_iteration, photon_seed, settings, p.aim, self.traits,
-                self.volume_radius_at(i), self.emitter_media,
+                self.volume_radius_at(i), self.emitter_media, self.emitter_powers,
             )  # fmt: skip
         with self.timer("eye pass"):
             points = eye_pass(
                 self.scene, self.sensor, eye_seed, settings, self.traits,
-                self.volume_caustics(photons, i),
+                self.volume_caustics(photons, i), self.eye_spp,
             )  # fmt: skip
         with self.timer("gather"):
             got = gather(points, radius, photons, settings)

@@ -1,4 +1,4 @@
-"""SPPM eye pass: one eye path per pixel through mirrors, glass and media to its visible point
+"""SPPM eye pass: eye paths through mirrors, glass and media to their visible points
 (Hachisuka & Jensen 2009 §4; spec beyond-seeds §1 step 1), by the transport core's eye-path loop
 (:func:`photonmap.core.eye_trace.trace_eye_paths`).
 
@@ -40,20 +40,22 @@ from ..core.settings import PathSettings
 
 @dataclass
 class VisiblePoints:
-    """One visible point per pixel of one iteration (lanes = pixels, row-major)."""
+    """``spp`` visible points per pixel of one iteration (lanes = pixels × spp, a pixel's points
+    adjacent, pixels row-major), and the pixel's direct term."""
 
     si: mi.SurfaceInteraction3f  # the interaction at x (si.wi: the eye direction, local)
     beta: mi.Spectrum  # path throughput from the pixel to x
-    found: mi.Bool  # the pixel's path reached a smooth surface
+    found: mi.Bool  # the path reached a smooth surface
     depth: mi.UInt32  # segments from the camera to x (photons of depth ≤ max_depth − depth count)
-    direct: mi.Spectrum  # L_d of this iteration: emission seen, media, direct light at x
+    direct: mi.Spectrum  # per pixel: L_d of this iteration (emission seen, media, direct light)
+    spp: int
 
     @property
     def bsdf(self) -> mi.BSDFPtr:
         return self.si.bsdf()
 
 
-LIGHT_SPP = 8  # eye paths per pixel and iteration that estimate the emission seen (L_e)
+LIGHT_SPP = 8  # eye paths per pixel and iteration at least that estimate the emission seen
 
 
 def eye_pass(
@@ -63,42 +65,54 @@ def eye_pass(
     settings: PathSettings,
     traits: SceneTraits,
     medium_light=None,
+    spp: int = 1,
 ) -> VisiblePoints:
-    """Trace one jittered eye path per pixel of ``sensor``'s film crop (random numbers from
-    ``seed``, the iteration's seed) to its visible point; evaluated before returning. The
-    emission seen is the mean of :data:`LIGHT_SPP` further jittered paths per pixel that only
-    follow mirrors and glass (cheap): the lights' images in mirrors and glass are bright and
-    small, and one sample per iteration leaves a pixel that catches one a spike of the light's
-    radiance over the iteration count. ``medium_light``: the iteration's volume caustics
-    (module docstring)."""
+    """Trace ``spp`` jittered eye paths per pixel of ``sensor``'s film crop (random numbers from
+    ``seed``, the iteration's seed) to their visible points; evaluated before returning. The
+    emission seen is estimated from at least :data:`LIGHT_SPP` paths per pixel: the lights'
+    images in mirrors and glass are bright and small, and one sample per iteration leaves a pixel
+    that catches one a spike of the light's radiance over the iteration count — with fewer eye
+    paths, further paths of their own that only follow mirrors and glass (cheap).
+    ``medium_light``: the iteration's volume caustics (module docstring)."""
     w, h = (int(c) for c in sensor.film().crop_size())
-    lanes = w * h
+    lanes = w * h * spp
     gen = rng(lanes, seed, 0)
     ray, weight = pixel_rays(
-        sensor, dr.arange(mi.UInt32, lanes), mi.Point2f(gen.next_float32(), gen.next_float32())
+        sensor,
+        dr.arange(mi.UInt32, lanes) // spp,
+        mi.Point2f(gen.next_float32(), gen.next_float32()),
     )
     start = broadcast(sensor.get_medium(), lanes)
+    seen_here = spp >= LIGHT_SPP
     eye = trace_eye_paths(
-        scene, ray, weight, start, gen, settings, traits, emission=False, media_mode="continue",
-        medium_light=medium_light, volume_caustics=medium_light is not None,
-    )  # fmt: skip
-    many = lanes * LIGHT_SPP
-    extra = rng(many, seed, 1)
-    ray_l, weight_l = pixel_rays(
-        sensor,
-        dr.arange(mi.UInt32, many) // LIGHT_SPP,
-        mi.Point2f(extra.next_float32(), extra.next_float32()),
-    )
-    seen = trace_eye_paths(
-        scene, ray_l, weight_l, broadcast(sensor.get_medium(), many), extra, settings, traits,
-        emission=True, media_mode="transmit",
+        scene, ray, weight, start, gen, settings, traits, emission=seen_here,
+        media_mode="continue", medium_light=medium_light,
+        volume_caustics=medium_light is not None,
     )  # fmt: skip
     u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
     lit = eye.found & settings.allows(eye.depth + 1)
-    direct = (
-        pixel_means(seen.radiance, LIGHT_SPP)
-        + eye.radiance
-        + eye.beta * direct_lighting(scene, eye.si, u_light, gen, lit, traits, eye.medium)
+    L = eye.radiance + eye.beta * direct_lighting(
+        scene, eye.si, u_light, gen, lit, traits, eye.medium
     )
+    direct = pixel_means(L, spp)
+    if not seen_here:
+        direct += emission_seen(scene, sensor, seed, settings, traits, w * h)
     dr.eval(eye.si, eye.beta, eye.found, eye.depth, direct)
-    return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct)
+    return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct, spp)
+
+
+def emission_seen(scene, sensor, seed: int, settings, traits, pixels: int) -> mi.Spectrum:
+    """Per pixel, the mean emission of :data:`LIGHT_SPP` jittered paths that only follow
+    mirrors, glass and the media's transmittance."""
+    many = pixels * LIGHT_SPP
+    gen = rng(many, seed, 1)
+    ray, weight = pixel_rays(
+        sensor,
+        dr.arange(mi.UInt32, many) // LIGHT_SPP,
+        mi.Point2f(gen.next_float32(), gen.next_float32()),
+    )
+    seen = trace_eye_paths(
+        scene, ray, weight, broadcast(sensor.get_medium(), many), gen, settings, traits,
+        emission=True, media_mode="transmit",
+    )  # fmt: skip
+    return pixel_means(seen.radiance, LIGHT_SPP)

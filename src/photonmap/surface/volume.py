@@ -25,7 +25,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.direct import equiangular, inscattered_direct, medium_direct
+from ..core.direct import equiangular, inscattered_direct
 from ..core.media import Segments, channel, interaction, segment_transmittance, within_extent
 from ..core.sampling import rng
 from ..core.volume_map import CHUNK, ScatteredDensity, VolumeMap, inscattered
@@ -48,28 +48,11 @@ class MediumLight:
     step: float = 0.0  # ray-marching step of :meth:`march`
 
     def at(self, mei: mi.MediumInteraction3f, active, stream: int) -> mi.Spectrum:
-        """``L(x, ω)`` at each collision ``mei`` per unit throughput; ``stream``: the random
-        stream of the shadow rays."""
-        count = dr.width(mei.p)
-        out = dr.zeros(mi.Spectrum, count)
-        if count == 0:
-            return out
-        active = mi.Bool(active) & dr.full(mi.Bool, True, count)
-        for first in range(0, count, CHUNK):
-            index = dr.arange(mi.UInt32, first, min(count, first + CHUNK))
-            m = dr.gather(mi.MediumInteraction3f, mei, index)
-            ok = dr.gather(mi.Bool, active, index) & within_extent(m)
-            gen = rng(dr.width(index), self.seed, stream + first)
-            L = medium_direct(self.scene, m, gen, ok, mis=False)
-            if self.density is not None:
-                L_s = self.density.inscattered(m.p, ok)
-            else:
-                L_s = inscattered(self.vmap, m, self.k, self.radius, ok)
-            sigma_s = mi.Spectrum(m.sigma_s)
-            L += dr.select(ok & (sigma_s > 0), L_s / dr.maximum(sigma_s, 1e-30), 0.0)
-            dr.scatter(out, L, index)
-            dr.eval(out)
-        return out
+        """``L_s(x, ω) / σ_s(x)`` at each collision ``mei`` (module docstring); ``stream``: the
+        random stream of the shadow rays."""
+        L_s = self._chunked(mei, active, stream, direct=True, photons=True)
+        sigma_s = mi.Spectrum(mei.sigma_s)
+        return dr.select(sigma_s > 0, L_s / dr.maximum(sigma_s, 1e-30), 0.0)
 
     def _chunked(self, mei, active, stream: int, direct: bool, photons: bool) -> mi.Spectrum:
         """The ``direct`` and/or ``photons`` (volume map) terms of ``L_s`` per unit length at each
