@@ -261,9 +261,21 @@ class Run:
         return self.returncode == 2 and (self.error or "").startswith("error:")
 
 
+_EXCEPTION = re.compile(r"^[A-Za-z_][\w.]*(Error|Exception|Interrupt)\b")
+
+
 def _last_line(text: str) -> str | None:
+    """The line that says why a run failed: an ``error:`` line, else the exception line of a
+    traceback (with its continuation lines), else the last line."""
     lines = [line.strip() for line in text.splitlines() if line.strip()]
-    return lines[-1] if lines else None
+    if not lines:
+        return None
+    for i in range(len(lines) - 1, -1, -1):
+        if lines[i].startswith("error: "):
+            return lines[i]
+        if _EXCEPTION.match(lines[i]):
+            return " ".join(lines[i:])
+    return lines[-1]
 
 
 def cli_args(path, method: str, output, sets: dict | None = None, seed: int = 0) -> list[str]:
@@ -289,7 +301,8 @@ def render_cli(
         cmd = [sys.executable, "-c", code, *cli_args(path, method, out, sets, seed)]
         if nice:
             cmd = ["nice", "-n", str(nice), *cmd]
-        env = {**os.environ, "PYTHONPATH": str(REPO / "src")}
+        # plain tracebacks (typer's rich ones wrap the exception line at the terminal width)
+        env = {**os.environ, "PYTHONPATH": str(REPO / "src"), "_TYPER_STANDARD_TRACEBACK": "1"}
         start = time.perf_counter()
         try:
             proc = subprocess.run(
