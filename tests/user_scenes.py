@@ -129,6 +129,7 @@ def _write_if_changed(path: Path, data: bytes) -> None:
     fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=path.suffix)
     with os.fdopen(fd, "wb") as f:
         f.write(data)
+    os.chmod(tmp, 0o644)  # mkstemp makes it private
     os.replace(tmp, path)  # atomic: a concurrent reader sees the old or the new file
 
 
@@ -239,6 +240,7 @@ def reference(path, spp: int = 4096, cache: bool = True) -> tuple[np.ndarray, di
         fd, tmp = tempfile.mkstemp(dir=CACHE, suffix=".exr")
         os.close(fd)
         mi.Bitmap(image.astype(np.float32)).write(tmp)
+        os.chmod(tmp, 0o644)
         os.replace(tmp, target)
     return image, {"spp": spp, "seconds": seconds, "integrator": name, "cached": False}
 
