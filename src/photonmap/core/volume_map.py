@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .hashgrid import HashGrid
 from .knn import NO_PHOTON
@@ -101,6 +102,20 @@ class VolumeMap:
         zero = dr.zeros(mi.Spectrum, dr.width(mei.p))
         total = self.grid.sum_within(mei.p, dr.opaque(mi.Float, radius**2), share, zero, active)
         return total * dr.opaque(mi.Float, 1.0 / ((4.0 / 3.0) * math.pi * radius**3))
+
+
+def density_radius(position: mi.Point3f, k: int, bound: float, samples: int = 4096) -> float:
+    """The radius of a sphere that holds about ``k`` of the points ``position``: the median
+    distance of the ``k``-th nearest over up to ``samples`` of them (``bound`` where fewer lie
+    within it, and at most)."""
+    count = dr.width(position)
+    if count == 0:
+        return bound
+    grid = HashGrid(position)
+    at = dr.gather(mi.Point3f, position, dr.arange(mi.UInt32, 0, count, max(1, count // samples)))
+    found = grid.knn(at, k=min(k, count), max_radius=bound)
+    r2 = dr.select(found.count < min(k, count), bound**2, found.radius2)
+    return min(bound, float(np.sqrt(np.median(r2.numpy()))))
 
 
 def inscattered(

@@ -11,8 +11,7 @@ the iteration's estimate of the reflected indirect radiance.
 In a scene with participating media the eye paths find the light in the media themselves
 (volumetric path tracing, :mod:`.visible`), except the light that reached the medium only
 through mirrors and glass: the iteration's *caustic* volume photons (a pure specular history,
-Jensen & Christensen 1998's volume caustics) are kept for that, in a hash grid whose cells are
-the iteration's volume radius.
+Jensen & Christensen 1998's volume caustics) are kept for that.
 """
 
 from __future__ import annotations
@@ -25,7 +24,7 @@ import mitsuba as mi
 from ..core.photon_trace import trace_photons
 from ..core.scene_info import SceneTraits
 from ..core.settings import PathSettings
-from ..core.volume_map import VolumeMap
+from ..core.volume_map import VolumePhotons
 
 
 @dataclass
@@ -39,7 +38,7 @@ class Photons:
     paths: int  # photon paths traced (M)
     aimed: int  # of them, aimed at specular shapes (core.aim)
     caustic_fraction: float  # of the aimed paths, those that met a specular shape first
-    volume: VolumeMap | None = None  # scenes with media: the iteration's caustic volume photons
+    volume: VolumePhotons | None = None  # scenes with media: the iteration's caustic volume photons
 
     @property
     def count(self) -> int:
@@ -53,24 +52,21 @@ def photon_pass(
     settings: PathSettings,
     aim: float,
     traits: SceneTraits,
-    volume_radius: float = 0.0,
     media: list | None = None,
     powers=None,
 ) -> Photons:
     """Trace ``paths`` photon paths (random numbers from ``seed``, the iteration's seed), the
     fraction ``aim`` of the area lights' paths aimed at the specular shapes, and keep the records
-    after the first interaction; in a scene with media also the caustic volume photons, in a grid
-    of cell ``volume_radius`` (module docstring). ``media``, ``powers``: the emitters' media and
-    checked powers, if known."""
+    after the first interaction; in a scene with media also the caustic volume photons (module
+    docstring). ``media``, ``powers``: the emitters' media and checked powers, if known."""
     traced = trace_photons(
         scene, paths, settings, seed, aim, traits=traits, media=media, powers=powers
     )
     kept = traced.records.after_first()
-    vmap = None
+    volume = None
     if traced.volume is not None:
-        caustic = traced.volume.select(traced.volume.caustic)
-        vmap = VolumeMap.build(caustic, cell_size=volume_radius) if caustic.count else None
+        volume = traced.volume.select(traced.volume.caustic) if traced.volume.count else None
     return Photons(
         kept.position, kept.power, kept.direction, kept.depth, paths, traced.light.aimed_paths,
-        traced.caustic_fraction, vmap,
+        traced.caustic_fraction, volume if volume is not None and volume.count else None,
     )  # fmt: skip

@@ -26,8 +26,9 @@ through the media by volumetric path tracing (:mod:`.visible`), and each iterati
 keeps its caustic volume photons (:mod:`.photons`), read at the eye paths' medium collisions in
 spheres of radius ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates:
 the variance of one estimate grows as ``1/ρ³``), memoryless in both modes: the bias shrinks with
-``ρ_i`` while the averaged variance falls. ``ρ_1``: ``volume_radius``, or
-:data:`VOLUME_RADIUS` × the scene diagonal.
+``ρ_i`` while the averaged variance falls. ``ρ_1``: ``volume_radius``, or the sphere that
+holds about :data:`FIRST_PHOTONS` of the first caustic volume photons traced (at most
+:data:`VOLUME_RADIUS` × the scene diagonal).
 
 **The scene file's settings**: ``max_depth``, ``rr_depth`` and ``hide_emitters`` default to the
 file's ``<integrator>`` (:class:`~photonmap.core.settings.PathSettings`), with Mitsuba's meaning;
@@ -51,6 +52,7 @@ from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import SceneTraits
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
+from ..core.volume_map import VolumeMap, density_radius
 from .gather import PixelState, gather, iteration_image, memoryless_radius
 from .photons import photon_pass
 from .visible import eye_pass
@@ -149,12 +151,13 @@ class SPPMPipeline(MovableCamera):
         self.timer = StageTimer()
         self.stats: dict[str, float] = {}
         self._r1 = None
+        self._rho1 = None  # the automatic first volume radius, once found
         self.reset()
 
     def set_params(self, **params) -> None:
         """Change parameters (:class:`SPPMParams` fields); the progressive state restarts."""
         self.params = updated(self.params, params, "sppm")
-        self._r1 = None
+        self._r1 = self._rho1 = None
         self.reset()
 
     def set_camera(self, *args, **kwargs) -> None:
@@ -228,15 +231,20 @@ class SPPMPipeline(MovableCamera):
         return float(dr.mean(self._state.radius, axis=None)[0])
 
     # ------------------------------------------------------------------------- one iteration
+    def _photon_pass(self, i: int):
+        """Iteration ``i``'s photon pass (random numbers from ``(seed, i)``)."""
+        p = self.params
+        return photon_pass(
+            self.scene, p.photons_per_iteration, iteration_seeds(p.seed, i)[1], self.settings,
+            p.aim, self.traits, self.emitter_media, self.emitter_powers,
+        )  # fmt: skip
+
     def _iteration(self, i: int, radius):
         """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one)."""
         p, settings = self.params, self.settings
-        eye_seed, photon_seed = iteration_seeds(p.seed, i)
+        eye_seed, _ = iteration_seeds(p.seed, i)
         with self.timer("photon pass"):
-            photons = photon_pass(
-                self.scene, p.photons_per_iteration, photon_seed, settings, p.aim, self.traits,
-                self.volume_radius_at(i), self.emitter_media, self.emitter_powers,
-            )  # fmt: skip
+            photons = self._photon_pass(i)
         with self.timer("eye pass"):
             points = eye_pass(
                 self.scene, self.sensor, eye_seed, settings, self.traits,
@@ -253,19 +261,30 @@ class SPPMPipeline(MovableCamera):
 
     def volume_radius_at(self, i: int) -> float:
         """``ρ_i = ρ_1 · i^((α−1)/3)``, the volume estimate's radius in iteration ``i`` (module
-        docstring)."""
+        docstring); ``ρ_1`` automatic until the first caustic volume photons are traced: the
+        scene-wide bound :data:`VOLUME_RADIUS` × the diagonal."""
         p = self.params
-        r1 = p.volume_radius if p.volume_radius > 0 else VOLUME_RADIUS * scene_bounds(self.scene)[1]
+        r1 = p.volume_radius or self._rho1 or VOLUME_RADIUS * scene_bounds(self.scene)[1]
         return r1 * i ** ((p.alpha - 1.0) / 3.0)
 
     def volume_caustics(self, photons, i: int):
         """Iteration ``i``'s caustic volume photons as the eye paths' ``medium_light``
-        (:func:`~photonmap.core.eye_trace.trace_eye_paths`), or None where there are none."""
-        vmap = photons.volume
-        if vmap is None:
+        (:func:`~photonmap.core.eye_trace.trace_eye_paths`), or None where there are none. The
+        automatic ``ρ_1`` is fixed by iteration 1's (whichever iterations run, so memoryless
+        blocks agree): the sphere that holds about :data:`FIRST_PHOTONS` of them (the median
+        distance of the k-th nearest), within the scene-wide bound."""
+        if photons.volume is None:
             return None
+        if not self.params.volume_radius and self._rho1 is None:
+            first = photons if i == 1 else self._photon_pass(1)  # from (seed, 1) alone
+            bound = VOLUME_RADIUS * scene_bounds(self.scene)[1]
+            self._rho1 = bound
+            if first.volume is not None:
+                self._rho1 = density_radius(first.volume.position, int(FIRST_PHOTONS), bound)
+        radius = self.volume_radius_at(i)
+        vmap = VolumeMap.build(photons.volume, cell_size=radius)
         self.stats["volume_photons"] += vmap.size
-        stored, radius = vmap.stored(), self.volume_radius_at(i)
+        stored = vmap.stored()
 
         def medium_light(mei, _beta, depth_left, active):
             return vmap.phase_sum(stored, mei, radius, depth_left, active)

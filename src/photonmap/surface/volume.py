@@ -28,10 +28,9 @@ import numpy as np
 from ..core.direct import equiangular, inscattered_direct
 from ..core.media import Segments, channel, interaction, segment_transmittance, within_extent
 from ..core.sampling import rng
-from ..core.volume_map import CHUNK, ScatteredDensity, VolumeMap, inscattered
+from ..core.volume_map import CHUNK, ScatteredDensity, VolumeMap, density_radius, inscattered
 
 MAX_STEPS = 256  # ray-marching steps per medium piece (longer pieces take longer steps)
-STEP_SAMPLES = 4096  # volume photons whose k-NN radius sets the automatic march step
 
 
 @dataclass
@@ -170,15 +169,8 @@ class MediumLight:
         return value * self._chunked(mei, True, stream + (1 << 20), direct, not direct)
 
 
-def march_step(vmap: VolumeMap, k: int, radius: float, samples: int = STEP_SAMPLES) -> float:
-    """An automatic ray-marching step: half the median distance of the ``k``-th nearest photon
-    (``radius`` where fewer lie within it) over up to ``samples`` of the photons — the step
-    follows the photon density, as the radius of the estimate does."""
-    if vmap.size == 0:
-        return radius
-    every = max(1, vmap.size // samples)
-    index = dr.arange(mi.UInt32, 0, vmap.size, every)
-    at = dr.gather(mi.Point3f, vmap.photons.position, index)
-    found = vmap.grid.knn(at, k=k, max_radius=radius)
-    r2 = dr.select(found.count < k, radius**2, found.radius2)
-    return 0.5 * float(np.sqrt(np.median(r2.numpy())))
+def march_step(vmap: VolumeMap, k: int, radius: float) -> float:
+    """An automatic ray-marching step: half the radius of the spheres that hold ``k`` photons
+    (:func:`~photonmap.core.volume_map.density_radius`) — the step follows the photon density,
+    as the radius of the estimate does."""
+    return 0.5 * density_radius(vmap.photons.position, k, radius)
