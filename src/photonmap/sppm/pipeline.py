@@ -63,6 +63,7 @@ RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the medi
 FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
 VOLUME_RADIUS = 0.1  # automatic first volume radius ρ_1, × the scene diagonal
 MAX_SPP = 64  # eye paths per pixel and iteration at most
+AUTO_SPP = 16  # ... and at most when automatic
 
 
 @dataclass
@@ -185,12 +186,12 @@ class SPPMPipeline(MovableCamera):
     @property
     def eye_spp(self) -> int:
         """Eye paths per pixel and iteration: ``spp``, or about as many eye paths as photon paths
-        (pbrt's balance of SPPM's two passes), 1 to :data:`MAX_SPP` — a small image then runs
+        (pbrt's balance of SPPM's two passes), 1 to :data:`AUTO_SPP` — a small image then runs
         several eye paths per pixel in each iteration, which the iteration's photons serve."""
         if self.params.spp:
             return self.params.spp
         w, h = self.size
-        return int(np.clip(round(self.params.photons_per_iteration / (w * h)), 1, MAX_SPP))
+        return int(np.clip(round(self.params.photons_per_iteration / (w * h)), 1, AUTO_SPP))
 
     @property
     def size(self) -> tuple[int, int]:
