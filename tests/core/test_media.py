@@ -265,3 +265,24 @@ def test_a_grid_medium_exists_only_inside_its_box():
     homogeneous = mi.load_dict({"type": "homogeneous"})  # kept alive: MediumPtr holds no reference
     mei.medium = mi.MediumPtr(homogeneous)
     assert np.all(np.array(within_extent(mei)))
+
+
+def test_media_that_disagree_with_the_shapes_around_them_are_warned_about():
+    """examples/lamp_in_fog.xml names the fog the exterior of a floor that reaches far out of the
+    fog box: volpath then fills the space above the floor outside the box with fog for light that
+    leaves it, which photons cannot follow — warned about, naming the floor; the same floor cut
+    to the box is not."""
+    import pathlib
+    import warnings
+
+    from photonmap.core.errors import PhotonmapWarning
+    from photonmap.core.scene_info import warn_disagreeing_media
+
+    text = (pathlib.Path(__file__).resolve().parents[2] / "examples/lamp_in_fog.xml").read_text()
+    with pytest.warns(PhotonmapWarning, match=r"shape Rectangle names 'fog' its exterior medium"):
+        lines = warn_disagreeing_media(mi.load_string(text), "sppm")
+    assert len(lines) == 1
+    cut = text.replace('<scale x="6" y="1" z="6"/>', '<scale x="2.4" y="1" z="1.4"/>')
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_disagreeing_media(mi.load_string(cut), "sppm") == []

@@ -182,7 +182,7 @@ def _surrounding_medium(scene: mi.Scene, emitter: mi.Emitter, shape) -> mi.Mediu
     else:
         ray = emitter.sample_ray(0.0, 0.5, u, mi.Point2f(gen.next_float32(), gen.next_float32()))[0]
         ray = mi.Ray3f(ray.o, d)
-    medium, met = _first_transition_medium(scene, ray)
+    medium, met = first_transition_medium(scene, ray)
     best, most = None, 0
     for candidate in [None, *scene_media(scene)]:
         votes = dr.count(met & (medium == mi.MediumPtr(candidate)))[0]
@@ -191,9 +191,10 @@ def _surrounding_medium(scene: mi.Scene, emitter: mi.Emitter, shape) -> mi.Mediu
     return best
 
 
-def _first_transition_medium(scene: mi.Scene, ray: mi.Ray3f) -> tuple[mi.MediumPtr, mi.Bool]:
+def first_transition_medium(scene: mi.Scene, ray: mi.Ray3f) -> tuple[mi.MediumPtr, mi.Bool]:
     """Per ray: the medium on the side facing the ray's origin of the first medium transition it
-    meets, and whether it met one; surfaces that are not transitions are passed."""
+    meets (the medium around the origin, as the shapes say), and whether it met one; surfaces
+    that are not transitions are passed."""
     n = dr.width(ray.d)
     ray = full_width(ray, n)
     medium = dr.zeros(mi.MediumPtr, n)

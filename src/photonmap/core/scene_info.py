@@ -8,12 +8,13 @@ scene needs.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import mitsuba as mi
 
 from .bsdf import has_null_lobes, has_null_shapes
-from .errors import SceneError
+from .errors import PhotonmapWarning, SceneError
 
 
 def _name(obj) -> str:
@@ -79,3 +80,56 @@ def refuse_media(scene: mi.Scene, method: str) -> None:
             f"the {method} method renders surfaces in vacuum and cannot render participating "
             f"media ({'; '.join(found)}); render this scene with --method sppm (or surface)"
         )
+
+
+CHECK_POINTS = 256  # points per medium-bearing shape that check its media (warn_disagreeing_media)
+DISAGREE = 0.25  # the share of a shape's points in another medium that is warned about (a shape
+# that merely touches another, a light on a floor, puts a few of its points outside)
+
+
+def warn_disagreeing_media(scene: mi.Scene, method: str) -> list[str]:
+    """Warn (a :class:`PhotonmapWarning`) about each shape whose declared interior or exterior
+    medium is not the medium found on that side of it: from :data:`CHECK_POINTS` points on it, a
+    ray leaves on that side, and the first medium transition it meets tells the medium there
+    (``si.target_medium(−d)``; vacuum where it meets none). Mitsuba's ``volpath`` follows the
+    declared media for light that leaves such a surface and the enclosing shapes' for light that
+    arrives; photon methods, whose light travels the other way, cannot follow both, so their
+    image differs from ``volpath``'s near it. Returns the lines warned about."""
+    import drjit as dr
+
+    from .media import first_transition_medium
+    from .sampling import rng
+
+    lines = []
+    for shape in scene.shapes():
+        for side, declared in ((-1.0, shape.interior_medium()), (1.0, shape.exterior_medium())):
+            if declared is None:
+                continue
+            gen = rng(CHECK_POINTS, 0x6D656469, int(side > 0))
+            ps = shape.sample_position(0.0, mi.Point2f(gen.next_float32(), gen.next_float32()))
+            d = mi.warp.square_to_cosine_hemisphere(
+                mi.Point2f(gen.next_float32(), gen.next_float32())
+            )
+            d = mi.Frame3f(ps.n * side).to_world(d)
+            zero = dr.zeros(mi.Float, CHECK_POINTS)
+            ray = mi.Interaction3f(zero, zero, dr.zeros(mi.Color0f), ps.p, ps.n).spawn_ray(d)
+            found, met = first_transition_medium(scene, ray)
+            found = dr.select(met, found, mi.MediumPtr(None))
+            wrong = float(dr.mean(mi.Float(found != mi.MediumPtr(declared)), axis=None)[0])
+            if wrong > DISAGREE:
+                where = "interior" if side < 0 else "exterior"
+                lines.append(
+                    f"shape {_name(shape)} names {_name(declared)} its {where} medium, but on "
+                    f"{wrong:.0%} of it the shapes around say otherwise"
+                )
+    if lines:
+        warnings.warn(
+            f"{'; '.join(lines)}. Mitsuba's volpath then puts the medium in the path of light "
+            f"that leaves the shape but not of light that arrives, which the {method} method, "
+            "whose photons travel the other way, cannot follow: expect its image to differ from "
+            "volpath's near the shape. Make the shape lie inside its medium (e.g. cut a floor at "
+            "its fog box) or leave that medium out.",
+            PhotonmapWarning,
+            stacklevel=3,
+        )
+    return lines

@@ -49,7 +49,7 @@ from ..core.emission import checked_powers
 from ..core.errors import ParameterError, SceneError
 from ..core.media import emitter_media
 from ..core.params import check_choice, check_fields, check_range, updated
-from ..core.scene_info import SceneTraits
+from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
 from ..core.volume_map import VolumeMap, density_radius
@@ -144,6 +144,8 @@ class SPPMPipeline(MovableCamera):
 
         self.scene, self.sensor, own = load_with_sensor(scene, SPPMParams, params)
         self.traits = SceneTraits.of(self.scene)
+        if self.traits.media:
+            warn_disagreeing_media(self.scene, "sppm")
         self.file_settings = PathSettings.of(self.scene, scene)
         self.emitter_media = emitter_media(self.scene)
         self.emitter_powers = checked_powers(self.scene, 0)

@@ -54,7 +54,7 @@ from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
-from ..core.scene_info import SceneTraits
+from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
 from ..core.volume_map import ScatteredDensity, VolumeMap
@@ -162,6 +162,8 @@ class SurfacePipeline(MovableCamera):
 
         self.scene, self.sensor, own = load_with_sensor(scene, SurfaceParams, params)
         self.traits = SceneTraits.of(self.scene)
+        if self.traits.media:
+            warn_disagreeing_media(self.scene, "surface")
         self.file_settings = PathSettings.of(self.scene, scene)
         self.emitter_media = emitter_media(self.scene)
         self.glossy_shapes = has_glossy_shapes(self.scene)  # final gathers need k-NN there
