@@ -36,7 +36,7 @@ deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``)
 
 Multiple scattering (``scattering``, beyond-seeds §5; sampling in ``scatter.py``): each order is
 this march (:func:`_march_order`, which also samples the order's collision); the photons that
-scatter are compacted, sorted (:func:`coherent_order`) and marched as the next order
+scatter are compacted, sorted (:func:`.scatter.coherent_order`) and marched as the next order
 (:func:`_march_multiple`), into the same accumulator, so C and D hold the fluence of all orders
 and S8/S9 are unchanged. The first order deposits exactly what :func:`_march` deposits.
 """
@@ -280,27 +280,6 @@ def _march_order(
     return steps, x, v, L, found, x_c, d_c, ratio, x_s
 
 
-def coherent_order(x: mi.Point3f, d: mi.Vector3f, subset: mi.UInt32, n: int) -> mi.UInt32:
-    """The permutation of ``subset`` (indices into ``x``, ``d``) that lists photons by direction
-    (96 bins: the cube-map face of ``d``, 4 × 4 cells on it), then in 3D Morton order of their
-    position (8 bits per axis): SIMD neighbours then start near each other and travel alike, so
-    their deposits share cache lines. The scattered photons come out of the compaction in their
-    parents' order with random new directions; measured per photon at 128³ (glass_sphere_fog),
-    the second order took 5× the time of the first in this order (unsorted: 8×; by octant and
-    position: 6–7×; 1536 direction bins: 8×). ``n``: voxels along the grid's longest side."""
-    p, d = dr.gather(mi.Point3f, x, subset), dr.gather(mi.Vector3f, d, subset)
-    a = dr.abs(d)
-    axis = dr.select((a.x >= a.y) & (a.x >= a.z), 0, dr.select(a.y >= a.z, 1, 2))
-    major = dr.select(axis == 0, d.x, dr.select(axis == 1, d.y, d.z))
-    u = dr.select(axis == 0, d.y, d.x) / dr.abs(major)  # the face coordinates, in [−1, 1]
-    w = dr.select(axis == 2, d.y, d.z) / dr.abs(major)
-    face = mi.UInt32(axis) * 2 + dr.select(major > 0, 1, 0)
-    bu, bw = (mi.UInt32(dr.clip(2.0 * c + 2.0, 0.0, 3.0)) for c in (u, w))
-    direction = (face * 4 + bu) * 4 + bw
-    cell = mi.Vector3u(dr.clip(p * (256.0 / n), 0.0, 255.0))
-    return dr.argsort(mi.math.morton_encode3(cell) | (direction << 24))
-
-
 def _march_multiple(
     acc: Int64,
     medium: MarchGrids,
@@ -373,7 +352,7 @@ def _march_multiple(
         alive = dr.compress(found & survives & (dr.max(W) > 0))  # not absorbed, not rouletted
         if dr.width(alive) == 0:
             break
-        alive = dr.gather(mi.UInt32, alive, coherent_order(x_c, omega, alive, medium.n))
+        alive = dr.gather(mi.UInt32, alive, scatter.coherent_order(x_c, omega, alive, medium.n))
         x = dr.gather(mi.Point3f, x_c, alive)
         v = sample_medium(medium, x)[0] * dr.gather(mi.Vector3f, omega, alive)
         L = dr.gather(mi.Color3f, W, alive)
