@@ -131,7 +131,9 @@ def _emitter_mis(sh, light, si, bsdf, gen, active) -> mi.Color3f:
     emitter, scale = light.emitter, _rgb(light.intensity)
     environment = light.kind == "environment"
     # emitter sampling
-    ds, weight = emitter.sample_direction(si, mi.Point2f(gen.next_float32(), gen.next_float32()), active)
+    ds, weight = emitter.sample_direction(
+        si, mi.Point2f(gen.next_float32(), gen.next_float32()), active
+    )
     lit = active & (ds.pdf > 0)
     ray = si.spawn_ray(ds.d)
     if not environment:

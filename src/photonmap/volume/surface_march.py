@@ -37,7 +37,7 @@ from ..core.grid import grid_extent, trilinear_packed
 from . import scatter
 from .deposit import Float64, Int64, deposit_segment, radiance_tally, weight_tally
 from .emit import box_entry
-from .march import KILL_FRACTION, MarchGrids, Scattering, _advance, coherent_order, sample_medium
+from .march import KILL_FRACTION, MarchGrids, Scattering, _advance, sample_medium
 from .surfaces import RECAST_TURN, SurfacePhotons, Surfaces, record
 
 IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
@@ -188,7 +188,22 @@ def march_with_surfaces(
             target, channel, iso, tally, 0, order == 0,
         )  # fmt: skip
         dr.eval(into, *out)  # one launch per leg
-        n_steps, x_end, v, L_end, found, x_c, d_c, ratio, x_s, surface, cast_x, cast_d, bent, depth = out
+        (
+            n_steps,
+            x_end,
+            v,
+            L_end,
+            found,
+            x_c,
+            d_c,
+            ratio,
+            x_s,
+            surface,
+            cast_x,
+            cast_d,
+            bent,
+            depth,
+        ) = out
         for array, value in zip(final, (x_end, v, L_end, dr.opaque(mi.UInt32, order)), strict=True):
             dr.scatter(array, value, ids)
         steps += int(dr.sum(Float64(n_steps))[0])
@@ -218,7 +233,7 @@ def march_with_surfaces(
         alive = dr.compress(next_leg)
         if dr.width(alive) == 0:
             break
-        alive = dr.gather(mi.UInt32, alive, coherent_order(x_next, omega, alive, medium.n))
+        alive = dr.gather(mi.UInt32, alive, scatter.coherent_order(x_next, omega, alive, medium.n))
         x = dr.gather(mi.Point3f, x_next, alive)
         d = dr.gather(mi.Vector3f, omega, alive)
         L = dr.gather(mi.Color3f, W, alive)

@@ -130,7 +130,7 @@ class Surfaces:
         opaque = [s for s in scene.shapes() if kind(s) == "opaque"]
         if not opaque:
             return None
-        return Surfaces(scene, box, [shape_name(s) for s in opaque], _digest(opaque))
+        return Surfaces(scene, box, [shape_name(s) for s in opaque], digest(*opaque))
 
     def world(self, x: mi.Point3f) -> mi.Point3f:
         """Voxel coordinates → world."""
@@ -170,16 +170,16 @@ class Surfaces:
         return first_hit(self.scene, ray, active, objects=False)
 
 
-def _digest(shapes) -> str:
-    """A digest of the opaque shapes' parameters: an edit through ``mi.traverse`` (then
-    ``reload``) re-keys the photon and viewing stages."""
+def digest(*objects) -> str:
+    """A digest of the parameters of Mitsuba objects (``mi.traverse``): an emitter or a shape
+    edited through ``mi.traverse`` and re-read by ``reload`` changes the cache keys it is in."""
     h = hashlib.sha1()
-    for shape in shapes:
-        h.update(str(id(shape)).encode())
-        params = mi.traverse(shape)
+    for obj in objects:
+        params = mi.traverse(obj)
         for key in sorted(params.keys()):
             try:
-                value = np.asarray(params[key], dtype=np.float64)
+                value = params[key]
+                value = np.asarray(getattr(value, "matrix", value), dtype=np.float64)
             except (TypeError, ValueError):
                 continue
             h.update(key.encode())

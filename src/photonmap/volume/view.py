@@ -272,9 +272,7 @@ def render_view(
         L, inside = _march_rays(grids, o, d, env, settings)
         L = dr.select(inside, L, environment(env, d))
     else:
-        L, hit, cast_x, cast_d, weight = _march_rays(
-            grids, o, d, env, settings, shading.surfaces
-        )
+        L, hit, cast_x, cast_d, weight = _march_rays(grids, o, d, env, settings, shading.surfaces)
         dr.eval(L, hit, cast_x, cast_d, weight)
         si = shading.surfaces.hit(cast_x, cast_d, hit)
         L += weight * shade(shading, si, settings.seed, hit)
