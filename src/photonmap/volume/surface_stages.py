@@ -24,9 +24,11 @@ def surface_key(s: VolumeScene):
 def emission(s: VolumeScene, bounce: bool) -> dict:
     """S5's keywords with opaque surfaces (``emit.emit_lights``): photons start at the lights
     (the marcher checks their way to the grid), and, where they bounce (``bounce``: multiple
-    scattering), light the whole scene (``emit.emit_everywhere``)."""
+    scattering) off surfaces other than the lamps' own shapes, light the whole scene
+    (``emit.emit_everywhere``)."""
     surf = s.surfaces
-    everywhere = surf.bounds() if surf is not None and bounce else None
+    reflecting = surf is not None and len(surf.names) > surf.lamps
+    everywhere = surf.bounds() if reflecting and bounce else None
     return {"keep_origin": surf is not None, "scene_bounds": everywhere}
 
 
@@ -59,7 +61,8 @@ def shading_key(s: VolumeScene, p: VolumeParams, shading: SurfaceShading | None)
 def warn_settings(s: VolumeScene, p: VolumeParams, warned: set) -> None:
     """Say, once per pipeline (``warned``: what was said) and setting, what the settings leave
     out of a scene with opaque surfaces."""
-    if s.surfaces is None:
+    # light reflected by the lamps' own shapes alone is too little to mention
+    if s.surfaces is None or len(s.surfaces.names) == s.surfaces.lamps:
         return
     parts = []
     if p.scattering == "single":

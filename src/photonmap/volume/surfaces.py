@@ -119,8 +119,11 @@ class Surfaces:
     ``fingerprint``: a digest of their parameters. (A plain class: the marchers' symbolic loops
     read it, and Dr.Jit would traverse a dataclass as loop state.)"""
 
-    def __init__(self, scene: mi.Scene, box: GridBox, names: list, fingerprint: str = ""):
+    def __init__(
+        self, scene: mi.Scene, box: GridBox, names: list, fingerprint: str = "", lamps: int = 0
+    ):
         self.scene, self.box, self.names, self.fingerprint = scene, box, names, fingerprint
+        self.lamps = lamps  # how many of them are emitters' shapes
         self._lo = mi.Point3f(*[dr.opaque(mi.Float, float(c)) for c in self.box.lo])
         self._h = dr.opaque(mi.Float, float(self.box.h))
 
@@ -130,7 +133,8 @@ class Surfaces:
         opaque = [s for s in scene.shapes() if kind(s) == "opaque"]
         if not opaque:
             return None
-        return Surfaces(scene, box, [shape_name(s) for s in opaque], digest(*opaque))
+        lamps = sum(s.is_emitter() for s in opaque)
+        return Surfaces(scene, box, [shape_name(s) for s in opaque], digest(*opaque), lamps)
 
     def world(self, x: mi.Point3f) -> mi.Point3f:
         """Voxel coordinates → world."""
