@@ -208,9 +208,9 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     - **Camera**: the first sensor, which must be ``perspective``.
 
     - **Opaque surfaces** (every other shape, emitters' shapes included: ``surfaces.py``) stop
-      photons and camera rays; the viewing pass shades them (``shading.py``). What it does not
-      render of them — mirror reflection, partial transparency — is named in a
-      :class:`~photonmap.PhotonmapWarning`.
+      photons and camera rays; the viewing pass shades them (``shading.py``) and follows their
+      mirror lobes (``view.py``). What it does not render of them — partial transparency — is
+      named in a :class:`~photonmap.PhotonmapWarning`.
 
     Raises :class:`SceneError` saying what to fix for anything the pipeline cannot render.
     """

@@ -41,6 +41,7 @@ from .march import KILL_FRACTION, MarchGrids, Scattering, _advance, sample_mediu
 from .surfaces import RECAST_TURN, SurfacePhotons, Surfaces, record
 
 IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
+SMOOTH = int(mi.BSDFFlags.Smooth)
 
 
 @dr.syntax
@@ -210,6 +211,7 @@ def march_with_surfaces(
         si = surfaces.hit(cast_x, cast_d, surface)
         surface &= si.is_valid()
         keep = surface & (bent | (order > 0)) & (dr.max(L_end) > 0)  # after an event
+        keep &= (mi.UInt32(si.bsdf().flags()) & SMOOTH) != 0  # a mirror shows none (view.py)
         position, normal = mi.Point3f(si.p), mi.Vector3f(si.sh_frame.n)
         if order == last:
             dr.eval(keep, position, normal)

@@ -65,19 +65,16 @@ def shape_name(shape) -> str:
 
 
 def unmodelled(shapes) -> list[str]:
-    """What the volume method does not render of these shapes, one line per shape: the delta
-    (mirror) lobes of opaque surfaces, which the viewing pass does not follow, and partial
-    transparency (``mask``), which it renders as fully transparent."""
+    """What the volume method does not render of these shapes, one line per shape: partial
+    transparency (``mask``, a ``thindielectric`` that bounds no fog), which it renders as fully
+    transparent. (Mirror lobes are followed by the camera rays, ``view.py``, and by the photons.)"""
     lines = []
     for shape in shapes:
         bsdf = shape.bsdf()
         flags = int(bsdf.flags()) if bsdf is not None else 0
-        name = shape_name(shape)
-        if kind(shape) == "opaque" and flags & int(mi.BSDFFlags.Delta) and not shape.is_emitter():
-            lines.append(f"the mirror reflection of {name}")
-        elif flags & NULL and flags & ~NULL & int(mi.BSDFFlags.All):
-            if shape.interior_medium() is None:  # not a fog volume's boundary
-                lines.append(f"{name}, partly transparent: rendered as fully transparent")
+        crossing = flags & NULL and flags & ~NULL & int(mi.BSDFFlags.All)
+        if crossing and shape.interior_medium() is None:  # not a fog volume's boundary
+            lines.append(f"{shape_name(shape)}, partly transparent: rendered as fully transparent")
     return lines
 
 

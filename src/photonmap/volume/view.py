@@ -25,6 +25,14 @@ the plane ``y = 1`` and picks up ``ρ_table/π · C ⊙ T`` (a Lambertian table 
 fluence there; spec A27/A28: only for ``v_y < 0``, attenuated by T). ``fidelity="paper"`` adds
 ``ρ_table · C`` without T, as Listing A.4 does, and updates ``v += h·n(x)·∇n`` (spec A13).
 
+Opaque surfaces of the user's scene (``surfaces.py``; ours, for Sun Fig. 1's table and any
+floor or wall): a camera ray ends at the first one, in the grid or beyond it. One Mitsuba cast
+per straight stretch gives its distance (again only once the ray has turned by more than
+``RECAST_TURN``, in and around refractive objects), the last step is cut there, and the surface
+adds its radiance (``shading.py``) weighted by ``colScale·T``; where it has a mirror lobe the ray
+goes on in the mirrored direction (:func:`_view_surfaces`). Only rays that meet no surface see
+the environment.
+
 Reflective isosurface (Pfeuti §3.1.1, §3.1.6; spec A29): the first time ``n(x_old) < n_iso ≤ n(x)``
 a 10-step bisection finds the crossing, the normal is ``−∇n/‖∇n‖`` and ``R_iso · T ⊙ L_env(r)`` is
 added for the mirrored direction ``r``; the ray then continues with weight ``1 − R_iso``.
@@ -46,6 +54,8 @@ from .shading import shade
 from .surfaces import RECAST_TURN
 
 BISECTION_STEPS = 10
+MIRROR_BOUNCES = 4  # mirror reflections a camera ray follows at opaque surfaces
+MIRROR = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.DeltaReflection)
 ENTRY_NUDGE = 1e-4  # voxels: start just inside the grid face
 
 
@@ -272,13 +282,43 @@ def render_view(
         L, inside = _march_rays(grids, o, d, env, settings)
         L = dr.select(inside, L, environment(env, d))
     else:
-        L, hit, cast_x, cast_d, weight = _march_rays(grids, o, d, env, settings, shading.surfaces)
-        dr.eval(L, hit, cast_x, cast_d, weight)
-        si = shading.surfaces.hit(cast_x, cast_d, hit)
-        L += weight * shade(shading, si, settings.seed, hit)
+        L = _view_surfaces(grids, o, d, env, settings, shading)
     image = mi.TensorXf(dr.ravel(pixel_means(L, spp) if spp > 1 else L), (h, w, 3))
     dr.eval(image)
     return image
+
+
+def _view_surfaces(grids: ViewGrids, o, d, env, settings: ViewSettings, shading) -> mi.Color3f:
+    """Camera rays with opaque surfaces: each ends at a surface, which adds its radiance
+    (``shading.py``); where the surface has a mirror (delta) reflection lobe — a conductor, the
+    coating of a smooth plastic — the ray goes on in the mirrored direction with the lobe's
+    weight, through the grid again, up to :data:`MIRROR_BOUNCES` times (only the rays that do
+    are marched again)."""
+    surfaces = shading.surfaces
+    L = dr.zeros(mi.Color3f, dr.width(o))
+    lanes = dr.arange(mi.UInt32, dr.width(o))
+    throughput = dr.ones(mi.Color3f, dr.width(o))
+    for bounce in range(MIRROR_BOUNCES + 1):
+        L_ray, hit, cast_x, cast_d, weight = _march_rays(grids, o, d, env, settings, surfaces)
+        dr.eval(L_ray, hit, cast_x, cast_d, weight)
+        si = surfaces.hit(cast_x, cast_d, hit)
+        L_ray += weight * shade(shading, si, settings.seed + bounce, hit)
+        dr.scatter_reduce(dr.ReduceOp.Add, L, throughput * L_ray, lanes)
+        if bounce == MIRROR_BOUNCES:
+            break
+        bs, f = si.bsdf().sample(MIRROR, si, 0.5, mi.Point2f(0.5), hit)
+        throughput *= weight * mi.Color3f(f)
+        on = hit & (bs.pdf > 0) & (dr.max(throughput) > 0)
+        wo = si.to_world(bs.wo)
+        start = surfaces.voxel(si.spawn_ray(wo).o)
+        dr.eval(L, on, throughput, wo, start)
+        alive = dr.compress(on)
+        if dr.width(alive) == 0:
+            break
+        lanes = dr.gather(mi.UInt32, lanes, alive)
+        throughput = dr.gather(mi.Color3f, throughput, alive)
+        o, d = dr.gather(mi.Point3f, start, alive), dr.gather(mi.Vector3f, wo, alive)
+    return L
 
 
 def sensor_key(sensor) -> tuple:
