@@ -189,22 +189,8 @@ def march_with_surfaces(
             target, channel, iso, tally, 0, order == 0,
         )  # fmt: skip
         dr.eval(into, *out)  # one launch per leg
-        (
-            n_steps,
-            x_end,
-            v,
-            L_end,
-            found,
-            x_c,
-            d_c,
-            ratio,
-            x_s,
-            surface,
-            cast_x,
-            cast_d,
-            bent,
-            depth,
-        ) = out
+        n_steps, x_end, v, L_end, found, x_c, d_c, ratio, x_s = out[:9]
+        surface, cast_x, cast_d, bent, depth = out[9:]
         for array, value in zip(final, (x_end, v, L_end, dr.opaque(mi.UInt32, order)), strict=True):
             dr.scatter(array, value, ids)
         steps += int(dr.sum(Float64(n_steps))[0])
