@@ -133,3 +133,15 @@ def warn_disagreeing_media(scene: mi.Scene, method: str) -> list[str]:
             stacklevel=3,
         )
     return lines
+
+
+def warn_unmodelled(method: str, parts: list[str], instead: str) -> list[str]:
+    """Warn once (a :class:`PhotonmapWarning`) that ``method`` does not render ``parts`` of the
+    scene (one line each, naming the shapes or settings), and what renders them: ``instead``."""
+    if parts:
+        warnings.warn(
+            f"the {method} method does not render: {'; '.join(parts)}. {instead}.",
+            PhotonmapWarning,
+            stacklevel=3,
+        )
+    return parts
