@@ -454,7 +454,8 @@ class SurfacePipeline(MovableCamera):
             progress("light images")
         with self.timer("light images"):
             image += light_images(
-                self.scene, self.sensor, eye.radiance, w, h, p, self.settings, self.traits
+                self.scene, self.sensor, eye.radiance, bounces > 0, w, h, p, self.settings,
+                self.traits,
             )
         image = mi.TensorXf(dr.ravel(image), (h, w, 3))
         if not np.all(np.isfinite(np.asarray(image))):
@@ -466,19 +467,24 @@ class SurfacePipeline(MovableCamera):
 
 
 def light_images(
-    scene, sensor, emitted: mi.Spectrum, w: int, h: int, p, settings, traits
+    scene, sensor, emitted: mi.Spectrum, specular: mi.Bool, w: int, h: int, p, settings, traits
 ) -> mi.Spectrum:
     """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
-    eye samples' ``emitted``, except in the pixels where a sample saw a light (and their
-    neighbours): there it is the mean of ``p.emitter_spp`` new samples of this term alone (a
-    selection by the samples themselves, as in adaptive sampling: a slight bias, within the
-    noise it removes). Those pixels hold the lights and their specular images — bright, small,
-    and the one place where the eye samples alone leave visible noise; the extra samples only
-    follow mirrors, glass and the media's transmittance, so they are cheap."""
+    eye samples' ``emitted``, except in the pixels where a sample saw a light or followed a
+    mirror or glass (``specular``), and their neighbours: there it is the mean of
+    ``p.emitter_spp`` new samples of this term alone (a selection by the samples themselves, as
+    in adaptive sampling: a slight bias at a light's edge, within the noise it removes). Those
+    pixels hold the lights and their specular images — bright, small, and the one place where
+    the eye samples alone leave visible noise. Flagging every pixel that sees glass, not only
+    those whose sample happened to meet a light, keeps the glints of a glass stack (one of
+    many reflections at one of many interfaces: few eye samples find them). The extra samples
+    only follow mirrors, glass and the media's transmittance, so they are cheap."""
     image = pixel_means(emitted, p.spp)
     if p.emitter_spp == 0:
         return image
-    seen = np.pad(np.array(dr.max(image) > 0).reshape(h, w), 1)
+    specular = dr.block_reduce(dr.ReduceOp.Max, mi.UInt32(specular), p.spp) > 0
+    seen = np.array((dr.max(image) > 0) | specular)
+    seen = np.pad(seen.reshape(h, w), 1)
     grown = np.zeros((h, w), bool)
     for dy in range(3):
         for dx in range(3):
