@@ -58,10 +58,12 @@ from ..core.media import (
     broadcast,
     isotropic,
 )
+from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import has_media
 from ..core.timer import StageTimer
+from . import memory
 from .cis import TABLE_SAMPLING, sampling_table
 from .final_gather import final_gather
 from .gather import radiance_estimate
@@ -178,8 +180,18 @@ class SurfacePipeline(MovableCamera):
         self._ravg = None  # (tracing key, R_avg precomputed at photons), for self._maps
 
     def set_params(self, **params) -> None:
-        """Change pipeline parameters (:class:`SurfaceParams` fields)."""
-        self.params = updated(self.params, params, "surface")
+        """Change pipeline parameters (:class:`SurfaceParams` fields); settings that would not
+        fit in memory are refused (:meth:`check_memory`)."""
+        new = updated(self.params, params, "surface")
+        self.check_memory(new)
+        self.params = new
+
+    def check_memory(self, params: SurfaceParams | None = None, size=None) -> int:
+        """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
+        (width, height; default: the camera's) would need more memory than is available
+        (:mod:`.memory`); return the estimate in bytes."""
+        w, h = size or (int(c) for c in self.sensor.film().crop_size())
+        return memory.check(params or self.params, w, h, self.media)
 
     @property
     def diagonal(self) -> float:
@@ -370,6 +382,7 @@ class SurfacePipeline(MovableCamera):
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance."""
         p = self.params
+        check_once(self, p, self.sensor.film().crop_size(), self.check_memory)
         self.timer.reset()
         global_map, caustic_map, extra = self.photon_maps(progress)
         r_caustic, r_global = self.radii()
