@@ -66,15 +66,17 @@ def write_bytes(path: str, data: bytes) -> str:
     previous file is untouched: a :class:`WriteError` (disk full, I/O error) or an
     :class:`OutputError` (the path: permission, missing directory)."""
     real = os.path.realpath(path)
+    if os.path.exists(real) and not os.path.isfile(real):  # never rename over a device
+        raise OutputError(
+            f"output {path!r} is not a regular file (a device, pipe or socket): give a file path"
+        )
     folder, name = os.path.split(real)
     temp = os.path.join(folder, f".{name}.{secrets.token_hex(4)}.tmp")
     interrupt.pending_files.add(temp)
     try:
         fd = os.open(temp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_CLOEXEC, 0o666)
         try:
-            view = memoryview(data)
-            while view:
-                view = view[os.write(fd, view):]
+            _write_all(fd, data)
             os.fsync(fd)
             if os.path.isfile(real):
                 os.chmod(temp, stat.S_IMODE(os.stat(real).st_mode))
@@ -96,6 +98,12 @@ def write_bytes(path: str, data: bytes) -> str:
         interrupt.pending_files.discard(temp)
     _sync_directory(folder)
     return path
+
+
+def _write_all(fd: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view) :]
 
 
 def _sync_directory(folder: str) -> None:
