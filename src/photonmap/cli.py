@@ -50,6 +50,13 @@ def _error(exc) -> typer.Exit:
     return typer.Exit(getattr(exc, "exit_code", 2))
 
 
+def _root_cause(exc: BaseException) -> str:
+    """The first line of the innermost cause of ``exc`` (Mitsuba wraps its errors)."""
+    while (exc.__cause__ or exc.__context__) is not None:
+        exc = exc.__cause__ or exc.__context__
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
 def _count(n: int, noun: str) -> str:
     return f"{n} {noun}{'' if n == 1 else 's'}"
 
@@ -561,9 +568,9 @@ def reference(
     from .core import interrupt
     from .core.errors import ParameterError, SceneError
     from .core.image import check_output
-    from .core.memory import check_side
+    from .core.memory import check_memory, check_side
     from .core.progress import interactive
-    from .core.reference import INTEGRATORS, render_reference
+    from .core.reference import BYTES_PER_SAMPLE, INTEGRATORS, render_reference
     from .scenes import load_scene
 
     with _command() as run:
@@ -594,6 +601,8 @@ def reference(
         interrupt.check()
         film = mi_scene.sensors()[0].film().size()
         size = _image_size(width, height, film)
+        check_memory("reference", {"film and one pass": (BYTES_PER_SAMPLE + 64) * size[0] * size[1]},
+                     "render a smaller image (--width, --height)")  # fmt: skip
         if size != tuple(int(c) for c in film):
             params = mi.traverse(mi_scene.sensors()[0])
             params["film.size"] = size
@@ -611,8 +620,7 @@ def reference(
                     mi_scene, spp, integrator, max_depth, time, seed, progress=passed
                 )
             except (RuntimeError, TypeError) as exc:  # Mitsuba refused the scene or its film
-                first = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
-                raise SceneError(f"Mitsuba could not render {scene!r}: {first}") from None
+                raise SceneError(f"Mitsuba could not render {scene!r}: {_root_cause(exc)}") from None
         run.write(output, image)
         if not interrupt.requested():
             _say(
