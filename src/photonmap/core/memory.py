@@ -25,11 +25,11 @@ BYTES_PER_SAMPLE = {"surface": 1200, "volume": 400, "screen": 2000, "sppm": 1200
 
 
 def parse_size(text: str, what: str = "--max-memory") -> int:
-    """``"8G"``, ``"512M"``, ``"1.5e9"``, ``"64 KiB"`` → bytes (K, M, G, T are powers of 1024)."""
-    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:e[0-9]+)?)\s*([kmgt]?)i?b?\s*", str(text).lower())
+    """``"8G"``, ``"512M"``, ``"1.5e9"``, ``"64 KiB"`` → bytes (K, M, G, T, P: powers of 1024)."""
+    match = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:e[0-9]+)?)\s*([kmgtp]?)i?b?\s*", str(text).lower())
     if not match:
         raise ParameterError(f"{what}: expected a size such as 8G, 512M or 2e9 bytes, got {text!r}")
-    value = float(match.group(1)) * 1024 ** " kmgt".index(match.group(2) or " ")
+    value = float(match.group(1)) * 1024 ** " kmgtp".index(match.group(2) or " ")
     if not value >= 1:
         raise ParameterError(f"{what} must be at least 1 byte, got {text!r}")
     return int(value)

@@ -131,12 +131,6 @@ def create_app(viewer: Viewer, host: str = "127.0.0.1", port: int | None = None)
     async def photonmap_error(request, exc):
         return _unprocessable(exc)
 
-    @app.exception_handler(Exception)
-    async def internal_error(request, exc):  # one line in the log, no traceback in the reply
-        print(f"photonmap view: {request.method} {request.url.path} failed: "
-              f"{type(exc).__name__}: {short(exc, 120)}", flush=True)  # fmt: skip
-        return JSONResponse({"detail": f"internal error ({type(exc).__name__})"}, status_code=500)
-
     @app.get("/")
     def index(request: Request):
         page = FileResponse(str(STATIC / "index.html"))

@@ -86,7 +86,22 @@ class Guard:
                 return await _refuse(scope, receive, send, 413,
                                      f"the request body exceeds {MAX_BODY} bytes")  # fmt: skip
             receive = _replay(body)
-        return await self.app(scope, receive, send)
+        started = []
+
+        async def tracked(message):
+            if message["type"] in ("http.response.start", "websocket.accept"):
+                started.append(True)
+            await send(message)
+
+        try:
+            await self.app(scope, receive, tracked)
+        except Exception as exc:  # noqa: BLE001 - one line in the log, never a traceback
+            first = (str(exc).strip().splitlines() or [""])[0][:120]
+            print(f"photonmap view: {scope.get('path', '')} failed: {type(exc).__name__}: "
+                  f"{first}", flush=True)  # fmt: skip
+            if not started and scope["type"] == "http":
+                await _refuse(scope, receive, send, 500,
+                              f"internal error ({type(exc).__name__})")  # fmt: skip
 
     def _refusal(self, scope, headers) -> tuple[int, str] | None:
         host, port = _split_host(headers.get("host", ""))
