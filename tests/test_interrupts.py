@@ -174,3 +174,29 @@ def test_sigint_stops_the_viewer(tmp_path):
     lines = (out + err).strip().splitlines()
     assert lines[-1] == "interrupted: the viewer stopped, nothing written"
     assert "Traceback" not in out + err
+
+
+def test_sigint_twice(tmp_path):
+    """Ctrl-C twice in a row: exit 130, one line, nothing partial left — whether the second
+    stops the process at once (it arrived while Python ran) or was folded into the first (both
+    arrived during one Dr.Jit kernel: Python runs a handler once per burst)."""
+    out = tmp_path / "y.exr"
+    args = [*CASES["sppm"][:-6], "--time", "30", "--set", "photons_per_iteration=500000",
+            "-o", str(out)]  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": os.path.join(ROOT, "src")}
+    proc = subprocess.Popen([sys.executable, "-m", "photonmap", *args], cwd=ROOT, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    time.sleep(3.0)
+    proc.send_signal(signal.SIGINT)
+    time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    output = stdout + stderr
+    assert proc.returncode == 130, output
+    last = output.strip().splitlines()[-1]
+    assert last in ("interrupted again: stopped at once, nothing more written",) or (
+        last.startswith("interrupted: ")), output  # fmt: skip
+    assert "Traceback" not in output
+    assert not [f for f in os.listdir(tmp_path) if f.endswith(".tmp")]
+    if out.exists():
+        assert read_image(str(out)).shape == (48, 64, 3)

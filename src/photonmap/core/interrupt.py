@@ -11,7 +11,10 @@ progressive render) or nothing.
 A second Ctrl-C while the first is still pending: in the ``photonmap`` command (``force=True``)
 the process stops at once — the temporary files of writes in progress (:data:`pending_files`)
 are removed, so no output is ever partial, one line says so, exit status 130; in a Python session
-the usual ``KeyboardInterrupt`` is raised where the program is.
+the usual ``KeyboardInterrupt`` is raised where the program is. (Python runs a signal handler
+when the main thread is back in Python code, once for a burst of signals: two Ctrl-C during one
+long Dr.Jit kernel count as one.) A process that ignores SIGINT (a ``nohup`` or background job)
+keeps ignoring it.
 
 >>> with deferred():
 ...     for i in range(n):
@@ -85,7 +88,7 @@ def deferred(force: bool = False):
         yield
         return
     previous = signal.getsignal(signal.SIGINT)
-    if previous in _HANDLERS:
+    if previous in _HANDLERS or previous == signal.SIG_IGN:  # nested, or Ctrl-C ignored (nohup)
         yield
         return
     signal.signal(signal.SIGINT, _command_handler if force else _session_handler)
@@ -111,4 +114,5 @@ def guard_command() -> None:
     """In the ``photonmap`` command, defer Ctrl-C from the start (the package import takes
     seconds): the command answers it at its first safe point. Nothing in a Python session."""
     if _is_command() and threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _command_handler)
+        if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:  # a background job ignores it
+            signal.signal(signal.SIGINT, _command_handler)
