@@ -155,8 +155,9 @@ class Adapter(ABC):
             new["params"] = params
         if "volume" in update:
             new["volume"] = self._check_volume(state, update["volume"])
-        if "params" in update or "camera" in update:  # the method's memory estimate
-            cam = new["camera"]
+        cam, old = new["camera"], state["camera"]
+        resized = (cam["width"], cam["height"]) != (old["width"], old["height"])
+        if "params" in update or resized:  # the method's memory estimate (not for a mere move)
             params = updated(self._params0, new["params"], self.method)
             self.pipe.check_memory(params, (cam["width"], cam["height"]))
         return new
