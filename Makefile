@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/steinhurst_table_5_1.py
 	$(PY) benchmarks/steinhurst_o17_study.py
 	$(PY) benchmarks/volume_box_grid.py
+	$(PY) benchmarks/user_scenes.py
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check src tests benchmarks

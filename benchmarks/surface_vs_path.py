@@ -31,11 +31,14 @@ import mitsuba as mi  # noqa: E402
 import common  # noqa: E402
 import photonmap  # noqa: E402,F401
 from photonmap.core.camera import pixel_rays  # noqa: E402
-from photonmap.core.eye_trace import follow_specular  # noqa: E402
+from photonmap.core.eye_trace import trace_eye_paths  # noqa: E402
 from photonmap.core.hashgrid import HashGrid  # noqa: E402
 from photonmap.core.image import compare, write_image  # noqa: E402
+from photonmap.core.media import broadcast  # noqa: E402
 from photonmap.core.photon_trace import trace_photons  # noqa: E402
 from photonmap.core.sampling import rng  # noqa: E402
+from photonmap.core.scene_info import SceneTraits  # noqa: E402
+from photonmap.core.settings import PathSettings  # noqa: E402
 from photonmap.scenes import SCENES  # noqa: E402
 from photonmap.surface.kdtree import KDTree  # noqa: E402
 from photonmap.surface.pipeline import STAGES, SurfacePipeline  # noqa: E402
@@ -83,9 +86,10 @@ def light_image_mask(scene, spp: int = 64) -> np.ndarray:
     gen = rng(lanes, 12345, 0)
     pixel = dr.arange(mi.UInt32, lanes) // spp
     ray, weight = pixel_rays(sensor, pixel, mi.Point2f(gen.next_float32(), gen.next_float32()))
-    _, _, emitted, _, _ = follow_specular(
-        scene, ray, weight, dr.ones(mi.Bool, lanes), 16, gen, count_emission=True
-    )
+    emitted = trace_eye_paths(
+        scene, ray, weight, broadcast(None, lanes), gen, PathSettings(16), SceneTraits.of(scene),
+        media_mode="transmit",
+    ).radiance
     seen = np.array(dr.block_reduce(dr.ReduceOp.Add, dr.max(emitted), spp)).reshape(h, w) / spp
     return ~binary_dilation(seen > 0.01, iterations=1)
 
@@ -157,9 +161,12 @@ def loglog_error_at(rows, seconds, key="rel_rmse"):
 
 
 def throughput(scene, photons: int, queries: int, runs: int = 3) -> dict:
-    trace_photons(scene, 10_000)
-    t_trace = common.median(common.timed(trace_photons, scene, photons)[0] for _ in range(runs))
-    records = trace_photons(scene, photons)
+    def trace(count):
+        return trace_photons(scene, count, PathSettings(9, 3)).records
+
+    trace(10_000)
+    t_trace = common.median(common.timed(trace, photons)[0] for _ in range(runs))
+    records = trace(photons)
     q = dr.gather(
         mi.Point3f,
         records.position,

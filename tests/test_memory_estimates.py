@@ -117,11 +117,18 @@ def test_a_frame_is_checked_once_not_against_what_it_holds():
     assert available_memory() is None or available_memory() > 1
 
 
-def test_the_estimate_grows_with_the_budget_and_the_image():
+def test_the_estimate_grows_with_the_budget_the_depth_and_the_image():
+    from photonmap.core.photon_memory import UNBOUNDED_RECORDS
+    from photonmap.core.photon_trace import CHUNK
+
     p = SurfacePipeline(BOX, photons=1000).params
-    parts, entries = surface_memory.estimate(p, 64, 48)
-    assert parts["photon tracing and maps"] == 1000 * (surface_memory.PATH_BYTES
-                                                       + 8 * surface_memory.SLOT_BYTES)
-    bigger, _ = surface_memory.estimate(p, 128, 96)
+    parts, entries = surface_memory.estimate(p, 64, 48, max_depth=9)
+    per_path = surface_memory.PATH_BYTES + CHUNK * surface_memory.SLOT_BYTES
+    assert parts["photon tracing and maps"] == 1000 * (per_path + 8 * surface_memory.RECORD_BYTES)
+    unbounded, _ = surface_memory.estimate(p, 64, 48, max_depth=-1)
+    assert unbounded["photon tracing and maps"] == 1000 * (
+        per_path + UNBOUNDED_RECORDS * surface_memory.RECORD_BYTES
+    )
+    bigger, _ = surface_memory.estimate(p, 128, 96, max_depth=9)
     assert bigger["eye pass and final gather"] == 4 * parts["eye pass and final gather"]
-    assert entries["photons × max_depth record slots"] == 8000
+    assert entries["photons × CHUNK record slots"] == max(1000, p.caustic_photons) * CHUNK

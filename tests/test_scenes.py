@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from photonmap import mi
+from photonmap import PhotonmapWarning, mi
 from photonmap.core.errors import ParameterError, SceneError
 from photonmap.core.scene_info import pick_method
 from photonmap.scenes import SCENES, load_scene
@@ -20,14 +20,13 @@ VOLUME_SCENES = [name for name, b in SCENES.items() if b.pipeline == "volume"]
 
 
 def test_every_builtin_takes_its_parameters_and_picks_its_method():
-    """Every built-in loads with each scene parameter it advertises (issue 10 item 3) and returns
-    its pipeline defaults; the method picked from its content (``pick_method``) is volume exactly
-    for the fog scenes (the screen scenes have no medium: surface unless asked for)."""
+    """Every built-in loads with each scene parameter it advertises and returns its pipeline
+    defaults; a file (no built-in) renders with ``sppm``, which models everything in it."""
     for name, builtin in SCENES.items():
         assert builtin.description
         scene, defaults = load_scene(name, **{**builtin.params, **SMALL})
         assert defaults == builtin.defaults
-        assert pick_method(scene) == ("volume" if builtin.pipeline == "volume" else "surface")
+        assert pick_method(scene) == "sppm"
     assert VOLUME_SCENES == ["glass_sphere_fog", "perlin_cube", "mesh_in_fog"]
     assert {"ior_noise", "sigma_s_noise", "noise_scale"} <= set(SCENES["perlin_cube"].defaults)
 
@@ -205,18 +204,20 @@ def test_fog_from_sensor_medium_and_margin():
     assert explicit.box.size == pytest.approx(2.0) and explicit.box.lo[0] == pytest.approx(0.0)
 
 
-def test_ignored_shape_warns():
-    scene = mi.load_dict(
-        {
-            "type": "scene",
-            "glass": _glass(),
-            "sensor": _camera(),
-            "floor": {"type": "rectangle"},
-            "light": {"type": "point", "position": [0.5, 3, 0.5]},
-        }
-    )
-    with pytest.warns(UserWarning, match="floor"):
-        from_mitsuba(scene)
+def test_other_shapes_are_opaque_surfaces():
+    """A shape that is neither a refractive object nor a fog boundary is an opaque surface the
+    volume method shades (volume/surfaces.py); a partly transparent one is named in a warning."""
+    scene = {
+        "type": "scene",
+        "glass": _glass(),
+        "sensor": _camera(),
+        "floor": {"type": "rectangle"},
+        "light": {"type": "point", "position": [0.5, 3, 0.5]},
+    }
+    assert from_mitsuba(mi.load_dict(scene)).surfaces.names == ["'floor'"]
+    scene["floor"]["bsdf"] = {"type": "mask", "opacity": 0.5, "bsdf": {"type": "diffuse"}}
+    with pytest.warns(PhotonmapWarning, match="'floor', partly transparent"):
+        assert from_mitsuba(mi.load_dict(scene)).surfaces is None
 
 
 def test_load_scene_inputs(tmp_path):

@@ -219,8 +219,8 @@ def render(
     method: Annotated[
         str | None,
         typer.Option(
-            help="volume | surface | screen | sppm (default: a built-in's own; for a file, volume if "
-            "it holds fog, else surface)"
+            help="volume | surface | screen | sppm (default: a built-in's own; for a file, sppm, "
+            "which renders everything in it)"
         ),
     ] = None,
     width: Annotated[
@@ -293,8 +293,7 @@ def render(
             method = builtin.pipeline  # the method the built-in scene is made for
         elif method is None:
             method = pick_method(mi_scene)
-            why = "the scene holds fog" if method == "volume" else "the scene holds no fog"
-            _say(f"method: {method} ({why}; choose with --method)")
+            _say(f"method: {method} (renders everything in a Mitsuba file; choose with --method)")
         Pipeline, Params, _ = METHODS[method]
         params = _typed_params(method, sets, builtin)
         fields = {f.name for f in dataclasses.fields(Params)}

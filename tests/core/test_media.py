@@ -10,9 +10,10 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from photonmap.core.media import broadcast, channel, free_flight, transmittance
-from photonmap.core.photon_trace import trace_photons_media
+from photonmap.core.media import broadcast, channel, emitter_media, free_flight, transmittance
+from photonmap.core.photon_trace import trace_photons
 from photonmap.core.sampling import rng
+from photonmap.core.settings import PathSettings
 
 T = mi.ScalarTransform4f
 SIGMA = [0.5, 1.0, 2.0]  # σ_t per RGB channel
@@ -140,9 +141,13 @@ def test_free_flights_scatter_in_the_slab_with_its_probability_and_albedo():
     assert abs((z + HALF).mean() - mean) < 2.5e-3  # measured within 1.3e-3 (seeds 1-3)
 
 
-def closed_fog_box(albedo: float, walls: float) -> mi.Scene:
+def closed_fog_box(albedo: float, walls: float, light_medium: bool = True) -> mi.Scene:
     """A 2 x 2 x 2 box of fog (σ_t = 1) inside diffuse walls of reflectance ``walls``, with a
-    point light (1 W/sr) inside the fog: no light leaves the box."""
+    point light (1 W/sr) inside the fog: no light leaves the box. ``light_medium``: the light
+    names its medium (Mitsuba's image is the same without)."""
+    light = {"type": "point", "position": [0.1, 0.2, 0.0], "intensity": 1.0}
+    if light_medium:
+        light["medium"] = {"type": "ref", "id": "fog"}
     return mi.load_dict(
         {
             "type": "scene",
@@ -158,12 +163,7 @@ def closed_fog_box(albedo: float, walls: float) -> mi.Scene:
                 "flip_normals": True,
                 "bsdf": {"type": "diffuse", "reflectance": walls},
             },
-            "light": {
-                "type": "point",
-                "position": [0.1, 0.2, 0.0],
-                "intensity": 1.0,
-                "medium": {"type": "ref", "id": "fog"},
-            },
+            "light": light,
         }
     )
 
@@ -172,7 +172,8 @@ def test_energy_white_walls_all_light_is_absorbed_by_the_fog():
     """Every photon ends absorbed in the fog, so the collisions carry Φ/(1-a) and the power the
     fog scatters (the volume photons, ``direct`` ones included) is Φ·a/(1-a)."""
     a = 0.5
-    surface, volume = trace_photons_media(closed_fog_box(a, 1.0), 20_000, max_depth=200, seed=1)
+    traced = trace_photons(closed_fog_box(a, 1.0), 20_000, PathSettings(max_depth=200), seed=1)
+    surface, volume = traced.records, traced.volume
     phi = surface.emitted_power.mean()
     ratio = np.array(volume.power).sum(axis=1).mean() / (phi * a / (1 - a))
     # measured 0.9953-1.0026 (seeds 1-3); without the division of the power by the albedo
@@ -185,13 +186,54 @@ def test_energy_albedo_one_fog_loses_nothing():
     """In albedo-1 fog all light ends absorbed by the walls of reflectance ρ: the power arriving
     at the walls (every surface record) sums to Φ/(1-ρ)."""
     rho = 0.5
-    surface, volume = trace_photons_media(closed_fog_box(1.0, rho), 20_000, max_depth=200, seed=1)
+    traced = trace_photons(closed_fog_box(1.0, rho), 20_000, PathSettings(max_depth=200), seed=1)
+    surface, volume = traced.records, traced.volume
     phi = surface.emitted_power.mean()
     ratio = np.array(surface.power).sum(axis=1).mean() / (phi / (1 - rho))
     # measured 0.9927-1.0044 (seeds 1-3); fog that loses 10 % of the photons at each event
     # (survival 0.9 without the division): 0.751
     assert abs(ratio - 1) < 0.015, ratio
     assert volume.count > surface.count
+
+
+def test_an_emitter_without_a_medium_emits_into_the_medium_around_it():
+    """A point light inside the fog box that names no medium emits into the fog all the same
+    (``volpath``'s image does not depend on it): the medium is found from rays around it, and the
+    photons scatter in the fog as when the light names it."""
+    named, unnamed = closed_fog_box(0.5, 1.0), closed_fog_box(0.5, 1.0, light_medium=False)
+    assert unnamed.emitters()[0].get_medium() is None
+    media = emitter_media(unnamed)
+    fog = next(s.interior_medium() for s in unnamed.shapes() if s.interior_medium() is not None)
+    assert media[0] is not None and media[0].ptr == fog.ptr
+    counts = []
+    for scene in (named, unnamed):
+        traced = trace_photons(scene, 5_000, PathSettings(max_depth=200), seed=2)
+        counts.append(traced.volume.count)
+    assert counts[0] == counts[1]  # the same paths, scattered alike
+
+
+def test_transmittance_through_surfaces_that_pass_light_in_part():
+    """A shadow ray through a ``mask`` of opacity 0.3 keeps 0.7 of the light, through a
+    ``thindielectric`` 1 − R (as ``volpath``'s next-event estimation), through a diffuse wall
+    nothing."""
+    n = 64
+    for bsdf, expected in (
+        ({"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse"}}, 0.7),
+        ({"type": "thindielectric", "int_ior": 1.5}, None),
+        ({"type": "diffuse"}, 0.0),
+    ):
+        scene = mi.load_dict({"type": "scene", "wall": {"type": "rectangle", "bsdf": bsdf}})
+        ray = mi.Ray3f(mi.Point3f(0.1, 0.2, 1.0), mi.Vector3f(0, 0, -1))
+        ray.maxt = 2.0
+        gen = rng(n, 0, 0)
+        rays = mi.Ray3f(ray.o + dr.zeros(mi.Float, n), ray.d + dr.zeros(mi.Float, n))
+        rays.maxt = 2.0 + dr.zeros(mi.Float, n)
+        T = transmittance(scene, rays, broadcast(None, n), gen, channel(gen), dr.ones(mi.Bool, n))
+        T = np.array(T)
+        if expected is None:  # thin glass at normal incidence: R = 2r/(1+r), r = ((n-1)/(n+1))²
+            r = ((1.5 - 1) / (1.5 + 1)) ** 2
+            expected = 1 - 2 * r / (1 + r)
+        assert np.allclose(T, expected, atol=1e-4), (bsdf["type"], T[:, 0])
 
 
 def test_a_grid_medium_exists_only_inside_its_box():
@@ -223,3 +265,24 @@ def test_a_grid_medium_exists_only_inside_its_box():
     homogeneous = mi.load_dict({"type": "homogeneous"})  # kept alive: MediumPtr holds no reference
     mei.medium = mi.MediumPtr(homogeneous)
     assert np.all(np.array(within_extent(mei)))
+
+
+def test_media_that_disagree_with_the_shapes_around_them_are_warned_about():
+    """examples/lamp_in_fog.xml names the fog the exterior of a floor that reaches far out of the
+    fog box: volpath then fills the space above the floor outside the box with fog for light that
+    leaves it, which photons cannot follow — warned about, naming the floor; the same floor cut
+    to the box is not."""
+    import pathlib
+    import warnings
+
+    from photonmap.core.errors import PhotonmapWarning
+    from photonmap.core.scene_info import warn_disagreeing_media
+
+    text = (pathlib.Path(__file__).resolve().parents[2] / "examples/lamp_in_fog.xml").read_text()
+    with pytest.warns(PhotonmapWarning, match=r"shape Rectangle names 'fog' its exterior medium"):
+        lines = warn_disagreeing_media(mi.load_string(text), "sppm")
+    assert len(lines) == 1
+    cut = text.replace('<scale x="6" y="1" z="6"/>', '<scale x="2.4" y="1" z="1.4"/>')
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert warn_disagreeing_media(mi.load_string(cut), "sppm") == []

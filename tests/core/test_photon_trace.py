@@ -1,20 +1,27 @@
-"""Photon tracing from Mitsuba emitters (spec seed-001 §2.2, A5; Steinhurst Algorithm 2.4)."""
+"""Photon tracing from Mitsuba emitters (spec seed-001 §2.2, A5; Steinhurst Algorithm 2.4): the
+transport core's photon-path loop."""
 
 import numpy as np
 import pytest
 
 from photonmap import dr, mi
+from photonmap.core import photon_trace
+from photonmap.core.emission import emitter_powers, split_paths
 from photonmap.core.errors import ParameterError, SceneError
-from photonmap.core.photon_trace import (
-    PhotonRecords,
-    _check_power,
-    emitter_powers,
-    split_paths,
-    trace_photons,
-)
+from photonmap.core.photon_trace import PhotonRecords, _check_power
+from photonmap.core.settings import PathSettings
 
 T = mi.ScalarTransform4f
 NAN = float("nan")
+
+
+def trace_photons(scene, paths, max_depth=8, rr_depth=3, seed=0, caustics_only=False):
+    """The records of ``paths`` light paths with at most ``max_depth`` interactions each (paths
+    of ``max_depth + 1`` segments, Mitsuba's count)."""
+    settings = PathSettings(max_depth + 1, rr_depth)
+    return photon_trace.trace_photons(
+        scene, paths, settings, seed, caustics_only=caustics_only
+    ).records
 
 
 def closed_box(albedo, *lights, **shapes) -> mi.Scene:
@@ -88,6 +95,47 @@ def test_total_stored_power_in_a_closed_box(albedo):
     expected = records.emitted_power * sum(albedo**d for d in range(depth))
     ratio = total / expected
     assert np.all(np.abs(ratio - 1) < TOTAL_POWER_BOUNDS[albedo]), ratio
+
+
+def test_unbounded_paths_end_by_russian_roulette_alone():
+    """``max_depth`` −1 (Mitsuba's unbounded): paths run until Russian roulette ends them, in as
+    many chunks of the loop as they need, and the stored power sums to ``Φ / (1 − ρ)``."""
+    albedo = 0.7
+    scene = closed_box([albedo] * 3, point())
+    records = photon_trace.trace_photons(scene, 2**15, PathSettings(-1, 3), seed=1).records
+    total = np.array(records.power, dtype=np.float64).sum(axis=1)
+    ratio = total / (records.emitted_power / (1 - albedo))
+    assert np.all(np.abs(ratio - 1) < 0.01), ratio  # measured within 0.004 (seeds 0-2)
+    assert int(np.array(records.depth).max()) > 3 * photon_trace.CHUNK
+
+
+def test_a_mask_stores_photons_and_lets_the_rest_through():
+    """A ``mask`` of opacity 0.3 over a diffuse floor: photons are stored on the mask (its
+    smooth lobe) and 0.7 of the light goes straight through (its Null lobe, no interaction), so
+    the floor's first hits carry 0.7 of what reaches the mask."""
+    scene = mi.load_dict(
+        {
+            "type": "scene",
+            "light": {"type": "directional", "direction": [0, -1, 0], "irradiance": 1.0},
+            "mask": {
+                "type": "rectangle", "to_world": T().translate([0, 1, 0]).rotate([1, 0, 0], 90),
+                "bsdf": {"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse",
+                                                                   "reflectance": 0.0}},
+            },
+            "floor": {
+                "type": "rectangle", "to_world": T().scale(10).rotate([1, 0, 0], -90),
+                "bsdf": {"type": "diffuse", "reflectance": 0.0},
+            },
+        }
+    )  # fmt: skip
+    records = photon_trace.trace_photons(scene, 2**16, PathSettings(-1, 3), seed=1).records
+    y = np.array(records.position)[1]
+    power = np.array(records.power).sum(axis=0)
+    on_mask = power[np.abs(y - 1) < 1e-3].sum()
+    below = (np.abs(y) < 1e-3) & (np.abs(np.array(records.position)[0]) < 1)
+    below &= np.abs(np.array(records.position)[2]) < 1
+    assert abs(power[below].sum() / on_mask - 0.7) < 0.02  # measured 0.698
+    assert np.all(np.array(records.depth)[below] == 1)  # passing the mask is no interaction
 
 
 def test_null_boundaries_are_invisible_to_photons():
@@ -355,7 +403,7 @@ def test_nan_power_after_tracing_is_reported():
     ("kwargs", "message"),
     [
         ({"paths": 0}, "at least 1"),
-        ({"paths": 10, "max_depth": 0}, "max_depth"),
+        ({"paths": 10, "max_depth": -1}, "max_depth"),
         ({"paths": 10, "rr_depth": 0}, "rr_depth"),
     ],
 )

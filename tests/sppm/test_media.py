@@ -1,10 +1,10 @@
-"""SPPM in participating media (issue 11 item 5; Jensen & Christensen 1998, beyond-seeds §4):
-each iteration's photons fill a volume map, its eye paths march through the fog with the surface
-method's machinery, and the volume estimate's radius shrinks as ρ_1 · i^((α−1)/3). On the shared
-fog box (tests/fog_scene.py) with a spot light in the fog, against Mitsuba ``volpath`` and the
-surface method on the same scene: grey fog over a diffuse floor (both modes), the same inside a
-``dielectric`` box (media inside glass: eye paths and photons refract into the fog), and a
-``heterogeneous`` grid medium."""
+"""SPPM in participating media (Jensen & Christensen 1998; beyond-seeds §4): the eye paths run
+through the fog by volumetric path tracing (equiangular direct light along each piece, free-flight
+collisions), the photons light the surfaces and, through glass, the fog (volume caustics, whose
+radius shrinks as ρ_1 · i^((α−1)/3)). On the shared fog box (tests/fog_scene.py) with a spot light
+in the fog, against Mitsuba ``volpath`` and the surface method on the same scene: grey fog over a
+diffuse floor (both modes), the same inside a ``dielectric`` box (media inside glass: eye paths and
+photons refract into the fog), and a ``heterogeneous`` grid medium."""
 
 import os
 
@@ -24,7 +24,7 @@ FLOOR = {  # a diffuse floor inside the fog, lit by the spot through it
     "to_world": T().translate([0, -0.9, 0]).rotate([1, 0, 0], -90).scale([1.4, 0.9, 1]),
     "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.6}},
 }
-PARAMS = {"photons_per_iteration": 20_000, "iterations": 8, "max_depth": 32}
+PARAMS = {"photons_per_iteration": 5_000, "iterations": 32, "max_depth": 32}
 
 
 def scene(kind: str) -> mi.Scene:
@@ -36,10 +36,10 @@ def scene(kind: str) -> mi.Scene:
 
 @pytest.fixture(scope="module")
 def references():
-    """Mitsuba ``volpath`` (max_depth 64) at 1024 spp on the scenes."""
+    """Mitsuba ``volpath`` (max_depth 64) at 4096 spp on the scenes."""
     volpath = mi.load_dict({"type": "volpath", "max_depth": 64})
     return {
-        kind: np.array(mi.render(scene(kind), integrator=volpath, spp=1024, seed=3))
+        kind: np.array(mi.render(scene(kind), integrator=volpath, spp=4096, seed=3))
         for kind in ("floor", "glass", "heterogeneous")
     }
 
@@ -51,17 +51,13 @@ def errors(image: np.ndarray, reference: np.ndarray) -> tuple[float, float]:
     return image.mean() / mean, error
 
 
-# Measured over seeds 0-2 (8 iterations of 20 000 photons; most of the block error is the
-# 1024-spp references' own noise): floor, memoryless: ratio 0.994-1.005, block error
-# 0.088-0.091; sppm mode: the same to 3 digits (the fog's light dominates the floor's);
-# glass box, sppm mode: ratio 0.984-0.993, block error 0.139-0.143; heterogeneous: ratio
-# 0.995-0.998, block error 0.085-0.090. Bounds ~2x / ~1.65x the largest.
-# Mutations (seed 0, floor): no in-scattered light on the eye paths: ratio 0.13; no volume-map
-# term (single scattering only): 0.43; the volume map holding the direct photons too (single
-# scattering counted twice): 1.31; eye paths without transmittance: 1.15; shadow rays without
-# it: 1.40; a volume radius 1/100 of the rule's: block error 0.22 (noise).
-CASES = {"floor memoryless": (0.012, 0.15), "floor sppm": (0.012, 0.15),
-         "glass sppm": (0.03, 0.24), "heterogeneous memoryless": (0.01, 0.15)}  # fmt: skip
+# Measured over seeds 0-2 (32 iterations of 5 000 photons; 4096-spp references): floor,
+# memoryless: ratio 0.979-0.993, 4x4 block error 0.128-0.210; sppm mode: the same (the fog's
+# light dominates the floor's); glass box, sppm mode: ratio 0.991-1.014, block error
+# 0.163-0.184; heterogeneous: ratio 1.000-1.038, block error 0.200-0.295. Bounds ~2x the largest
+# deviation and ~1.5x the largest block error.
+CASES = {"floor memoryless": (0.045, 0.32), "floor sppm": (0.045, 0.32),
+         "glass sppm": (0.03, 0.28), "heterogeneous memoryless": (0.08, 0.45)}  # fmt: skip
 
 
 @pytest.mark.parametrize("case", list(CASES))
@@ -69,7 +65,7 @@ def test_sppm_in_fog_agrees_with_volpath(case, references):
     kind, mode = case.split()
     pipe = SPPMPipeline(scene(kind), mode=mode, seed=SEED, **PARAMS)
     image = np.array(pipe.render())
-    assert pipe.stats["volume_photons"] > 8 * 10_000
+    assert (pipe.stats["volume_photons"] > 0) == (kind == "glass")  # volume caustics
     ratio, error = errors(image, references[kind])
     ratio_bound, error_bound = CASES[case]
     assert abs(ratio - 1) < ratio_bound, (case, ratio)
@@ -83,10 +79,9 @@ def test_sppm_in_fog_agrees_with_the_surface_method():
         seed=SEED,
     )  # fmt: skip
     ratio, error = errors(np.array(sppm.render()), np.array(surface.render()))
-    # seeds 0-2: ratio 0.986-0.987 (the surface method is 1-2 % above volpath here), block
-    # error 0.040-0.049
-    assert abs(ratio - 1) < 0.025, ratio
-    assert error < 0.08, error
+    # seeds 0-2: ratio within 0.025 of 1, block error 0.131-0.204 (SPPM's noise)
+    assert abs(ratio - 1) < 0.05, ratio
+    assert error < 0.3, error
 
 
 def test_media_blocks_are_deterministic_and_merge():

@@ -29,10 +29,10 @@ SMALL = {"photons_per_iteration": 5_000, "seed": 2}
         ({"radius": -0.1}, "radius must be >= 0"),
         ({"aim": 1.0}, r"aim must lie in \[0, 1\)"),
         ({"mode": "ppm"}, "mode must be one of sppm, memoryless"),
-        ({"max_depth": 0}, "max_depth must be >= 1"),
+        ({"max_depth": -2}, "max_depth must be >= -1"),
         ({"alpha": float("nan")}, "alpha must be a finite number"),
         ({"iterations": 2.5}, "iterations must be an integer"),
-        ({"volume_k": 0}, r"volume_k must lie in \[1, 1024\]"),
+        ({"rr_depth": -1}, "rr_depth must be >= 0"),
         ({"volume_radius": -1.0}, "volume_radius must be >= 0"),
     ],
 )

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from photonmap.core.photon_trace import PhotonRecords
+from photonmap.core.settings import PathSettings
 from photonmap.surface.gather import irradiance_estimate
 from photonmap.surface.photon_map import STRUCTURES, build_photon_maps, photon_map
 
@@ -29,6 +30,9 @@ def plane_photons(count: int, side: float, seed: int = 0) -> PhotonRecords:
         mi.Vector3f(zeros, zeros, ones),
         mi.UInt32(np.ones(count, np.uint32)),
         mi.Bool(np.zeros(count, bool)),
+        mi.UInt32(np.arange(count, dtype=np.uint32)),
+        mi.UInt32(np.zeros(count, np.uint32)),
+        mi.UInt32(np.zeros(count, np.uint32)),
         count,
         np.full(3, float(count)),
     )
@@ -77,7 +81,7 @@ def test_the_unlit_side_of_a_thin_wall_stays_dark(wall, structure):
     A13): photons lie within a gather radius of it (on the lit face, 2 cm away, or on the same
     sheet) but arrived from the other side or sit on a face looking the other way."""
     shape, x = WALLS[wall]
-    global_map, _ = build_photon_maps(lit_from_one_side(shape), 50_000, 0, structure)
+    global_map, _, _ = build_photon_maps(lit_from_one_side(shape), 50_000, 0, structure)
     rng = np.random.default_rng(2)
     count = 500
     yz = rng.uniform(-0.8, 0.8, (2, count)).astype(np.float32)
@@ -107,7 +111,7 @@ def test_photons_on_a_floor_stay_off_the_wall_beside_it():
     estimates = []
     for shapes in ({"floor": floor, "wall": wall}, {"wall": wall}):
         scene = mi.load_dict({"type": "scene", **shapes, "light": light})
-        global_map, _ = build_photon_maps(scene, 400_000, 0, max_depth=1)
+        global_map, _, _ = build_photon_maps(scene, 400_000, 0, settings=PathSettings(3))
         E = irradiance_estimate(
             global_map, mi.Point3f(zeros, y, z), mi.Vector3f(ones, zeros, zeros), 100, 0.2
         )

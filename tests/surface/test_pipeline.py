@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from photonmap.core.errors import PhotonmapError
+from photonmap.core.settings import PathSettings
 from photonmap.surface.gather import irradiance_estimate
 from photonmap.surface.photon_map import build_photon_maps
 from photonmap.surface.pipeline import SurfacePipeline
@@ -44,7 +45,7 @@ def furnace(rho=0.5, radius=1.0, power=4 * math.pi, res=16):
 @pytest.mark.parametrize("rho", [0.3, 0.7])
 def test_furnace_irradiance_is_the_multiple_bounce_value(rho):
     scene = furnace(rho)
-    global_map, _ = build_photon_maps(scene, 200_000, 0, max_depth=64)
+    global_map, _, _ = build_photon_maps(scene, 200_000, 0, settings=PathSettings(66, 3))
     rng = np.random.default_rng(1)
     n = rng.normal(size=(256, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
@@ -105,7 +106,9 @@ def test_glass_sphere_caustic_lies_where_geometric_optics_puts_it():
     image = 1.0 / (1.0 / f - 1.0 / D)  # thin-lens image distance below the centre: 1.62
     spreads = []
     for floor in (-image, -2 * image):
-        _, caustic = build_photon_maps(glass_sphere_over_floor(floor), 1, 100_000, max_depth=8)
+        _, caustic, _ = build_photon_maps(
+            glass_sphere_over_floor(floor), 1, 100_000, settings=PathSettings(9, 3)
+        )
         p = np.array(caustic.photons.position).T
         assert len(p) > 1000
         assert np.allclose(p[:, 1], floor, atol=1e-3)
@@ -188,7 +191,8 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     import drjit as dr
 
     from photonmap.core.camera import pixel_rays
-    from photonmap.core.eye_trace import follow_specular
+    from photonmap.core.eye_trace import trace_eye_paths
+    from photonmap.core.media import broadcast
     from photonmap.core.sampling import rng
     from photonmap.surface.gather import radiance_estimate
     from photonmap.surface.pipeline import caustic_radiance
@@ -202,9 +206,10 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     pipe.set_camera(width=w, height=w)
     pixel = dr.arange(mi.UInt32, lanes) // spp
     ray, weight = pixel_rays(pipe.sensor, pixel, mi.Point2f(gen.next_float32(), gen.next_float32()))
-    si, _, _, found, bounces = follow_specular(
-        pipe.scene, ray, weight, dr.ones(mi.Bool, lanes), 8, gen, True
+    eye = trace_eye_paths(
+        pipe.scene, ray, weight, broadcast(None, lanes), gen, pipe.settings, pipe.traits
     )
+    si, found, bounces = eye.si, eye.found, eye.bounces
     shared = np.array(caustic_radiance(caustic_map, si, found, bounces, spp, 50, radius))
     each = np.array(radiance_estimate(caustic_map, si, si.bsdf(), 50, radius, found))
     shared, each = (a.reshape(3, w * w, spp) for a in (shared, each))

@@ -431,8 +431,8 @@ def test_a_corrupted_accumulator_is_refused_not_rendered(monkeypatch):
     real = march_module.accumulate
 
     def corrupted(*args, **kwargs):
-        first, second, unit, steps, final = real(*args, **kwargs)
-        return -first - 1, second, unit, steps, final
+        first, second, unit, steps, *rest = real(*args, **kwargs)
+        return -first - 1, second, unit, steps, *rest
 
     monkeypatch.setattr(march_module, "accumulate", corrupted)
     pipe = VolumePipeline("glass_sphere_fog", grid=24, photons=1024, width=16, height=12)

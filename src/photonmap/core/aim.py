@@ -1,6 +1,7 @@
 """Photons aimed at specular objects — Jensen's projection maps (1996), generalised to area
-lights (spec beyond-seeds §3; issue 12 item 2). Shared by the SPPM photon pass and the surface
-method's caustic map.
+lights (spec beyond-seeds §3): the geometry of aiming. Used by the emission of every method's
+photon paths (:func:`photonmap.core.emission.emit`), which partitions each aimed emitter's paths
+so that every light path is counted once.
 
 **Aimed emission.** For an area emitter: sample a point ``y`` on it (``sample_position``, area
 pdf ``p_A``), choose a specular shape ``S`` with probability ∝ the solid angle ``Ω_S`` its
@@ -12,38 +13,19 @@ directions where ``y`` lies inside it). Cones may overlap, so the direction's pd
 
 for ``N_a`` aimed paths of that emitter: an unbiased estimate of the power it sends into the
 cones. A *specular* shape has only delta lobes (:func:`~photonmap.core.bsdf.is_specular`:
-mirrors, glass); ``null`` boundaries are not aimed at.
-
-**Partition of light paths (unbiased).** Every path whose first surface interaction is on a
-specular shape leaves its light inside that shape's cone, so it can be sampled aimed. A photon
-budget is split per emitter: a fraction ``aim`` of an area emitter's paths is aimed and keeps only
-the records of paths whose first interaction is specular (the *caustic* paths: ``L S …``); the
-other paths are emitted as usual (:mod:`photonmap.core.photon_trace`) and keep only the records
-of paths whose first interaction is smooth. Together they cover every path once. Other emitters
-(points, spots, environment) keep all their paths unaimed. ``caustics_only`` tracing (the caustic
-map) keeps only ``L S+ D`` records, which all start on a specular shape: there every path of an
-area emitter is aimed.
+mirrors, glass, thin glass); ``null`` boundaries are not aimed at. Every path whose first
+interaction is on a specular shape left its light inside that shape's cone, so it can be sampled
+aimed.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .bsdf import has_null_shapes, intersect_visible, is_specular
-from .errors import ParameterError
-from .photon_trace import (
-    PhotonRecords,
-    _check_power,
-    _checked_powers,
-    _sample_rays,
-    _trace,
-    split_paths,
-)
 from .sampling import rng
 
 _LOBES = int(mi.BSDFFlags.All)
@@ -83,15 +65,6 @@ def specular_spheres(scene: mi.Scene) -> list[tuple[np.ndarray, float]]:
 def aimable(scene: mi.Scene) -> np.ndarray:
     """Per emitter: whether its photons can be aimed (an area emitter on a shape)."""
     return np.array([e.get_shape() is not None for e in scene.emitters()], bool)
-
-
-@dataclass
-class AimedTrace:
-    """Photon records of an aimed trace and what the aiming achieved."""
-
-    records: PhotonRecords
-    aimed_paths: int  # paths emitted towards specular shapes
-    caustic_fraction: float  # of the aimed paths, those whose first interaction was specular
 
 
 def _cones(y: mi.Point3f, spheres):
@@ -139,81 +112,3 @@ def aimed_emission(scene: mi.Scene, emitter: mi.UInt32, counts: np.ndarray, sphe
     power = radiance * cos_y / dr.maximum(ps.pdf * pdf_dir * per, 1e-30)
     power = dr.select((ps.pdf > 0) & (pdf_dir > 0), power, 0.0)
     return si.spawn_ray(d), power
-
-
-def _join(a, b):
-    """Two 3-vectors (points, directions, colours) one after the other."""
-    return type(a)(*(dr.concat([a[c], b[c]]) for c in range(3)))
-
-
-def trace_aimed_photons(
-    scene: mi.Scene,
-    paths: int,
-    aim: float,
-    max_depth: int = 8,
-    rr_depth: int = 3,
-    seed: int = 0,
-    caustics_only: bool = False,
-) -> AimedTrace:
-    """:func:`~photonmap.core.photon_trace.trace_photons` with the fraction ``aim`` of the area
-    emitters' paths aimed at the specular shapes (``caustics_only``: all of them), partitioned as
-    the module docstring says. Without specular shapes or area emitters, or with ``aim = 0``,
-    it traces as ``trace_photons`` does (and keeps every record)."""
-    if paths < 1:
-        raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
-    if not 0 <= aim < 1 and not (caustics_only and aim == 1):
-        raise ParameterError(f"aim must lie in [0, 1), got {aim!r}: the fraction aimed")
-    powers = _checked_powers(scene, seed)
-    counts = split_paths(powers, paths)
-    spheres = specular_spheres(scene)
-    can = aimable(scene) & (counts >= (1 if caustics_only else 2))
-    if not spheres or aim == 0:
-        can[:] = False
-    share = 1.0 if caustics_only else aim
-    aimed = np.where(can, np.clip(np.round(counts * share), 1, counts - (not caustics_only)), 0)
-    aimed = aimed.astype(np.int64)
-    plain = counts - aimed
-    index = np.arange(len(counts), dtype=np.uint32)
-    n_plain, n_aimed = int(plain.sum()), int(aimed.sum())
-    parts = []  # (ray, power, emitter) of the plain paths, then of the aimed ones
-    if n_plain:
-        plain_emitter = mi.UInt32(np.repeat(index, plain))
-        ray, weight = _sample_rays(scene, plain_emitter, seed)
-        per = dr.gather(mi.Float, mi.Float(np.maximum(plain, 1).astype(np.float32)), plain_emitter)
-        parts.append((ray, weight / per, plain_emitter))
-    fraction = 0.0
-    if n_aimed:
-        aimed_emitter = mi.UInt32(np.repeat(index, aimed))
-        a_ray, a_power = aimed_emission(scene, aimed_emitter, aimed, spheres, seed)
-        first = intersect_visible(scene, a_ray, True, has_null_shapes(scene))
-        hits = is_specular(first.bsdf(a_ray), first.is_valid())
-        fraction = float(dr.count(hits)[0]) / n_aimed
-        parts.append((a_ray, a_power, aimed_emitter))
-    if len(parts) == 2:
-        (ray, power, emitter), (a_ray, a_power, a_emitter) = parts
-        ray = mi.Ray3f(_join(ray.o, a_ray.o), _join(ray.d, a_ray.d))
-        power, emitter = _join(power, a_power), dr.concat([emitter, a_emitter])
-    else:
-        ray, power, emitter = parts[0]
-    emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
-    records = _trace(
-        scene, ray, power, rng(paths, seed, stream=1), max_depth, rr_depth, caustics_only,
-        has_null_shapes(scene),
-    )  # fmt: skip
-    stored = records.pop("stored")
-    slot = dr.compress(stored)
-    if n_aimed and not caustics_only and dr.width(slot):
-        path = slot % paths
-        # a path's first interaction was smooth iff it left a record at depth 1
-        depth = dr.gather(mi.UInt32, records["depth"], slot)
-        smooth_first = dr.zeros(mi.Bool, paths)
-        dr.scatter(smooth_first, True, path, depth == 1)
-        em = dr.gather(mi.UInt32, emitter, path)
-        partitioned = dr.gather(mi.Bool, mi.Bool(can), em)
-        keep = ~partitioned | (dr.gather(mi.Bool, smooth_first, path) == (path < n_plain))
-        slot = dr.gather(mi.UInt32, slot, dr.compress(keep))
-    fields = {name: dr.gather(type(value), value, slot) for name, value in records.items()}
-    dr.eval(fields)
-    result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
-    _check_power(result)
-    return AimedTrace(result, n_aimed, fraction)

@@ -41,6 +41,15 @@ def has_null_shapes(scene: mi.Scene) -> bool:
     )
 
 
+def has_null_lobes(scene: mi.Scene) -> bool:
+    """Whether any shape's BSDF lets light pass straight through in part or whole (a ``Null``
+    lobe: ``null``, ``mask``, ``thindielectric``): shadow rays then need its
+    ``eval_null_transmission`` (:func:`photonmap.core.media.transmittance`)."""
+    return any(
+        s.bsdf() is not None and s.bsdf().flags() & int(mi.BSDFFlags.Null) for s in scene.shapes()
+    )
+
+
 def has_glossy_shapes(scene: mi.Scene) -> bool:
     """Whether any shape of ``scene`` has a BSDF with a glossy lobe (rough conductors and
     dielectrics, plastics): radiance leaving such a surface depends on the direction."""

@@ -1,15 +1,13 @@
-"""Direct lighting at the non-specular eye-ray hit: emitter sampling and BSDF sampling combined by
-multiple importance sampling (power heuristic) — the shadow rays of Steinhurst §7.3.2 ("area light
-sources ... accommodated using importance sampling"), written after Mitsuba's ``path`` integrator;
-shared by the surface method and SPPM's visible points.
+"""Direct light at an eye path's vertex: emitter sampling and BSDF sampling combined by multiple
+importance sampling (power heuristic) — the shadow rays of Steinhurst §7.3.2 ("area light
+sources ... accommodated using importance sampling"), written after Mitsuba's ``volpath``.
 
-``null``-BSDF shapes (fog boxes) are invisible to the shadow rays and to the BSDF-sampled rays
-(:func:`photonmap.core.bsdf.occluded`, :func:`~photonmap.core.bsdf.intersect_visible`), where
-Mitsuba's own visibility test would stop at them.
-
-In a scene with participating media (``medium`` given: the medium the eye ray reached ``si`` in),
-both rays carry the transmittance to the emitter (:func:`photonmap.core.media.transmittance`)
-instead of the binary visibility (Jensen & Christensen 1998: attenuated shadow rays).
+At a surface vertex only the BSDF's smooth lobes take part (the eye-path loop follows its delta
+and ``Null`` lobes itself, :mod:`photonmap.core.eye_trace`). Both rays carry the transmittance
+to the emitter (:func:`photonmap.core.media.transmittance`): through media, ``null`` boundaries
+and the ``Null`` lobes of ``mask`` and ``thindielectric`` surfaces, blocked by anything else —
+vacuum is the case without media, where an any-hit shadow ray suffices unless some BSDF lets light
+through (Jensen & Christensen 1998: attenuated shadow rays).
 """
 
 from __future__ import annotations
@@ -17,60 +15,131 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from .bsdf import intersect_visible, occluded
-from .media import channel, enter, transmittance
+from .media import (
+    channel,
+    enter,
+    interaction,
+    segment_transmittance,
+    transmittance,
+    walk,
+    within_extent,
+)
+from .scene_info import SceneTraits
+
+SMOOTH = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
 
 
-def _power_heuristic(a, b):
+def power_heuristic(a, b):
     a2, b2 = dr.square(a), dr.square(b)
     return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+
+
+def shadow_transmittance(scene, ray, medium, gen, active, traits: SceneTraits) -> mi.Spectrum:
+    """Transmittance along the finite shadow ``ray`` starting in ``medium`` (module docstring)."""
+    if not traits.media and not traits.null_lobes:
+        return dr.select(active & ~scene.ray_test(ray, active), 1.0, 0.0) * mi.Spectrum(1.0)
+    return transmittance(scene, ray, medium, gen, channel(gen), active)
 
 
 def direct_lighting(
     scene: mi.Scene,
     si: mi.SurfaceInteraction3f,
-    bsdf: mi.BSDFPtr,
     u_light: mi.Point2f,
     gen: mi.PCG32,
     active: mi.Bool,
-    null_shapes: bool,
+    traits: SceneTraits,
     medium: mi.MediumPtr | None = None,
 ) -> mi.Spectrum:
-    """Radiance reflected at ``si`` towards ``si.wi`` from light arriving straight from emitters;
-    ``u_light`` picks the point on the emitters (stratified over a pixel's samples by the caller),
-    ``gen`` draws the BSDF sample; ``null_shapes``: whether the scene has ``null``-BSDF shapes
-    (:func:`~photonmap.core.bsdf.has_null_shapes`); ``medium``: see the module docstring."""
-    ctx = mi.BSDFContext()
-    ch = channel(gen) if medium is not None else None
+    """Radiance the smooth lobes at ``si`` reflect towards ``si.wi`` from light arriving straight
+    from emitters; ``u_light`` picks the point on the emitters (stratified by the caller),
+    ``gen`` draws the BSDF sample; ``medium``: the medium the eye path reached ``si`` in."""
+    bsdf = si.bsdf()
+    lanes = dr.width(si.p)
+    medium = dr.zeros(mi.MediumPtr, lanes) if medium is None else medium
 
     # emitter sampling (shadow ray)
     ds, em_weight = scene.sample_emitter_direction(si, u_light, False, active)
     lit = active & (ds.pdf != 0)
-    if medium is None:
-        lit &= ~occluded(scene, si.spawn_ray_to(ds.p), lit, null_shapes)
-    else:
-        shadow = si.spawn_ray_to(ds.p)
-        em_weight *= transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, ch, lit)
-    bsdf_val, bsdf_pdf = bsdf.eval_pdf(ctx, si, si.to_local(ds.d), lit)
-    w_em = dr.select(ds.delta, 1.0, _power_heuristic(ds.pdf, bsdf_pdf))
+    shadow = si.spawn_ray_to(ds.p)
+    em_weight *= shadow_transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, lit, traits)
+    bsdf_val, bsdf_pdf = bsdf.eval_pdf(SMOOTH, si, si.to_local(ds.d), lit)
+    w_em = dr.select(ds.delta, 1.0, power_heuristic(ds.pdf, bsdf_pdf))
     L = dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
 
     # BSDF sampling towards emitters
     bs, bsdf_weight = bsdf.sample(
-        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
+        SMOOTH, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
     )
+    sampled = active & (bs.pdf > 0)
     ray = si.spawn_ray(si.to_world(bs.wo))
-    si_e = intersect_visible(scene, ray, active, null_shapes)
-    emitter = si_e.emitter(scene)
-    hits_light = active & (emitter != None) & (bs.pdf > 0)  # noqa: E711 (Dr.Jit pointer test)
-    delta_lobe = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Delta)
+    si_e, T = emitter_along(scene, ray, enter(si, ray.d, medium, sampled), gen, sampled, traits)
+    emitter = si_e.emitter(scene, sampled)
+    hits_light = sampled & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
     ds_e = mi.DirectionSample3f(scene, si_e, si)
-    pdf_em = scene.pdf_emitter_direction(si, ds_e, hits_light & ~delta_lobe)
-    w_bsdf = dr.select(delta_lobe, 1.0, _power_heuristic(bs.pdf, pdf_em))
-    if medium is not None:
-        to_light = mi.Ray3f(ray)
-        to_light.maxt = si_e.t * (1.0 - mi.math.ShadowEpsilon)
-        medium_ray = enter(si, ray.d, medium, hits_light)
-        bsdf_weight *= transmittance(scene, to_light, medium_ray, gen, ch, hits_light)
-    L += dr.select(hits_light, w_bsdf * bsdf_weight * emitter.eval(si_e, hits_light), 0.0)
+    pdf_em = scene.pdf_emitter_direction(si, ds_e, hits_light)
+    w_bsdf = power_heuristic(bs.pdf, pdf_em)
+    L += dr.select(hits_light, w_bsdf * bsdf_weight * T * emitter.eval(si_e, hits_light), 0.0)
     return L
+
+
+def emitter_along(scene, ray, medium, gen, active, traits: SceneTraits):
+    """The first emitter surface on ``ray`` (an invalid interaction where it escapes: the
+    environment) and the transmittance to it, through the surfaces that let light through in
+    part (``eval_null_transmission``) and the media — the BSDF-sampled half of
+    :func:`direct_lighting`, consistent with its shadow rays."""
+    if not traits.media and not traits.null_lobes:
+        si = scene.ray_intersect(ray, active)
+        return si, dr.select(active, 1.0, 0.0) * mi.Spectrum(1.0)
+    return walk(scene, ray, medium, gen, channel(gen), active, True)
+
+
+def inscattered_direct(
+    scene: mi.Scene,
+    mei: mi.MediumInteraction3f,
+    u: mi.Point2f,
+    gen: mi.PCG32,
+    ch: mi.UInt32,
+    active: mi.Bool,
+) -> mi.Spectrum:
+    """Single scattering of direct light at ``mei`` towards ``mei.wi`` per unit length,
+    ``σ_s f_p L_e T / p``: one emitter sample (``u``) and a transmittance shadow ray (Jensen &
+    Christensen 1998)."""
+    it = mi.Interaction3f(mei)
+    ds, em_weight = scene.sample_emitter_direction(it, u, False, active)
+    lit = active & (ds.pdf != 0)
+    T = transmittance(scene, it.spawn_ray_to(ds.p), mei.medium, gen, ch, lit)
+    sigma_s, _, _ = mei.medium.get_scattering_coefficients(mei, lit)
+    f, _ = mei.medium.phase_function().eval_pdf(mi.PhaseFunctionContext(None), mei, ds.d, lit)
+    return dr.select(lit, sigma_s * f * em_weight * T, 0.0)
+
+
+def equiangular(ray: mi.Ray3f, length, centre: mi.Point3f, u) -> tuple[mi.Float, mi.Float]:
+    """A distance ``t`` on ``[0, length]`` of ``ray`` drawn in proportion to ``1/r²`` about
+    ``centre`` (Kulla & Fajardo 2012, equiangular sampling: ``t = Δ + D tan θ`` with ``θ``
+    uniform between the angles of the ends), and its pdf ``D / ((θ_b − θ_a)(D² + (t − Δ)²))``;
+    ``u`` may be stratified."""
+    delta = dr.dot(centre - ray.o, ray.d)
+    D = dr.maximum(dr.norm(centre - ray.o - delta * ray.d), 1e-6 * dr.maximum(length, 1e-6))
+    theta_a = dr.atan2(-delta, D)
+    theta_b = dr.atan2(length - delta, D)
+    t = dr.clip(delta + D * dr.tan(theta_a + u * (theta_b - theta_a)), 0.0, length)
+    pdf = D / ((theta_b - theta_a) * (dr.square(D) + dr.square(t - delta)))
+    return t, pdf
+
+
+def piece_direct(scene, ray, length, medium, gen, ch, active) -> mi.Spectrum:
+    """``∫₀^ℓ T(t) L_s,direct(t) dt`` along a piece of ``ray`` inside one ``medium`` (no surface
+    on it): one equiangular point about a point on the emitters sampled from the piece's middle
+    (the ``1/r²`` peak of a point or spot light near the ray is sampled in proportion, where
+    free-flight collisions would rarely land), ``T`` from the piece's start."""
+    middle = dr.zeros(mi.Interaction3f, dr.width(length))
+    middle.p = ray(0.5 * length)
+    u = mi.Point2f(gen.next_float32(), gen.next_float32())
+    centre = scene.sample_emitter_direction(middle, u, False, active)[0].p
+    t, pdf = equiangular(ray, length, centre, gen.next_float32())
+    mei = interaction(ray(t), ray.d, t, medium)
+    ok = active & (pdf > 0) & within_extent(mei)
+    T = segment_transmittance(ray, t, medium, gen, ch, ok)
+    u = mi.Point2f(gen.next_float32(), gen.next_float32())
+    L = inscattered_direct(scene, mei, u, gen, ch, ok)
+    return dr.select(ok, T * L / dr.maximum(pdf, 1e-30), 0.0)

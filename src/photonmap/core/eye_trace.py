@@ -1,251 +1,291 @@
-"""Eye-side ray tracing shared by the surface method's eye pass and final gather and by SPPM's eye
-pass (Steinhurst 2007 §2.6.2, §7.3.2; Hachisuka & Jensen 2009 §4).
+"""The eye-path loop of the transport core: camera (or final-gather) rays followed through
+mirrors, glass and media to the vertex where a method's estimate takes over (Steinhurst 2007
+§2.6.2, §7.3.2; Hachisuka & Jensen 2009 §4; Jensen & Christensen 1998; Mitsuba's ``volpath``).
 
-"If the surface is highly specular (mirror/glass), reflect/refract and continue until a non-specular
-object is found", multiplying the specular reflectances into the path weight; glossy surfaces count
-as non-specular (handled by the photon map and final gather) [Steinhurst §7.3.2; spec seed-001 §2.1].
-A surface is *specular* here when its BSDF has no smooth (diffuse or glossy) component
-(:func:`photonmap.core.bsdf.is_specular`); a BSDF that mixes a delta lobe with a smooth one (e.g.
-Mitsuba's ``plastic``) is treated as non-specular and its delta lobe is not followed — use
-``roughplastic`` for a glossy coating.
+"If the surface is highly specular (mirror/glass), reflect/refract and continue until a
+non-specular object is found" [Steinhurst §7.3.2]. Every BSDF is handled through Mitsuba's own
+interface, split into the lobes the path *follows* — delta lobes and ``Null`` lobes (``mask``,
+``thindielectric`` transmission) — and the smooth (diffuse, glossy) lobes where it *ends*, as a
+visible point that photons and direct light then shade (their BSDF queries see only the smooth
+lobes: a delta lobe evaluates to zero):
 
-``null``-BSDF shapes (the boundaries of a fog box) are invisible: rays pass straight through them
-(:func:`photonmap.core.bsdf.intersect_visible`) and crossing one is no bounce (issue 10). In a
-scene with participating media :func:`follow_specular_media` does the same through the media
-(Jensen & Christensen 1998): transmittance, in-scattered light, and the medium at the end.
+- only followed lobes (mirror, glass, thin glass): sample them, go on;
+- only smooth lobes: end here;
+- both (``plastic``, ``mask``, ``blendbsdf`` of glass and diffuse): sample the followed lobes
+  (``BSDFContext`` restricted to them) for a weight ``w``; go on with probability
+  ``q = clamp(max w, 0.2, 0.8)`` (0 where ``w = 0``) carrying ``w / q``, else end here
+  carrying ``1 / (1 − q)`` — an unbiased split of one path into the two parts.
+
+A ``Null`` lobe passes the ray straight on and is no interaction (``volpath``: it adds no depth).
+Medium is optional state (vacuum is the case without one). In a medium the flight is one of:
+
+- ``"transmit"``: the throughput takes the transmittance of every piece (nothing scatters; the
+  paths that only look for emitters);
+- ``"march"``: as ``"transmit"``, and each piece inside a medium is recorded
+  (:class:`~photonmap.core.media.Segments`, the first ``segments`` of a path) for the caller to
+  ray-march its in-scattered light (Jensen & Christensen 1998);
+- ``"end"``: a free flight (:func:`~photonmap.core.media.free_flight`) that may end the path at a
+  medium collision, returned as a medium vertex (the surface method's volume photon map reads
+  the in-scattered light there, Jensen & Christensen 1998);
+- ``"continue"``: volumetric path tracing — each piece of the path inside a medium adds its
+  single scattering of direct light, ``∫ T(t) σ_s f_p L_e T_e / p dt``, from one equiangular
+  point (Kulla & Fajardo 2012: distances drawn ∝ ``1/r²`` about a point on the emitters, where a
+  point or spot light's peak would rarely be found by collisions) with a transmittance shadow ray;
+  a free-flight collision in the piece (delta tracking) then carries the rest: ``medium_light``
+  there (the light no eye path can find: volume caustics from photons) and a phase-function
+  sample that continues the path. Unbiased as ``volpath``, with direct light from the pieces.
+
+Emitters met on the way add ``β L_e``: after the camera or a chain of followed lobes from it
+(when ``emission``; hidden on the first segment with ``hide_emitters``, as Mitsuba hides area
+emitters and the environment seen directly); right after a medium collision never (the pieces'
+direct light holds it); after a collision and then a delta chain unless ``volume_caustics``
+(the photons carry that light). Depth counts segments as Mitsuba's
+``max_depth`` does; Russian roulette from ``rr_depth`` on, ``q = min(0.95, max β · η²)``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
-from .bsdf import MAX_NULL_CROSSINGS, has_null_shapes, intersect_visible, is_null, is_specular
+from .bsdf import intersect_visible
+from .direct import piece_direct
 from .media import (
-    Inscatter,
     Segments,
     channel,
+    collide,
     enter,
     escape_length,
     free_flight,
     segment_transmittance,
 )
+from .scene_info import SceneTraits
+from .settings import UNBOUNDED, PathSettings
+
+MEDIA_MODES = ("transmit", "march", "end", "continue")
+MAX_EVENTS = 1024  # loop iterations of one eye path at most (Null-lobe passes included)
+FOLLOWED = mi.BSDFFlags.Delta | mi.BSDFFlags.Null
+SPLIT_MIN, SPLIT_MAX = 0.2, 0.8  # the clamp of q at a BSDF with followed and smooth lobes
+
+# where the last emitter hit's weight comes from (module docstring)
+FROM_CAMERA, FROM_MEDIUM, THROUGH_DELTA = 0, 1, 2
 
 
-@dr.syntax
-def follow_specular(
+@dataclass
+class EyeVertices:
+    """Where each eye path ended (one lane a path)."""
+
+    si: mi.SurfaceInteraction3f  # the smooth surface vertex, where ``found``
+    mei: mi.MediumInteraction3f  # the medium vertex, where ``in_medium`` ("end" mode)
+    beta: mi.Spectrum  # throughput from the start to the vertex
+    radiance: mi.Spectrum  # light collected on the way (emission met, media in "continue")
+    found: mi.Bool  # ended on a smooth surface
+    in_medium: mi.Bool  # ended at a medium collision ("end" mode)
+    depth: mi.UInt32  # segments from the camera to the vertex
+    medium: mi.MediumPtr  # the medium the path arrived in
+    bounces: mi.UInt32  # followed (delta) bounces on the way
+    segments: Segments | None = None  # the pieces in media ("march" mode)
+
+    @property
+    def bsdf(self) -> mi.BSDFPtr:
+        return self.si.bsdf()
+
+
+def trace_eye_paths(
     scene: mi.Scene,
     ray: mi.Ray3f,
-    throughput: mi.Spectrum,
-    active: mi.Bool,
-    max_depth: int,
-    gen: mi.PCG32,
-    count_emission: bool,
-    null_shapes: bool | None = None,
-):
-    """Trace ``ray`` through purely specular surfaces until the first non-specular hit.
-
-    Returns ``(si, throughput, emitted, found, bounces)``: the interaction at the non-specular
-    surface, the product of the specular weights on the way, the radiance emitted by emitters met
-    on the way (``count_emission``; weighted by the throughput), whether a non-specular surface was
-    found within ``max_depth`` bounces, and the number of specular bounces before it.
-    ``null_shapes``: whether the scene has ``null``-BSDF shapes to pass through
-    (:func:`~photonmap.core.bsdf.has_null_shapes`, computed here when None).
-    """
-    if null_shapes is None:
-        null_shapes = has_null_shapes(scene)
-    ctx = mi.BSDFContext()
-    ray = mi.Ray3f(ray)
-    throughput = mi.Spectrum(throughput)
-    emitted = dr.zeros(mi.Spectrum, dr.width(throughput))
-    depth = dr.zeros(mi.UInt32, dr.width(throughput))
-    found = dr.zeros(mi.Bool, dr.width(throughput))
-    searching = mi.Bool(active)
-    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(throughput))
-
-    while searching:
-        si = intersect_visible(scene, ray, searching, null_shapes)
-        if count_emission:
-            emitted += dr.select(searching, throughput * si.emitter(scene).eval(si, searching), 0.0)
-        bsdf = si.bsdf(ray)
-        hit = searching & si.is_valid()
-        specular = is_specular(bsdf, hit)
-        found |= hit & ~specular
-        bs, weight = bsdf.sample(
-            ctx,
-            si,
-            gen.next_float32(),
-            mi.Point2f(gen.next_float32(), gen.next_float32()),
-            specular,
-        )
-        throughput = dr.select(specular, throughput * weight, throughput)
-        ray = dr.select(specular, si.spawn_ray(si.to_world(bs.wo)), ray)
-        depth += 1
-        searching = specular & (depth < max_depth) & (dr.max(throughput) > 0)
-    return si, throughput, emitted, found, dr.maximum(depth, 1) - 1
-
-
-MAX_SEGMENTS = 4  # medium segments of an eye path that are marched (later ones: transmittance)
-MEDIA_STREAM = 1 << 24  # RNG streams of the in-scattering estimates start here
-
-
-def follow_specular_media(
-    scene: mi.Scene,
-    ray: mi.Ray3f,
-    throughput: mi.Spectrum,
+    weight: mi.Spectrum,
     medium: mi.MediumPtr,
-    active: mi.Bool,
-    max_depth: int,
     gen: mi.PCG32,
-    count_emission: bool,
-    inscatter: Inscatter | None,
-    march: bool = True,
-    stream: int = MEDIA_STREAM,
-):
-    """:func:`follow_specular` through participating media (Jensen & Christensen 1998; spec
-    beyond-seeds §4). The ray starts in ``medium`` and switches media at medium transitions
-    (:mod:`photonmap.core.media`); ``null`` boundaries switch the medium and are no bounce.
-
-    With ``march`` (the eye rays) each piece of the path inside a medium multiplies the throughput
-    by its transmittance and is ray-marched afterwards, all pieces in one batch
-    (:meth:`~photonmap.core.media.Inscatter.march`; the first :data:`MAX_SEGMENTS` of a path):
-    its in-scattered radiance, weighted by the throughput at its start, is ``L_medium``. Without
-    ``march`` (final-gather rays) each piece samples a free flight
-    (:func:`~photonmap.core.media.free_flight`): where it scatters the path ends, with
-    ``L_medium = throughput · (σ_s T/p) · L_s / σ_s`` read at the collision; elsewhere the
-    throughput takes the flight's ``T/p``. ``inscatter=None``: transmittance only. ``stream``:
-    the random streams of the in-scattering estimates.
-
-    Returns ``(si, throughput, emitted, found, bounces, medium, L_medium)``: as
-    :func:`follow_specular`, plus the medium the ray is in at ``si`` and the in-scattered light."""
-    n = max(dr.width(ray.o), dr.width(ray.d), dr.width(throughput), dr.width(active))
-    throughput = mi.Spectrum(throughput) * dr.ones(mi.Float, n)  # every loop variable full width
-    marching = march and inscatter is not None
-    slots = n * MAX_SEGMENTS if marching else 1
-    buffers = Segments(  # slot = segment number · n + lane (44 bytes a slot, lane implicit)
-        dr.zeros(mi.Point3f, slots),
-        dr.zeros(mi.Vector3f, slots),
-        dr.zeros(mi.Float, slots),
-        dr.zeros(mi.MediumPtr, slots),
-        dr.zeros(mi.Spectrum, slots),
-        None,
-    )
+    settings: PathSettings,
+    traits: SceneTraits,
+    emission: bool = True,
+    media_mode: str = "continue",
+    medium_light: Callable | None = None,
+    volume_caustics: bool = False,
+    start_depth: int | mi.UInt32 = 0,
+    active: mi.Bool | None = None,
+    segments: int = 4,
+) -> EyeVertices:
+    """Follow the rays (unit directions; ``weight``: their throughput; ``medium``: where they
+    start) to their vertices (module docstring). ``medium_light(mei, beta, depth_left, active)``:
+    extra radiance at a medium vertex in ``"continue"`` mode (photons of depth at most
+    ``depth_left``); ``start_depth``: segments before these rays (per lane for a final gather;
+    rays from the camera start at 0); ``segments``: pieces recorded per path in ``"march"``
+    mode."""
+    if media_mode not in MEDIA_MODES:
+        raise ValueError(f"media_mode must be one of {MEDIA_MODES}, got {media_mode!r}")
+    n = max(dr.width(ray.o), dr.width(ray.d), dr.width(weight), dr.width(medium))
+    active = dr.full(mi.Bool, True, n) if active is None else mi.Bool(active)
+    zero = dr.zeros(mi.Float, n)
+    ray = mi.Ray3f(ray.o + zero, ray.d + zero, ray.maxt + zero, ray.time + zero, ray.wavelengths)
+    if dr.width(medium) != n:
+        medium = dr.gather(mi.MediumPtr, mi.MediumPtr(medium), dr.zeros(mi.UInt32, n))
+    marching = media_mode == "march" and traits.media
+    slots = n * segments if marching else 1
+    buffers = Segments(  # slot = piece · n + lane
+        dr.zeros(mi.Point3f, slots), dr.zeros(mi.Vector3f, slots), dr.zeros(mi.Float, slots),
+        dr.zeros(mi.MediumPtr, slots), dr.zeros(mi.Spectrum, slots), dr.zeros(mi.UInt32, slots),
+    )  # fmt: skip
     stored = dr.zeros(mi.Bool, slots)
-    si, throughput, emitted, found, depth, medium, mei, weight, scattered = _follow(
-        scene,
-        ray,
-        throughput,
-        medium,
-        active,
-        max_depth,
-        gen,
-        count_emission,
-        march or inscatter is None,
-        buffers if marching else None,
-        stored,
-    )
-    L_medium = dr.zeros(mi.Spectrum, n)
+    vertices = _follow(
+        scene, ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), gen,
+        settings, traits, emission, media_mode, medium_light, volume_caustics, start_depth,
+        active & dr.full(mi.Bool, True, n), buffers, stored, segments,
+    )  # fmt: skip
     if marching:
         index = dr.compress(stored)
-        fields = [dr.gather(type(f), f, index) for f in vars(buffers).values() if f is not None]
-        segments = Segments(*fields, index % n)
-        L_medium = inscatter.march(segments, n, stream)
-    elif inscatter is not None and dr.any(scattered, axis=None):
-        index = dr.compress(scattered)
-        at = dr.gather(mi.MediumInteraction3f, mei, index)
-        L_s = inscatter.at(at, True, stream)
-        sigma_s = at.sigma_s
-        per_sigma = dr.select(sigma_s > 0, L_s / dr.maximum(sigma_s, 1e-30), 0.0)
-        dr.scatter(L_medium, dr.gather(mi.Spectrum, weight, index) * per_sigma, index)
-    return si, throughput, emitted, found, depth, medium, L_medium
+        vertices.segments = Segments(*(dr.gather(type(f), f, index) for f in vars(buffers).values()))
+    return vertices
 
 
 @dr.syntax
-def _follow(
-    scene,
-    ray,
-    throughput,
-    medium,
-    active,
-    max_depth,
-    gen,
-    count_emission,
-    transmit,
-    buffers,
-    stored,
-):
-    """The bounce loop of :func:`follow_specular_media`: ``transmit`` multiplies the throughput
-    by each segment's transmittance (and records the segment into ``buffers`` if given), else
-    each segment samples a free flight, which may end the path in the medium (``mei``, with
-    ``weight`` = throughput × the flight's weight, ``scattered``)."""
-    n = dr.width(throughput)
-    ray = mi.Ray3f(ray)
-    throughput = mi.Spectrum(throughput)
-    medium = mi.MediumPtr(medium)
-    emitted = dr.zeros(mi.Spectrum, n)
-    depth = dr.zeros(mi.UInt32, n)
-    crossings = dr.zeros(mi.UInt32, n)
-    segments = dr.zeros(mi.UInt32, n)
+def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mode,
+            medium_light, volume_caustics, start_depth, active, buffers, stored,
+            max_pieces):  # fmt: skip
+    n = dr.width(beta)
+    max_depth = settings.max_depth if settings.max_depth != UNBOUNDED else 2**31 - 1
+    max_depth = dr.opaque(mi.UInt32, max_depth)
+    rr_depth = dr.opaque(mi.UInt32, settings.rr_depth)
+    hide = settings.hide_emitters and isinstance(start_depth, int) and start_depth == 0
+    follow_ctx = mi.BSDFContext(mi.TransportMode.Radiance, FOLLOWED)
+    phase_ctx = mi.PhaseFunctionContext(None)
+    depth = mi.UInt32(start_depth) + dr.zeros(mi.UInt32, n)  # segments so far
+    radiance = dr.zeros(mi.Spectrum, n)
+    eta = dr.ones(mi.Float, n)
+    bounces = dr.zeros(mi.UInt32, n)
     found = dr.zeros(mi.Bool, n)
-    searching = mi.Bool(active)
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    mei = dr.zeros(mi.MediumInteraction3f, n)
-    weight = dr.zeros(mi.Spectrum, n)
-    scattered = dr.zeros(mi.Bool, n)
-    lane = dr.arange(mi.UInt32, n)
+    in_medium_end = dr.zeros(mi.Bool, n)
+    si_end = dr.zeros(mi.SurfaceInteraction3f, n)
+    mei_end = dr.zeros(mi.MediumInteraction3f, n)
+    beta_end = dr.zeros(mi.Spectrum, n)
+    medium_end = dr.zeros(mi.MediumPtr, n)
+    origin = dr.full(mi.UInt32, FROM_CAMERA, n)  # whether an emitter hit counts
+    media, null_shapes = traits.media, traits.null_shapes  # frozen dataclasses stay out of loops
+    media_mode = media_mode if media else "transmit"  # vacuum: nothing to collide with
     ch = channel(gen)
-    ctx = mi.BSDFContext()
-
-    while searching & (crossings < MAX_NULL_CROSSINGS):
-        if dr.hint(transmit, mode="scalar"):
-            si = scene.ray_intersect(ray, searching)
-            in_medium = searching & (medium != None)  # noqa: E711
-            escaping = in_medium & ~si.is_valid()  # leaving the scene inside a medium
-            length = dr.select(escaping, escape_length(scene, ray, medium, escaping), si.t)
-            if dr.hint(buffers is not None, mode="scalar"):
-                record = in_medium & (segments < MAX_SEGMENTS)
-                slot = segments * n + lane
-                dr.scatter(buffers.origin, ray.o, slot, record)
-                dr.scatter(buffers.direction, ray.d, slot, record)
-                dr.scatter(buffers.length, length, slot, record)
-                dr.scatter(buffers.medium, medium, slot, record)
-                dr.scatter(buffers.weight, throughput, slot, record)
-                dr.scatter(stored, True, slot, record)
-                segments[record] += 1
-            throughput[in_medium] *= segment_transmittance(ray, length, medium, gen, ch, in_medium)
-            bsdf = si.bsdf(ray)
-            hit = searching & si.is_valid()
-            cross = is_null(bsdf, hit) & (si.emitter(scene) == None)  # noqa: E711
+    lane = dr.arange(mi.UInt32, n)
+    stride = dr.opaque(mi.UInt32, n)  # not a literal: one kernel for every size
+    pieces = dr.zeros(mi.UInt32, n)
+    events = dr.zeros(mi.UInt32, n)
+    while active & (events < MAX_EVENTS):
+        # ---- fly: a medium collision (free flight) or the next surface
+        scattered = dr.zeros(mi.Bool, n)
+        if dr.hint(not media, mode="scalar"):
+            si = intersect_visible(scene, ray, active, null_shapes)
+        elif dr.hint(media_mode == "march", mode="scalar"):
+            # one piece at a time (null boundaries are passed as surfaces below), recorded
+            si = scene.ray_intersect(ray, active)
+            in_medium = active & (medium != None)  # noqa: E711
+            length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
+            record = in_medium & (pieces < max_pieces)
+            slot = pieces * stride + lane
+            for field, value in (("origin", ray.o), ("direction", ray.d), ("length", length),
+                                 ("medium", medium), ("weight", beta), ("lane", lane)):
+                dr.scatter(getattr(buffers, field), value, slot, record)  # fmt: skip
+            dr.scatter(stored, True, slot, record)
+            pieces[record] += 1
+            beta[in_medium] *= segment_transmittance(ray, length, medium, gen, ch, in_medium)
+        elif dr.hint(media_mode == "continue", mode="scalar"):
+            # one piece at a time: its direct in-scattering by an equiangular point, then a
+            # collision in it (null boundaries are passed as surfaces below)
+            si = scene.ray_intersect(ray, active)
+            in_medium = active & (medium != None)  # noqa: E711
+            length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
+            lit = in_medium & (depth + 2 <= max_depth)
+            radiance[lit] += beta * piece_direct(scene, ray, length, medium, gen, ch, lit)
+            scattered, mei, weight = collide(ray, length, medium, gen, ch, in_medium)
+            beta[in_medium] *= weight
         else:
-            flight = free_flight(scene, ray, medium, gen, ch, searching)
-            now = searching & flight.scattered
-            mei[now] = flight.mei
-            weight[now] = throughput * flight.weight
-            scattered |= now
-            throughput[searching] *= flight.weight
-            searching &= ~now
-            si = flight.si
-            medium = dr.select(searching, flight.medium, medium)
-            bsdf = si.bsdf(ray)
-            hit = searching & si.is_valid()
-            cross = dr.zeros(mi.Bool, n)
-        if dr.hint(count_emission, mode="scalar"):
-            emitted += dr.select(searching, throughput * si.emitter(scene).eval(si, searching), 0.0)
-        visible = hit & ~cross
-        specular = is_specular(bsdf, visible)
-        found |= visible & ~specular
-        bs, bsdf_weight = bsdf.sample(
-            ctx,
-            si,
-            gen.next_float32(),
-            mi.Point2f(gen.next_float32(), gen.next_float32()),
-            specular,
-        )
-        d = dr.select(specular, si.to_world(bs.wo), ray.d)
-        throughput = dr.select(specular, throughput * bsdf_weight, throughput)
-        medium = enter(si, d, medium, specular | cross)
-        ray = dr.select(specular | cross, si.spawn_ray(d), ray)
-        depth[specular] += 1
-        crossings[cross] += 1
-        searching = (specular & (depth < max_depth) | cross) & (dr.max(throughput) > 0)
-    return si, throughput, emitted, found, depth, medium, mei, weight, scattered
+            collisions = media_mode == "end"
+            flight = free_flight(scene, ray, medium, gen, ch, active, collisions)
+            si, mei = flight.si, flight.mei
+            beta[active] *= flight.weight
+            scattered = active & flight.scattered
+            medium = dr.select(active, flight.medium, medium)
+        surface = active & ~scattered & si.is_valid()
+        escaped = active & ~scattered & ~si.is_valid()
+        arrived = depth + 1  # segments to this vertex
+
+        # ---- emission met: an emitter's surface or the environment
+        emitter = si.emitter(scene, active & ~scattered)
+        shown = (active & ~scattered) & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
+        if dr.hint(hide, mode="scalar"):
+            shown &= arrived > 1
+        if dr.hint(not emission, mode="scalar"):
+            shown &= origin != FROM_CAMERA
+        shown &= origin != FROM_MEDIUM  # the pieces' direct in-scattering holds that light
+        if dr.hint(volume_caustics, mode="scalar"):
+            shown &= origin != THROUGH_DELTA
+        radiance[shown] += beta * emitter.eval(si, shown)
+        active &= ~escaped
+
+        # ---- a medium collision
+        if dr.hint(media_mode == "end", mode="scalar"):
+            mei_end[scattered] = mei
+            beta_end[scattered] = beta
+            medium_end[scattered] = medium
+            in_medium_end |= scattered
+            depth[scattered] = arrived
+            active &= ~scattered
+        elif dr.hint(media_mode == "continue", mode="scalar"):
+            depth[scattered] = arrived
+            room = scattered & (arrived < max_depth)  # a next segment fits
+            if dr.hint(medium_light is not None, mode="scalar"):
+                sigma_s = mi.Spectrum(mei.sigma_s)
+                L_s = medium_light(mei, beta, max_depth - arrived, room)
+                radiance[room] += beta * dr.select(sigma_s > 0, L_s / sigma_s, 0.0)
+            wo, phase_weight, phase_pdf = mei.medium.phase_function().sample(
+                phase_ctx, mei, gen.next_float32(),
+                mi.Point2f(gen.next_float32(), gen.next_float32()), room,
+            )  # fmt: skip
+            beta[scattered] *= phase_weight
+            origin[scattered] = FROM_MEDIUM
+            ray[scattered] = mei.spawn_ray(wo)
+            active &= ~scattered | (room & (phase_pdf > 0))
+
+        # ---- a surface: end on its smooth lobes, or follow its delta / null lobes
+        bsdf = si.bsdf(ray)
+        flags = bsdf.flags()
+        smooth = mi.has_flag(flags, mi.BSDFFlags.Smooth)
+        skip = dr.zeros(mi.Bool, n)  # hidden area emitters seen directly are passed
+        if dr.hint(hide, mode="scalar"):
+            skip = surface & (emitter != None) & (arrived == 1)  # noqa: E711
+        bs, w_follow = bsdf.sample(
+            follow_ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
+            surface & ~skip,
+        )  # fmt: skip
+        w_max = dr.max(w_follow)
+        q = dr.select(smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0)
+        go_on = skip | (surface & (gen.next_float32() < q) & (bs.pdf > 0))
+        stop = surface & ~go_on & smooth
+        si_end[stop] = si
+        beta_end[stop] = beta / (1.0 - q)
+        medium_end[stop] = medium
+        depth[stop] = arrived
+        found |= stop
+        passed = skip | (go_on & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null))
+        bounced = go_on & ~passed
+        d = dr.select(skip, ray.d, si.to_world(bs.wo))
+        beta[go_on & ~skip] *= w_follow / q
+        eta[bounced] *= bs.eta
+        bounces[bounced] += 1
+        depth[bounced] = arrived
+        origin[bounced & (origin == FROM_MEDIUM)] = THROUGH_DELTA
+        medium = enter(si, d, medium, go_on)
+        ray[go_on] = si.spawn_ray(d)
+        active &= ~surface | (go_on & ((arrived < max_depth) | passed))
+
+        # ---- Russian roulette (Mitsuba's path tracers)
+        rolled = active & (bounced | scattered) & (depth >= rr_depth)
+        survive = dr.minimum(dr.max(beta) * dr.square(eta), 0.95)
+        beta[rolled] /= survive
+        active &= ~rolled | (gen.next_float32() < survive)
+        active &= dr.any(beta != 0.0)
+        events += 1
+
+    return EyeVertices(si_end, mei_end, beta_end, radiance, found, in_medium_end, depth,
+                       medium_end, bounces)  # fmt: skip

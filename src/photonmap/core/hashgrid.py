@@ -335,6 +335,39 @@ class HashGrid(PhotonSearch):
         return index, d2
 
 
+    @dr.syntax
+    def sum_within(self, query: mi.Point3f, radius2: mi.Float, term, zero, active):
+        """``Σ term(j, near)`` over the stored photons ``j`` with ``‖p_j − query‖² < radius2`` in
+        the 3×3×3 cells around the query's cell — every photon within the radius when the radius
+        is at most :attr:`cell_size`. ``term(j, near)`` returns the photon's share (``zero``'s
+        type), read from per-photon arrays in storage order (``dr.gather(..., grid.order)``);
+        it is traced inside the scan, so the sum fuses into the caller's kernel (callable inside
+        the caller's own symbolic loops). Sums are in a fixed photon order: deterministic."""
+        lanes = dr.width(query)
+        dims = self._dims
+        c0 = self._cell(query)
+        total = zero
+        step = dr.zeros(mi.UInt32, lanes)
+        scanning = active & dr.all(dr.isfinite(query)) & dr.full(mi.Bool, True, lanes)
+        while scanning & (step < 27):
+            offset = mi.Point3i(mi.Int32(step % 3), mi.Int32(step // 3 % 3), mi.Int32(step // 9))
+            c = c0 + offset - 1
+            visit = scanning & dr.all((c >= 0) & (c < dims))
+            number = self._cell_number(c)
+            slot = self._slot(number)
+            j = dr.gather(mi.UInt32, self.cell_start, slot, visit)
+            j_end = dr.gather(mi.UInt32, self.cell_start, slot + 1, visit)
+            while visit & (j < j_end):
+                p, _ = read_record(self.record, j)
+                near = squared_distance(p, query) < radius2
+                if dr.hint(self.hashed, mode="scalar"):
+                    near &= self._cell_number(self._cell(p)) == number  # slots shared by cells
+                total += dr.select(near, term(j, near), zero)
+                j += 1
+            step += 1
+        return total
+
+
 def _automatic_cell_size(
     points: np.ndarray, lo: np.ndarray, extent: float, per_cell: float
 ) -> float:

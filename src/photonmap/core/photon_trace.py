@@ -1,64 +1,79 @@
-"""Photon tracing — the first pass of two-pass photon mapping (Jensen 1996; Steinhurst 2007 §2.6.1,
-Algorithm 2.4; spec seed-001 §2.2, A5).
+"""The photon-path loop of the transport core: light paths through Mitsuba's BSDFs and media
+(Jensen 1996; Jensen & Christensen 1998; Steinhurst 2007 §2.6.1, Algorithm 2.4; spec seed-001
+§2.2, A5). Every method that traces photons uses it: the surface method's maps, SPPM's photon
+passes and the screen method's photon bounces.
 
-Shared by the ``surface`` and ``screen`` pipelines: photons leave every Mitsuba emitter (area,
-point, spot, directional, environment) and bounce through Mitsuba BSDFs; every hit on a surface
-whose BSDF has a non-delta (diffuse or glossy) component is recorded. What a pipeline builds from
-the records (global map, caustic map, splats) is its own business.
+A photon of power ``Φ`` leaves its emitter in its emitter's medium (:mod:`.emission`) and flies:
+through media by free-flight sampling (:func:`~photonmap.core.media.free_flight`; the
+transmittance is in the sampling, ``null`` boundaries only switch the medium), through vacuum to
+the next surface that is not a ``null`` boundary. Medium is optional state — vacuum is the case
+without one, as in Mitsuba's ``volpath``:
 
-Emission (spec §2.2). The path budget ``N`` is split among the emitters in proportion to their
-emitted power ``Φ_e`` (:func:`emitter_powers`, :func:`split_paths`). Emitter ``e`` gets ``N_e``
-paths; path ``i`` starts with the ray and weight of ``emitter.sample_ray`` (the weight is an
-unbiased estimate of ``Φ_e``) and carries ``Φ_i = weight_i / N_e``, so ``Σ_i Φ_i → Φ_e``.
+- at a **surface** with a smooth (diffuse or glossy) lobe the photon is recorded as
+  ``(x, Φ, ω, n_s, depth, caustic)``; then the BSDF is sampled in importance (adjoint) mode,
+  ``Φ ← Φ · f_s |cos θ_o| / p`` — any Mitsuba BSDF through its own ``sample``: delta lobes are
+  followed, a ``Null`` lobe (``mask``, ``thindielectric`` transmission) passes the photon
+  straight on without counting an interaction, a dielectric boundary switches the medium;
+- at a **medium** collision it is recorded as a volume photon with the power it scatters
+  (``Φ σ_s T / p``, :class:`~photonmap.core.volume_map.VolumePhotons`) and survives with the
+  albedo's probability (Jensen & Christensen 1998), its power divided by it, in a direction
+  sampled from the phase function.
 
-Tracing. At the ``d``-th surface interaction ``x_d`` a photon of power ``Φ`` travelling along ``ω``
-is recorded as ``(x_d, Φ, ω, n_s, d, caustic)`` when the BSDF there has a smooth component, then
-the BSDF is sampled in importance (adjoint) transport mode, ``Φ ← Φ · f_s |cos θ_o| / p``. The
-records form Jensen's global map (every non-specular hit, first-bounce "direct" photons included)
-and, through the ``caustic`` flag, the caustic map: hits that end an ``L S+ D`` path — at least one
-delta (specular) bounce and no smooth bounce before the hit (spec A5; Algorithm 2.4 as printed
-never records a caustic photon). ``null``-BSDF shapes (fog boxes) are invisible: photons pass
-straight through them (:func:`~photonmap.core.bsdf.intersect_visible`), and crossing one is no
-interaction. Hits 1 … ``rr_depth`` are reached without Russian roulette; from bounce
-``rr_depth`` on a photon survives with probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its
-power is divided by ``q`` (as Mitsuba's path tracers do; no η² factor, since importance transport
-through a dielectric conserves power). A path ends after ``max_depth`` interactions.
+``depth`` counts the path's segments from the light up to the record (a medium event and a
+surface interaction each add one; ``null`` crossings none), as Mitsuba's ``max_depth`` counts
+segments: a record of depth ``d`` can end a path of at least ``d + 1`` segments, so only records
+with ``d ≤ max_depth − 1`` are kept and paths stop there. ``caustic``: the history is a pure
+specular chain — at least one delta bounce, no smooth bounce and no medium event (spec A5:
+Jensen's caustic map; the volume caustics). From ``rr_depth`` on a photon survives a surface
+interaction with probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its power is divided
+by ``q`` (Mitsuba's Russian roulette; no η² factor: importance transport through a dielectric
+conserves power).
+
+**Wavefront in chunks.** All paths run in one symbolic Dr.Jit loop for up to :data:`CHUNK`
+interactions each; records go to preallocated slots (slot = step · paths + path) and are
+compacted; the paths still alive continue in the next chunk. Memory is bounded per chunk while
+``max_depth`` may be unbounded (−1: ended by Russian roulette), and the records come out in the
+same order for the same seed whatever the thread schedule.
 
 Mitsuba gives the shape of an area light without a BSDF a black ``diffuse`` BSDF, which is
 smooth: photons that reach such a light are recorded there and absorbed.
-
-Bad input raises :class:`~photonmap.core.errors.SceneError`: no emitter or no shape, an emitter
-that emits nothing, non-finite values in an emitter's or a BSDF's parameters (textures included),
-and non-finite photon power after tracing.
 """
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .bsdf import has_null_shapes, intersect_visible
-from .errors import ParameterError, SceneError
-from .media import VolumePhotons, channel, enter, free_flight
+from .bsdf import intersect_visible, is_specular
+from .emission import LightPaths, emit
+from .errors import SceneError
+from .media import channel, enter, free_flight
 from .sampling import rng
+from .scene_info import SceneTraits
+from .settings import UNBOUNDED, PathSettings
+from .volume_map import VolumePhotons
+
+CHUNK = 8  # interactions per path in one symbolic loop (record slots: paths × CHUNK)
+MAX_STEPS = 4096  # interactions of one path at most, Null-lobe passes included
 
 
 @dataclass
 class PhotonRecords:
-    """Stored photon hits as a struct of Dr.Jit arrays, one entry per record, ordered by depth
-    (all first hits, then all second hits, ...) and by path within a depth (by path alone when
-    traced with ``caustics_only``)."""
+    """Stored photon hits on surfaces, one entry per record (module docstring), in tracing
+    order: by chunk, by step within it, by path within a step."""
 
     position: mi.Point3f
     power: mi.Color3f  # Φ_p in W
     direction: mi.Vector3f  # unit travel direction ω_p at the hit (pointing into the surface)
     normal: mi.Vector3f  # shading normal at the hit as Mitsuba gives it (not flipped towards ω_p)
-    depth: mi.UInt32  # surface interactions up to this hit, included (1 = first hit)
+    depth: mi.UInt32  # path segments from the light to this hit, included (1 = first hit)
     caustic: mi.Bool  # the hit ends an L S+ D path (spec A5)
+    path: mi.UInt32  # the light path (lane of the traced wavefront)
+    delta: mi.UInt32  # delta (specular) bounces before the hit
+    glossy: mi.UInt32  # glossy bounces before the hit
     paths: int  # photon paths emitted
     emitted_power: np.ndarray  # Σ of the initial power of all paths (RGB, W)
 
@@ -70,216 +85,313 @@ class PhotonRecords:
     def select(self, mask: mi.Bool) -> PhotonRecords:
         """The records where ``mask`` holds (e.g. ``records.select(records.caustic)`` is the
         caustic map); ``paths`` and ``emitted_power`` are kept."""
-        index = dr.compress(mask)
-        fields = (self.position, self.power, self.direction, self.normal, self.depth, self.caustic)
+        index = dr.compress(mi.Bool(mask))
         return PhotonRecords(
-            *(dr.gather(type(f), f, index) for f in fields), self.paths, self.emitted_power
+            *(dr.gather(type(f), f, index) for f in self._arrays()),
+            self.paths,
+            self.emitted_power,
         )
 
     def after_first(self) -> PhotonRecords:
         """The records from the second interaction on — the first hits are the direct light that
-        the eye pass computes by emitter sampling; none when no photon hit anything (a light
-        shining past the scene: Dr.Jit cannot compare a width-0 array with a literal)."""
+        eye paths compute by emitter sampling; none when no photon hit anything (a light shining
+        past the scene: Dr.Jit cannot compare a width-0 array with a literal)."""
         return self.select(self.depth > 1) if self.count else self
 
-
-def emitter_powers(scene: mi.Scene, samples: int = 2**16, seed: int = 0) -> np.ndarray:
-    """The power ``Φ_e`` (RGB, W) of each of ``scene.emitters()``, shape ``(n_emitters, 3)``.
-
-    The mean weight of ``samples`` rays from ``emitter.sample_ray``: exact for emitters whose
-    weight is constant (point lights, uniform area lights, directional and constant environment
-    lights), a Monte Carlo estimate otherwise (spot fall-off, textured lights, environment maps).
-    Directional and environment emitters count the power that crosses the scene's bounding sphere.
-    """
-    count = len(scene.emitters())
-    if count == 0:
-        return np.zeros((0, 3))
-    emitter = dr.arange(mi.UInt32, count * samples) // samples
-    _, weight = _sample_rays(scene, emitter, seed)
-    total = dr.block_reduce(dr.ReduceOp.Add, mi.Color3d(weight), samples)
-    return np.array(total, dtype=np.float64).T.reshape(count, 3) / samples
+    def _arrays(self) -> list:
+        return [getattr(self, f.name) for f in fields(self)][:-2]
 
 
-def split_paths(powers: np.ndarray, paths: int) -> np.ndarray:
-    """Split ``paths`` among emitters in proportion to the mean of their RGB ``powers`` by
-    largest-remainder rounding, with at least one path per emitter (spec §2.2)."""
-    weight = np.asarray(powers, dtype=np.float64).reshape(len(powers), -1).mean(axis=1)
-    if paths < len(weight):
-        raise ParameterError(
-            f"{paths} photon paths cannot cover the scene's {len(weight)} emitters; "
-            f"trace at least {len(weight)} paths"
-        )
-    ideal = paths * weight / weight.sum()
-    counts = np.floor(ideal).astype(np.int64)
-    by_remainder = np.argsort(-(ideal - counts), kind="stable")
-    counts[by_remainder[: paths - counts.sum()]] += 1
-    for starved in np.flatnonzero(counts == 0):
-        counts[np.argmax(counts)] -= 1
-        counts[starved] = 1
-    return counts
+@dataclass
+class Traced:
+    """What :func:`trace_photons` traced: the surface records, the volume photons (None without
+    media), and the emission (its aimed share)."""
+
+    records: PhotonRecords
+    volume: VolumePhotons | None
+    light: LightPaths
+
+    @property
+    def caustic_fraction(self) -> float:
+        """Of the aimed paths, the share whose first interaction was on a specular shape (their
+        records' paths)."""
+        if self.light.aimed_paths == 0 or self.records.count == 0:
+            return 0.0
+        first = dr.zeros(mi.Bool, self.light.count)
+        dr.scatter(first, True, self.records.path)
+        return dr.count(first & self.light.aimed)[0] / self.light.aimed_paths
 
 
 def trace_photons(
     scene: mi.Scene,
     paths: int,
-    max_depth: int = 8,
-    rr_depth: int = 3,
+    settings: PathSettings | None = None,
     seed: int = 0,
+    aim: float = 0.0,
     caustics_only: bool = False,
-) -> PhotonRecords:
-    """Trace ``paths`` photon paths from the scene's emitters and return the stored hits.
-
-    All paths run in one symbolic Dr.Jit loop; records go to ``paths · max_depth`` preallocated
-    slots (slot = (depth − 1) · paths + path, so neighbouring lanes write neighbouring slots) and
-    are compacted at the end, so the result is the same for the same ``seed`` whatever the thread
-    schedule.
-
-    ``caustics_only`` traces the caustic map's paths alone: a path ends at its first smooth
-    interaction, where it is stored if a specular bounce came before. Most paths then cost one
-    ray (those whose first hit is not specular), so many paths are cheap — Jensen's projection
-    maps reach the same end by aiming photons at the specular objects. Each path keeps one slot.
-    """
-    if paths < 1:
-        raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
-    if max_depth < 1 or rr_depth < 1:
-        raise ParameterError(
-            f"max_depth and rr_depth must be at least 1, got max_depth={max_depth}, "
-            f"rr_depth={rr_depth}"
-        )
-    emitter, ray, power, emitted = _emission(scene, paths, seed)
-    records = _trace(
-        scene,
-        ray,
-        power,
-        rng(paths, seed, stream=1),
-        max_depth,
-        rr_depth,
-        caustics_only,
-        has_null_shapes(scene),
+    traits: SceneTraits | None = None,
+    media: list | None = None,
+    powers: np.ndarray | None = None,
+) -> Traced:
+    """Emit ``paths`` light paths (:func:`~photonmap.core.emission.emit`, the fraction ``aim``
+    aimed at specular shapes) and trace them (:func:`trace_light_paths`): the one way every
+    method makes photons. ``settings``: the path-length settings (default Mitsuba's);
+    ``caustics_only`` keeps only the caustic records (every area light's paths aimed); ``media``:
+    the emitters' media and ``powers`` their checked powers, if known
+    (:func:`~photonmap.core.media.emitter_media`, :func:`~photonmap.core.emission.checked_powers`:
+    a pipeline finds them once)."""
+    settings = settings or PathSettings()
+    traits = traits or SceneTraits.of(scene)
+    light = emit(scene, paths, seed, 1.0 if caustics_only and aim > 0 else aim, caustics_only,
+                 media, powers)  # fmt: skip
+    records, volume = trace_light_paths(
+        scene, light, rng(paths, seed, stream=1), settings, traits, caustics_only
     )
-    slot = dr.compress(records.pop("stored"))
-    fields = {name: dr.gather(type(value), value, slot) for name, value in records.items()}
-    dr.eval(fields)
-    result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
-    _check_power(result)
-    return result
+    return Traced(records, volume, light)
 
 
-def trace_photons_media(
+def trace_light_paths(
     scene: mi.Scene,
-    paths: int,
-    max_depth: int = 8,
-    rr_depth: int = 3,
-    seed: int = 0,
+    light: LightPaths,
+    gen,
+    settings: PathSettings,
+    traits: SceneTraits,
     caustics_only: bool = False,
-) -> tuple[PhotonRecords, VolumePhotons]:
-    """:func:`trace_photons` through participating media (Jensen & Christensen 1998; spec
-    beyond-seeds §4): the surface records as there, and the volume photons.
-
-    Each photon starts in its emitter's medium (:func:`emitter_media`) and flies by
-    :func:`~photonmap.core.media.free_flight` (``medium.sample_interaction`` in a colour channel
-    drawn per path, delta tracking in heterogeneous media, media switched at ``null``, dielectric
-    and other medium-transition boundaries), so the transmittance on the way is in the sampling.
-    At a real scattering event it is stored as a volume photon with the power it scatters,
-    ``Φ·σ_s T/p`` (``Φ`` times the albedo for a grey medium), ``direct`` when nothing but ``null``
-    boundaries lay between it and its emitter; it then goes on with probability
-    ``q = min(1, max_c σ_s T/p)`` (the albedo: Russian roulette) with its power divided by ``q`` —
-    a grey medium keeps the photon's power — in a direction sampled from the medium's phase
-    function. A medium event counts as an interaction (``depth``, ``max_depth``) and as a smooth
-    bounce: photons scattered by the medium are never caustic, and ``caustics_only`` paths end
-    at their first medium event unstored."""
-    if paths < 1:
-        raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
-    if max_depth < 1 or rr_depth < 1:
-        raise ParameterError(
-            f"max_depth and rr_depth must be at least 1, got max_depth={max_depth}, "
-            f"rr_depth={rr_depth}"
+    roulette: bool = True,
+    first_depth: int = 0,
+    redirect=None,
+) -> tuple[PhotonRecords, VolumePhotons | None]:
+    """Trace the light paths ``light`` (module docstring) and return their surface records and,
+    in a scene with media, their volume photons. ``gen``: one random generator per path (an
+    ``mi.PCG32`` or any Dr.Jit struct with ``next_float32()``, e.g. a fixed random map);
+    ``caustics_only``: a path ends at its first smooth interaction, stored only if caustic;
+    ``roulette``: Russian roulette from ``settings.rr_depth`` on; ``first_depth``: interactions
+    the paths have already had (records then count from it); ``redirect(si, bs, gen)``: a
+    direction to go on in instead of the BSDF sample's (the screen method's glossy rule)."""
+    limit = np.iinfo(np.int32).max if settings.max_depth == UNBOUNDED else settings.max_depth - 1
+    n = light.count
+    state = _PathState.start(light, gen, first_depth)
+    surface, volume = [], []
+    steps = 0
+    while state.count and steps < MAX_STEPS:
+        rec, vrec, state = _chunk(
+            scene, state, limit, settings.rr_depth, traits, caustics_only, roulette, redirect
         )
-    emitter, ray, power, emitted = _emission(scene, paths, seed)
-    medium = dr.gather(mi.MediumPtr, mi.MediumPtr(emitter_media(scene)), emitter)
-    surface, volume = _trace_media(
-        scene, ray, medium, power, rng(paths, seed, stream=1), max_depth, rr_depth, caustics_only
-    )
-    slot = dr.compress(surface.pop("stored"))
-    fields = {name: dr.gather(type(value), value, slot) for name, value in surface.items()}
-    slot = dr.compress(volume.pop("stored"))
-    vfields = {name: dr.gather(type(value), value, slot) for name, value in volume.items()}
-    dr.eval(fields, vfields)
-    result = PhotonRecords(**fields, paths=paths, emitted_power=emitted)
-    _check_power(result)
-    return result, VolumePhotons(**vfields)
+        surface.append(rec)
+        volume.append(vrec)
+        steps += CHUNK
+    records = PhotonRecords(*_concat(surface, 9), n, light.emitted_power)
+    _check_power(records)
+    if not traits.media:
+        return records, None
+    return records, VolumePhotons(*_concat(volume, 5))
 
 
-def emitter_media(scene: mi.Scene) -> list:
-    """The medium each of ``scene.emitters()`` emits into: its own ``medium`` (a point, spot or
-    other emitter placed in fog), else for an area light its shape's exterior medium — the side
-    its normals face, where it emits (Mitsuba's ``target_medium`` of a direction along the
-    normal) — else None (vacuum)."""
-    media = []
-    for emitter in scene.emitters():
-        medium, shape = emitter.get_medium(), emitter.get_shape()
-        if medium is None and shape is not None:
-            medium = shape.exterior_medium()
-        media.append(medium)
-    return media
+@dataclass
+class _PathState:
+    """The paths alive between chunks (their lane in the original wavefront: ``path``)."""
+
+    ray: mi.Ray3f
+    power: mi.Color3f  # Φ (W), the throughput applied
+    power0: mi.Color3f  # Φ₀, for Russian roulette
+    medium: mi.MediumPtr
+    depth: mi.UInt32
+    specular: mi.Bool  # a delta bounce on the way
+    smooth: mi.Bool  # a smooth bounce or a medium event on the way
+    fresh: mi.Bool  # no interaction yet (the partition applies at the first)
+    aimed: mi.Bool
+    partitioned: mi.Bool
+    delta: mi.UInt32
+    glossy: mi.UInt32
+    path: mi.UInt32
+    gen: object
+
+    @classmethod
+    def start(cls, light: LightPaths, gen, first_depth: int) -> _PathState:
+        n = light.count
+        return cls(
+            mi.Ray3f(light.ray), mi.Color3f(light.power), mi.Color3f(light.power),
+            mi.MediumPtr(light.medium), dr.full(mi.UInt32, first_depth, n), dr.zeros(mi.Bool, n),
+            dr.zeros(mi.Bool, n), dr.full(mi.Bool, first_depth == 0, n), mi.Bool(light.aimed),
+            mi.Bool(light.partitioned), dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n),
+            dr.arange(mi.UInt32, n), gen,
+        )  # fmt: skip
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.path)
+
+    def kept(self, alive: mi.Bool) -> _PathState:
+        index = dr.compress(alive)
+        values = [dr.gather(type(v), v, index) for v in vars(self).values()]
+        state = _PathState(*values)
+        dr.eval(*vars(state).values())
+        return state
 
 
-def _emission(scene: mi.Scene, paths: int, seed: int):
-    """The emitter index, ray and power ``Φ_i = weight_i / N_e`` of each of ``paths`` photon
-    paths, and the total emitted power (RGB) — the emission of spec §2.2."""
-    counts = split_paths(_checked_powers(scene, seed), paths)
-    emitter = mi.UInt32(np.repeat(np.arange(len(counts), dtype=np.uint32), counts))
-    ray, weight = _sample_rays(scene, emitter, seed)
-    power = weight / dr.gather(mi.Float, mi.Float(counts.astype(np.float32)), emitter)
-    emitted = np.array(dr.sum(mi.Color3d(power), axis=1)).ravel()
-    return emitter, ray, power, emitted
-
-
-def _checked_powers(scene: mi.Scene, seed: int) -> np.ndarray:
-    """:func:`emitter_powers`, after checking that the scene has emitters and shapes and that the
-    emitters and BSDFs have finite parameters (textures included); raise :class:`SceneError` if not or if an
-    emitter emits nothing."""
-    emitters = scene.emitters()
-    if not emitters:
-        raise SceneError(
-            "the scene has no emitter, so no photons can be traced; add a light (an 'area' "
-            "emitter on a shape, or a 'point', 'spot', 'directional', 'constant' or 'envmap' one)"
-        )
-    if not scene.shapes():
-        raise SceneError("the scene has no shapes for photons to land on; add some geometry")
-    for emitter in emitters:
-        _check_finite(emitter, _emitter_name(emitter))
-    checked = set()
-    for shape in scene.shapes():
-        bsdf = shape.bsdf()
-        if bsdf is not None and bsdf.ptr not in checked:
-            checked.add(bsdf.ptr)
-            _check_finite(bsdf, f"the BSDF of {_shape_name(shape)}")
-    powers = emitter_powers(scene, seed=seed)
-    dark = [_emitter_name(e) for e, p in zip(emitters, powers, strict=True) if not np.max(p) > 0]
-    if dark:
-        raise SceneError(
-            f"{', '.join(dark)} emit{'s' if len(dark) == 1 else ''} no power; give "
-            "them a positive radiance, intensity or irradiance, or remove them from the scene"
-        )
-    return powers
-
-
-def _check_finite(obj, what: str) -> None:
-    params = mi.traverse(obj)
-    for key in params.keys():
-        value = params[key]
-        if isinstance(value, float):
-            finite = math.isfinite(value)
-        elif dr.is_array_v(value) and dr.is_float_v(value):
-            finite = bool(dr.all(dr.isfinite(value), axis=None))
+def _concat(chunks: list, width: int) -> list:
+    """The chunks' fields one after the other (``width`` fields each; ``dr.concat`` refuses empty
+    arrays)."""
+    out = []
+    for i in range(width):
+        values = [c[i] for c in chunks if dr.width(c[i])] or [chunks[0][i]]
+        if len(values) == 1:
+            out.append(values[0])
+        elif dr.size_v(values[0]) == 3:
+            out.append(type(values[0])(*(dr.concat([v[c] for v in values]) for c in range(3))))
         else:
-            continue
-        if not finite:
-            raise SceneError(
-                f"{what} has NaN or infinite values in its parameter '{key}'; "
-                "give it finite values (check the texture file or the colour values)"
-            )
+            out.append(dr.concat(values))
+    return out
+
+
+def _slots(names_types: dict, count: int) -> dict:
+    return {name: dr.zeros(kind, count) for name, kind in names_types.items()}
+
+
+SURFACE_FIELDS = {
+    "position": mi.Point3f, "power": mi.Color3f, "direction": mi.Vector3f, "normal": mi.Vector3f,
+    "depth": mi.UInt32, "caustic": mi.Bool, "path": mi.UInt32, "delta": mi.UInt32,
+    "glossy": mi.UInt32,
+}  # fmt: skip
+VOLUME_FIELDS = {
+    "position": mi.Point3f, "direction": mi.Vector3f, "power": mi.Color3f, "depth": mi.UInt32,
+    "caustic": mi.Bool,
+}  # fmt: skip
+
+
+def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redirect):
+    """One chunk of the loop: the records it stored (compacted, as field lists) and the state of
+    the paths still alive."""
+    lanes = state.count
+    slots = lanes * CHUNK
+    rec = _slots(SURFACE_FIELDS, slots)
+    vrec = _slots(VOLUME_FIELDS, slots if traits.media and not caustics_only else 1)
+    stored = dr.zeros(mi.Bool, slots)
+    vstored = dr.zeros(mi.Bool, dr.width(vrec["depth"]))
+    alive = _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits,
+                  caustics_only, roulette, redirect)  # fmt: skip
+    dr.eval(rec, vrec, stored, vstored, alive, *vars(state).values())
+    out = []
+    for fields_, mask in ((rec, stored), (vrec, vstored)):
+        index = dr.compress(mask)
+        out.append([dr.gather(type(v), v, index) for v in fields_.values()])
+    return out[0], out[1], state.kept(alive)
+
+
+@dr.syntax
+def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, caustics_only,
+          roulette, redirect):  # fmt: skip
+    """The symbolic loop of one chunk; updates ``state`` in place, fills the record slots and
+    returns which paths are still alive."""
+    lanes = state.count
+    ctx = mi.BSDFContext(mi.TransportMode.Importance)
+    phase_ctx = mi.PhaseFunctionContext(None, mi.TransportMode.Importance)
+    limit = dr.opaque(mi.UInt32, limit)
+    rr_depth = dr.opaque(mi.UInt32, rr_depth)
+    lane = dr.arange(mi.UInt32, lanes)
+    stride = dr.opaque(mi.UInt32, lanes)  # not a literal: the survivors' count varies
+    ray, power, medium, depth = state.ray, state.power, state.medium, state.depth
+    specular, smooth, fresh, gen = state.specular, state.smooth, state.fresh, state.gen
+    delta, glossy = state.delta, state.glossy
+    path, aimed, partitioned, power0 = state.path, state.aimed, state.partitioned, state.power0
+    media, null_shapes = traits.media, traits.null_shapes  # frozen dataclasses stay out of loops
+    ch = channel(gen)
+    step = dr.zeros(mi.UInt32, lanes)
+    active = dr.max(power) > 0
+    while active & (step < CHUNK):
+        # ---- fly to the next interaction: a medium collision or a surface (not null)
+        if dr.hint(media, mode="scalar"):
+            flight = free_flight(scene, ray, medium, gen, ch, active)
+            si, mei = flight.si, flight.mei
+            in_medium = active & flight.scattered
+            on_surface = active & ~flight.scattered & si.is_valid()
+            power[active] *= flight.weight
+            albedo = dr.minimum(dr.max(flight.weight), 1.0)  # σ_s/σ_t where it scattered
+            medium = dr.select(active, flight.medium, medium)
+        else:
+            si = intersect_visible(scene, ray, active, null_shapes)
+            in_medium = dr.zeros(mi.Bool, lanes)
+            on_surface = active & si.is_valid()
+        bsdf = si.bsdf(ray)
+        # the partition of aimed emission (core.emission), at the first interaction
+        first_specular = on_surface & is_specular(bsdf, on_surface)
+        keep = ~fresh | ~partitioned | (aimed == first_specular)
+        in_medium &= keep
+        on_surface &= keep
+        fresh &= ~(in_medium | on_surface)
+        caustic = specular & ~smooth
+
+        # ---- a medium collision: a volume photon
+        depth[in_medium] += 1
+        if dr.hint(media and not caustics_only, mode="scalar"):
+            vslot = step * stride + lane
+            vstore = in_medium & (depth <= limit)
+            for name, value in (("position", mei.p), ("direction", ray.d),
+                                ("power", power), ("depth", depth), ("caustic", caustic)):
+                dr.scatter(vrec[name], value, vslot, vstore)  # fmt: skip
+            dr.scatter(vstored, True, vslot, vstore)
+
+        # ---- a surface: a record where the BSDF has a smooth lobe
+        slot = step * stride + lane
+        store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (depth + 1 <= limit)
+        if dr.hint(caustics_only, mode="scalar"):
+            store &= caustic
+        values = (si.p, power, ray.d, mi.Vector3f(si.sh_frame.n), depth + 1, caustic,
+                  path, delta, glossy)  # fmt: skip
+        for name, value in zip(SURFACE_FIELDS, values, strict=True):
+            dr.scatter(rec[name], value, slot, store)
+        dr.scatter(stored, True, slot, store)
+
+        # ---- scatter at the surface: the BSDF in importance mode
+        bs, weight = bsdf.sample(
+            ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
+            on_surface,
+        )  # fmt: skip
+        lobe = bs.sampled_type
+        passed = on_surface & mi.has_flag(lobe, mi.BSDFFlags.Null)  # straight on, no interaction
+        bounced = on_surface & ~passed
+        depth[bounced] += 1
+        power[on_surface] *= weight
+        is_delta = bounced & mi.has_flag(lobe, mi.BSDFFlags.Delta)
+        specular |= is_delta
+        smooth |= in_medium | (bounced & mi.has_flag(lobe, mi.BSDFFlags.Smooth))
+        delta[is_delta] += 1
+        glossy[bounced & mi.has_flag(lobe, mi.BSDFFlags.Glossy)] += 1
+        wo_surface = bs.wo
+        if dr.hint(redirect is not None, mode="scalar"):
+            wo_surface = redirect(si, bs, gen)
+        d_surface = si.to_world(wo_surface)
+        ray[on_surface] = si.spawn_ray(d_surface)
+        # ---- and in a medium: the phase function
+        if dr.hint(media, mode="scalar"):
+            medium = enter(si, d_surface, medium, on_surface)
+            wo, phase_weight, _ = mei.medium.phase_function().sample(
+                phase_ctx, mei, gen.next_float32(),
+                mi.Point2f(gen.next_float32(), gen.next_float32()), in_medium,
+            )  # fmt: skip
+            power[in_medium] *= phase_weight
+            ray[in_medium] = mei.spawn_ray(wo)
+        active = in_medium | on_surface
+        if dr.hint(caustics_only, mode="scalar"):
+            active &= ~smooth
+
+        # ---- Russian roulette: a medium event survives with the albedo (Jensen & Christensen),
+        # a surface interaction from rr_depth on with q = min(0.95, max Φ/Φ₀)
+        if dr.hint(roulette, mode="scalar"):
+            relative = dr.max(power / dr.maximum(power0, 1e-30))
+            survival = dr.minimum(relative, 0.95)
+            if dr.hint(media, mode="scalar"):
+                survival = dr.select(in_medium, albedo, survival)
+            rolled = in_medium | (bounced & (depth >= rr_depth))
+            power[rolled] /= dr.maximum(survival, 1e-30)
+            active &= ~rolled | (gen.next_float32() < survival)
+        active &= (dr.max(power) > 0) & (depth < limit)
+        step += 1
+
+    state.ray, state.power, state.medium, state.depth = ray, power, medium, depth
+    state.specular, state.smooth, state.fresh, state.gen = specular, smooth, fresh, gen
+    state.delta, state.glossy = delta, glossy
+    return active
 
 
 def _check_power(records: PhotonRecords) -> None:
@@ -293,222 +405,3 @@ def _check_power(records: PhotonRecords) -> None:
             f"{where.round(4).tolist()}); a BSDF or texture of the surface there evaluates to "
             "NaN or infinity"
         )
-
-
-def _emitter_name(emitter: mi.Emitter) -> str:
-    shape = emitter.get_shape()
-    if shape is not None:
-        return f"the area light of {_shape_name(shape)}"
-    return f"emitter '{emitter.id()}' ({emitter.class_name()})"
-
-
-def _shape_name(shape: mi.Shape) -> str:
-    """``shape 'id'``; Mitsuba's merged meshes have no id."""
-    return f"shape '{shape.id()}'" if shape.id().strip(" +") else f"a merged {shape.class_name()}"
-
-
-def _sample_rays(scene: mi.Scene, emitter: mi.UInt32, seed: int) -> tuple[mi.Ray3f, mi.Color3f]:
-    """``sample_ray`` of emitter ``scene.emitters()[emitter[i]]`` for every lane ``i``."""
-    gen = rng(dr.width(emitter), seed, stream=0)
-    wavelength = gen.next_float32()
-    spatial = mi.Point2f(gen.next_float32(), gen.next_float32())
-    directional = mi.Point2f(gen.next_float32(), gen.next_float32())
-    emitters = dr.gather(mi.EmitterPtr, scene.emitters_dr(), emitter)
-    return emitters.sample_ray(0.0, wavelength, spatial, directional)
-
-
-def _store(records: dict, slot, store, position, power, direction, normal, depth, caustic):
-    """Write one surface photon record per lane where ``store`` (slot ``slot``)."""
-    dr.scatter(records["position"], position, slot, store)
-    dr.scatter(records["power"], power, slot, store)
-    dr.scatter(records["direction"], direction, slot, store)
-    dr.scatter(records["normal"], mi.Vector3f(normal), slot, store)
-    dr.scatter(records["depth"], depth, slot, store)
-    dr.scatter(records["caustic"], caustic, slot, store)
-    dr.scatter(records["stored"], True, slot, store)
-
-
-@dr.syntax
-def _trace(
-    scene: mi.Scene,
-    ray: mi.Ray3f,
-    power: mi.Color3f,
-    rng: mi.PCG32,
-    max_depth: int,
-    rr_depth: int,
-    caustics_only: bool,
-    null_shapes: bool,
-) -> dict:
-    """The bounce loop; returns the record slots and the ``stored`` mask over them."""
-    n = dr.width(power)
-    slots = n if caustics_only else n * max_depth
-    records = {
-        "position": dr.zeros(mi.Point3f, slots),
-        "power": dr.zeros(mi.Color3f, slots),
-        "direction": dr.zeros(mi.Vector3f, slots),
-        "normal": dr.zeros(mi.Vector3f, slots),
-        "depth": dr.zeros(mi.UInt32, slots),
-        "caustic": dr.zeros(mi.Bool, slots),
-        "stored": dr.zeros(mi.Bool, slots),
-    }
-    ctx = mi.BSDFContext(mi.TransportMode.Importance)
-    path = dr.arange(mi.UInt32, n)
-    depth = dr.zeros(mi.UInt32, n)
-    throughput = dr.full(mi.Color3f, 1.0, n)  # Φ / Φ₀ per channel
-    specular_bounce = dr.zeros(mi.Bool, n)  # a delta lobe was sampled on the way here
-    smooth_bounce = dr.zeros(mi.Bool, n)  # a diffuse or glossy lobe was sampled on the way here
-    active = dr.max(power) > 0
-
-    # Every iteration either ends a path or adds one interaction, so depth < max_depth caps it.
-    while active:
-        si = intersect_visible(scene, ray, active, null_shapes)
-        active &= si.is_valid()
-        depth[active] += 1
-        bsdf = si.bsdf(ray)
-
-        store = active & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        caustic = specular_bounce & ~smooth_bounce
-        if caustics_only:
-            store &= caustic
-            slot = mi.UInt32(path)
-        else:
-            slot = (depth - 1) * n + path
-        _store(records, slot, store, si.p, power * throughput, ray.d, si.sh_frame.n, depth, caustic)
-
-        sample, weight = bsdf.sample(
-            ctx,
-            si,
-            rng.next_float32(),
-            mi.Point2f(rng.next_float32(), rng.next_float32()),
-            active,
-        )
-        throughput *= weight
-        lobe = sample.sampled_type
-        null = mi.has_flag(lobe, mi.BSDFFlags.Null)  # a null-BSDF emitter's shape is no bounce
-        specular_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Delta) & ~null
-        smooth_bounce |= active & mi.has_flag(lobe, mi.BSDFFlags.Smooth)
-        ray = si.spawn_ray(si.to_world(sample.wo))
-        if caustics_only:
-            active &= ~smooth_bounce
-
-        # Russian roulette (Mitsuba's path tracers): survive with q, power divided by q.
-        survival = dr.minimum(dr.max(throughput), 0.95)
-        roulette = active & (depth >= rr_depth)
-        throughput[roulette] /= survival
-        active &= ~roulette | (rng.next_float32() < survival)
-        active &= (dr.max(throughput) > 0) & (depth < max_depth)
-
-    return records
-
-
-@dr.syntax
-def _trace_media(
-    scene: mi.Scene,
-    ray: mi.Ray3f,
-    medium: mi.MediumPtr,
-    power: mi.Color3f,
-    rng: mi.PCG32,
-    max_depth: int,
-    rr_depth: int,
-    caustics_only: bool,
-) -> tuple[dict, dict]:
-    """The bounce loop of :func:`trace_photons_media`: surface and volume record slots, each with
-    its ``stored`` mask."""
-    n = dr.width(power)
-    slots = n if caustics_only else n * max_depth
-    records = {
-        "position": dr.zeros(mi.Point3f, slots),
-        "power": dr.zeros(mi.Color3f, slots),
-        "direction": dr.zeros(mi.Vector3f, slots),
-        "normal": dr.zeros(mi.Vector3f, slots),
-        "depth": dr.zeros(mi.UInt32, slots),
-        "caustic": dr.zeros(mi.Bool, slots),
-        "stored": dr.zeros(mi.Bool, slots),
-    }
-    vslots = 1 if caustics_only else n * max_depth
-    volume = {
-        "position": dr.zeros(mi.Point3f, vslots),
-        "direction": dr.zeros(mi.Vector3f, vslots),
-        "power": dr.zeros(mi.Color3f, vslots),
-        "direct": dr.zeros(mi.Bool, vslots),
-        "stored": dr.zeros(mi.Bool, vslots),
-    }
-    ctx = mi.BSDFContext(mi.TransportMode.Importance)
-    phase_ctx = mi.PhaseFunctionContext(None, mi.TransportMode.Importance)
-    path = dr.arange(mi.UInt32, n)
-    depth = dr.zeros(mi.UInt32, n)
-    throughput = dr.full(mi.Color3f, 1.0, n)  # Φ / Φ₀ per channel
-    medium = mi.MediumPtr(medium)
-    ch = channel(rng)
-    specular_bounce = dr.zeros(mi.Bool, n)
-    smooth_bounce = dr.zeros(mi.Bool, n)  # a diffuse, glossy or medium scattering on the way
-    active = dr.max(power) > 0
-
-    # Every iteration either ends a path or adds one interaction, so depth < max_depth caps it.
-    while active:
-        flight = free_flight(scene, ray, medium, rng, ch, active)
-        si, mei = flight.si, flight.mei
-        in_medium = active & flight.scattered
-        on_surface = active & ~flight.scattered & si.is_valid()
-        active = in_medium | on_surface
-        depth[active] += 1
-        throughput[active] *= flight.weight
-        direct = ~specular_bounce & ~smooth_bounce
-
-        if not caustics_only:
-            vslot = (depth - 1) * n + path
-            dr.scatter(volume["position"], mei.p, vslot, in_medium)
-            dr.scatter(volume["direction"], ray.d, vslot, in_medium)
-            dr.scatter(volume["power"], power * throughput, vslot, in_medium)
-            dr.scatter(volume["direct"], direct, vslot, in_medium)
-            dr.scatter(volume["stored"], True, vslot, in_medium)
-
-        bsdf = si.bsdf(ray)
-        store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        caustic = specular_bounce & ~smooth_bounce
-        if caustics_only:
-            store &= caustic
-            slot = mi.UInt32(path)
-        else:
-            slot = (depth - 1) * n + path
-        _store(records, slot, store, si.p, power * throughput, ray.d, si.sh_frame.n, depth, caustic)
-
-        sample, weight = bsdf.sample(
-            ctx,
-            si,
-            rng.next_float32(),
-            mi.Point2f(rng.next_float32(), rng.next_float32()),
-            on_surface,
-        )
-        wo, phase_weight, _ = mei.medium.phase_function().sample(
-            phase_ctx,
-            mei,
-            rng.next_float32(),
-            mi.Point2f(rng.next_float32(), rng.next_float32()),
-            in_medium,
-        )
-        throughput[on_surface] *= weight
-        throughput[in_medium] *= phase_weight
-        lobe = sample.sampled_type
-        null = mi.has_flag(lobe, mi.BSDFFlags.Null)
-        specular_bounce |= on_surface & mi.has_flag(lobe, mi.BSDFFlags.Delta) & ~null
-        smooth_bounce |= in_medium | (on_surface & mi.has_flag(lobe, mi.BSDFFlags.Smooth))
-        d_surface = si.to_world(sample.wo)
-        medium = dr.select(in_medium, mei.medium, enter(si, d_surface, flight.medium, on_surface))
-        ray = dr.select(in_medium, mei.spawn_ray(wo), si.spawn_ray(d_surface))
-        if caustics_only:
-            active &= ~smooth_bounce
-
-        # Russian roulette: at a medium event survive with the albedo q (Jensen & Christensen),
-        # at a surface from rr_depth on with q = min(0.95, max Φ/Φ₀); the power is divided by q.
-        survival = dr.select(
-            in_medium,
-            dr.minimum(dr.max(flight.weight), 1.0),
-            dr.minimum(dr.max(throughput), 0.95),
-        )
-        roulette = in_medium | (on_surface & (depth >= rr_depth))
-        throughput[roulette] /= dr.maximum(survival, 1e-30)
-        active &= ~roulette | (rng.next_float32() < survival)
-        active &= (dr.max(throughput) > 0) & (depth < max_depth)
-
-    return records, volume

@@ -1,19 +1,20 @@
 """What a Mitsuba scene holds, as far as choosing and checking a method goes: its participating
 media (the fog) and the shapes that bound them.
 
-The CLI picks the method from this (fog → ``volume``, else ``surface``), the volume method refuses
-a scene without fog, and the screen method, which does not model media, warns once that it
-renders without them (issue 10: never a silently wrong image). The surface method renders media
-with a volume photon map (:mod:`photonmap.core.media`).
+The volume method refuses a scene without fog, and a method that does not model part of a scene
+says so (never a silently wrong image). :class:`SceneTraits` tells the transport loops what a
+scene needs.
 """
 
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import mitsuba as mi
 
-from .errors import PhotonmapWarning
+from .bsdf import has_null_lobes, has_null_shapes
+from .errors import PhotonmapWarning, SceneError
 
 
 def _name(obj) -> str:
@@ -44,21 +45,103 @@ def has_media(scene: mi.Scene) -> bool:
     return bool(media(scene))
 
 
+@dataclass(frozen=True)
+class SceneTraits:
+    """What the transport loops need to know about a scene once, to leave out the work it does
+    not need (the same code path either way): ``media`` — it holds participating media;
+    ``null_shapes`` — shapes with a ``null`` BSDF that rays cross unchanged; ``null_lobes`` —
+    BSDFs that let shadow rays through in part (``null``, ``mask``, ``thindielectric``)."""
+
+    media: bool
+    null_shapes: bool
+    null_lobes: bool
+
+    @classmethod
+    def of(cls, scene: mi.Scene) -> SceneTraits:
+        return cls(has_media(scene), has_null_shapes(scene), has_null_lobes(scene))
+
+
 def pick_method(scene: mi.Scene) -> str:
-    """The method a scene is rendered with when the user names none: ``volume`` for a scene
-    with fog (a participating medium), else ``surface``."""
-    return "volume" if has_media(scene) else "surface"
+    """The method a scene file is rendered with when the user names none: ``sppm``, the method
+    that renders everything a Mitsuba file may hold — any BSDF, glass, caustics, media, lights
+    inside reflectors — as Mitsuba's ``path``/``volpath`` does, and converges to it. The other
+    methods are faster where their assumptions hold (``surface``: final gathers of diffuse
+    interreflection; ``volume``: fog and refractive media as voxel grids; ``screen``: interactive
+    image-space photons) and are chosen with ``--method``."""
+    return "sppm"
 
 
-def warn_unmodelled_media(scene: mi.Scene, method: str) -> list[str]:
-    """Warn once (a :class:`PhotonmapWarning`) that ``method`` renders ``scene`` without its
-    media, naming each; returns the lines warned about."""
+def refuse_media(scene: mi.Scene, method: str) -> None:
+    """Raise a :class:`SceneError` naming each medium of ``scene`` when ``method`` cannot render
+    participating media (rendering the scene as if in vacuum would be a silently wrong image)."""
     found = media(scene)
     if found:
+        raise SceneError(
+            f"the {method} method renders surfaces in vacuum and cannot render participating "
+            f"media ({'; '.join(found)}); render this scene with --method sppm (or surface)"
+        )
+
+
+CHECK_POINTS = 256  # points per medium-bearing shape that check its media (warn_disagreeing_media)
+DISAGREE = 0.25  # the share of a shape's points in another medium that is warned about (a shape
+# that merely touches another, a light on a floor, puts a few of its points outside)
+
+
+def warn_disagreeing_media(scene: mi.Scene, method: str) -> list[str]:
+    """Warn (a :class:`PhotonmapWarning`) about each shape whose declared interior or exterior
+    medium is not the medium found on that side of it: from :data:`CHECK_POINTS` points on it, a
+    ray leaves on that side, and the first medium transition it meets tells the medium there
+    (``si.target_medium(−d)``; vacuum where it meets none). Mitsuba's ``volpath`` follows the
+    declared media for light that leaves such a surface and the enclosing shapes' for light that
+    arrives; photon methods, whose light travels the other way, cannot follow both, so their
+    image differs from ``volpath``'s near it. Returns the lines warned about."""
+    import drjit as dr
+
+    from .media import first_transition_medium
+    from .sampling import rng
+
+    lines = []
+    for shape in scene.shapes():
+        for side, declared in ((-1.0, shape.interior_medium()), (1.0, shape.exterior_medium())):
+            if declared is None:
+                continue
+            gen = rng(CHECK_POINTS, 0x6D656469, int(side > 0))
+            ps = shape.sample_position(0.0, mi.Point2f(gen.next_float32(), gen.next_float32()))
+            d = mi.warp.square_to_cosine_hemisphere(
+                mi.Point2f(gen.next_float32(), gen.next_float32())
+            )
+            d = mi.Frame3f(ps.n * side).to_world(d)
+            zero = dr.zeros(mi.Float, CHECK_POINTS)
+            ray = mi.Interaction3f(zero, zero, dr.zeros(mi.Color0f), ps.p, ps.n).spawn_ray(d)
+            found, met = first_transition_medium(scene, ray)
+            found = dr.select(met, found, mi.MediumPtr(None))
+            wrong = float(dr.mean(mi.Float(found != mi.MediumPtr(declared)), axis=None)[0])
+            if wrong > DISAGREE:
+                where = "interior" if side < 0 else "exterior"
+                lines.append(
+                    f"shape {_name(shape)} names {_name(declared)} its {where} medium, but on "
+                    f"{wrong:.0%} of it the shapes around say otherwise"
+                )
+    if lines:
         warnings.warn(
-            f"the {method} method does not model participating media and renders this scene "
-            f"as if in vacuum, ignoring: {'; '.join(found)}. Use --method volume for fog.",
+            f"{'; '.join(lines)}. Mitsuba's volpath then puts the medium in the path of light "
+            f"that leaves the shape but not of light that arrives, which the {method} method, "
+            "whose photons travel the other way, cannot follow: expect its image to differ from "
+            "volpath's near the shape. Make the shape lie inside its medium (e.g. cut a floor at "
+            "its fog box) or leave that medium out.",
             PhotonmapWarning,
             stacklevel=3,
         )
-    return found
+    return lines
+
+
+def warn_unmodelled(method: str, parts: list[str], instead: str) -> list[str]:
+    """Warn once (a :class:`PhotonmapWarning`) that ``method`` does not render ``parts`` of the
+    scene (one line each, naming the shapes or settings), and what renders them: ``instead``."""
+    if parts:
+        warnings.warn(
+            f"the {method} method does not render: {'; '.join(parts)}. {instead}.",
+            PhotonmapWarning,
+            stacklevel=3,
+        )
+    return parts

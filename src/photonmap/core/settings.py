@@ -19,6 +19,9 @@ from dataclasses import dataclass, replace
 
 import mitsuba as mi
 
+from .errors import ParameterError
+from .params import check_choice, check_range
+
 UNBOUNDED = -1
 MITSUBA_RR_DEPTH = 5  # Mitsuba's default rr_depth
 
@@ -30,6 +33,14 @@ class PathSettings:
     max_depth: int = UNBOUNDED
     rr_depth: int = MITSUBA_RR_DEPTH
     hide_emitters: bool = False
+
+    def __post_init__(self):
+        if self.max_depth != UNBOUNDED and not self.max_depth >= 1:
+            raise ParameterError(
+                f"max_depth must be -1 (unbounded) or >= 1 path segments, got {self.max_depth}"
+            )
+        if not self.rr_depth >= 1:
+            raise ParameterError(f"rr_depth must be >= 1, got {self.rr_depth}")
 
     @classmethod
     def of(cls, scene: mi.Scene, source=None) -> PathSettings:
@@ -92,7 +103,7 @@ def _inner_hide_emitters(source) -> bool:
     ``true``; False when unreadable)."""
     try:
         path = os.fspath(source)
-        if not os.path.isfile(path):
+        if not isinstance(path, str) or not os.path.isfile(path):
             return False
         node = ET.parse(path).getroot().find("integrator")
     except (OSError, TypeError, ET.ParseError):
@@ -105,3 +116,29 @@ def _inner_hide_emitters(source) -> bool:
         if flag.get("name") == "hide_emitters":
             return flag.get("value", "").strip().lower() == "true"
     return False
+
+
+HIDE_CHOICES = ("scene", "true", "false")
+
+
+def overridden(
+    settings: PathSettings, max_depth: int = 0, rr_depth: int = 0, hide_emitters: str = "scene"
+) -> PathSettings:
+    """``settings`` with a method's parameters applied: ``max_depth`` 0 keeps the file's (−1:
+    unbounded), ``rr_depth`` 0 keeps the file's, ``hide_emitters`` ``"scene"`` keeps the
+    file's."""
+    return PathSettings(
+        settings.max_depth if max_depth == 0 else (UNBOUNDED if max_depth < 0 else max_depth),
+        settings.rr_depth if rr_depth == 0 else rr_depth,
+        settings.hide_emitters if hide_emitters == "scene" else hide_emitters == "true",
+    )
+
+
+def check_path_params(params) -> None:
+    """The ranges of a ``*Params``'s ``max_depth``, ``rr_depth`` and ``hide_emitters``."""
+    check_range("max_depth", params.max_depth, -1, None,
+                "path segments at most as Mitsuba counts them; 0 = the scene's, -1 = unbounded")
+    check_range("rr_depth", params.rr_depth, 0, None,
+                "depth where Russian roulette starts; 0 = the scene's")
+    check_choice("hide_emitters", params.hide_emitters, HIDE_CHOICES,
+                 "hide emitters seen directly: the scene's setting, or true/false")

@@ -31,8 +31,8 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.bsdf import intersect_visible
+from ..core.emission import emitter_powers
 from ..core.errors import PhotonmapWarning, SceneError
-from ..core.photon_trace import emitter_powers
 
 KINDS = ("spot", "point", "area")
 MAX_FRUSTUM_DEG = 80.0  # spots wider than this emit over the sphere like a point light

@@ -2,11 +2,13 @@
 A1–A9).
 
 Every light G-buffer texel (i, j) starts one path at its first hit x₁ with the incident power
-Φ_ij. The path scatters B times; scattering event k draws its random numbers from the **fixed
-random map** (PRM, §2.4, A4): one 32-bit seed per texel made once from ``seed``, hashed with
-(k, m) by TEA, u = hash(seed_ij, k, m) ∈ [0, 1), so bounces are uncorrelated and frames are
-temporally stable. Hit k + 1 (k = 1 … B) goes to the fixed slot ``(k − 1)·W_L·H_L + texel`` (A1:
-the map holds W_L·H_L·B records); hit 1 is never stored, direct light covers it (A2).
+Φ_ij. The path scatters B times — the first time at x₁ here, then in the transport core's photon
+loop (:func:`photonmap.core.photon_trace.trace_light_paths`, without Russian roulette) — and draws
+its random numbers from the **fixed random map** (PRM, §2.4, A4): one 32-bit seed per texel made
+once from ``seed``, the path's n-th number u = hash(seed_ij, n) ∈ [0, 1) by TEA
+(:class:`FixedRandom`), so bounces are uncorrelated and frames are temporally stable. Hit k + 1
+(k = 1 … B) goes to the fixed slot ``(k − 1)·W_L·H_L + texel`` (A1: the map holds W_L·H_L·B
+records); hit 1 is never stored, direct light covers it (A2).
 
 Scattering rules (§2.4 table), through Mitsuba's BSDFs in importance mode:
 
@@ -24,20 +26,22 @@ Mitsuba's ``diffuse``, ``conductor`` and ``dielectric`` samplers are exactly the
 dielectric chooses reflection iff u < F). No Russian roulette (A8). Photons are stored only on
 surfaces with a diffuse or glossy lobe; a mirror or glass hit uses up its bounce and leaves its slot
 invalid (A3). ρ_path = Π h_k scales the splat radius (A9). Photons pass through ``null``-BSDF
-shapes (fog boxes): crossing one is no bounce.
+shapes: crossing one is no bounce.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import has_null_shapes, intersect_visible, is_specular
+from ..core.emission import LightPaths
 from ..core.errors import ParameterError, SceneError
+from ..core.photon_trace import trace_light_paths
+from ..core.scene_info import SceneTraits
+from ..core.settings import PathSettings
 from .light_gbuffer import LightGBuffer
 
 GLOSSY_MODES = ("yao_average", "bsdf")
@@ -68,10 +72,21 @@ def random_map(width: int, height: int, seed: int = 0) -> mi.UInt32:
     return s0
 
 
-def prm_float(prm: mi.UInt32, bounce: int, dim: int) -> mi.Float:
-    """u = hash(seed_ij, k, m) ∈ [0, 1) — the PRM number of bounce ``k``, dimension ``m``."""
-    key = dr.opaque(mi.UInt32, (bounce * 16 + dim) & 0xFFFFFFFF)
-    return mi.sample_tea_float32(prm, key + dr.zeros(mi.UInt32, dr.width(prm)), 4)
+class FixedRandom:
+    """The fixed random map as a per-path generator: the ``n``-th number a path draws is
+    u = hash(seed_ij, n) ∈ [0, 1) — the same every frame (a Dr.Jit struct, so it can be loop
+    state and be compacted with its path)."""
+
+    DRJIT_STRUCT = {"seed": mi.UInt32, "counter": mi.UInt32}
+
+    def __init__(self, seed: mi.UInt32 | None = None, counter: mi.UInt32 | None = None):
+        self.seed = mi.UInt32(seed) if seed is not None else mi.UInt32()
+        self.counter = counter if counter is not None else dr.zeros(mi.UInt32, dr.width(self.seed))
+
+    def next_float32(self) -> mi.Float:
+        u = mi.sample_tea_float32(self.seed, self.counter, 4)
+        self.counter += 1
+        return u
 
 
 def trace_photons(
@@ -89,62 +104,64 @@ def trace_photons(
     n = lgb.width * lgb.height
     if dr.width(prm) != n:
         raise ParameterError(f"the random map has {dr.width(prm)} seeds for {n} texels")
-    ctx = mi.BSDFContext(mi.TransportMode.Importance)
+    gen = FixedRandom(prm)
+    # the first bounce, at x₁
     si, active = lgb.si, mi.Bool(lgb.valid)
-    power = mi.Color3f(lgb.flux)
-    density = dr.ones(mi.Float, n)
-    null_shapes = has_null_shapes(scene)
-    parts = []
-    for k in range(1, bounces + 1):  # B ≤ a few: one kernel per bounce, fixed slots
-        bsdf = si.bsdf()
-        u1, u2, u3 = (prm_float(prm, k, m) for m in range(3))
-        bs, weight = bsdf.sample(ctx, si, u1, mi.Point2f(u2, u3), active)
-        wo = bs.wo
-        lobe = bs.sampled_type
-        is_glossy = mi.has_flag(lobe, mi.BSDFFlags.Glossy)
-        if glossy == "yao_average":  # normalize(ω_d + ω_r), ω_d cosine-distributed (A6)
-            w_d = mi.warp.square_to_cosine_hemisphere(
-                mi.Point2f(prm_float(prm, k, 3), prm_float(prm, k, 4))
-            )
-            w_d = dr.mulsign(w_d, mi.Frame3f.cos_theta(si.wi))
-            w_r = mi.reflect(si.wi)
-            wo = dr.select(is_glossy, dr.normalize(w_d + w_r), wo)
-        h = dr.select(mi.has_flag(lobe, mi.BSDFFlags.Delta), 4.0, dr.select(is_glossy, 2.0, 1.0))
-        power = power * mi.Color3f(weight)
-        density = density * h
-        active &= (dr.max(power) > 0) & (bs.pdf > 0)
-        ray = si.spawn_ray(si.to_world(wo))
-        si = intersect_visible(scene, ray, active, null_shapes)  # through null-BSDF shapes
-        active &= si.is_valid()
-        store = active & ~is_specular(si.bsdf(), active)  # A3
-        n_s = mi.Normal3f(si.sh_frame.n)
-        nrm = dr.select(dr.dot(n_s, ray.d) > 0, -n_s, n_s)
-        part = ScreenPhotons(
-            dr.select(store, si.p, 0.0),
-            dr.select(store, nrm, 0.0),
-            dr.select(store, power, 0.0),
-            dr.select(store, density, 0.0),
-            store,
-        )
-        dr.eval(part.pos, part.nrm, part.power, part.density, part.valid, si, active, power)
-        parts.append(part)
-    photons = _concat(parts)
+    bs, weight = si.bsdf().sample(
+        mi.BSDFContext(mi.TransportMode.Importance), si, gen.next_float32(),
+        mi.Point2f(gen.next_float32(), gen.next_float32()), active,
+    )  # fmt: skip
+    wo = _redirect(si, bs, gen) if glossy == "yao_average" else bs.wo
+    power = dr.select(active & (bs.pdf > 0), mi.Color3f(lgb.flux) * mi.Color3f(weight), 0.0)
+    first_density = _density(bs.sampled_type)
+    light = LightPaths(
+        si.spawn_ray(si.to_world(wo)), power, dr.zeros(mi.MediumPtr, n), dr.zeros(mi.Bool, n),
+        dr.zeros(mi.Bool, n), np.zeros(3), 0,
+    )  # fmt: skip
+    redirect = _redirect if glossy == "yao_average" else None
+    records, _ = trace_light_paths(
+        scene, light, gen, PathSettings(max_depth=bounces + 2), SceneTraits.of(scene),
+        roulette=False, first_depth=1, redirect=redirect,
+    )  # fmt: skip
+    photons = _slots(records, n * bounces, n, first_density)
     _check_power(photons)
     return photons
 
 
-def _concat(parts: list[ScreenPhotons]) -> ScreenPhotons:
-    """The bounce slots one after the other (slot = (k − 1)·W_L·H_L + texel)."""
+def _density(lobe: mi.UInt32) -> mi.Float:
+    """h of a bounce (§2.4 table): 4 for a delta lobe, 2 for a glossy one, 1 for a diffuse one."""
+    is_glossy = mi.has_flag(lobe, mi.BSDFFlags.Glossy)
+    return dr.select(mi.has_flag(lobe, mi.BSDFFlags.Delta), 4.0, dr.select(is_glossy, 2.0, 1.0))
 
-    def cat(name):
-        values = [getattr(p, name) for p in parts]
-        if len(values) == 1:
-            return values[0]
-        if dr.size_v(values[0]) == 3:
-            return type(values[0])(*(dr.concat([v[c] for v in values]) for c in range(3)))
-        return dr.concat(values)
 
-    photons = ScreenPhotons(*(cat(f.name) for f in dataclasses.fields(ScreenPhotons)))
+def _redirect(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, gen) -> mi.Vector3f:
+    """Yao's glossy direction (A6): normalize(ω_d + ω_r), ω_d cosine-distributed, ω_r the mirror
+    direction, where a glossy lobe was sampled (two more numbers from ``gen``)."""
+    w_d = mi.warp.square_to_cosine_hemisphere(mi.Point2f(gen.next_float32(), gen.next_float32()))
+    w_d = dr.mulsign(w_d, mi.Frame3f.cos_theta(si.wi))
+    is_glossy = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy)
+    return dr.select(is_glossy, dr.normalize(w_d + mi.reflect(si.wi)), bs.wo)
+
+
+def _slots(records, slots: int, n: int, first_density: mi.Float) -> ScreenPhotons:
+    """The records in their fixed slots ``(k − 1)·n + texel`` (hit k + 1 has depth k + 1), with the
+    path density ρ_path = h₁ · 4^(delta bounces) · 2^(glossy bounces) and the normal turned
+    towards the side the photon arrived from."""
+    slot = (records.depth - 2) * n + records.path
+    density = dr.gather(mi.Float, first_density, records.path)
+    density *= dr.power(4.0, mi.Float(records.delta)) * dr.power(2.0, mi.Float(records.glossy))
+    n_s = mi.Normal3f(records.normal)
+    nrm = dr.select(dr.dot(n_s, records.direction) > 0, -n_s, n_s)
+    photons = ScreenPhotons(
+        dr.zeros(mi.Point3f, slots), dr.zeros(mi.Normal3f, slots), dr.zeros(mi.Color3f, slots),
+        dr.zeros(mi.Float, slots), dr.zeros(mi.Bool, slots),
+    )  # fmt: skip
+    if records.count:
+        dr.scatter(photons.pos, records.position, slot)
+        dr.scatter(photons.nrm, nrm, slot)
+        dr.scatter(photons.power, records.power, slot)
+        dr.scatter(photons.density, density, slot)
+        dr.scatter(photons.valid, True, slot)
     dr.eval(photons.pos, photons.nrm, photons.power, photons.density, photons.valid)
     return photons
 

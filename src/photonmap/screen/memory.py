@@ -3,23 +3,26 @@
 updates and the CLI before the render).
 
 Parts (bytes; rough upper bounds measured on the LLVM backend, peak resident memory of a fresh
-process on the Cornell box: 744 B per light texel at 2 bounces, 1800 B at 6):
+process on the Cornell box: 1000 B per light texel at 2 bounces, 1300 B at 6):
 
 - the light G-buffer and the photons: ``light_res² × (TEXEL_BYTES + bounces × PHOTON_BYTES)``
-  (per texel its G-buffer entry and random map, per bounce a photon record and the splats'
+  (per texel its G-buffer entry, random map and path, the ``CHUNK`` record slots of the shared
+  photon tracer (:mod:`photonmap.core.photon_trace`); per bounce a photon record and the splats'
   state);
 - the eye G-buffer, direct light, soft shadows, upsampling and composite:
   ``width × height ×`` :data:`~photonmap.core.memory.BYTES_PER_SAMPLE`.
 
-The photon arrays, ``light_res² × bounces`` entries, must stay under Dr.Jit's 2³² entries.
+The photon arrays, ``light_res² × max(bounces, CHUNK)`` entries, must stay under Dr.Jit's 2³²
+entries.
 """
 
 from __future__ import annotations
 
 from ..core.memory import check_memory, image_bytes
+from ..core.photon_trace import CHUNK
 
-TEXEL_BYTES = 250  # per light G-buffer texel: G-buffer entry, random map, path state
-PHOTON_BYTES = 270  # per texel and bounce: photon record and splatting state
+TEXEL_BYTES = 900  # per light G-buffer texel: G-buffer entry, random map, path, record slots
+PHOTON_BYTES = 100  # per texel and bounce: photon record and splatting state
 HINT = "lower light_res (light_res² · bounces photons), bounces or the image size"
 
 
@@ -30,7 +33,7 @@ def estimate(params, width: int, height: int):
         "light G-buffer and photons": texels * (TEXEL_BYTES + params.bounces * PHOTON_BYTES),
         "G-buffers and image": image_bytes("screen", width, height),
     }
-    entries = {"light_res² × bounces photons": texels * params.bounces}
+    entries = {"light_res² × bounces photon slots": texels * max(params.bounces, CHUNK)}
     return parts, entries
 
 

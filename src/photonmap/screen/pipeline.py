@@ -48,7 +48,7 @@ from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
-from ..core.scene_info import warn_unmodelled_media
+from ..core.scene_info import refuse_media
 from ..core.stages import StageCache, StagedPipeline
 from . import memory
 from .composite import composite, glass_eye
@@ -200,7 +200,7 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         self.scene, self.sensor, own = load_with_sensor(scene, ScreenParams, params)
         self.params = ScreenParams()
         self.set_params(**own)
-        warn_unmodelled_media(self.scene, "screen")  # rendered as in vacuum (fog boxes: null)
+        refuse_media(self.scene, "screen")
         check_dielectrics(self.scene)
         self.light_index = light
         self.light = find_light(self.scene, light, warn=True)

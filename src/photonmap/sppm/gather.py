@@ -3,12 +3,14 @@ beyond-seeds §1 steps 2–4, §2).
 
 **Gather.** The iteration's photons go into a hash grid (:class:`photonmap.core.hashgrid.HashGrid`)
 whose cell edge is the largest current radius, so every photon within ``R_j`` of visible point
-``x_j`` lies in the 3×3×3 cells around ``x_j``'s cell. One Dr.Jit loop per visible point scans
-those cells (the photons in grid order, their powers and directions permuted alike) and sums
+``x_j`` lies in the 3×3×3 cells around ``x_j``'s cell. One fused scan per visible point visits
+those cells (:meth:`~photonmap.core.hashgrid.HashGrid.sum_within`; the photons in grid order, their
+powers, directions and depths permuted alike) and sums
 
     φ_j = Σ_{‖x_j − y_p‖ < R_j} β_j · f(x_j, ω_o, ω_p) · Φ_p ,   M_j = #photons,
 
-with ``f`` the BSDF without its cosine (Mitsuba's ``eval`` divided by ``|cos θ_p|``): one gather
+over the photons whose path fits ``max_depth`` with the eye path's (Mitsuba's path length), with
+``f`` the BSDF without its cosine (Mitsuba's ``eval`` divided by ``|cos θ_p|``): one gather
 per (point, photon) pair, no atomics, so the sums are deterministic.
 
 **Progressive update** (SPPM, α ∈ (0, 1)):
@@ -28,66 +30,59 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..core.camera import pixel_means
 from ..core.hashgrid import HashGrid
-from ..core.knn import read_record, squared_distance
+from ..core.settings import UNBOUNDED, PathSettings
 from .photons import Photons
 from .visible import VisiblePoints
 
 
 @dataclass
 class Gathered:
-    """Per visible point: the flux sum φ_j (RGB, β included) and the photon count M_j."""
+    """Per pixel: the flux sum φ_j (RGB, β included) and the photon count M_j, each the mean
+    over the pixel's visible points of the iteration."""
 
     flux: mi.Color3f
     count: mi.Float
 
 
-def gather(points: VisiblePoints, radius: mi.Float, photons: Photons) -> Gathered:
-    """φ_j and M_j of every visible point within its ``radius`` (per point, or one value)."""
+def gather(
+    points: VisiblePoints, radius: mi.Float, photons: Photons, settings: PathSettings
+) -> Gathered:
+    """φ_j and M_j of every pixel within its ``radius`` (per pixel, or one value): the mean over
+    its visible points of the sums at each; a photon counts where its path and the eye path
+    together fit Mitsuba's ``max_depth`` (``depth_p + depth_j ≤ max_depth``)."""
     lanes = dr.width(points.found)
-    radius = mi.Float(radius) * dr.ones(mi.Float, lanes)
+    pixels = lanes // points.spp
+    if isinstance(radius, float):
+        radius = dr.opaque(mi.Float, radius, lanes)
+    else:
+        radius = dr.gather(mi.Float, mi.Float(radius), dr.arange(mi.UInt32, lanes) // points.spp)
     if photons.count == 0:
-        return Gathered(dr.zeros(mi.Color3f, lanes), dr.zeros(mi.Float, lanes))
+        return Gathered(dr.zeros(mi.Color3f, pixels), dr.zeros(mi.Float, pixels))
     largest = dr.max(dr.select(points.found, radius, 0.0), axis=None)[0]
     grid = HashGrid(photons.position, cell_size=max(largest, 1e-6))
     power = dr.gather(mi.Color3f, photons.power, grid.order)
     direction = dr.gather(mi.Vector3f, photons.direction, grid.order)
-    flux, count = _scan(grid, points, radius, power, direction)
-    dr.eval(flux, count)
-    return Gathered(flux, count)
+    depth = dr.gather(mi.UInt32, photons.depth, grid.order)
+    max_depth = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
+    depth_left = dr.opaque(mi.UInt32, max_depth) - dr.minimum(points.depth, max_depth)
+    si, bsdf, ctx = points.si, points.si.bsdf(), mi.BSDFContext()
 
+    def flux(j, near):
+        ok = near & (dr.gather(mi.UInt32, depth, j, near) <= depth_left)
+        wo = si.to_local(-dr.gather(mi.Vector3f, direction, j, ok))
+        f = bsdf.eval(ctx, si, wo, ok) / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
+        return mi.Vector4f(*(f * dr.gather(mi.Color3f, power, j, ok)), dr.select(ok, 1.0, 0.0))
 
-@dr.syntax
-def _scan(grid: HashGrid, points: VisiblePoints, radius, power, direction):
-    """The 27-cell scan of :func:`gather` (a cell is at least as wide as any radius)."""
-    si, active = points.si, points.found
-    lanes = dr.width(active)
-    bsdf = si.bsdf()
-    ctx = mi.BSDFContext()
-    radius2 = dr.square(radius)
-    c0 = grid._cell(si.p)
-    flux = dr.zeros(mi.Color3f, lanes)
-    count = dr.zeros(mi.Float, lanes)
-    step = dr.zeros(mi.UInt32, lanes)
-    while active & (step < 27):
-        c = c0 + mi.Point3i(mi.Int32(step % 3), mi.Int32(step // 3 % 3), mi.Int32(step // 9)) - 1
-        visit = active & dr.all((c >= 0) & (c < grid._dims))
-        number = grid._cell_number(c)
-        slot = grid._slot(number)
-        j = dr.gather(mi.UInt32, grid.cell_start, slot, visit)
-        j_end = dr.gather(mi.UInt32, grid.cell_start, slot + 1, visit)
-        while visit & (j < j_end):
-            p, _ = read_record(grid.record, j)
-            near = squared_distance(p, si.p) < radius2
-            if dr.hint(grid.hashed, mode="scalar"):
-                near &= grid._cell_number(grid._cell(p)) == number  # slots shared by cells
-            wo = si.to_local(-dr.gather(mi.Vector3f, direction, j, near))
-            f = bsdf.eval(ctx, si, wo, near) / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
-            flux += dr.select(near, f * dr.gather(mi.Color3f, power, j, near), 0.0)
-            count += dr.select(near, 1.0, 0.0)
-            j += 1
-        step += 1
-    return flux * points.beta, count
+    zero = dr.zeros(mi.Vector4f, lanes)
+    total = grid.sum_within(si.p, dr.square(radius), flux, zero, points.found)
+    flux_sum = mi.Color3f(total.x, total.y, total.z) * points.beta
+    dr.eval(flux_sum, total.w)
+    per_pixel = pixel_means(mi.Spectrum(flux_sum), points.spp)
+    count = dr.block_reduce(dr.ReduceOp.Add, mi.Float(total.w), points.spp) / points.spp
+    dr.eval(per_pixel, count)
+    return Gathered(mi.Color3f(per_pixel), count)
 
 
 MAX_FIRST_SHRINK = 8.0  # the first iteration shrinks a radius by at most this factor
@@ -125,7 +120,7 @@ class PixelState:
         2008 set the first radius from the photons). The update keeps the law's form: with
         ``s = R_new/R_old`` ≤ the SPPM value, ``N_new = (N + M)·s²`` and ``τ_new = (τ + φ)·s²``
         (the photons and flux inside the smaller disk, for a locally uniform density)."""
-        m = dr.select(points.found, got.count, 0.0)
+        m = got.count
         total = self.photons + m
         shrink2 = (self.photons + alpha * m) / dr.maximum(total, 1e-30)
         if target is not None:
@@ -134,7 +129,7 @@ class PixelState:
         shrink2 = dr.select(m > 0, shrink2, 1.0)
         radius = self.radius * dr.sqrt(shrink2)
         n_new = total * shrink2
-        tau = (self.tau + dr.select(points.found, got.flux, 0.0)) * shrink2
+        tau = (self.tau + got.flux) * shrink2
         direct = self.direct + mi.Color3f(points.direct)
         dr.eval(radius, n_new, tau, direct)
         return PixelState(radius, n_new, tau, direct, self.iterations + 1)
@@ -147,7 +142,7 @@ class PixelState:
 
 def iteration_image(points: VisiblePoints, got: Gathered, radius: float) -> mi.Color3f:
     """One memoryless iteration's image ``L_d,i + φ_i / (π r_i²)`` (Knaus & Zwicker 2011)."""
-    indirect = dr.select(points.found, got.flux, 0.0) / (math.pi * radius**2)
+    indirect = got.flux * dr.opaque(mi.Float, 1 / (math.pi * radius**2))
     return mi.Color3f(points.direct) + indirect
 
 

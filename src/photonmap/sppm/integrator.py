@@ -2,7 +2,7 @@
 
 .. pluginparameters::
 
- * - iterations, photons_per_iteration, radius, alpha, seed, max_depth, mode, aim, volume_k,
+ * - iterations, photons_per_iteration, radius, alpha, seed, max_depth, rr_depth, mode, aim,
      volume_radius
    - see :class:`photonmap.sppm.pipeline.SPPMParams`
    - ``iterations`` SPPM iterations per ``mi.render`` (each one eye path per pixel and
@@ -32,7 +32,7 @@ class SPPMIntegrator(PipelineIntegrator):
     """Mitsuba integrator running :class:`~photonmap.sppm.pipeline.SPPMPipeline`."""
 
     pipeline_type, params_type, plugin_name = SPPMPipeline, SPPMParams, "sppm"
-    ignore = {"samples_per_pass", "hide_emitters", "timeout", "rr_depth"}  # max_depth is ours
+    ignore = {"samples_per_pass", "hide_emitters", "timeout"}  # max_depth, rr_depth are ours
 
 
 def register() -> None:

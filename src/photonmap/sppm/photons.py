@@ -1,18 +1,17 @@
 """SPPM photon pass (Hachisuka & Jensen 2009 §4; spec beyond-seeds §1 step 2).
 
-Each iteration traces ``M`` photon paths from the lights with the shared photon tracer
-(:mod:`photonmap.core.photon_trace`: power split by emitted power, Russian roulette, every smooth
-hit recorded), a fraction of them aimed at the specular shapes (:mod:`photonmap.core.aim`).
-The records from the second interaction on are kept: the first hits are the direct light the
-eye pass already computed by emitter sampling (:mod:`.visible`). The powers carry the ``1/M`` of
-the iteration, so a density estimate over one iteration's photons is the iteration's estimate of
-the reflected indirect radiance.
+Each iteration traces ``M`` photon paths from the lights with the transport core's photon loop
+(:func:`photonmap.core.photon_trace.trace_photons`: power split by emitted power, Russian
+roulette, every smooth hit recorded, through the media), a fraction of them aimed at the specular
+shapes (:mod:`photonmap.core.aim`). The records from the second interaction on are kept: the
+first hits are the direct light the eye pass computes by emitter sampling (:mod:`.visible`). The
+powers carry the ``1/M`` of the iteration, so a density estimate over one iteration's photons is
+the iteration's estimate of the reflected indirect radiance.
 
-In a scene with participating media (issue 11 item 5) the photons fly through the media with the
-surface method's tracer (:func:`~photonmap.core.photon_trace.trace_photons_media`; no aiming) and
-the iteration's volume photons that did not come straight from an emitter form its volume map
-(Jensen & Christensen 1998), as :func:`photonmap.surface.photon_map.build_media_maps` does: the
-eye pass computes single scattering of direct light with shadow rays.
+In a scene with participating media the eye paths find the light in the media themselves
+(volumetric path tracing, :mod:`.visible`), except the light that reached the medium only
+through mirrors and glass: the iteration's *caustic* volume photons (a pure specular history,
+Jensen & Christensen 1998's volume caustics) are kept for that.
 """
 
 from __future__ import annotations
@@ -22,9 +21,10 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..core.aim import trace_aimed_photons
-from ..core.media import VolumeMap
-from ..core.photon_trace import trace_photons_media
+from ..core.photon_trace import trace_photons
+from ..core.scene_info import SceneTraits
+from ..core.settings import PathSettings
+from ..core.volume_map import VolumePhotons
 
 
 @dataclass
@@ -34,10 +34,11 @@ class Photons:
     position: mi.Point3f
     power: mi.Color3f  # Φ_p (W), the 1/M of the iteration included
     direction: mi.Vector3f  # travel direction at the hit (into the surface)
+    depth: mi.UInt32  # path segments from the light to the hit
     paths: int  # photon paths traced (M)
     aimed: int  # of them, aimed at specular shapes (core.aim)
     caustic_fraction: float  # of the aimed paths, those that met a specular shape first
-    volume: VolumeMap | None = None  # scenes with media: the iteration's volume map
+    volume: VolumePhotons | None = None  # scenes with media: the iteration's caustic volume photons
 
     @property
     def count(self) -> int:
@@ -45,20 +46,27 @@ class Photons:
 
 
 def photon_pass(
-    scene: mi.Scene, paths: int, seed: int, max_depth: int, aim: float, media: bool = False
+    scene: mi.Scene,
+    paths: int,
+    seed: int,
+    settings: PathSettings,
+    aim: float,
+    traits: SceneTraits,
+    media: list | None = None,
+    powers=None,
 ) -> Photons:
     """Trace ``paths`` photon paths (random numbers from ``seed``, the iteration's seed), the
-    fraction ``aim`` of the area lights' paths aimed at the specular shapes
-    (:func:`~photonmap.core.aim.trace_aimed_photons`), and keep the records after the first
-    interaction. ``media``: through participating media, with a volume map (module docstring)."""
-    if media:
-        records, volume = trace_photons_media(scene, paths, max_depth=max_depth, seed=seed)
-        kept = records.after_first()
-        vmap = VolumeMap.build(volume.select(~volume.direct))
-        return Photons(kept.position, kept.power, kept.direction, paths, 0, 0.0, vmap)
-    traced = trace_aimed_photons(scene, paths, aim, max_depth=max_depth, seed=seed)
-    kept = traced.records.after_first()
-    return Photons(
-        kept.position, kept.power, kept.direction, paths, traced.aimed_paths, traced.caustic_fraction
+    fraction ``aim`` of the area lights' paths aimed at the specular shapes, and keep the records
+    after the first interaction; in a scene with media also the caustic volume photons (module
+    docstring). ``media``, ``powers``: the emitters' media and checked powers, if known."""
+    traced = trace_photons(
+        scene, paths, settings, seed, aim, traits=traits, media=media, powers=powers
     )
-
+    kept = traced.records.after_first()
+    volume = None
+    if traced.volume is not None:
+        volume = traced.volume.select(traced.volume.caustic) if traced.volume.count else None
+    return Photons(
+        kept.position, kept.power, kept.direction, kept.depth, paths, traced.light.aimed_paths,
+        traced.caustic_fraction, volume if volume is not None and volume.count else None,
+    )  # fmt: skip

@@ -1,9 +1,11 @@
 """``SPPMPipeline`` — stochastic progressive photon mapping (Hachisuka & Jensen 2009) and its
-memoryless variant (Knaus & Zwicker 2011); spec beyond-seeds §1–2, issue 12.
+memoryless variant (Knaus & Zwicker 2011); spec beyond-seeds §1–2.
 
-One iteration ``i`` (1-based) is an eye pass (:mod:`.visible`: one visible point per pixel and
-the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons_per_iteration`` paths) and a
-gather at the visible points (:mod:`.gather`). Its random numbers come from ``(seed, i)`` alone,
+One iteration ``i`` (1-based) is an eye pass (:mod:`.visible`: ``spp`` visible points per pixel
+and the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons_per_iteration`` paths)
+and a gather at the visible points (:mod:`.gather`: a pixel's photon count and flux are the means
+over its visible points, so one iteration with ``spp`` points is one SPPM pass whose estimate
+has less variance). Its random numbers come from ``(seed, i)`` alone,
 so an iteration's work is the same whatever ran before, and memory is one iteration's plus the
 per-pixel state, whatever the number of iterations.
 
@@ -19,19 +21,18 @@ distance of the surfaces the camera sees; in ``sppm`` mode the first iteration t
 pixel's radius to hold about :data:`FIRST_PHOTONS` photons (:meth:`.gather.PixelState.updated`:
 small radii where photons are dense, in caustics). A given ``radius`` is every pixel's start.
 
-**Participating media** (issue 11 item 5; Jensen & Christensen 1998): each iteration's photon
-pass also builds a volume map (:mod:`.photons`), and its eye pass marches through the media with
-it (:mod:`.visible`), both with the surface method's machinery. The volume part is memoryless in
-both modes: iteration ``i``'s in-scattered light is a density estimate of its own volume map in
+**Participating media** (Jensen & Christensen 1998; Mitsuba's ``volpath``): the eye paths run
+through the media by volumetric path tracing (:mod:`.visible`), and each iteration's photon pass
+keeps its caustic volume photons (:mod:`.photons`), read at the eye paths' medium collisions in
 spheres of radius ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates:
-the variance of one estimate grows as ``1/ρ³``), at most ``volume_k`` photons (the nearest; a
-smaller sphere where more lie within ``ρ_i``), averaged over the iterations as ``L_d`` is. As
-``ρ_i`` shrinks the chance that ``volume_k`` photons lie within it vanishes, the estimate becomes
-the fixed-radius one and its bias shrinks with ``ρ_i`` while the averaged variance falls as
-``1/i^α``: the volume part converges too. ``ρ_1``: ``volume_radius``, or the surface method's
-automatic volume radius (:data:`~photonmap.core.media.VOLUME_RADIUS` × the scene
-diagonal); the march step is half the median ``volume_k``-th photon distance within ``ρ_i``
-(:meth:`~photonmap.core.media.VolumeMap.march_step`).
+the variance of one estimate grows as ``1/ρ³``), memoryless in both modes: the bias shrinks with
+``ρ_i`` while the averaged variance falls. ``ρ_1``: ``volume_radius``, or the sphere that
+holds about :data:`FIRST_PHOTONS` of the first caustic volume photons traced (at most
+:data:`VOLUME_RADIUS` × the scene diagonal).
+
+**The scene file's settings**: ``max_depth``, ``rr_depth`` and ``hide_emitters`` default to the
+file's ``<integrator>`` (:class:`~photonmap.core.settings.PathSettings`), with Mitsuba's meaning;
+a photon counts at a visible point where the two paths together fit ``max_depth``.
 """
 
 from __future__ import annotations
@@ -45,14 +46,16 @@ import mitsuba as mi
 import numpy as np
 
 from ..core import interrupt
-from ..core.bsdf import has_null_shapes
 from ..core.camera import MovableCamera, pixel_rays, scene_bounds
+from ..core.emission import checked_powers
 from ..core.errors import ParameterError, SceneError
-from ..core.media import STEP_SAMPLES, VOLUME_RADIUS, Inscatter
+from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
-from ..core.scene_info import has_media
+from ..core.scene_info import SceneTraits, warn_disagreeing_media
+from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
+from ..core.volume_map import VolumeMap, density_radius
 from . import memory
 from .gather import PixelState, gather, iteration_image, memoryless_radius
 from .photons import photon_pass
@@ -62,6 +65,9 @@ MODES = ("sppm", "memoryless")
 STAGES = ("photon pass", "eye pass", "gather")
 RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
 FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
+VOLUME_RADIUS = 0.1  # automatic first volume radius ρ_1, × the scene diagonal
+MAX_SPP = 64  # eye paths per pixel and iteration at most
+AUTO_SPP = 16  # ... and at most when automatic
 
 
 @dataclass
@@ -70,13 +76,15 @@ class SPPMParams:
 
     iterations: int = 64  # iterations of render() (run() takes its own budget)
     photons_per_iteration: int = 200_000  # photon paths traced per iteration (M)
+    spp: int = 0  # eye paths per pixel and iteration; 0 = automatic (about one per photon path)
     radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
     alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
     seed: int = 0
-    max_depth: int = 8  # bounces of photon paths and of the eye paths' specular chains
+    max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
+    rr_depth: int = 0  # depth where Russian roulette starts; 0 = the scene's
+    hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
     mode: str = "sppm"  # "sppm" (per-pixel radii) | "memoryless" (Knaus & Zwicker 2011)
     aim: float = 0.5  # fraction of the area lights' photons aimed at specular shapes (0 = none)
-    volume_k: int = 50  # scenes with media: volume photons per in-scattering estimate, at most
     volume_radius: float = 0.0  # scenes with media: first volume radius ρ_1; 0 = automatic
 
     def validate(self) -> None:
@@ -86,13 +94,13 @@ class SPPMParams:
         check_range(
             "photons_per_iteration", self.photons_per_iteration, 1, None, "photon paths each"
         )
+        check_range("spp", self.spp, 0, MAX_SPP, "eye paths per pixel and iteration; 0 = automatic")
         check_range("radius", self.radius, 0, None, "the initial gather radius; 0 = automatic")
         check_range("alpha", self.alpha, 0, 1, "SPPM's α (2/3 is usual)", True, True)
-        check_range("max_depth", self.max_depth, 1, None, "bounces of photon and eye paths")
+        check_path_params(self)
         check_range("aim", self.aim, 0, 1, "fraction of photons aimed at specular shapes",
                     hi_open=True)
         check_choice("mode", self.mode, MODES, "progressive per-pixel radii or memoryless")
-        check_range("volume_k", self.volume_k, 1, 1024, "volume photons per estimate")
         check_range("volume_radius", self.volume_radius, 0, None, "the first volume radius; 0 = auto")
 
 
@@ -139,13 +147,18 @@ class SPPMPipeline(MovableCamera):
         from ..scenes import load_with_sensor
 
         self.scene, self.sensor, own = load_with_sensor(scene, SPPMParams, params)
-        self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
-        self.null_shapes = has_null_shapes(self.scene)
+        self.traits = SceneTraits.of(self.scene)
+        if self.traits.media:
+            warn_disagreeing_media(self.scene, "sppm")
+        self.file_settings = PathSettings.of(self.scene, scene)
+        self.emitter_media = emitter_media(self.scene)
+        self.emitter_powers = checked_powers(self.scene, 0)
         self.params = SPPMParams()
         self.set_params(**own)
         self.timer = StageTimer()
         self.stats: dict[str, float] = {}
         self._r1 = None
+        self._rho1 = None  # the automatic first volume radius, once found
         self.reset()
 
     def set_params(self, **params) -> None:
@@ -154,7 +167,7 @@ class SPPMPipeline(MovableCamera):
         new = updated(self.params, params, "sppm")
         self.check_memory(new)
         self.params = new
-        self._r1 = None
+        self._r1 = self._rho1 = None
         self.reset()
 
     def set_camera(self, *args, **kwargs) -> None:
@@ -166,8 +179,17 @@ class SPPMPipeline(MovableCamera):
         """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
         (width, height; default: the camera's) would need more memory than is available
         (:mod:`.memory`); return the estimate in bytes."""
+        p = params or self.params
         w, h = size or self.size
-        return memory.check(params or self.params, w, h, self.media)
+        depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
+        spp = p.spp or int(np.clip(round(p.photons_per_iteration / (w * h)), 1, AUTO_SPP))
+        return memory.check(p, w, h, depth, spp, self.traits.media)
+
+    @property
+    def settings(self) -> PathSettings:
+        """The path-length settings: the file's, with this pipeline's parameters applied."""
+        p = self.params
+        return overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters)
 
     def reset(self) -> None:
         """Forget all iterations (the next :meth:`step` is iteration 1)."""
@@ -179,6 +201,16 @@ class SPPMPipeline(MovableCamera):
         }  # fmt: skip
         if hasattr(self, "timer"):
             self.timer.reset()
+
+    @property
+    def eye_spp(self) -> int:
+        """Eye paths per pixel and iteration: ``spp``, or about as many eye paths as photon paths
+        (pbrt's balance of SPPM's two passes), 1 to :data:`AUTO_SPP` — a small image then runs
+        several eye paths per pixel in each iteration, which the iteration's photons serve."""
+        if self.params.spp:
+            return self.params.spp
+        w, h = self.size
+        return int(np.clip(round(self.params.photons_per_iteration / (w * h)), 1, AUTO_SPP))
 
     @property
     def size(self) -> tuple[int, int]:
@@ -219,22 +251,28 @@ class SPPMPipeline(MovableCamera):
         return float(dr.mean(self._state.radius, axis=None)[0])
 
     # ------------------------------------------------------------------------- one iteration
+    def _photon_pass(self, i: int):
+        """Iteration ``i``'s photon pass (random numbers from ``(seed, i)``)."""
+        p = self.params
+        return photon_pass(
+            self.scene, p.photons_per_iteration, iteration_seeds(p.seed, i)[1], self.settings,
+            p.aim, self.traits, self.emitter_media, self.emitter_powers,
+        )  # fmt: skip
+
     def _iteration(self, i: int, radius):
         """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one)."""
-        p = self.params
+        p, settings = self.params, self.settings
         check_once(self, p, self.size, self.check_memory)
-        eye_seed, photon_seed = iteration_seeds(p.seed, i)
+        eye_seed, _ = iteration_seeds(p.seed, i)
         with self.timer("photon pass"):
-            photons = photon_pass(
-                self.scene, p.photons_per_iteration, photon_seed, p.max_depth, p.aim, self.media
-            )
+            photons = self._photon_pass(i)
         with self.timer("eye pass"):
-            inscatter = self.inscatter(photons, i, eye_seed) if self.media else None
             points = eye_pass(
-                self.scene, self.sensor, eye_seed, p.max_depth, self.null_shapes, inscatter
-            )
+                self.scene, self.sensor, eye_seed, settings, self.traits,
+                self.volume_caustics(photons, i), self.eye_spp,
+            )  # fmt: skip
         with self.timer("gather"):
-            got = gather(points, radius, photons)
+            got = gather(points, radius, photons, settings)
         self.stats["photons"] += p.photons_per_iteration
         self.stats["photon_records"] += photons.count
         self.stats["aimed_photons"] += photons.aimed
@@ -244,17 +282,35 @@ class SPPMPipeline(MovableCamera):
 
     def volume_radius_at(self, i: int) -> float:
         """``ρ_i = ρ_1 · i^((α−1)/3)``, the volume estimate's radius in iteration ``i`` (module
-        docstring)."""
+        docstring); ``ρ_1`` automatic until the first caustic volume photons are traced: the
+        scene-wide bound :data:`VOLUME_RADIUS` × the diagonal."""
         p = self.params
-        r1 = p.volume_radius if p.volume_radius > 0 else VOLUME_RADIUS * scene_bounds(self.scene)[1]
+        r1 = p.volume_radius or self._rho1 or VOLUME_RADIUS * scene_bounds(self.scene)[1]
         return r1 * i ** ((p.alpha - 1.0) / 3.0)
 
-    def inscatter(self, photons, i: int, seed: int) -> Inscatter:
-        """Iteration ``i``'s in-scattered light from its volume map (module docstring)."""
-        k, radius = self.params.volume_k, self.volume_radius_at(i)
-        step = photons.volume.march_step(k, radius, STEP_SAMPLES)
-        self.stats["volume_photons"] += photons.volume.size
-        return Inscatter(self.scene, photons.volume, k, radius, step, None, seed)
+    def volume_caustics(self, photons, i: int):
+        """Iteration ``i``'s caustic volume photons as the eye paths' ``medium_light``
+        (:func:`~photonmap.core.eye_trace.trace_eye_paths`), or None where there are none. The
+        automatic ``ρ_1`` is fixed by iteration 1's (whichever iterations run, so memoryless
+        blocks agree): the sphere that holds about :data:`FIRST_PHOTONS` of them (the median
+        distance of the k-th nearest), within the scene-wide bound."""
+        if photons.volume is None:
+            return None
+        if not self.params.volume_radius and self._rho1 is None:
+            first = photons if i == 1 else self._photon_pass(1)  # from (seed, 1) alone
+            bound = VOLUME_RADIUS * scene_bounds(self.scene)[1]
+            self._rho1 = bound
+            if first.volume is not None:
+                self._rho1 = density_radius(first.volume.position, int(FIRST_PHOTONS), bound)
+        radius = self.volume_radius_at(i)
+        vmap = VolumeMap.build(photons.volume, cell_size=radius)
+        self.stats["volume_photons"] += vmap.size
+        stored = vmap.stored()
+
+        def medium_light(mei, _beta, depth_left, active):
+            return vmap.phase_sum(stored, mei, radius, depth_left, active)
+
+        return medium_light
 
     def _memoryless_image(self, i: int) -> np.ndarray:
         radius = self.radius_at(i)

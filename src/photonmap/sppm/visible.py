@@ -1,26 +1,25 @@
-"""SPPM eye pass: one eye path per pixel through specular chains to its visible point
-(Hachisuka & Jensen 2009 §4; spec beyond-seeds §1 step 1).
+"""SPPM eye pass: eye paths through mirrors, glass and media to their visible points
+(Hachisuka & Jensen 2009 §4; spec beyond-seeds §1 step 1), by the transport core's eye-path loop
+(:func:`photonmap.core.eye_trace.trace_eye_paths`).
 
-Rule for glossy surfaces (the spec asks to choose one): an eye path stops at its first vertex
-whose BSDF has a smooth (diffuse *or* glossy) lobe, and the visible point is stored there — the
-rule of the surface method's eye pass (:func:`photonmap.core.eye_trace.follow_specular`); only
-purely specular (delta) BSDFs are followed. Glossy reflections are then the photons' density
-estimate at the visible point, which the shrinking radius makes consistent.
+Rule for glossy surfaces (the spec asks to choose one): an eye path ends at a vertex whose BSDF
+has a smooth (diffuse *or* glossy) lobe, and the visible point is stored there; delta and
+``Null`` lobes are followed (a BSDF with both splits the path by Russian roulette). Glossy
+reflections are then the photons' density estimate at the visible point, which the shrinking
+radius makes consistent.
 
-At the visible point ``x`` the pass also adds, to the pixel's direct term ``L_d``, the light
-arriving straight from the emitters (emitter sampling and BSDF sampling with MIS, the surface
-method's :func:`~photonmap.core.direct.direct_lighting`) and the emission met on the way
-(lights seen directly or through mirrors and glass, from :data:`LIGHT_SPP` paths of their own).
-Photons therefore count from their second interaction on (:mod:`.photons`).
+The pass adds to the pixel's direct term ``L_d``: the light arriving straight from the emitters
+at the visible point (emitter sampling and BSDF sampling with MIS,
+:func:`~photonmap.core.direct.direct_lighting`) and the emission seen — lights seen directly or
+through mirrors and glass — from :data:`LIGHT_SPP` paths of their own.
 
-In a scene with participating media (issue 11 item 5; Jensen & Christensen 1998, spec
-beyond-seeds §4) the eye path runs through the media exactly as the surface method's eye rays
-do (:func:`~photonmap.core.eye_trace.follow_specular_media`): the throughput ``β`` carries the
-transmittance to the visible point, each piece of the path inside a medium is ray-marched for
-its in-scattered light (:class:`~photonmap.core.media.Inscatter`: single scattering of direct
-light by transmittance shadow rays, the rest from the iteration's volume map), which joins
-``L_d``; the shadow rays of the direct light at ``x`` and the emission seen carry the
-transmittance.
+**Participating media** (Jensen & Christensen 1998; as Mitsuba's ``volpath``): the eye path is
+traced through the media by volumetric path tracing — at each medium collision next-event
+estimation with transmittance shadow rays under MIS, then a phase-function sample goes on —
+until it reaches its visible point on a surface. The only light such paths cannot find, light
+reaching the medium through mirrors and glass (volume caustics), comes from the iteration's
+caustic volume photons (``medium_light``); light through mirrors and glass seen after a medium
+collision is then left to them (``volume_caustics``).
 """
 
 from __future__ import annotations
@@ -32,79 +31,88 @@ import mitsuba as mi
 
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
-from ..core.eye_trace import follow_specular, follow_specular_media
-from ..core.media import Inscatter, broadcast
+from ..core.eye_trace import trace_eye_paths
+from ..core.media import broadcast
 from ..core.sampling import rng
+from ..core.scene_info import SceneTraits
+from ..core.settings import PathSettings
 
 
 @dataclass
 class VisiblePoints:
-    """One visible point per pixel of one iteration (lanes = pixels, row-major)."""
+    """``spp`` visible points per pixel of one iteration (lanes = pixels × spp, a pixel's points
+    adjacent, pixels row-major), and the pixel's direct term."""
 
     si: mi.SurfaceInteraction3f  # the interaction at x (si.wi: the eye direction, local)
-    beta: mi.Spectrum  # path throughput from the pixel to x (camera weight × specular weights)
-    found: mi.Bool  # the pixel's path reached a smooth surface within max_depth bounces
-    direct: mi.Spectrum  # L_d of this iteration: emission met on the way + direct light at x
+    beta: mi.Spectrum  # path throughput from the pixel to x
+    found: mi.Bool  # the path reached a smooth surface
+    depth: mi.UInt32  # segments from the camera to x (photons of depth ≤ max_depth − depth count)
+    direct: mi.Spectrum  # per pixel: L_d of this iteration (emission seen, media, direct light)
+    spp: int
 
     @property
     def bsdf(self) -> mi.BSDFPtr:
         return self.si.bsdf()
 
 
-LIGHT_SPP = 8  # eye paths per pixel and iteration that estimate the emission seen (L_e)
+LIGHT_SPP = 8  # eye paths per pixel and iteration at least that estimate the emission seen
 
 
 def eye_pass(
     scene: mi.Scene,
     sensor: mi.Sensor,
     seed: int,
-    max_depth: int,
-    null_shapes: bool,
-    inscatter: Inscatter | None = None,
+    settings: PathSettings,
+    traits: SceneTraits,
+    medium_light=None,
+    spp: int = 1,
 ) -> VisiblePoints:
-    """Trace one jittered eye path per pixel of ``sensor``'s film crop (random numbers from
-    ``seed``, the iteration's seed) to its visible point; evaluated before returning. The
-    emission met on the way is the mean of :data:`LIGHT_SPP` further jittered paths per pixel
-    (specular chains only, cheap): the lights' images in mirrors and glass are bright and small,
-    and one sample per iteration leaves a pixel that catches one a spike of the light's radiance
-    over the iteration count — the noisiest part of the image for hundreds of iterations.
-    ``inscatter``: the scene has media, and this is the iteration's in-scattered light (module
-    docstring)."""
+    """Trace ``spp`` jittered eye paths per pixel of ``sensor``'s film crop (random numbers from
+    ``seed``, the iteration's seed) to their visible points; evaluated before returning. The
+    emission seen is estimated from at least :data:`LIGHT_SPP` paths per pixel: the lights'
+    images in mirrors and glass are bright and small, and one sample per iteration leaves a pixel
+    that catches one a spike of the light's radiance over the iteration count — with fewer eye
+    paths, further paths of their own that only follow mirrors and glass (cheap).
+    ``medium_light``: the iteration's volume caustics (module docstring)."""
     w, h = (int(c) for c in sensor.film().crop_size())
-    lanes = w * h
-    pixel = dr.arange(mi.UInt32, lanes)
+    lanes = w * h * spp
     gen = rng(lanes, seed, 0)
-    jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
-    ray, weight = pixel_rays(sensor, pixel, jitter)
-    many = lanes * LIGHT_SPP
-    extra = rng(many, seed, 1)
-    ray_l, weight_l = pixel_rays(
+    ray, weight = pixel_rays(
+        sensor,
+        dr.arange(mi.UInt32, lanes) // spp,
+        mi.Point2f(gen.next_float32(), gen.next_float32()),
+    )
+    start = broadcast(sensor.get_medium(), lanes)
+    seen_here = spp >= LIGHT_SPP
+    eye = trace_eye_paths(
+        scene, ray, weight, start, gen, settings, traits, emission=seen_here,
+        media_mode="continue", medium_light=medium_light,
+        volume_caustics=medium_light is not None,
+    )  # fmt: skip
+    u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
+    lit = eye.found & settings.allows(eye.depth + 1)
+    L = eye.radiance + eye.beta * direct_lighting(
+        scene, eye.si, u_light, gen, lit, traits, eye.medium
+    )
+    direct = pixel_means(L, spp)
+    if not seen_here:
+        direct += emission_seen(scene, sensor, seed, settings, traits, w * h)
+    dr.eval(eye.si, eye.beta, eye.found, eye.depth, direct)
+    return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct, spp)
+
+
+def emission_seen(scene, sensor, seed: int, settings, traits, pixels: int) -> mi.Spectrum:
+    """Per pixel, the mean emission of :data:`LIGHT_SPP` jittered paths that only follow
+    mirrors, glass and the media's transmittance."""
+    many = pixels * LIGHT_SPP
+    gen = rng(many, seed, 1)
+    ray, weight = pixel_rays(
         sensor,
         dr.arange(mi.UInt32, many) // LIGHT_SPP,
-        mi.Point2f(extra.next_float32(), extra.next_float32()),
+        mi.Point2f(gen.next_float32(), gen.next_float32()),
     )
-    medium, medium_light = None, dr.zeros(mi.Spectrum, lanes)
-    if inscatter is None:
-        si, beta, _, found, _ = follow_specular(
-            scene, ray, weight, dr.ones(mi.Bool, lanes), max_depth, gen, False, null_shapes
-        )
-        _, _, seen, _, _ = follow_specular(
-            scene, ray_l, weight_l, dr.ones(mi.Bool, many), max_depth, extra, True, null_shapes
-        )
-    else:
-        start = sensor.get_medium()
-        si, beta, _, found, _, medium, medium_light = follow_specular_media(
-            scene, ray, weight, broadcast(start, lanes), dr.ones(mi.Bool, lanes), max_depth,
-            gen, False, inscatter,
-        )  # fmt: skip
-        _, _, seen, _, _, _, _ = follow_specular_media(
-            scene, ray_l, weight_l, broadcast(start, many), dr.ones(mi.Bool, many), max_depth,
-            extra, True, None,
-        )  # fmt: skip
-    emitted = pixel_means(seen, LIGHT_SPP)
-    u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
-    direct = emitted + medium_light + beta * direct_lighting(
-        scene, si, si.bsdf(), u_light, gen, found, null_shapes, medium
-    )
-    dr.eval(si, beta, found, direct)
-    return VisiblePoints(si, beta, found, direct)
+    seen = trace_eye_paths(
+        scene, ray, weight, broadcast(sensor.get_medium(), many), gen, settings, traits,
+        emission=True, media_mode="transmit",
+    )  # fmt: skip
+    return pixel_means(seen.radiance, LIGHT_SPP)

@@ -14,7 +14,7 @@ emitters met on the way add nothing (direct light and caustics at x are computed
 ``L(y_i → x)`` comes from irradiance precomputed at photon positions (default) or from an exact
 k-NN radiance estimate at y_i (the dissertation's naive algorithm, ``lookup="knn"``).
 
-With the precomputed irradiance the whole batch — BSDF sampling, the specular chain and the
+With the precomputed irradiance the whole batch — BSDF sampling, the eye-path loop and the
 nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is one fused kernel; no
 interaction at y is materialised in memory. A k-NN lookup runs its own kernels over the evaluated
 hits (``fused=False``).
@@ -32,11 +32,14 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.eye_trace import follow_specular, follow_specular_media
-from ..core.media import Inscatter, enter
+from ..core.eye_trace import trace_eye_paths
+from ..core.media import enter
 from ..core.sampling import rng, rotated_hammersley
+from ..core.scene_info import SceneTraits
+from ..core.settings import PathSettings
 from .cis import sample_table
 from .gather_batch import RequestLayout, gather_order
+from .volume import MediumLight
 
 FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
 BATCH_RAYS = 1 << 21  # final-gather rays traced per batch
@@ -49,23 +52,23 @@ def final_gather(
     lookup,
     rays: int,
     seed: int,
-    max_depth: int,
+    settings: PathSettings,
+    traits: SceneTraits,
+    depth: mi.UInt32,
     sampling: str = "bsdf",
     fused: bool = True,
-    null_shapes: bool | None = None,
     medium: mi.MediumPtr | None = None,
-    inscatter: Inscatter | None = None,
+    medium_light: MediumLight | None = None,
     layout: RequestLayout | None = None,
     table: mi.Float | None = None,
     irradiance: mi.Bool | None = None,
 ) -> mi.Spectrum:
-    """Average of ``rays`` final-gather estimates at each ``si``; ``lookup(si_y, bsdf_y, active)``
-    returns the radiance leaving y towards x (lazily if ``fused``). The rays pass through
-    ``null``-BSDF shapes (``null_shapes``: whether the scene has any, see
-    :func:`~photonmap.core.eye_trace.follow_specular`). In a scene with participating media
-    (``medium``: the medium at each ``si``; ``inscatter``: the eye pass's in-scattered light) the
-    rays fly through the media by free-flight sampling and a ray that scatters reads the
-    in-scattered radiance there (:func:`~photonmap.core.eye_trace.follow_specular_media`).
+    """Average of ``rays`` final-gather estimates at each ``si`` (``depth``: the eye path's
+    segments to it); ``lookup(si_y, bsdf_y, active)`` returns the radiance leaving y towards x
+    (lazily if ``fused``). The rays are followed by the transport core's eye-path loop
+    (:func:`~photonmap.core.eye_trace.trace_eye_paths`: mirrors, glass, ``null`` boundaries,
+    media). In a scene with participating media (``medium``: the medium at each ``si``) a ray
+    that collides in a medium reads the light there (``medium_light``, :mod:`.volume`).
     ``layout`` (k-NN lookups, ``fused=False``): issue each batch's gathers in ``layout.order``."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
@@ -73,6 +76,7 @@ def final_gather(
     total = dr.zeros(mi.Spectrum, count)
     shifts = rng(count, seed, FG_STREAM - 1)
     shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
+    media = medium is not None and traits.media
     for first in range(0, rays, per_batch):
         m = min(per_batch, rays - first)
         query = dr.arange(mi.UInt32, count * m) // m  # m rays of each query point, adjacent
@@ -100,32 +104,18 @@ def final_gather(
             cos_pdf = mi.Spectrum(dr.maximum(wo.z, 0.0) / dr.maximum(pdf, 1e-12))
             weight = dr.select(dr.gather(mi.Bool, irradiance, query), cos_pdf, weight)
         ray = x.spawn_ray(x.to_world(wo))
-        if medium is None:
-            si_y, throughput, _, found, _ = follow_specular(
-                scene,
-                ray,
-                dr.select(ok, weight, 0.0),
-                ok,
-                max_depth,
-                gen,
-                count_emission=False,
-                null_shapes=null_shapes,
-            )
-            L_medium = 0.0
-        else:
+        medium_x = dr.zeros(mi.MediumPtr, count * m)
+        if media:
             medium_x = enter(x, ray.d, dr.gather(mi.MediumPtr, medium, query), ok)
-            si_y, throughput, _, found, _, _, L_medium = follow_specular_media(
-                scene,
-                ray,
-                dr.select(ok, weight, 0.0),
-                medium_x,
-                ok,
-                max_depth,
-                gen,
-                False,
-                inscatter,
-                march=False,
-            )
+        y = trace_eye_paths(
+            scene, ray, dr.select(ok, weight, 0.0), medium_x, gen, settings, traits,
+            emission=False, media_mode="end", start_depth=dr.gather(mi.UInt32, depth, query),
+            active=ok,
+        )  # fmt: skip
+        si_y, throughput, found = y.si, y.beta, y.found & settings.allows(y.depth + 1)
+        L_medium = 0.0
+        if media and medium_light is not None:
+            L_medium = y.beta * medium_light.at(y.mei, y.in_medium, FG_STREAM + (1 << 20) + first)
         if not fused:
             dr.eval(si_y, throughput, found)  # the k-NN gathers run several kernels over these
         if layout is None or fused:

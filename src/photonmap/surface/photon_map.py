@@ -1,13 +1,13 @@
 """The global and caustic photon maps (Steinhurst 2007 §2.6.1, Alg 2.4; Jensen 1996).
 
-Photons come from :func:`photonmap.core.photon_trace.trace_photons` (light paths through Mitsuba's
-BSDFs with Russian roulette, stored at every non-specular hit). Following Jensen's convention
-(spec seed-001 A5): the **global map** holds every stored hit of ``photons`` light paths, first
-bounces included (the final gather needs them at its secondary hits); the **caustic map** holds the
-hits of a separate ``caustic_photons`` paths that lie on L S+ D paths. Caustics at an eye-ray hit
-come only from the caustic map, so nothing is counted twice. In a scene with participating media
-(:func:`build_media_maps`) a third map, the volume map (Jensen & Christensen 1998), holds the
-photons stored at scattering events in the media.
+Photons come from the transport core's photon loop (:func:`photonmap.core.photon_trace.trace_photons`:
+light paths through Mitsuba's BSDFs and media with Russian roulette, stored at every smooth hit).
+Following Jensen's convention (spec seed-001 A5): the **global map** holds every stored hit of
+``photons`` light paths, first bounces included (the final gather needs them at its secondary
+hits); the **caustic map** holds the hits of a separate ``caustic_photons`` paths that lie on
+L S+ D paths. Caustics at an eye-ray hit come only from the caustic map, so nothing is counted
+twice. In a scene with participating media a third map, the volume map (Jensen & Christensen
+1998), holds the photons stored at scattering events in the media.
 
 Each map keeps its photons as a struct of arrays (position, power, direction, normal; float32,
 52 bytes a photon) in tracing order; its search structure keeps the positions with their indices in
@@ -22,11 +22,12 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..core.aim import trace_aimed_photons
 from ..core.errors import ParameterError
 from ..core.hashgrid import HashGrid
-from ..core.media import VolumeMap
-from ..core.photon_trace import PhotonRecords, trace_photons, trace_photons_media
+from ..core.photon_trace import PhotonRecords, trace_photons
+from ..core.scene_info import SceneTraits
+from ..core.settings import UNBOUNDED, PathSettings
+from ..core.volume_map import VolumeMap
 from .kdtree import KDTree
 
 STRUCTURES = {"hash": HashGrid, "kdtree": KDTree}
@@ -67,48 +68,40 @@ def build_photon_maps(
     photons: int,
     caustic_photons: int,
     structure: str = "hash",
-    max_depth: int = 8,
+    settings: PathSettings | None = None,
     seed: int = 0,
-) -> tuple[PhotonMap, PhotonMap]:
-    """Trace the two photon passes and build the global and caustic maps."""
+    traits: SceneTraits | None = None,
+    media: list | None = None,
+) -> tuple[PhotonMap, PhotonMap, VolumeMap | None]:
+    """Trace the two photon passes (:func:`~photonmap.core.photon_trace.trace_photons`) and build
+    the global and caustic maps and, in a scene with participating media, the volume map.
+
+    The caustic pass aims every area light's paths at the specular shapes and keeps ``L S+ D``
+    records only. The volume map holds the global pass's volume photons that did not come
+    straight from an emitter: single scattering of direct light is the eye pass's next-event
+    estimation, as direct light on surfaces is (Jensen & Christensen 1998); volume caustics (light
+    through glass scattered once) stay in the map. ``max_depth`` (Mitsuba's path length): the
+    global map is read one bounce away from the eye's first vertex (final gather), so it keeps the
+    photons of depth ≤ ``max_depth − 2``; the caustic map, read at that vertex, ``max_depth − 1``
+    (the transport core stops there)."""
     if photons < 1 or caustic_photons < 0:
         raise ParameterError(
             f"photons must be >= 1 and caustic_photons >= 0, got {photons} and {caustic_photons}"
         )
-    global_records = trace_photons(scene, photons, max_depth=max_depth, seed=seed)
+    settings = settings or PathSettings()
+    traits = traits or SceneTraits.of(scene)
+    traced = trace_photons(scene, photons, settings, seed, traits=traits, media=media)
+    global_records = traced.records
+    if settings.max_depth != UNBOUNDED and global_records.count:
+        global_records = global_records.select(global_records.depth + 2 <= settings.max_depth)
     if caustic_photons:
-        caustic_records = trace_aimed_photons(  # aimed at the specular shapes (issue 12)
-            scene, caustic_photons, 1.0, max_depth=max_depth, seed=seed + 1, caustics_only=True
-        ).records
+        caustic_records = trace_photons(
+            scene, caustic_photons, settings, seed + 1, 1.0, caustics_only=True, traits=traits,
+            media=media,
+        ).records  # fmt: skip
     else:
         caustic_records = global_records.select(dr.zeros(mi.Bool, global_records.count))
-    return photon_map(global_records, structure), photon_map(caustic_records, structure)
-
-
-def build_media_maps(
-    scene: mi.Scene,
-    photons: int,
-    caustic_photons: int,
-    structure: str = "hash",
-    max_depth: int = 8,
-    seed: int = 0,
-) -> tuple[PhotonMap, PhotonMap, VolumeMap]:
-    """:func:`build_photon_maps` for a scene with participating media (Jensen & Christensen 1998;
-    spec beyond-seeds §4): the photons fly through the media
-    (:func:`~photonmap.core.photon_trace.trace_photons_media`), and the volume photons of the
-    global pass that did not come straight from an emitter form the volume map — single
-    scattering of direct light is computed by the eye pass with shadow rays instead, as direct
-    light on surfaces is. Volume caustics (light through glass scattered once) stay in the map."""
-    if photons < 1 or caustic_photons < 0:
-        raise ParameterError(
-            f"photons must be >= 1 and caustic_photons >= 0, got {photons} and {caustic_photons}"
-        )
-    global_records, volume = trace_photons_media(scene, photons, max_depth=max_depth, seed=seed)
-    if caustic_photons:
-        caustic_records, _ = trace_photons_media(
-            scene, caustic_photons, max_depth=max_depth, seed=seed + 1, caustics_only=True
-        )
-    else:
-        caustic_records = global_records.select(dr.zeros(mi.Bool, global_records.count))
-    vmap = VolumeMap.build(volume.select(~volume.direct))
+    vmap = None
+    if traced.volume is not None:
+        vmap = VolumeMap.build(traced.volume.select(~traced.volume.direct))
     return photon_map(global_records, structure), photon_map(caustic_records, structure), vmap

@@ -24,16 +24,18 @@ non-specular surface x, where
 The photon maps are built once per scene and parameter set and reused for every render (a camera
 move re-renders without new photons, Steinhurst §7.2.1).
 
-Participating media (Jensen & Christensen 1998; spec beyond-seeds §4; issue 11 item 5): in a scene
-with fog (homogeneous or ``heterogeneous`` Mitsuba media, bounded by ``null``, dielectric or any
+Participating media (Jensen & Christensen 1998; spec beyond-seeds §4): in a scene with fog
+(homogeneous or ``heterogeneous`` Mitsuba media, bounded by ``null``, dielectric or any
 medium-transition shapes, around the sensor or the emitters) the photons fly through the media and
-a third map holds the volume photons (:func:`~.photon_map.build_media_maps`). Eye rays march
-through the media (:func:`~photonmap.core.eye_trace.follow_specular_media`): transmittance to the surface they
-reach, plus the in-scattered light of every step — single scattering of direct light by a
-transmittance shadow ray, the rest from the volume map's k-NN estimate
-(:class:`~photonmap.core.media.Inscatter`, ``volume_k`` photons within ``volume_radius``, steps of
-``march_step``). Shadow rays of the direct light carry the transmittance; final-gather rays sample
-free flights and read the in-scattered light where they scatter.
+a third map holds the volume photons (:func:`~.photon_map.build_photon_maps`). Eye and
+final-gather paths sample free flights through the media (the transport core's eye-path loop,
+:func:`~photonmap.core.eye_trace.trace_eye_paths`); one that collides in a medium ends there and
+reads single scattering of direct light by a transmittance shadow ray plus the volume map's
+estimate of the rest (:mod:`.volume`: ``volume_k`` photons within ``volume_radius``). Shadow rays
+of the direct light carry the transmittance.
+
+The scene file's ``max_depth``, ``rr_depth`` and ``hide_emitters`` are the defaults
+(:class:`~photonmap.core.settings.PathSettings`; Mitsuba's meaning of depth).
 """
 
 from __future__ import annotations
@@ -44,25 +46,19 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import has_glossy_shapes, has_null_shapes
+from ..core.bsdf import has_glossy_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
 from ..core.errors import SceneError
-from ..core.eye_trace import follow_specular, follow_specular_media
-from ..core.media import (
-    STEP_SAMPLES,
-    VOLUME_RADIUS,
-    Inscatter,
-    ScatteredDensity,
-    VolumeMap,
-    broadcast,
-    isotropic,
-)
+from ..core.eye_trace import trace_eye_paths
+from ..core.media import broadcast, emitter_media, isotropic
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
-from ..core.scene_info import has_media
+from ..core.scene_info import SceneTraits, warn_disagreeing_media
+from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
+from ..core.volume_map import ScatteredDensity, VolumeMap
 from . import memory
 from .cis import TABLE_SAMPLING, sampling_table
 from .final_gather import final_gather
@@ -79,7 +75,8 @@ from .irradiance_cache import (
     precompute_ravg,
     ravg_limits,
 )
-from .photon_map import STRUCTURES, build_media_maps, build_photon_maps, photon_map
+from .photon_map import STRUCTURES, build_photon_maps, photon_map
+from .volume import MediumLight, march_step
 
 LOOKUPS = ("irradiance", "knn", "direct")
 FG_SAMPLING = ("bsdf", "cosine", "uniform") + TABLE_SAMPLING
@@ -94,6 +91,7 @@ STAGES = (
 )
 CAUSTIC_RADIUS = 0.05  # automatic caustic gather radius, × scene diagonal (spec A12)
 GLOBAL_RADIUS = 0.1  # automatic global gather radius, × scene diagonal (A12 says unbounded)
+VOLUME_RADIUS = 0.1  # automatic volume gather radius, × scene diagonal
 
 
 @dataclasses.dataclass
@@ -106,7 +104,9 @@ class SurfaceParams:
     max_radius: float = 0.0  # maximum gather radius; 0 = automatic (spec A12)
     fg_rays: int = 32  # final-gather rays per eye-ray hit (N_FG)
     structure: str = "hash"  # "hash" (hash grid) | "kdtree" (left-balanced, heap order)
-    max_depth: int = 8  # bounces of photon paths and specular chains
+    max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
+    rr_depth: int = 0  # depth where Russian roulette starts; 0 = the scene's
+    hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
     seed: int = 0
     lookup: str = "irradiance"  # final-gather secondary lookup: irradiance | knn | direct
     fg_sampling: str = "bsdf"  # final-gather directions: bsdf | cosine | uniform | jensen | cis
@@ -130,7 +130,6 @@ class SurfaceParams:
             ("photons", "light paths into the global map"),
             ("k", "photons per gather (Steinhurst: 100)"),
             ("fg_rays", "final-gather rays per eye-ray hit"),
-            ("max_depth", "bounces of photon paths and specular chains"),
             ("irradiance_every", "irradiance precomputed at every m-th photon"),
             ("spp", "eye rays per pixel"),
             ("volume_k", "volume photons per in-scattering estimate"),
@@ -142,6 +141,7 @@ class SurfaceParams:
         check_range("max_radius", self.max_radius, 0, None, "0 = automatic")
         check_range("volume_radius", self.volume_radius, 0, None, "0 = automatic")
         check_range("march_step", self.march_step, 0, None, "0 = automatic")
+        check_path_params(self)
         check_choice("structure", self.structure, tuple(STRUCTURES), "the photon search structure")
         check_choice("lookup", self.lookup, LOOKUPS, "the final gather's secondary lookup")
         check_choice("fg_sampling", self.fg_sampling, FG_SAMPLING, "final-gather directions")
@@ -163,8 +163,11 @@ class SurfacePipeline(MovableCamera):
         from ..scenes import load_with_sensor
 
         self.scene, self.sensor, own = load_with_sensor(scene, SurfaceParams, params)
-        self.media = has_media(self.scene)  # volumetric photon mapping (issue 11 item 5)
-        self.null_shapes = has_null_shapes(self.scene)  # invisible fog boxes (issue 10)
+        self.traits = SceneTraits.of(self.scene)
+        if self.traits.media:
+            warn_disagreeing_media(self.scene, "surface")
+        self.file_settings = PathSettings.of(self.scene, scene)
+        self.emitter_media = emitter_media(self.scene)
         self.glossy_shapes = has_glossy_shapes(self.scene)  # final gathers need k-NN there
         self.params = SurfaceParams()
         self.set_params(**own)
@@ -174,7 +177,7 @@ class SurfacePipeline(MovableCamera):
         self._extra = None  # (lookup key, irradiance or filtered map), for self._maps
         self._indirect = None  # (maps key, the indirect photons' map)
         self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
-        self._step = None  # (volume key, automatic march step, precomputed density or None)
+        self._density = None  # (volume key, automatic march step, precomputed density or None)
         self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
         self.requests_only = False  # with kept_requests: keep them without gathering
         self._ravg = None  # (tracing key, R_avg precomputed at photons), for self._maps
@@ -190,8 +193,16 @@ class SurfacePipeline(MovableCamera):
         """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
         (width, height; default: the camera's) would need more memory than is available
         (:mod:`.memory`); return the estimate in bytes."""
+        p = params or self.params
         w, h = size or (int(c) for c in self.sensor.film().crop_size())
-        return memory.check(params or self.params, w, h, self.media)
+        depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
+        return memory.check(p, w, h, depth, self.traits.media)
+
+    @property
+    def settings(self) -> PathSettings:
+        """The path-length settings: the file's, with this pipeline's parameters applied."""
+        p = self.params
+        return overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters)
 
     @property
     def diagonal(self) -> float:
@@ -210,21 +221,20 @@ class SurfacePipeline(MovableCamera):
         built once per parameter set: the maps are traced again only when a parameter of the
         tracing changes, the derived lookup data when a lookup parameter or the maps change."""
         p = self.params
-        key = (p.photons, p.caustic_photons, p.structure, p.max_depth, p.seed)
+        key = (p.photons, p.caustic_photons, p.structure, self.settings, p.seed)
         if self._maps is None or self._maps[0] != key:
             if progress:
                 progress("photon maps")
             with self.timer("photon maps"):
-                build = build_media_maps if self.media else build_photon_maps
-                maps = build(
-                    self.scene, p.photons, p.caustic_photons, p.structure, p.max_depth, p.seed
-                )
-            if self.media:
-                *maps, self._volume = maps
+                *maps, self._volume = build_photon_maps(
+                    self.scene, p.photons, p.caustic_photons, p.structure, self.settings,
+                    p.seed, self.traits, self.emitter_media,
+                )  # fmt: skip
+            if self._volume is not None:
                 self.stats.update(volume_photons=self._volume.size)
             self._maps = (key, tuple(maps))
             self._extra = None
-            self._step = None
+            self._density = None
             self.stats.update(global_photons=maps[0].size, caustic_photons=maps[1].size)
         global_map, caustic_map = self._maps[1]
         extra_key = (p.lookup,)  # "direct" (the filtered map) and "knn" need only the maps
@@ -255,23 +265,26 @@ class SurfacePipeline(MovableCamera):
             self._indirect = (self._maps[0], selected)
         return self._indirect[1]
 
-    def inscatter(self) -> Inscatter:
-        """The eye pass's in-scattered light for the current volume map: the automatic gather
-        radius is ``VOLUME_RADIUS`` × the scene diagonal, the automatic march step half the
-        median distance of the ``volume_k``-th nearest photon over up to ``STEP_SAMPLES`` volume
-        photons (the step follows the photon density, as the radius of the estimate does)."""
+    def medium_light(self) -> MediumLight:
+        """The in-scattered light of the current volume map (:mod:`.volume`): the automatic
+        gather radius is :data:`VOLUME_RADIUS` × the scene diagonal, the automatic march step half
+        the median distance of the ``volume_k``-th nearest photon (the step follows the photon
+        density, as the radius of the estimate does); in isotropic media the density precomputed
+        at every ``irradiance_every``-th volume photon."""
         p = self.params
         radius = p.volume_radius if p.volume_radius > 0 else VOLUME_RADIUS * self.diagonal
         key = (p.volume_k, radius, p.irradiance_every)
-        if self._step is None or self._step[0] != key:
+        if self._density is None or self._density[0] != key:
             density = None
             if isotropic(self.scene) and self._volume.size:
                 density = ScatteredDensity.build(
                     self._volume, p.irradiance_every, p.volume_k, radius
                 )
-            self._step = (key, self._volume.march_step(p.volume_k, radius, STEP_SAMPLES), density)
-        step = p.march_step if p.march_step > 0 else self._step[1]
-        return Inscatter(self.scene, self._volume, p.volume_k, radius, step, self._step[2], p.seed)
+            self._density = (key, march_step(self._volume, p.volume_k, radius), density)
+        step = p.march_step if p.march_step > 0 else self._density[1]
+        return MediumLight(
+            self.scene, self._volume, p.volume_k, radius, self._density[2], p.seed, step
+        )
 
     def request_layout(
         self, w: int, h: int, bounces: mi.UInt32, lanes=None
@@ -298,7 +311,7 @@ class SurfacePipeline(MovableCamera):
         )
 
     def indirect(
-        self, si, bsdf, found, lookup, size, bounces, medium=None, inscatter=None
+        self, si, bsdf, found, lookup, size, bounces, depth, medium=None, medium_light=None
     ) -> mi.Spectrum:
         """``L_indirect`` at the eye-ray hits: the final gather, sampled by ``fg_sampling``,
         at every hit or — with an irradiance cache — at the hits its plan gathers
@@ -309,6 +322,7 @@ class SurfacePipeline(MovableCamera):
             plan = self.cache_plan(si, bsdf, found, size)
             lanes = mi.UInt32(plan.gather.astype(np.uint32))
             at, ok = dr.gather(type(si), si, lanes), dr.gather(mi.Bool, found, lanes)
+            depth = dr.gather(mi.UInt32, depth, lanes)
             medium = None if medium is None else dr.gather(mi.MediumPtr, medium, lanes)
             irradiance = mi.Bool(plan.record)
         table = None
@@ -324,12 +338,13 @@ class SurfacePipeline(MovableCamera):
                 lookup,
                 p.fg_rays,
                 p.seed,
-                p.max_depth,
+                self.settings,
+                self.traits,
+                depth,
                 p.fg_sampling,
                 fused=p.lookup == "irradiance",
-                null_shapes=self.null_shapes,
                 medium=medium,
-                inscatter=inscatter,
+                medium_light=medium_light,
                 table=table,
                 irradiance=irradiance,
                 layout=self.request_layout(*size, bounces, None if plan is None else plan.gather),
@@ -348,11 +363,13 @@ class SurfacePipeline(MovableCamera):
         normal = si.sh_frame.n
         if p.irradiance_cache == "ward":
             R = harmonic_mean_distance(
-                self.scene, si.p, normal, RAVG_RAYS, p.seed, limits, self.null_shapes
+                self.scene, si.p, normal, RAVG_RAYS, p.seed, limits, self.traits.null_shapes
             )
         else:
             if self._ravg is None or self._ravg[0] != self._maps[0]:
-                points = precompute_ravg(self.scene, self._maps[1][0], p.seed, self.null_shapes)
+                points = precompute_ravg(
+                    self.scene, self._maps[1][0], p.seed, self.traits.null_shapes
+                )
                 self._ravg = (self._maps[0], points)
             R = self._ravg[1].lookup(si, found, self.radii()[1], limits[0])
         flags = mi.UInt32(bsdf.flags())
@@ -415,40 +432,22 @@ class SurfacePipeline(MovableCamera):
             progress("eye pass")
         with self.timer("eye pass"):
             ray, ray_weight = pixel_rays(self.sensor, pixel, jitter)
-            medium, inscatter = None, None
-            L = dr.zeros(mi.Spectrum, lanes)  # light at the eye-path ends and from the media
-            if self.media:
-                inscatter = self.inscatter()
-                si, beta, emitted, found, bounces, medium, L = follow_specular_media(
-                    self.scene,
-                    ray,
-                    ray_weight,
-                    broadcast(self.sensor.get_medium(), lanes),
-                    dr.ones(mi.Bool, lanes),
-                    p.max_depth,
-                    gen,
-                    True,
-                    inscatter,
-                )
-            else:
-                si, beta, emitted, found, bounces = follow_specular(
-                    self.scene,
-                    ray,
-                    ray_weight,
-                    dr.ones(mi.Bool, lanes),
-                    p.max_depth,
-                    gen,
-                    count_emission=True,
-                    null_shapes=self.null_shapes,
-                )
+            medium_light = self.medium_light() if self._volume is not None else None
+            eye = trace_eye_paths(
+                self.scene, ray, ray_weight, broadcast(self.sensor.get_medium(), lanes), gen,
+                self.settings, self.traits, emission=True, media_mode="march",
+            )  # fmt: skip
+            si, beta, found, bounces, medium = eye.si, eye.beta, eye.found, eye.bounces, eye.medium
+            found &= self.settings.allows(eye.depth + 1)  # light can still arrive
             bsdf = si.bsdf()
-            dr.eval(si, beta, emitted, found, bounces, medium, L)
+            L = dr.zeros(mi.Spectrum, lanes)  # light at the eye-path ends and in the media
+            if medium_light is not None:
+                L += medium_light.march(eye.segments, lanes, 1 << 24)
+            dr.eval(si, beta, found, bounces, medium, eye.radiance, eye.depth, L)
         if progress:
             progress("direct lighting")
         with self.timer("direct lighting"):
-            L += beta * direct_lighting(
-                self.scene, si, bsdf, u_light, gen, found, self.null_shapes, medium
-            )
+            L += beta * direct_lighting(self.scene, si, u_light, gen, found, self.traits, medium)
             dr.eval(L)
         if progress:
             progress("caustics")
@@ -462,7 +461,7 @@ class SurfacePipeline(MovableCamera):
                 L += beta * radiance_estimate(extra, si, bsdf, p.k, r_global, found)
             else:
                 L += beta * self.indirect(
-                    si, bsdf, found, lookup, (w, h), bounces, medium, inscatter
+                    si, bsdf, found, lookup, (w, h), bounces, eye.depth, medium, medium_light
                 )
             dr.eval(L)
         image = pixel_means(L, p.spp)
@@ -470,7 +469,7 @@ class SurfacePipeline(MovableCamera):
             progress("light images")
         with self.timer("light images"):
             image += light_images(
-                self.scene, self.sensor, emitted, w, h, p, self.null_shapes, self.media
+                self.scene, self.sensor, eye.radiance, w, h, p, self.settings, self.traits
             )
         image = mi.TensorXf(dr.ravel(image), (h, w, 3))
         if not np.all(np.isfinite(np.asarray(image))):
@@ -482,15 +481,15 @@ class SurfacePipeline(MovableCamera):
 
 
 def light_images(
-    scene, sensor, emitted: mi.Spectrum, w: int, h: int, p, null_shapes: bool, media: bool = False
+    scene, sensor, emitted: mi.Spectrum, w: int, h: int, p, settings, traits
 ) -> mi.Spectrum:
     """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
     eye samples' ``emitted``, except in the pixels where a sample saw a light (and their
     neighbours): there it is the mean of ``p.emitter_spp`` new samples of this term alone (a
     selection by the samples themselves, as in adaptive sampling: a slight bias, within the
-    noise it removes). Those pixels hold
-    the lights and their specular images — bright, small, and the one place where the eye samples
-    alone leave visible noise; the extra samples only trace specular chains, so they are cheap."""
+    noise it removes). Those pixels hold the lights and their specular images — bright, small,
+    and the one place where the eye samples alone leave visible noise; the extra samples only
+    follow mirrors, glass and the media's transmittance, so they are cheap."""
     image = pixel_means(emitted, p.spp)
     if p.emitter_spp == 0:
         return image
@@ -511,29 +510,10 @@ def light_images(
     sample = dr.arange(mi.UInt32, lanes) % p.emitter_spp
     jitter = rotated_hammersley(p.emitter_spp, sample, dr.gather(mi.Point2f, shift, which))
     ray, weight = pixel_rays(sensor, pixel, jitter)
-    if media:  # the lights seen through the media: attenuated by their transmittance
-        _, _, extra, _, _, _, _ = follow_specular_media(
-            scene,
-            ray,
-            weight,
-            broadcast(sensor.get_medium(), lanes),
-            dr.ones(mi.Bool, lanes),
-            p.max_depth,
-            rng(lanes, p.seed, 4),
-            True,
-            None,
-        )
-    else:
-        _, _, extra, _, _ = follow_specular(
-            scene,
-            ray,
-            weight,
-            dr.ones(mi.Bool, lanes),
-            p.max_depth,
-            rng(lanes, p.seed, 4),
-            True,
-            null_shapes,
-        )
+    extra = trace_eye_paths(
+        scene, ray, weight, broadcast(sensor.get_medium(), lanes), rng(lanes, p.seed, 4),
+        settings, traits, emission=True, media_mode="transmit",
+    ).radiance  # fmt: skip
     dr.scatter(image, pixel_means(extra, p.emitter_spp), flagged)
     return image
 

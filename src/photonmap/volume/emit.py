@@ -287,9 +287,13 @@ def hammersley_nd(count: int, dims: int, seed: int) -> list[mi.Float]:
     return out
 
 
-def area_photons(light: Light, box: GridBox, count: int, seed: int = 0):
+def area_photons(
+    light: Light, box: GridBox, count: int, seed: int = 0, aim: bool = True, offset: bool = False
+):
     """Start point (voxel units), direction and power of an area emitter's photons (mode
-    ``"area"``, module docstring), before the grid test."""
+    ``"area"``, module docstring), before the grid test; ``aim`` False: the cosine lobe
+    everywhere (:func:`emit_everywhere`); ``offset``: start off the surface by Mitsuba's spawn
+    offset, where a cast from there must not find the emitter itself (opaque surfaces)."""
     emitter = light.emitter
     u = hammersley_nd(count, 4, seed)
     ps = light.shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
@@ -297,7 +301,7 @@ def area_photons(light: Light, box: GridBox, count: int, seed: int = 0):
     radius = _s(0.5 * float(np.linalg.norm(box.extent)))  # the grid's bounding sphere (opaque)
     to_centre = _v(box.center) - ps.p
     dist = dr.norm(to_centre)
-    far = dist > radius
+    far = (dist > radius) & aim
     cos_max = dr.safe_sqrt(1.0 - dr.square(radius / dist))
     cos_t = 1.0 - u[2] * (1.0 - cos_max)
     sin_t = dr.safe_sqrt(1.0 - cos_t * cos_t)
@@ -311,7 +315,8 @@ def area_photons(light: Light, box: GridBox, count: int, seed: int = 0):
     solid = 2.0 * math.pi * (1.0 - cos_max)
     weight = dr.select(far, dr.maximum(dr.dot(d, ps.n), 0.0) * solid, math.pi)
     power = emitter.eval(si) * weight / (ps.pdf * count)
-    origin = mi.Point3f((ps.p - _v(box.lo)) / _s(box.h))
+    start = si.spawn_ray(d).o if offset else ps.p
+    origin = mi.Point3f((start - _v(box.lo)) / _s(box.h))
     return origin, d, mi.Color3f(power) * mi.Color3f(_v(light.intensity))
 
 
@@ -347,9 +352,11 @@ def emit(
     sampler: str = "hammersley",
     seed: int = 0,
     fidelity: str = "physical",
+    keep_origin: bool = False,
 ) -> Photons:
     """Generate ``count`` photons of ``light`` (by its :func:`emission_mode`), started where they
-    enter the grid (or where they are, inside it).
+    enter the grid (or where they are, inside it); with ``keep_origin``, where they leave the light
+    (a scene with opaque surfaces: the marcher checks the way to the grid, ``surface_march.py``).
 
     Photons that miss the grid (or leave a spot light's cone) keep zero power: the marcher never
     activates them, and since the plane and cone photons are in Morton order such photons fill
@@ -358,23 +365,30 @@ def emit(
     """
     mode = emission_mode(light, box)
     if mode == "area":
-        return enter_grid(*area_photons(light, box, count, seed), box.dims, compact=True)
+        photons = area_photons(light, box, count, seed, offset=keep_origin)
+        return enter_grid(*photons, box.dims, compact=True, keep_origin=keep_origin)
     if mode == "environment":
-        return enter_grid(*environment_photons(light, box, count, seed), box.dims)
+        photons = environment_photons(light, box, count, seed)
+        return enter_grid(*photons, box.dims, keep_origin=keep_origin)
     u, w = sampling.coherent_points(sampler, count, seed)
     if mode == "cone":
-        return enter_grid(*cone_photons(light, box, u, w), box.dims)
-    return emit_at(light, box, u, w, fidelity)
+        return enter_grid(*cone_photons(light, box, u, w), box.dims, keep_origin=keep_origin)
+    plane = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
+    return enter_grid(*plane, box.dims, keep_origin=keep_origin)
 
 
 def enter_grid(
-    o: mi.Point3f, d: mi.Vector3f, power: mi.Color3f, n, compact: bool = False
+    o: mi.Point3f,
+    d: mi.Vector3f,
+    power: mi.Color3f,
+    n,
+    compact: bool = False,
+    keep_origin: bool = False,
 ) -> Photons:
     """Photons from ``o`` along ``d`` (voxel units) moved to where they enter the grid of extent
-    ``n`` (:func:`box_entry`)
-    (unchanged inside it); those that miss it, or carry no power, get zero power — or, with
-    ``compact``, are left out (photons whose misses are scattered among the hits, which would
-    idle SIMD lanes of the marcher)."""
+    ``n`` (:func:`box_entry`; unchanged inside it, or everywhere with ``keep_origin``); those that
+    miss it, or carry no power, get zero power — or, with ``compact``, are left out (photons whose
+    misses are scattered among the hits, which would idle SIMD lanes of the marcher)."""
     count = dr.width(power)
     hit, t_near, _ = box_entry(o, d, n)
     keep = hit & (dr.max(power) > 0.0)
@@ -383,7 +397,7 @@ def enter_grid(
         o, d, power, t_near = (dr.gather(type(a), a, index) for a in (o, d, power, t_near))
         keep = dr.full(mi.Bool, True, dr.width(index))
     photons = Photons(
-        origin=dr.select(keep, o + t_near * d, 0.0),
+        origin=dr.select(keep, o if keep_origin else o + t_near * d, 0.0),
         direction=d,
         power=dr.select(keep, power, 0.0),
         generated=count,
@@ -407,11 +421,65 @@ def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight
 
 
 def emit_lights(
-    lights: list[Light], box: GridBox, count: int, sampler: str, seed: int, fidelity: str
+    lights: list[Light],
+    box: GridBox,
+    count: int,
+    sampler: str,
+    seed: int,
+    fidelity: str,
+    keep_origin: bool = False,
+    scene_bounds=None,
 ) -> Photons:
     """S5 for every light (Sun §3: "a set of point or directional light sources"), ``count``
-    photons of each light (:func:`emit`), concatenated."""
-    return concat([emit(light, box, count, sampler, seed, fidelity) for light in lights])
+    photons of each light (:func:`emit`), concatenated; with ``scene_bounds`` (the centre and
+    radius of the scene's bounding sphere, voxel units) every light's photons go everywhere
+    (:func:`emit_everywhere`)."""
+    if scene_bounds is not None:
+        batches = [emit_everywhere(li, box, count, sampler, seed, scene_bounds) for li in lights]
+    else:
+        batches = [emit(li, box, count, sampler, seed, fidelity, keep_origin) for li in lights]
+    return concat(batches)
+
+
+def emit_everywhere(
+    light: Light, box: GridBox, count: int, sampler: str, seed: int, scene_bounds
+) -> Photons:
+    """S5 when photons bounce off opaque surfaces (ours): the light that surfaces outside the
+    grid's silhouette reflect into the fog needs photons there too, so every light emits into
+    all its directions — point and spot lights by the ``"cone"`` mode from their position (the
+    whole sphere, the cutoff cone), area lights by the cosine lobe of every point, directional
+    and environment lights through a square facing their direction that covers the scene's
+    bounding sphere (centre ``c``, radius ``R``; ``Φ = E·A/N`` and ``Φ = L(ω)·A/(p(ω)·N)``, ``A``
+    the square's world area). Photons start at the light (voxel units) and keep their power."""
+    centre, radius = (np.asarray(scene_bounds[0], dtype=np.float64), float(scene_bounds[1]))
+    if light.kind in ("point", "spot"):
+        u, w = sampling.coherent_points(sampler, count, seed)
+        o, d, power = cone_photons(light, box, u, w)
+    elif light.kind == "area":
+        o, d, power = area_photons(light, box, count, seed, aim=False, offset=True)
+    else:
+        if light.kind == "directional":
+            u, w = sampling.coherent_points(sampler, count, seed)
+            axis = np.asarray(light.direction, dtype=np.float64)
+            d = _v(axis / np.linalg.norm(axis)) + dr.zeros(mi.Vector3f, count)
+            weight = mi.Color3f(_v(light.intensity))
+        else:  # environment: the emitter's own direction sampling (L(ω)/p(ω))
+            xi = hammersley_nd(count, 4, seed)
+            u, w = xi[2], xi[3]
+            it = dr.zeros(mi.Interaction3f, count)
+            it.p = _v(box.to_world(centre)) + dr.zeros(mi.Point3f, count)
+            ds, weight = light.emitter.sample_direction(it, mi.Point2f(xi[0], xi[1]))
+            d, weight = -ds.d, mi.Color3f(weight) * mi.Color3f(_v(light.intensity))
+            weight = dr.select(ds.pdf > 0, weight, 0.0)
+        frame = mi.Frame3f(d)
+        side = 2.0 * radius
+        offset = (u - 0.5) * side * frame.s + (w - 0.5) * side * frame.t
+        o = mi.Point3f(_v(centre) - (radius + 1.0) * d + offset)
+        power = weight * _s(side**2 * box.h**2 / count) + dr.zeros(mi.Color3f, count)
+    photons = Photons(mi.Point3f(o), mi.Vector3f(d), mi.Color3f(power), generated=count)
+    dr.eval(photons.origin, photons.direction, photons.power)
+    photons.entering = int(dr.count(dr.max(photons.power) > 0)[0]) if count else 0
+    return photons
 
 
 def concat(batches: list[Photons]) -> Photons:

@@ -36,7 +36,7 @@ deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``)
 
 Multiple scattering (``scattering``, beyond-seeds §5; sampling in ``scatter.py``): each order is
 this march (:func:`_march_order`, which also samples the order's collision); the photons that
-scatter are compacted, sorted (:func:`coherent_order`) and marched as the next order
+scatter are compacted, sorted (:func:`.scatter.coherent_order`) and marched as the next order
 (:func:`_march_multiple`), into the same accumulator, so C and D hold the fluence of all orders
 and S8/S9 are unchanged. The first order deposits exactly what :func:`_march` deposits.
 """
@@ -127,6 +127,7 @@ class MarchResult:
     count: mi.TensorXf | None = None  # (n_z, n_y, n_x) deposits per voxel (weighted march only)
     weight: mi.TensorXf | None = None  # (n_z, n_y, n_x) their average weight Σw / cnt, 0 if none
     scatterings: int = 0  # scattering events of all photons (multiple scattering)
+    surface: object | None = None  # SurfacePhotons: photons recorded on opaque surfaces
 
 
 @dataclass(frozen=True)
@@ -138,10 +139,13 @@ class Scattering:
     seed: int = 0
 
 
-def _advance(medium: MarchGrids, x, v, L, ds_min, size: mi.Point3f, pfeuti_update: bool):
+def _advance(
+    medium: MarchGrids, x, v, L, ds_min, size: mi.Point3f, pfeuti_update: bool, surface=None
+):
     """S6: one curved-ray step (eqs 4–6) from ``x`` with ``v = n dx/ds`` and energy ``L``, to the
     face of the octree node holding ``x`` (+δ), clamped to ``[Δs_min, Δs_max]`` and clipped at the
-    grid's exit face. Returns ``(x', v', L', v̂, v̂', κ(x), t, leaving)``."""
+    grid's exit face and at ``surface`` (the distance in voxels to an opaque surface,
+    ``surface_march.py``). Returns ``(x', v', L', v̂, v̂', κ(x), t, leaving, n(x))``."""
     n_x, grad, kappa = sample_medium(medium, x)
     vox = voxel_index(x, medium.dims)
     oct_idx = mi.UInt32(flat_index(vox.x, vox.y, vox.z, medium.dims))
@@ -158,12 +162,14 @@ def _advance(medium: MarchGrids, x, v, L, ds_min, size: mi.Point3f, pfeuti_updat
     t_exit = dr.min(dr.select(dir_ > 0, (size - x) / dir_, dr.select(dir_ < 0, -x / dir_, dr.inf)))
     leaving = t >= t_exit
     t = dr.select(leaving, dr.maximum(t_exit, 0.0), t)
+    if surface is not None:
+        t = dr.minimum(t, dr.maximum(surface, 0.0))
 
     ds = t * n_x / dr.norm(v)  # A12: Δs for the target displacement t
     x_new = mi.Point3f(x + (ds / n_x) * v)  # (4)
     v_new = v + dr.select(pfeuti_update, ds * n_x, ds) * grad  # (5); A13 Pfeuti variant
     L_new = L * dr.exp(-kappa * t)  # (6), ‖x_{i+1} − x_i‖ = t
-    return x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving
+    return x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving, n_x
 
 
 @dr.syntax
@@ -191,7 +197,7 @@ def _march(
     size = grid_extent(n)
 
     while active:
-        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving = _advance(
+        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving, _ = _advance(
             medium, x, v, L, ds_min, size, pfeuti_update
         )
         # ---- S7: rasterise the segment x → x_new ------------------------------------------
@@ -241,7 +247,7 @@ def _march_order(
     d_c, ratio = dr.zeros(mi.Vector3f, count), dr.zeros(mi.Color3f, count)
 
     while active:
-        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving = _advance(
+        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving, _ = _advance(
             medium, x, v, L, ds_min, size, pfeuti_update
         )
         depth_new = depth + kappa * t
@@ -272,27 +278,6 @@ def _march_order(
         steps += 1
         active = ~leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
     return steps, x, v, L, found, x_c, d_c, ratio, x_s
-
-
-def coherent_order(x: mi.Point3f, d: mi.Vector3f, subset: mi.UInt32, n: int) -> mi.UInt32:
-    """The permutation of ``subset`` (indices into ``x``, ``d``) that lists photons by direction
-    (96 bins: the cube-map face of ``d``, 4 × 4 cells on it), then in 3D Morton order of their
-    position (8 bits per axis): SIMD neighbours then start near each other and travel alike, so
-    their deposits share cache lines. The scattered photons come out of the compaction in their
-    parents' order with random new directions; measured per photon at 128³ (glass_sphere_fog),
-    the second order took 5× the time of the first in this order (unsorted: 8×; by octant and
-    position: 6–7×; 1536 direction bins: 8×). ``n``: voxels along the grid's longest side."""
-    p, d = dr.gather(mi.Point3f, x, subset), dr.gather(mi.Vector3f, d, subset)
-    a = dr.abs(d)
-    axis = dr.select((a.x >= a.y) & (a.x >= a.z), 0, dr.select(a.y >= a.z, 1, 2))
-    major = dr.select(axis == 0, d.x, dr.select(axis == 1, d.y, d.z))
-    u = dr.select(axis == 0, d.y, d.x) / dr.abs(major)  # the face coordinates, in [−1, 1]
-    w = dr.select(axis == 2, d.y, d.z) / dr.abs(major)
-    face = mi.UInt32(axis) * 2 + dr.select(major > 0, 1, 0)
-    bu, bw = (mi.UInt32(dr.clip(2.0 * c + 2.0, 0.0, 3.0)) for c in (u, w))
-    direction = (face * 4 + bu) * 4 + bw
-    cell = mi.Vector3u(dr.clip(p * (256.0 / n), 0.0, 255.0))
-    return dr.argsort(mi.math.morton_encode3(cell) | (direction << 24))
 
 
 def _march_multiple(
@@ -367,7 +352,7 @@ def _march_multiple(
         alive = dr.compress(found & survives & (dr.max(W) > 0))  # not absorbed, not rouletted
         if dr.width(alive) == 0:
             break
-        alive = dr.gather(mi.UInt32, alive, coherent_order(x_c, omega, alive, medium.n))
+        alive = dr.gather(mi.UInt32, alive, scatter.coherent_order(x_c, omega, alive, medium.n))
         x = dr.gather(mi.Point3f, x_c, alive)
         v = sample_medium(medium, x)[0] * dr.gather(mi.Vector3f, omega, alive)
         L = dr.gather(mi.Color3f, W, alive)
@@ -390,16 +375,21 @@ def accumulate(
     fidelity: str = "physical",
     pfeuti_update: bool = False,
     scattering: Scattering | None = None,
+    surfaces=None,
+    iso: float = float("inf"),
 ):
-    """March ``photons`` and return ``(first, second, unit, steps, final)``: the two packets each
-    voxel of the deposit grid received (``Vector4d`` raw fixed-point sums; energy channels times
-    ``unit`` are watts), the total step count and the per-photon final state ``(x, v, L̃)``, with
-    multiple ``scattering`` ``(x, v, L̃, scattering events)``."""
+    """March ``photons`` and return ``(first, second, unit, steps, final, on_surfaces)``: the two
+    packets each voxel of the deposit grid received (``Vector4d`` raw fixed-point sums; energy
+    channels times ``unit`` are watts), the total step count, the per-photon final state
+    ``(x, v, L̃)``, with multiple ``scattering`` ``(x, v, L̃, scattering events)``, and with
+    opaque ``surfaces`` (:class:`~.surfaces.Surfaces`) the photons recorded on them
+    (``surface_march.py``; ``iso``: the index above which a photon counts as refracted), else
+    None."""
     n = medium.n
     cells = voxel_count(coarse_size(medium.dims, shift))
     acc = dr.zeros(Int64, cells * CHANNELS)
     phi_max = float(dr.max(dr.max(photons.power))[0]) if photons.count else 0.0
-    steps, final, atomic = 0, (), None
+    steps, final, atomic, on_surfaces = 0, (), None, None
     if phi_max > 0:
         scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
         args = (
@@ -414,7 +404,15 @@ def accumulate(
             fidelity == "paper",
             pfeuti_update,
         )
-        if scattering is None:
+        if surfaces is not None:
+            from .surface_march import march_with_surfaces  # it builds on this module
+
+            atomic = dr.zeros(Int64, cells * CHANNELS)
+            steps, final, on_surfaces = march_with_surfaces(
+                *args[:1], atomic, *args[1:], scattering, surfaces, iso, tally
+            )
+            dr.eval(acc, *final)
+        elif scattering is None:
             steps, *final = _march(*args, tally, shift)
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
@@ -429,7 +427,7 @@ def accumulate(
         first += dr.gather(Vector4i64, atomic, voxel)
         second += dr.gather(Vector4i64, atomic, voxel + 1)
     first, second = Vector4d(first), Vector4d(second)
-    return first, second, phi_max / 2.0**FIXED_POINT_BITS, steps, final
+    return first, second, phi_max / 2.0**FIXED_POINT_BITS, steps, final, on_surfaces
 
 
 def march(
@@ -442,6 +440,8 @@ def march(
     voxel_size: float = 1.0,
     weights: mi.Float | None = None,
     scattering: Scattering | None = None,
+    surfaces=None,
+    iso: float = float("inf"),
 ) -> MarchResult:
     """March ``photons`` through ``medium`` and return the deposited C, D grids (spec S6/S7).
 
@@ -449,7 +449,9 @@ def march(
     in world units (spec §2.6: ``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
     per-photon ``weights`` (``1/p`` of importance sampling, Pfeuti §3.2.3) the result also holds
     the deposit count and average weight per voxel. With ``scattering`` (needs ``medium.scatter``)
-    the photons scatter (beyond-seeds §5), and C, D hold the fluence of all orders.
+    the photons scatter (beyond-seeds §5), and C, D hold the fluence of all orders. With opaque
+    ``surfaces`` (:class:`~.surfaces.Surfaces`) photons stop at them and, scattering, bounce off
+    them (``surface_march.py``); ``result.surface`` holds the photons recorded there.
     """
     shape = grid_shape(medium.dims)
     if scattering is not None and medium.scatter is None:
@@ -458,15 +460,25 @@ def march(
             "MarchGrids.build(..., sigma_s=...)"
         )
     tally = radiance_tally if weights is None else weight_tally(weights)
-    first, second, unit, steps, final = accumulate(
-        photons, medium, tally, 0, ds_min, max_steps, fidelity, pfeuti_update, scattering
+    first, second, unit, steps, final, on_surfaces = accumulate(
+        photons,
+        medium,
+        tally,
+        0,
+        ds_min,
+        max_steps,
+        fidelity,
+        pfeuti_update,
+        scattering,
+        surfaces,
+        iso,
     )
     unit /= voxel_size**2
     energy, flux = mi.Vector4f(first * unit), mi.Vector4f(second * unit)
     C = mi.TensorXf(dr.ravel(mi.Vector3f(energy.x, energy.y, energy.z)), (*shape, 3))
     D = mi.TensorXf(dr.ravel(mi.Vector3f(energy.w, flux.x, flux.y)), (*shape, 3))
     events = int(dr.sum(Float64(final[3]))[0]) if len(final) > 3 else 0
-    result = MarchResult(C, D, steps, final, scatterings=events)
+    result = MarchResult(C, D, steps, final, scatterings=events, surface=on_surfaces)
     if weights is not None:
         count = mi.Float(second.z)
         weight = mi.Float(second.w * 2.0**-WEIGHT_BITS / dr.maximum(second.z, 1.0))

@@ -76,6 +76,9 @@ class VolumeParams:
     noise_scale: float = 16.0  # Perlin feature size, voxels
     fidelity: str = "physical"  # "paper": the papers' literal behaviour (spec §6)
     spp: int = 1  # camera rays per pixel
+    k: int = 50  # photons per radiance estimate on opaque surfaces (Jensen; shading.py)
+    max_radius: float = 0.0  # their maximum gather radius, world units; 0 = automatic (8 voxels)
+    light_samples: int = 4  # emitter + BSDF samples of each area / environment light per hit
     emission: str = "uniform"  # "adaptive": Pfeuti's pilot + importance photons (§3.2)
     scattering: str = "multiple"  # photons scatter in the fog (beyond-seeds §5); "single": Sun's
     pilot_photons: int = 64**2  # adaptive: pilot photons, s² on an s × s grid (Pfeuti §4.3)
@@ -154,8 +157,10 @@ class VolumeParams:
                 None,
                 "the isosurface's index; 0 = automatic (midway between fog and object)",
             )
-        for key in ("spp", "supersample"):
+        for key in ("spp", "supersample", "light_samples"):
             check_range(key, getattr(self, key), 1, None)
+        check_range("k", self.k, 1, 1024, "photons per radiance estimate on surfaces")
+        check_range("max_radius", self.max_radius, 0, None, "world units; 0 = automatic")
         self._validate_adaptive()
 
     def _validate_adaptive(self) -> None:

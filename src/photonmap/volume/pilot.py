@@ -106,7 +106,7 @@ def march_pilot(
     side = math.isqrt(photons.generated)
     shift = pilot_shift(medium.n)
     m = grid_shape(coarse_size(medium.dims, shift), 4)
-    first, second, unit, steps, _ = accumulate(
+    first, second, unit, steps, *_ = accumulate(
         photons, medium, _origin_tally(side, photons.generated), shift, ds_min, fidelity=fidelity
     )
     first = np.asarray(first, dtype=np.float64).T.reshape(m)

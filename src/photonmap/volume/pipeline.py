@@ -60,6 +60,7 @@ from .params import (
 )
 from .scene import Light, VolumeScene, check_has_fog, from_mitsuba
 from .smooth import BINOMIAL, smooth
+from .surface_stages import emission, shading_key, surface_key, surface_shading, warn_settings
 from .view import ViewGrids, ViewSettings, render_view, sensor_key
 
 
@@ -107,6 +108,7 @@ class VolumePipeline(StagedPipeline):
             dims=self.scene.box.dims,
         )
         self.cache = StageCache()
+        self._warned: set[str] = set()
         self.stats: dict[str, float] = {}
         self._geometry_version = 0
         self._grid_bbox = grid_bbox
@@ -300,19 +302,24 @@ class VolumePipeline(StagedPipeline):
             ),
         )
 
+        warn_settings(s, p, self._warned)
         if p.emission == "adaptive":
-            C, D, smooth_key = self._adaptive(
+            C, D, smooth_key, on_surfaces = self._adaptive(
                 march_grids, octree_key, kappa_key, scatter, scatter_key
             )
         else:
-            C, D, smooth_key = self._uniform(
+            C, D, smooth_key, on_surfaces = self._uniform(
                 march_grids, octree_key, kappa_key, scatter, scatter_key
             )
+        surf = s.surfaces
         view_grids = self.cache.stage(
             "view grids",
-            (smooth_key, ior_key, kappa_key, sigma_key),
-            lambda: ViewGrids.build(mats.ior, grad, mats.kappa, mats.sigma_s, C, D),
+            (smooth_key, ior_key, kappa_key, sigma_key, surf is not None),
+            lambda: ViewGrids.build(
+                mats.ior, grad, mats.kappa, mats.sigma_s, C, D, shadows=surf is not None
+            ),
         )
+        shading = surface_shading(s, p, on_surfaces, view_grids)
         settings = ViewSettings(
             phase_k=phase_k,
             table=(p.table,) * 3,
@@ -329,8 +336,9 @@ class VolumePipeline(StagedPipeline):
                 sensor_key(s.sensor),
                 id(s.environment),
                 view_grids is not None and id(view_grids),
+                shading_key(s, p, shading),
             ),
-            lambda: render_view(view_grids, s.box, s.sensor, s.environment, settings),
+            lambda: render_view(view_grids, s.box, s.sensor, s.environment, settings, shading),
         )
         if not np.all(np.isfinite(np.asarray(image))):
             raise SceneError("the render produced NaN or infinite values; please report this scene")
@@ -347,12 +355,17 @@ class VolumePipeline(StagedPipeline):
             p.seed,
             p.fidelity,
         )
+        spread = emission(s, scatter is not None)
+        light_key += (surface_key(s), spread["scene_bounds"] is not None)
         photons = self.cache.stage(
             "photon generation",
             light_key,
-            lambda: emit.emit_lights(s.lights, s.box, p.photons, p.sampler, p.seed, p.fidelity),
+            lambda: emit.emit_lights(
+                s.lights, s.box, p.photons, p.sampler, p.seed, p.fidelity, **spread
+            ),
         )
         march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity, scatter_key)
+        march_key += (s.refracted_ior,)
         traced = self.cache.stage(
             "photon tracing",
             march_key,
@@ -363,6 +376,8 @@ class VolumePipeline(StagedPipeline):
                 fidelity=p.fidelity,
                 voxel_size=s.box.h,
                 scattering=scatter,
+                surfaces=s.surfaces,
+                iso=s.refracted_ior,
             ),
         )
         smooth_key = (march_key, p.smoothing)
@@ -375,7 +390,8 @@ class VolumePipeline(StagedPipeline):
             "steps": traced.steps,
             "scatterings": traced.scatterings,
         }
-        return C, D, smooth_key
+        self.stats["surface_photons"] = traced.surface.count if traced.surface else 0
+        return C, D, smooth_key, traced.surface
 
     def _adaptive(self, march_grids, octree_key, kappa_key, scatter=None, scatter_key=None):
         """A1–A7 (Pfeuti §3.2): pilot photons → photon-plane pdf per light → importance photons
@@ -419,6 +435,7 @@ class VolumePipeline(StagedPipeline):
 
         photons, weights = self.cache.stage("photon generation", gen_key, generate)
         march_key = (gen_key, octree_key, kappa_key, p.ds_min, scatter_key)
+        march_key += (surface_key(s), s.refracted_ior)
         traced = self.cache.stage(
             "photon tracing",
             march_key,
@@ -430,6 +447,8 @@ class VolumePipeline(StagedPipeline):
                 voxel_size=box.h,
                 weights=weights,
                 scattering=scatter,
+                surfaces=s.surfaces,
+                iso=s.refracted_ior,
             ),
         )
         mip_key = (march_key, p.smoothing)
@@ -454,7 +473,7 @@ class VolumePipeline(StagedPipeline):
             "steps": traced.steps + sum(g.steps for g in pilot_grids),
             "scatterings": traced.scatterings,
         }
-        return C, D, filter_key
+        return C, D, filter_key, traced.surface
 
     @property
     def phase_k(self) -> float:

@@ -13,7 +13,8 @@ with the phase-sampled direction and the weight
 
 — the collision density of the next order, estimated without bias. Orders beyond
 :data:`RR_DEPTH` continue with Russian roulette on ``q = min(1, max W' / max W₀)`` (survivors
-divide by ``q``). A photon stops after :data:`MAX_ORDERS` scattering events.
+divide by ``q``). A photon stops after :data:`MAX_ORDERS` scattering events. Each order's
+photons are marched in :func:`coherent_order`.
 """
 
 from __future__ import annotations
@@ -70,3 +71,24 @@ def roulette(weight: mi.Color3f, start: mi.Float, order: mi.UInt32, xi: mi.Float
     ``q = min(1, max weight / start)`` and return ``(survives, weight / q)``."""
     q = dr.select(order >= RR_DEPTH, dr.minimum(dr.max(weight) / start, 1.0), 1.0)
     return (xi < q) & (q > 0), weight / dr.maximum(q, 1e-30)
+
+
+def coherent_order(x: mi.Point3f, d: mi.Vector3f, subset: mi.UInt32, n: int) -> mi.UInt32:
+    """The permutation of ``subset`` (indices into ``x``, ``d``) that lists photons by direction
+    (96 bins: the cube-map face of ``d``, 4 × 4 cells on it), then in 3D Morton order of their
+    position (8 bits per axis): SIMD neighbours then start near each other and travel alike, so
+    their deposits share cache lines. The scattered photons come out of the compaction in their
+    parents' order with random new directions; measured per photon at 128³ (glass_sphere_fog),
+    the second order took 5× the time of the first in this order (unsorted: 8×; by octant and
+    position: 6–7×; 1536 direction bins: 8×). ``n``: voxels along the grid's longest side."""
+    p, d = dr.gather(mi.Point3f, x, subset), dr.gather(mi.Vector3f, d, subset)
+    a = dr.abs(d)
+    axis = dr.select((a.x >= a.y) & (a.x >= a.z), 0, dr.select(a.y >= a.z, 1, 2))
+    major = dr.select(axis == 0, d.x, dr.select(axis == 1, d.y, d.z))
+    u = dr.select(axis == 0, d.y, d.x) / dr.abs(major)  # the face coordinates, in [−1, 1]
+    w = dr.select(axis == 2, d.y, d.z) / dr.abs(major)
+    face = mi.UInt32(axis) * 2 + dr.select(major > 0, 1, 0)
+    bu, bw = (mi.UInt32(dr.clip(2.0 * c + 2.0, 0.0, 3.0)) for c in (u, w))
+    direction = (face * 4 + bu) * 4 + bw
+    cell = mi.Vector3u(dr.clip(p * (256.0 / n), 0.0, 255.0))
+    return dr.argsort(mi.math.morton_encode3(cell) | (direction << 24))

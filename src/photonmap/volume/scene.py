@@ -16,7 +16,6 @@ units (``σ_vox = σ_world · h``). It is built from a Mitsuba scene by :func:`f
 
 from __future__ import annotations
 
-import hashlib
 import warnings
 from dataclasses import dataclass, field
 
@@ -26,8 +25,9 @@ import numpy as np
 
 from ..core.errors import SceneError
 from ..core.grid import GridBox
-from ..core.scene_info import has_media
+from ..core.scene_info import has_media, warn_unmodelled
 from .medium_grid import coefficients_at
+from .surfaces import Surfaces, digest, unmodelled
 from .voxelize import check_closed
 
 LIGHT_KINDS = ("point", "spot", "directional")  # lights set_light can make
@@ -125,6 +125,16 @@ class VolumeScene:
     #                            given, they bypass voxelization (S1) and material mapping (S2)
     fog_volumes: list[FogVolume] = field(default_factory=list)  # bounded media, in scene order
     outside: Medium | None = None  # fills the grid outside the fog volumes; None: ``fog``
+    surfaces: Surfaces | None = None  # the opaque surfaces (surfaces.py); None: there are none
+
+    @property
+    def refracted_ior(self) -> float:
+        """The index above which a photon has passed through a refractive object (midway between
+        the surrounding medium's and the least dense object's), ∞ without objects: such a
+        photon's light reaches the surfaces as photons, not along shadow rays."""
+        if self.grids is not None or not self.objects:
+            return float("inf")
+        return 0.5 * (self.surrounding.ior + min(o.medium.ior for o in self.objects))
 
     @property
     def phase_k(self) -> float | None:
@@ -197,7 +207,11 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
       grid's faces.
     - **Camera**: the first sensor, which must be ``perspective``.
 
-    Other shapes are not seen by the volume pipeline: they are skipped with a warning.
+    - **Opaque surfaces** (every other shape, emitters' shapes included: ``surfaces.py``) stop
+      photons and camera rays; the viewing pass shades them (``shading.py``) and follows their
+      mirror lobes (``view.py``). What it does not render of them — partial transparency — is
+      named in a :class:`~photonmap.PhotonmapWarning`.
+
     Raises :class:`SceneError` saying what to fix for anything the pipeline cannot render.
     """
     sensor = _camera(scene)
@@ -221,12 +235,6 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
             check_closed(shape, name)
             medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape.bbox())
             fog_volumes.append(FogVolume(name, shape, medium))
-        elif not shape.is_emitter():
-            warnings.warn(
-                f"shape '{shape.id()}' ({shape.class_name()} with a {kind} BSDF) is not seen by "
-                "the volume pipeline, which renders dielectric objects and media only",
-                stacklevel=2,
-            )
     if not objects and not fog_volumes:
         raise SceneError(
             "the scene has no refractive or medium-bearing shape: give a closed shape a "
@@ -235,9 +243,21 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     fog, outside = _fog(sensor, exteriors, fog_volumes, media)
     box = _grid_box(objects, [v.shape for v in fog_volumes], grid, grid_bbox)
     lights, environment = _lights(scene, box.center)
+    warn_unmodelled("volume", unmodelled(scene.shapes()), SURFACE_HINT)
     return VolumeScene(
-        box, fog, lights, sensor, objects, environment, fog_volumes=fog_volumes, outside=outside
+        box,
+        fog,
+        lights,
+        sensor,
+        objects,
+        environment,
+        fog_volumes=fog_volumes,
+        outside=outside,
+        surfaces=Surfaces.of(scene, box),
     )
+
+
+SURFACE_HINT = "--method sppm renders every BSDF (Python: photonmap.SPPMPipeline)"
 
 
 def _rgb(value) -> np.ndarray:
@@ -327,7 +347,7 @@ def _medium(medium, what: str, bbox) -> Medium:
         np.maximum(sigma_a, 0.0),
         phase_k=_schlick_k(medium),
         field=medium,
-        fingerprint=_digest(medium),
+        fingerprint=digest(medium),
     )
 
 
@@ -418,8 +438,8 @@ def _lights(scene, center) -> tuple[list[Light], object]:
         kind, name = emitter.class_name(), emitter.id()
         if emitter.is_environment():
             environment = emitter
-            digest = _digest(emitter)
-            lights.append(Light("environment", np.ones(3), emitter=emitter, fingerprint=digest))
+            key = digest(emitter)
+            lights.append(Light("environment", np.ones(3), emitter=emitter, fingerprint=key))
         elif kind == "PointLight":
             position = _np3(mi.traverse(emitter)["position"])
             _, spec, dist = _probe(emitter, position - [0.0, 1.0, 0.0])
@@ -448,10 +468,8 @@ def _lights(scene, center) -> tuple[list[Light], object]:
             lights.append(Light("directional", irradiance, direction=-to_light))
         elif kind == "AreaLight":
             shape = emitter.get_shape()
-            digest = _digest(emitter, shape)
-            lights.append(
-                Light("area", np.ones(3), emitter=emitter, shape=shape, fingerprint=digest)
-            )
+            key = digest(emitter, shape)
+            lights.append(Light("area", np.ones(3), emitter=emitter, shape=shape, fingerprint=key))
         else:
             raise SceneError(
                 f"emitter '{name}' is a {kind}, which the volume pipeline cannot use; it supports "
@@ -460,23 +478,6 @@ def _lights(scene, center) -> tuple[list[Light], object]:
     if not lights:
         raise SceneError(f"the scene has no light: add one of the {EMITTERS}")
     return lights, environment
-
-
-def _digest(*objects) -> str:
-    """A digest of the parameters of Mitsuba objects (``mi.traverse``): an emitter edited through
-    ``mi.traverse`` and re-read by ``reload`` changes its light's cache key."""
-    h = hashlib.sha1()
-    for obj in objects:
-        params = mi.traverse(obj)
-        for key in sorted(params.keys()):
-            try:
-                value = params[key]
-                value = np.asarray(getattr(value, "matrix", value), dtype=np.float64)
-            except (TypeError, ValueError):
-                continue
-            h.update(key.encode())
-            h.update(value.tobytes())
-    return h.hexdigest()
 
 
 def check_has_fog(mi_scene: mi.Scene, source) -> None:

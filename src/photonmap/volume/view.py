@@ -25,6 +25,14 @@ the plane ``y = 1`` and picks up ``ρ_table/π · C ⊙ T`` (a Lambertian table 
 fluence there; spec A27/A28: only for ``v_y < 0``, attenuated by T). ``fidelity="paper"`` adds
 ``ρ_table · C`` without T, as Listing A.4 does, and updates ``v += h·n(x)·∇n`` (spec A13).
 
+Opaque surfaces of the user's scene (``surfaces.py``; ours, for Sun Fig. 1's table and any
+floor or wall): a camera ray ends at the first one, in the grid or beyond it. One Mitsuba cast
+per straight stretch gives its distance (again only once the ray has turned by more than
+``RECAST_TURN``, in and around refractive objects), the last step is cut there, and the surface
+adds its radiance (``shading.py``) weighted by ``colScale·T``; where it has a mirror lobe the ray
+goes on in the mirrored direction (:func:`_view_surfaces`). Only rays that meet no surface see
+the environment.
+
 Reflective isosurface (Pfeuti §3.1.1, §3.1.6; spec A29): the first time ``n(x_old) < n_iso ≤ n(x)``
 a 10-step bisection finds the crossing, the normal is ``−∇n/‖∇n‖`` and ``R_iso · T ⊙ L_env(r)`` is
 added for the mirrored direction ``r``; the ray then continues with weight ``1 − R_iso``.
@@ -42,8 +50,12 @@ import numpy as np
 from ..core.camera import pixel_means, pixel_rays
 from ..core.grid import GridBox, grid_extent, pack, to_tensor, trilinear_packed
 from .emit import box_entry
+from .shading import shade
+from .surfaces import RECAST_TURN
 
 BISECTION_STEPS = 10
+MIRROR_BOUNCES = 4  # mirror reflections a camera ray follows at opaque surfaces
+MIRROR = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.DeltaReflection)
 ENTRY_NUDGE = 1e-4  # voxels: start just inside the grid face
 
 
@@ -63,13 +75,15 @@ class ViewGrids:
     dims: tuple
     main: mi.Float
     aux: mi.Float
+    kappa: mi.Float | None = None  # κ alone (4 channels), for shadow rays to surfaces
 
     @staticmethod
-    def build(ior, grad, kappa, sigma_s, C, D_hat) -> ViewGrids:
+    def build(ior, grad, kappa, sigma_s, C, D_hat, shadows: bool = False) -> ViewGrids:
         dims = tuple(int(c) for c in C.shape[:3])[::-1]
         C, sigma_s = to_tensor(C, dims), to_tensor(sigma_s, dims)
         source = mi.TensorXf(sigma_s.array * C.array, tuple(C.shape))
-        return ViewGrids(dims, pack([grad, kappa, source, D_hat], dims), pack([ior, C], dims))
+        main, aux = pack([grad, kappa, source, D_hat], dims), pack([ior, C], dims)
+        return ViewGrids(dims, main, aux, pack([kappa], dims) if shadows else None)
 
 
 @dataclass
@@ -131,12 +145,22 @@ def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: floa
 
 
 @dr.syntax
-def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings):
+def _march_loop(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings, surf):
+    """The march through the grid (:func:`_march_rays`): ``(L, colScale·T, final direction,
+    final x, inside, (t_surf, cast_x, cast_d, hit))``, the last four None without ``surf``."""
     far = grid_extent(grids.dims)
     count = dr.width(o)
     enters, t_near, _ = box_entry(o, d, grids.dims)
     x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
     inside = enters & dr.all((x >= 0.0) & (x < far))
+    t_surf, cast_x, cast_d, hit, reached = None, None, None, None, None
+    if surf is not None:
+        reached = dr.zeros(mi.Bool, count)
+        t_surf = surf.distance(o, d, True)  # one cast from the camera
+        cast_x, cast_d = mi.Point3f(o), mi.Vector3f(d)
+        hit = dr.isfinite(t_surf) & (~inside | (t_surf <= t_near + ENTRY_NUDGE))
+        inside &= ~hit  # a surface before the grid
+        t_surf = t_surf - (t_near + ENTRY_NUDGE)
     n_x = _sample_aux(grids, x)[0]
     v = mi.Vector3f(n_x * d)
     x_old, v_old, n_old = mi.Point3f(x), mi.Vector3f(v), mi.Float(n_x)
@@ -184,6 +208,15 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
         # medium of the face's voxels (clamp-to-edge) beyond the face, where a box grid's fog ends
         t_exit = dr.min(dr.select(d > 0, (far - x) / d, dr.select(d < 0, -x / d, dr.inf)))
         dt = dr.clip(t_exit, 0.0, 1.0)
+        if surf is not None:  # cast again once the direction has turned; stop at the surface
+            cast = active & (dr.norm(d - cast_d) > RECAST_TURN)
+            t_surf = dr.select(cast, surf.distance(x, d, cast), t_surf)
+            cast_x = dr.select(cast, x, cast_x)
+            cast_d = dr.select(cast, d, cast_d)
+            reached = t_surf <= dt
+            dt = dr.minimum(dt, dr.maximum(t_surf, 0.0))
+            t_surf -= dt
+            hit |= active & reached
         cos_theta = -dr.dot(v, D) / (speed * dr.maximum(dr.norm(D), 1e-20))
         tau = kappa * dt
         decay = dr.exp(-tau)
@@ -201,11 +234,38 @@ def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
         v = mi.Vector3f(v + dt * (n_x if s.paper else 1.0) * grad)
         steps += 1
         active = (t_exit > 1.0) & dr.all((x >= 0.0) & (x < far)) & (steps < max_steps)
-    return L + col * T * environment(env, dr.normalize(v)), inside
+        if surf is not None:
+            active &= ~reached
+    return L, col * T, dr.normalize(v), x, inside, (t_surf, cast_x, cast_d, hit)
 
 
-def render_view(grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSettings) -> mi.TensorXf:
-    """Render the image seen by ``sensor`` (a Mitsuba perspective sensor) — spec S9."""
+def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings, surf=None):
+    """March camera rays (voxel origin ``o``, unit ``d``). Without opaque surfaces ``surf``:
+    ``(L, inside)`` with the environment added to the rays that leave the grid. With them
+    (:class:`~.surfaces.Surfaces`): ``(L, hit, cast_x, cast_d, weight)`` — a ray ends at the
+    first opaque surface, in the grid or beyond it, found by the cast from ``cast_x`` along
+    ``cast_d``; ``weight = colScale·T`` is what that surface's radiance counts with, and only the
+    rays that meet none see the environment."""
+    L, weight, out, x, inside, (t_surf, cast_x, cast_d, hit) = _march_loop(
+        grids, o, d, env, s, surf
+    )
+    if surf is None:
+        return L + weight * environment(env, out), inside
+    # beyond the grid: straight on to a surface (cast again if the last step turned), or away
+    again = inside & ~hit & (dr.norm(out - cast_d) > RECAST_TURN)
+    t_surf = dr.select(again, surf.distance(x, out, again), t_surf)
+    cast_x = dr.select(again, x, cast_x)
+    cast_d = dr.select(again, out, cast_d)
+    hit |= dr.isfinite(t_surf)
+    return dr.select(hit, L, L + weight * environment(env, out)), hit, cast_x, cast_d, weight
+
+
+def render_view(
+    grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSettings, shading=None
+) -> mi.TensorXf:
+    """Render the image seen by ``sensor`` (a Mitsuba perspective sensor) — spec S9; with
+    ``shading`` (:class:`~.shading.SurfaceShading`) camera rays end at opaque surfaces and add
+    their radiance (``shading.py``)."""
     w, h = (int(c) for c in sensor.film().crop_size())
     pixels = w * h
     spp = max(int(settings.spp), 1)
@@ -218,11 +278,47 @@ def render_view(grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSetti
     ray, _ = pixel_rays(sensor, idx // spp, jitter)
     o = mi.Point3f((ray.o - mi.Point3f(*box.lo)) / box.h)
     d = mi.Vector3f(ray.d)
-    L, inside = _march_rays(grids, o, d, env, settings)
-    L = dr.select(inside, L, environment(env, d))
+    if shading is None:
+        L, inside = _march_rays(grids, o, d, env, settings)
+        L = dr.select(inside, L, environment(env, d))
+    else:
+        L = _view_surfaces(grids, o, d, env, settings, shading)
     image = mi.TensorXf(dr.ravel(pixel_means(L, spp) if spp > 1 else L), (h, w, 3))
     dr.eval(image)
     return image
+
+
+def _view_surfaces(grids: ViewGrids, o, d, env, settings: ViewSettings, shading) -> mi.Color3f:
+    """Camera rays with opaque surfaces: each ends at a surface, which adds its radiance
+    (``shading.py``); where the surface has a mirror (delta) reflection lobe — a conductor, the
+    coating of a smooth plastic — the ray goes on in the mirrored direction with the lobe's
+    weight, through the grid again, up to :data:`MIRROR_BOUNCES` times (only the rays that do
+    are marched again)."""
+    surfaces = shading.surfaces
+    L = dr.zeros(mi.Color3f, dr.width(o))
+    lanes = dr.arange(mi.UInt32, dr.width(o))
+    throughput = dr.ones(mi.Color3f, dr.width(o))
+    for bounce in range(MIRROR_BOUNCES + 1):
+        L_ray, hit, cast_x, cast_d, weight = _march_rays(grids, o, d, env, settings, surfaces)
+        dr.eval(L_ray, hit, cast_x, cast_d, weight)
+        si = surfaces.hit(cast_x, cast_d, hit)
+        L_ray += weight * shade(shading, si, settings.seed + bounce, hit)
+        dr.scatter_reduce(dr.ReduceOp.Add, L, throughput * L_ray, lanes)
+        if bounce == MIRROR_BOUNCES:
+            break
+        bs, f = si.bsdf().sample(MIRROR, si, 0.5, mi.Point2f(0.5), hit)
+        throughput *= weight * mi.Color3f(f)
+        on = hit & (bs.pdf > 0) & (dr.max(throughput) > 0)
+        wo = si.to_world(bs.wo)
+        start = surfaces.voxel(si.spawn_ray(wo).o)
+        dr.eval(L, on, throughput, wo, start)
+        alive = dr.compress(on)
+        if dr.width(alive) == 0:
+            break
+        lanes = dr.gather(mi.UInt32, lanes, alive)
+        throughput = dr.gather(mi.Color3f, throughput, alive)
+        o, d = dr.gather(mi.Point3f, start, alive), dr.gather(mi.Vector3f, wo, alive)
+    return L
 
 
 def sensor_key(sensor) -> tuple:
