@@ -2,6 +2,7 @@
 
 - :func:`is_specular` — a BSDF with only delta lobes (mirror, glass): eye and gather rays follow
   it, photon maps store nothing on it (Steinhurst 2007 §7.3.2; spec seed-001 §2.1).
+- :func:`diffuse_albedo` — the reflectance of a BSDF's diffuse lobes, for Lambertian lookups.
 - :func:`is_null` — a ``null`` BSDF: an index-matched boundary (a fog box, a medium's container)
   that light crosses unchanged. Every method treats such a shape as invisible: photons, eye rays
   and shadow rays pass straight through it (the shape only bounds a medium).
@@ -29,6 +30,19 @@ def is_null(bsdf: mi.BSDFPtr, active) -> mi.Bool:
     """True where the BSDF is Mitsuba's ``null`` BSDF (its only lobe is the Null lobe)."""
     lobes = mi.UInt32(bsdf.flags()) & _LOBES
     return active & (bsdf != None) & (lobes == int(mi.BSDFFlags.Null))  # noqa: E711
+
+
+DIFFUSE = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.DiffuseReflection)
+
+
+def diffuse_albedo(bsdf: mi.BSDFPtr, si: mi.SurfaceInteraction3f, active) -> mi.Spectrum:
+    """The reflectance ρ of the BSDF's diffuse lobes as seen from ``si.wi``: ``π f_d(ω_i, n)``
+    through Mitsuba's ``eval`` restricted to them — a ``mask``'s opacity, a ``blendbsdf``'s
+    weight, a ``plastic``'s coating and a ``twosided`` back face included, glossy and delta lobes
+    left out (``eval_diffuse_reflectance`` is not implemented by every BSDF: a mask's ignores
+    its opacity, a blend's evaluates its glossy lobe)."""
+    normal = mi.Vector3f(0.0, 0.0, dr.sign(mi.Frame3f.cos_theta(si.wi)))
+    return dr.pi * bsdf.eval(DIFFUSE, si, normal, active)
 
 
 def has_null_shapes(scene: mi.Scene) -> bool:

@@ -3,11 +3,12 @@ importance sampling (power heuristic) — the shadow rays of Steinhurst §7.3.2 
 sources ... accommodated using importance sampling"), written after Mitsuba's ``volpath``.
 
 At a surface vertex only the BSDF's smooth lobes take part (the eye-path loop follows its delta
-and ``Null`` lobes itself, :mod:`photonmap.core.eye_trace`). Both rays carry the transmittance
-to the emitter (:func:`photonmap.core.media.transmittance`): through media, ``null`` boundaries
-and the ``Null`` lobes of ``mask`` and ``thindielectric`` surfaces, blocked by anything else —
-vacuum is the case without media, where an any-hit shadow ray suffices unless some BSDF lets light
-through (Jensen & Christensen 1998: attenuated shadow rays).
+and ``Null`` lobes itself, :mod:`photonmap.core.eye_trace`): Mitsuba's ``eval`` and ``pdf`` of a
+delta or Null lobe are zero, and a BSDF sample that picks one counts nothing. Both rays carry
+the transmittance to the emitter (:func:`photonmap.core.media.transmittance`): through media,
+``null`` boundaries and the ``Null`` lobes of ``mask`` and ``thindielectric`` surfaces, blocked by
+anything else — vacuum is the case without media, where an any-hit shadow ray suffices unless
+some BSDF lets light through (Jensen & Christensen 1998: attenuated shadow rays).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from .media import (
 )
 from .scene_info import SceneTraits
 
-SMOOTH = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
+CONTEXT = mi.BSDFContext()
 
 
 def power_heuristic(a, b):
@@ -62,22 +63,25 @@ def direct_lighting(
     lit = active & (ds.pdf != 0)
     shadow = si.spawn_ray_to(ds.p)
     em_weight *= shadow_transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, lit, traits)
-    bsdf_val, bsdf_pdf = bsdf.eval_pdf(SMOOTH, si, si.to_local(ds.d), lit)
+    bsdf_val, bsdf_pdf = bsdf.eval_pdf(CONTEXT, si, si.to_local(ds.d), lit)  # smooth lobes only
     w_em = dr.select(ds.delta, 1.0, power_heuristic(ds.pdf, bsdf_pdf))
     L = dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
 
-    # BSDF sampling towards emitters
+    # BSDF sampling towards emitters: a sample of a delta or Null lobe counts nothing here (the
+    # eye path follows those lobes), which leaves an unbiased estimate of the smooth lobes'
+    # share (a BSDFContext restricted to the smooth lobes is not honoured by every BSDF: a
+    # mask's then samples its Null lobe)
     bs, bsdf_weight = bsdf.sample(
-        SMOOTH, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
+        CONTEXT, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
     )
-    sampled = active & (bs.pdf > 0)
+    sampled = active & (bs.pdf > 0) & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
     ray = si.spawn_ray(si.to_world(bs.wo))
     si_e, T = emitter_along(scene, ray, enter(si, ray.d, medium, sampled), gen, sampled, traits)
     emitter = si_e.emitter(scene, sampled)
     hits_light = sampled & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
     ds_e = mi.DirectionSample3f(scene, si_e, si)
     pdf_em = scene.pdf_emitter_direction(si, ds_e, hits_light)
-    w_bsdf = power_heuristic(bs.pdf, pdf_em)
+    w_bsdf = power_heuristic(bsdf.pdf(CONTEXT, si, bs.wo, hits_light), pdf_em)
     L += dr.select(hits_light, w_bsdf * bsdf_weight * T * emitter.eval(si_e, hits_light), 0.0)
     return L
 

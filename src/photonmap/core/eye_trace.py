@@ -11,10 +11,12 @@ lobes: a delta lobe evaluates to zero):
 
 - only followed lobes (mirror, glass, thin glass): sample them, go on;
 - only smooth lobes: end here;
-- both (``plastic``, ``mask``, ``blendbsdf`` of glass and diffuse): sample the followed lobes
-  (``BSDFContext`` restricted to them) for a weight ``w``; go on with probability
-  ``q = clamp(max w, 0.2, 0.8)`` (0 where ``w = 0``) carrying ``w / q``, else end here
-  carrying ``1 / (1 − q)`` — an unbiased split of one path into the two parts.
+- both (``plastic``, ``mask``, ``blendbsdf`` of glass and diffuse): sample the BSDF; the weight
+  ``w`` of a sample that picked a followed lobe (0 otherwise) is an unbiased estimate of their
+  share; go on with probability ``q = clamp(max w, 0.2, 0.8)`` (0 where ``w = 0``) carrying
+  ``w / q``, else end here carrying ``1 / (1 − q)`` — an unbiased split of one path into the two
+  parts. (A ``BSDFContext`` restricted to some lobes is not honoured by every BSDF: a ``mask``
+  asked for its smooth lobes samples its Null lobe.)
 
 A ``Null`` lobe passes the ray straight on and is no interaction (``volpath``: it adds no depth).
 Medium is optional state (vacuum is the case without one). In a medium the flight is one of:
@@ -151,7 +153,7 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
     max_depth = dr.opaque(mi.UInt32, max_depth)
     rr_depth = dr.opaque(mi.UInt32, settings.rr_depth)
     hide = settings.hide_emitters and isinstance(start_depth, int) and start_depth == 0
-    follow_ctx = mi.BSDFContext(mi.TransportMode.Radiance, FOLLOWED)
+    ctx = mi.BSDFContext()
     phase_ctx = mi.PhaseFunctionContext(None)
     depth = mi.UInt32(start_depth) + dr.zeros(mi.UInt32, n)  # segments so far
     radiance = dr.zeros(mi.Spectrum, n)
@@ -255,12 +257,14 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
         if dr.hint(hide, mode="scalar"):
             skip = surface & (emitter != None) & (arrived == 1)  # noqa: E711
         bs, w_follow = bsdf.sample(
-            follow_ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
+            ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
             surface & ~skip,
         )  # fmt: skip
+        followed = mi.has_flag(bs.sampled_type, FOLLOWED) & (bs.pdf > 0)
+        w_follow = dr.select(followed, w_follow, 0.0)  # the followed lobes' share, unbiased
         w_max = dr.max(w_follow)
         q = dr.select(smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0)
-        go_on = skip | (surface & (gen.next_float32() < q) & (bs.pdf > 0))
+        go_on = skip | (surface & (gen.next_float32() < q) & followed)
         stop = surface & ~go_on & smooth
         si_end[stop] = si
         beta_end[stop] = beta / (1.0 - q)

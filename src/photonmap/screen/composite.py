@@ -23,7 +23,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
-from ..core.bsdf import has_null_shapes, intersect_visible, is_specular
+from ..core.bsdf import diffuse_albedo, has_null_shapes, intersect_visible, is_specular
 from .direct import EPSILON, shade
 from .gbuffer import GBuffer
 from .light_gbuffer import Light
@@ -50,7 +50,7 @@ def _chain(scene, light, si, throughput, active, first: float, levels: int, eps,
         end = active & ~is_specular(bsdf, active)
         n = mi.Vector3f(si.sh_frame.n)
         n = dr.select(dr.dot(n, ray.d) > 0, -n, n)
-        albedo = bsdf.eval_diffuse_reflectance(si, end)
+        albedo = diffuse_albedo(bsdf, si, end)
         *_, lit = shade(scene, light, si.p, n, albedo, end, eps, distances=False, samples=True,
                         null_shapes=null_shapes)  # fmt: skip
         lit += si.emitter(scene).eval(si, end)

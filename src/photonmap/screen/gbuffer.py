@@ -15,7 +15,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import intersect_visible, is_specular
+from ..core.bsdf import diffuse_albedo, intersect_visible, is_specular
 from ..core.camera import pixel_means, pixel_rays
 
 EMISSION_SAMPLES = 8
@@ -71,7 +71,7 @@ def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
     emission = dr.select(valid, si.emitter(scene).eval(si, valid), 0.0)
     bsdf = si.bsdf(ray)
     specular = is_specular(bsdf, valid)  # mirrors, glass: ray-traced (spec §2.9, A27)
-    albedo = dr.select(valid & ~specular, bsdf.eval_diffuse_reflectance(si, valid), 0.0)
+    albedo = dr.select(valid & ~specular, diffuse_albedo(bsdf, si, valid), 0.0)
     n = mi.Normal3f(si.sh_frame.n)
     n = dr.select(dr.dot(n, ray.d) > 0, -n, n)
     m = np.array(sensor.world_transform().matrix, dtype=np.float64)[..., 0]

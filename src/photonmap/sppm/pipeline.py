@@ -76,7 +76,7 @@ class SPPMParams:
 
     iterations: int = 64  # iterations of render() (run() takes its own budget)
     photons_per_iteration: int = 200_000  # photon paths traced per iteration (M)
-    spp: int = 0  # eye paths per pixel and iteration; 0 = automatic (about one per photon path)
+    spp: int = 0  # eye paths per pixel and iteration; 0 = automatic (1; in media up to 16)
     radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
     alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
     seed: int = 0
@@ -204,11 +204,14 @@ class SPPMPipeline(MovableCamera):
 
     @property
     def eye_spp(self) -> int:
-        """Eye paths per pixel and iteration: ``spp``, or about as many eye paths as photon paths
-        (pbrt's balance of SPPM's two passes), 1 to :data:`AUTO_SPP` — a small image then runs
-        several eye paths per pixel in each iteration, which the iteration's photons serve."""
+        """Eye paths per pixel and iteration: ``spp``, or automatically one — and in a scene with
+        participating media, whose light the eye paths carry themselves (volumetric path
+        tracing), about as many eye paths as photon paths (pbrt's balance of SPPM's two passes),
+        1 to :data:`AUTO_SPP`, which the iteration's photons serve."""
         if self.params.spp:
             return self.params.spp
+        if not self.traits.media:
+            return 1
         w, h = self.size
         return int(np.clip(round(self.params.photons_per_iteration / (w * h)), 1, AUTO_SPP))
 

@@ -72,7 +72,7 @@ def final_gather(
     ``layout`` (k-NN lookups, ``fused=False``): issue each batch's gathers in ``layout.order``."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
-    smooth = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
+    ctx = mi.BSDFContext()  # the smooth lobes only: delta and Null samples count nothing
     total = dr.zeros(mi.Spectrum, count)
     shifts = rng(count, seed, FG_STREAM - 1)
     shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
@@ -87,8 +87,9 @@ def final_gather(
         i = first + dr.arange(mi.UInt32, count * m) % m
         u = rotated_hammersley(rays, i, dr.gather(mi.Point2f, shift, query))
         if sampling == "bsdf":
-            bs, weight = bsdf.sample(smooth, x, gen.next_float32(), u, ok)
-            wo, pdf, ok = bs.wo, bs.pdf, ok & (bs.pdf > 0)
+            bs, weight = bsdf.sample(ctx, x, gen.next_float32(), u, ok)
+            smooth = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
+            wo, pdf, ok = bs.wo, bs.pdf, ok & (bs.pdf > 0) & smooth
         else:
             if sampling == "cosine":
                 wo = mi.warp.square_to_cosine_hemisphere(u)
@@ -98,7 +99,7 @@ def final_gather(
                 pdf = mi.warp.square_to_uniform_hemisphere_pdf(wo)
             else:
                 wo, pdf = sample_table(table, query, u)
-            weight = bsdf.eval(smooth, x, wo, ok) / dr.maximum(pdf, 1e-12)
+            weight = bsdf.eval(ctx, x, wo, ok) / dr.maximum(pdf, 1e-12)
             ok &= pdf > 0
         if irradiance is not None:
             cos_pdf = mi.Spectrum(dr.maximum(wo.z, 0.0) / dr.maximum(pdf, 1e-12))

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from ..core.bsdf import diffuse_albedo
 from ..core.hashgrid import HashGrid
 from ..core.knn import NO_PHOTON
 from ..core.order import morton3_order
@@ -79,7 +80,7 @@ def lookup_radiance(
     )
     found = active & (index != NO_PHOTON)
     E = dr.gather(mi.Color3f, points.irradiance, index, found)
-    rho = bsdf.eval_diffuse_reflectance(si, found)
+    rho = diffuse_albedo(bsdf, si, found)
     return dr.select(found, rho * E / math.pi, 0.0)
 
 

@@ -46,7 +46,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import has_glossy_shapes
+from ..core.bsdf import diffuse_albedo, has_glossy_shapes
 from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
 from ..core.errors import SceneError
@@ -351,7 +351,7 @@ class SurfacePipeline(MovableCamera):
             )
         if plan is None:
             return L
-        rho = bsdf.eval_diffuse_reflectance(si, found)
+        rho = diffuse_albedo(bsdf, si, found)
         return apply_cache(plan, L, rho, dr.width(found))
 
     def cache_plan(self, si, bsdf, found, size):
