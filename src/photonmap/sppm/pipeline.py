@@ -182,7 +182,10 @@ class SPPMPipeline(MovableCamera):
         p = params or self.params
         w, h = size or self.size
         depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
-        spp = p.spp or int(np.clip(round(p.photons_per_iteration / (w * h)), 1, AUTO_SPP))
+        spp = p.spp or (  # as eye_spp, for these parameters and this size
+            int(np.clip(round(p.photons_per_iteration / (w * h)), 1, AUTO_SPP))
+            if self.traits.media else 1
+        )
         return memory.check(p, w, h, depth, spp, self.traits.media)
 
     @property
