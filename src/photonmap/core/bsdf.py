@@ -64,6 +64,17 @@ def has_null_lobes(scene: mi.Scene) -> bool:
     )
 
 
+MIRROR_OR_REFRACTION = int(mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission)
+
+
+def has_delta_lobes(scene: mi.Scene) -> bool:
+    """Whether any shape's BSDF has a delta lobe that turns light (mirror reflection or
+    refraction; Mitsuba's ``Delta`` flag also holds ``Null``): caustics are possible."""
+    return any(
+        s.bsdf() is not None and s.bsdf().flags() & MIRROR_OR_REFRACTION for s in scene.shapes()
+    )
+
+
 def has_glossy_shapes(scene: mi.Scene) -> bool:
     """Whether any shape of ``scene`` has a BSDF with a glossy lobe (rough conductors and
     dielectrics, plastics): radiance leaving such a surface depends on the direction."""

@@ -57,15 +57,7 @@ def direct_lighting(
     bsdf = si.bsdf()
     lanes = dr.width(si.p)
     medium = dr.zeros(mi.MediumPtr, lanes) if medium is None else medium
-
-    # emitter sampling (shadow ray)
-    ds, em_weight = scene.sample_emitter_direction(si, u_light, False, active)
-    lit = active & (ds.pdf != 0)
-    shadow = si.spawn_ray_to(ds.p)
-    em_weight *= shadow_transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, lit, traits)
-    bsdf_val, bsdf_pdf = bsdf.eval_pdf(CONTEXT, si, si.to_local(ds.d), lit)  # smooth lobes only
-    w_em = dr.select(ds.delta, 1.0, power_heuristic(ds.pdf, bsdf_pdf))
-    L = dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
+    L = emitter_sampled(scene, si, u_light, gen, active, traits, medium)
 
     # BSDF sampling towards emitters: a sample of a delta or Null lobe counts nothing here (the
     # eye path follows those lobes), which leaves an unbiased estimate of the smooth lobes'
@@ -84,6 +76,21 @@ def direct_lighting(
     w_bsdf = power_heuristic(bsdf.pdf(CONTEXT, si, bs.wo, hits_light), pdf_em)
     L += dr.select(hits_light, w_bsdf * bsdf_weight * T * emitter.eval(si_e, hits_light), 0.0)
     return L
+
+
+def emitter_sampled(scene, si, u_light, gen, active, traits: SceneTraits, medium) -> mi.Spectrum:
+    """The emitter-sampling half of :func:`direct_lighting` (a shadow ray with transmittance),
+    MIS-weighted against sampling ``si``'s BSDF (power heuristic) — also the next-event
+    estimation of a path that goes on by sampling the BSDF (its emitter hits take the other
+    weight)."""
+    bsdf = si.bsdf()
+    ds, em_weight = scene.sample_emitter_direction(si, u_light, False, active)
+    lit = active & (ds.pdf != 0)
+    shadow = si.spawn_ray_to(ds.p)
+    em_weight *= shadow_transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, lit, traits)
+    bsdf_val, bsdf_pdf = bsdf.eval_pdf(CONTEXT, si, si.to_local(ds.d), lit)  # smooth lobes only
+    w_em = dr.select(ds.delta, 1.0, power_heuristic(ds.pdf, bsdf_pdf))
+    return dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
 
 
 def emitter_along(scene, ray, medium, gen, active, traits: SceneTraits):

@@ -107,8 +107,8 @@ def emit(
     powers: np.ndarray | None = None,
 ) -> LightPaths:
     """``paths`` light paths from the scene's emitters (module docstring), the fraction ``aim``
-    of the area emitters' paths aimed at the specular shapes (``caustics_only``: all of them; the
-    caller then keeps only specular-first paths). ``media``: :func:`emitter_media` of the scene,
+    of the area emitters' paths aimed at the specular shapes (``aim = 1`` with ``caustics_only``:
+    all of them, the caller keeping only specular-first paths). ``media``: :func:`emitter_media` of the scene,
     ``powers``: :func:`checked_powers`, if known (a pipeline finds them once). Without specular
     shapes or area emitters, or with ``aim = 0``, nothing is aimed."""
     if paths < 1:
@@ -120,8 +120,8 @@ def emit(
     can = aimable(scene) & (counts >= (1 if caustics_only else 2))
     if not spheres:
         can[:] = False
-    share = 1.0 if caustics_only else aim
-    aimed = np.where(can, np.clip(np.round(counts * share), 1, counts - (not caustics_only)), 0)
+    keep_plain = not (caustics_only and aim == 1)  # every path aimed: the caustic map's L S+ D
+    aimed = np.where(can, np.clip(np.round(counts * aim), 1, counts - keep_plain), 0)
     aimed = aimed.astype(np.int64)
     plain = counts - aimed
     index = np.arange(len(counts), dtype=np.uint32)

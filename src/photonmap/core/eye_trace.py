@@ -37,11 +37,18 @@ Medium is optional state (vacuum is the case without one). In a medium the fligh
   there (the light no eye path can find: volume caustics from photons) and a phase-function
   sample that continues the path. Unbiased as ``volpath``, with direct light from the pieces.
 
+At a smooth surface vertex the path ends (``surfaces="stop"``: the visible point of a photon
+method) or goes on as in Mitsuba's ``path`` (``surfaces="continue"``): next-event estimation of
+the smooth lobes (:func:`~photonmap.core.direct.emitter_sampled`) and a BSDF sample that goes on,
+the two combined by multiple importance sampling.
+
 Emitters met on the way add ``β L_e``: after the camera or a chain of followed lobes from it
 (when ``emission``; hidden on the first segment with ``hide_emitters``, as Mitsuba hides area
 emitters and the environment seen directly); right after a medium collision never (the pieces'
-direct light holds it); after a collision and then a delta chain unless ``volume_caustics``
-(the photons carry that light). Depth counts segments as Mitsuba's
+direct light holds it); right after a smooth surface vertex with the MIS weight of BSDF
+sampling; after a collision or a smooth vertex and then a delta chain not when ``caustics`` are
+given: photons carry that light (:class:`Caustics`, read at each medium collision and smooth
+surface vertex). Depth counts segments as Mitsuba's
 ``max_depth`` does; Russian roulette from ``rr_depth`` on, ``q = min(0.95, max β · η²)``.
 """
 
@@ -54,7 +61,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .bsdf import intersect_visible
-from .direct import piece_direct
+from .direct import emitter_sampled, piece_direct, power_heuristic
 from .media import (
     Segments,
     channel,
@@ -68,12 +75,26 @@ from .scene_info import SceneTraits
 from .settings import UNBOUNDED, PathSettings
 
 MEDIA_MODES = ("transmit", "march", "end", "continue")
+SURFACE_MODES = ("stop", "continue")
 MAX_EVENTS = 1024  # loop iterations of one eye path at most (Null-lobe passes included)
 FOLLOWED = mi.BSDFFlags.Delta | mi.BSDFFlags.Null
 SPLIT_MIN, SPLIT_MAX = 0.2, 0.8  # the clamp of q at a BSDF with followed and smooth lobes
 
-# where the last emitter hit's weight comes from (module docstring)
-FROM_CAMERA, FROM_MEDIUM, THROUGH_DELTA = 0, 1, 2
+# where the path's last scattering was, which decides whether an emitter hit counts
+FROM_CAMERA, FROM_MEDIUM, THROUGH_DELTA, FROM_SURFACE = 0, 1, 2, 3
+
+
+@dataclass
+class Caustics:
+    """The light eye paths cannot find by themselves — light that reached a medium or a surface
+    through mirrors and glass only — as photon estimates read along the paths: ``medium(mei,
+    depth_left, active)`` the in-scattered radiance per unit length at a medium collision,
+    ``surface(si, depth_left, active)`` the radiance a smooth surface vertex reflects towards
+    the path (``surfaces="continue"``); photons of depth at most ``depth_left``. Either may be
+    None."""
+
+    medium: Callable | None = None
+    surface: Callable | None = None
 
 
 @dataclass
@@ -104,22 +125,24 @@ def trace_eye_paths(
     gen: mi.PCG32,
     settings: PathSettings,
     traits: SceneTraits,
+    *,
     emission: bool = True,
     media_mode: str = "continue",
-    medium_light: Callable | None = None,
-    volume_caustics: bool = False,
+    surfaces: str = "stop",
+    caustics: Caustics | None = None,
     start_depth: int | mi.UInt32 = 0,
     active: mi.Bool | None = None,
     segments: int = 4,
 ) -> EyeVertices:
     """Follow the rays (unit directions; ``weight``: their throughput; ``medium``: where they
-    start) to their vertices (module docstring). ``medium_light(mei, beta, depth_left, active)``:
-    extra radiance at a medium vertex in ``"continue"`` mode (photons of depth at most
-    ``depth_left``); ``start_depth``: segments before these rays (per lane for a final gather;
-    rays from the camera start at 0); ``segments``: pieces recorded per path in ``"march"``
-    mode."""
+    start) to their vertices (module docstring). ``caustics``: photon estimates read along the
+    paths (:class:`Caustics`); ``start_depth``: segments before these rays (per lane for a final
+    gather; rays from the camera start at 0); ``segments``: pieces recorded per path in
+    ``"march"`` mode. The result is evaluated."""
     if media_mode not in MEDIA_MODES:
         raise ValueError(f"media_mode must be one of {MEDIA_MODES}, got {media_mode!r}")
+    if surfaces not in SURFACE_MODES:
+        raise ValueError(f"surfaces must be one of {SURFACE_MODES}, got {surfaces!r}")
     n = max(dr.width(ray.o), dr.width(ray.d), dr.width(weight), dr.width(medium))
     active = dr.full(mi.Bool, True, n) if active is None else mi.Bool(active)
     zero = dr.zeros(mi.Float, n)
@@ -135,9 +158,12 @@ def trace_eye_paths(
     stored = dr.zeros(mi.Bool, slots)
     vertices = _follow(
         scene, ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), gen,
-        settings, traits, emission, media_mode, medium_light, volume_caustics, start_depth,
-        active & dr.full(mi.Bool, True, n), buffers, stored, segments,
+        settings, traits, emission, media_mode, surfaces, caustics or Caustics(),
+        caustics is not None, start_depth, active & dr.full(mi.Bool, True, n), buffers, stored,
+        segments,
     )  # fmt: skip
+    # every output at once: evaluating one output of a symbolic loop runs the whole loop again
+    dr.eval(*(v for v in vars(vertices).values() if v is not None), buffers, stored)
     if marching:
         index = dr.compress(stored)
         vertices.segments = Segments(*(dr.gather(type(f), f, index) for f in vars(buffers).values()))
@@ -145,8 +171,8 @@ def trace_eye_paths(
 
 
 @dr.syntax
-def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mode,
-            medium_light, volume_caustics, start_depth, active, buffers, stored,
+def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mode, surfaces,
+            caustics, photons_carry, start_depth, active, buffers, stored,
             max_pieces):  # fmt: skip
     n = dr.width(beta)
     max_depth = settings.max_depth if settings.max_depth != UNBOUNDED else 2**31 - 1
@@ -166,6 +192,10 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
     beta_end = dr.zeros(mi.Spectrum, n)
     medium_end = dr.zeros(mi.MediumPtr, n)
     origin = dr.full(mi.UInt32, FROM_CAMERA, n)  # whether an emitter hit counts
+    prev_it = dr.zeros(mi.Interaction3f, n)  # the last smooth surface vertex, for MIS
+    prev_pdf = dr.zeros(mi.Float, n)
+    medium_light, surface_light = caustics.medium, caustics.surface
+    continuing = surfaces == "continue"
     media, null_shapes = traits.media, traits.null_shapes  # frozen dataclasses stay out of loops
     media_mode = media_mode if media else "transmit"  # vacuum: nothing to collide with
     ch = channel(gen)
@@ -220,9 +250,14 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
         if dr.hint(not emission, mode="scalar"):
             shown &= origin != FROM_CAMERA
         shown &= origin != FROM_MEDIUM  # the pieces' direct in-scattering holds that light
-        if dr.hint(volume_caustics, mode="scalar"):
+        if dr.hint(photons_carry, mode="scalar"):
             shown &= origin != THROUGH_DELTA
-        radiance[shown] += beta * emitter.eval(si, shown)
+        w_em = dr.ones(mi.Float, n)
+        if dr.hint(continuing, mode="scalar"):
+            after = shown & (origin == FROM_SURFACE)
+            ds = mi.DirectionSample3f(scene, si, prev_it)
+            w_em[after] = power_heuristic(prev_pdf, scene.pdf_emitter_direction(prev_it, ds, after))
+        radiance[shown] += beta * w_em * emitter.eval(si, shown)
         active &= ~escaped
 
         # ---- a medium collision
@@ -238,7 +273,7 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
             room = scattered & (arrived < max_depth)  # a next segment fits
             if dr.hint(medium_light is not None, mode="scalar"):
                 sigma_s = mi.Spectrum(mei.sigma_s)
-                L_s = medium_light(mei, beta, max_depth - arrived, room)
+                L_s = medium_light(mei, max_depth - arrived, room)
                 radiance[room] += beta * dr.select(sigma_s > 0, L_s / sigma_s, 0.0)
             wo, phase_weight, phase_pdf = mei.medium.phase_function().sample(
                 phase_ctx, mei, gen.next_float32(),
@@ -261,24 +296,43 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
             surface & ~skip,
         )  # fmt: skip
         followed = mi.has_flag(bs.sampled_type, FOLLOWED) & (bs.pdf > 0)
-        w_follow = dr.select(followed, w_follow, 0.0)  # the followed lobes' share, unbiased
-        w_max = dr.max(w_follow)
-        q = dr.select(smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0)
-        go_on = skip | (surface & (gen.next_float32() < q) & followed)
-        stop = surface & ~go_on & smooth
-        si_end[stop] = si
-        beta_end[stop] = beta / (1.0 - q)
-        medium_end[stop] = medium
-        depth[stop] = arrived
-        found |= stop
+        if dr.hint(continuing, mode="scalar"):
+            # next-event estimation and the caustic photons at the smooth lobes, then go on
+            # with the BSDF sample, whatever lobe it picked
+            here = surface & ~skip & smooth & (arrived < max_depth)
+            u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
+            radiance[here] += beta * emitter_sampled(scene, si, u_light, gen, here, traits, medium)
+            if dr.hint(surface_light is not None, mode="scalar"):
+                radiance[here] += beta * surface_light(si, max_depth - arrived, here)
+            go_on = skip | (surface & (bs.pdf > 0))
+            q = dr.ones(mi.Float, n)
+            picked_smooth = go_on & ~skip & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
+            prev_it[picked_smooth] = mi.Interaction3f(si)
+            prev_pdf[picked_smooth] = bsdf.pdf(ctx, si, bs.wo, picked_smooth)
+            origin[picked_smooth] = FROM_SURFACE
+        else:
+            # end on the smooth lobes or follow a delta / Null lobe (module docstring)
+            w_follow = dr.select(followed, w_follow, 0.0)  # the followed lobes' share
+            w_max = dr.max(w_follow)
+            q = dr.select(
+                smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0
+            )
+            go_on = skip | (surface & (gen.next_float32() < q) & followed)
+            stop = surface & ~go_on & smooth
+            si_end[stop] = si
+            beta_end[stop] = beta / (1.0 - q)
+            medium_end[stop] = medium
+            depth[stop] = arrived
+            found |= stop
         passed = skip | (go_on & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null))
         bounced = go_on & ~passed
         d = dr.select(skip, ray.d, si.to_world(bs.wo))
         beta[go_on & ~skip] *= w_follow / q
         eta[bounced] *= bs.eta
-        bounces[bounced] += 1
+        delta = bounced & followed
+        bounces[delta] += 1
         depth[bounced] = arrived
-        origin[bounced & (origin == FROM_MEDIUM)] = THROUGH_DELTA
+        origin[delta & (origin != FROM_CAMERA)] = THROUGH_DELTA
         medium = enter(si, d, medium, go_on)
         ray[go_on] = si.spawn_ray(d)
         active &= ~surface | (go_on & ((arrived < max_depth) | passed))

@@ -136,14 +136,15 @@ def trace_photons(
     """Emit ``paths`` light paths (:func:`~photonmap.core.emission.emit`, the fraction ``aim``
     aimed at specular shapes) and trace them (:func:`trace_light_paths`): the one way every
     method makes photons. ``settings``: the path-length settings (default Mitsuba's);
-    ``caustics_only`` keeps only the caustic records (every area light's paths aimed); ``media``:
+    ``caustics_only`` keeps only the caustic records (``aim = 1``: every area light's paths
+    aimed — the caustics of surfaces that also have smooth lobes, a plastic's coating, are then
+    left out); ``media``:
     the emitters' media and ``powers`` their checked powers, if known
     (:func:`~photonmap.core.media.emitter_media`, :func:`~photonmap.core.emission.checked_powers`:
     a pipeline finds them once)."""
     settings = settings or PathSettings()
     traits = traits or SceneTraits.of(scene)
-    light = emit(scene, paths, seed, 1.0 if caustics_only and aim > 0 else aim, caustics_only,
-                 media, powers)  # fmt: skip
+    light = emit(scene, paths, seed, aim, caustics_only, media, powers)
     records, volume = trace_light_paths(
         scene, light, rng(paths, seed, stream=1), settings, traits, caustics_only
     )
@@ -164,7 +165,8 @@ def trace_light_paths(
     """Trace the light paths ``light`` (module docstring) and return their surface records and,
     in a scene with media, their volume photons. ``gen``: one random generator per path (an
     ``mi.PCG32`` or any Dr.Jit struct with ``next_float32()``, e.g. a fixed random map);
-    ``caustics_only``: a path ends at its first smooth interaction, stored only if caustic;
+    ``caustics_only``: a path ends at its first smooth interaction (surface or medium), stored
+    only if caustic;
     ``roulette``: Russian roulette from ``settings.rr_depth`` on; ``first_depth``: interactions
     the paths have already had (records then count from it); ``redirect(si, bs, gen)``: a
     direction to go on in instead of the BSDF sample's (the screen method's glossy rule)."""
@@ -265,7 +267,7 @@ def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redir
     lanes = state.count
     slots = lanes * CHUNK
     rec = _slots(SURFACE_FIELDS, slots)
-    vrec = _slots(VOLUME_FIELDS, slots if traits.media and not caustics_only else 1)
+    vrec = _slots(VOLUME_FIELDS, slots if traits.media else 1)
     stored = dr.zeros(mi.Bool, slots)
     vstored = dr.zeros(mi.Bool, dr.width(vrec["depth"]))
     alive = _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits,
@@ -323,9 +325,11 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
 
         # ---- a medium collision: a volume photon
         depth[in_medium] += 1
-        if dr.hint(media and not caustics_only, mode="scalar"):
+        if dr.hint(media, mode="scalar"):
             vslot = step * stride + lane
             vstore = in_medium & (depth <= limit)
+            if dr.hint(caustics_only, mode="scalar"):
+                vstore &= caustic
             for name, value in (("position", mei.p), ("direction", ray.d),
                                 ("power", power), ("depth", depth), ("caustic", caustic)):
                 dr.scatter(vrec[name], value, vslot, vstore)  # fmt: skip

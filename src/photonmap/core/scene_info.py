@@ -45,12 +45,13 @@ def has_media(scene: mi.Scene) -> bool:
     return bool(media(scene))
 
 
-@dataclass(frozen=True)
+@dataclass
 class SceneTraits:
     """What the transport loops need to know about a scene once, to leave out the work it does
     not need (the same code path either way): ``media`` — it holds participating media;
     ``null_shapes`` — shapes with a ``null`` BSDF that rays cross unchanged; ``null_lobes`` —
-    BSDFs that let shadow rays through in part (``null``, ``mask``, ``thindielectric``)."""
+    BSDFs that let shadow rays through in part (``null``, ``mask``, ``thindielectric``). (Not a
+    frozen dataclass: Dr.Jit's symbolic loops write back every object they are passed.)"""
 
     media: bool
     null_shapes: bool

@@ -46,6 +46,52 @@ class Gathered:
     count: mi.Float
 
 
+@dataclass
+class PhotonGrid:
+    """An iteration's photons in a hash grid whose cell edge is the largest gather radius, their
+    power, direction and depth in the grid's storage order, for fused scans
+    (:meth:`~photonmap.core.hashgrid.HashGrid.sum_within`)."""
+
+    grid: HashGrid
+    power: mi.Color3f
+    direction: mi.Vector3f
+    depth: mi.UInt32
+
+    @classmethod
+    def build(cls, photons: Photons, cell_size: float) -> PhotonGrid:
+        grid = HashGrid(photons.position, cell_size=max(cell_size, 1e-6))
+        return cls(
+            grid,
+            dr.gather(mi.Color3f, photons.power, grid.order),
+            dr.gather(mi.Vector3f, photons.direction, grid.order),
+            dr.gather(mi.UInt32, photons.depth, grid.order),
+        )
+
+    def reflected(self, si, bsdf, j, near, depth_left) -> tuple[mi.Color3f, mi.Bool]:
+        """Stored photon ``j``'s ``f(x, ω_o, ω_p) Φ_p`` at ``si`` (the BSDF without its cosine:
+        Mitsuba's ``eval`` over ``|cos θ_p|``) where it lies ``near`` and its depth is at most
+        ``depth_left``, and whether it counts."""
+        ok = near & (dr.gather(mi.UInt32, self.depth, j, near) <= depth_left)
+        wo = si.to_local(-dr.gather(mi.Vector3f, self.direction, j, ok))
+        f = bsdf.eval(mi.BSDFContext(), si, wo, ok) / dr.maximum(
+            dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4
+        )
+        return dr.select(ok, f * dr.gather(mi.Color3f, self.power, j, ok), 0.0), ok
+
+    def radiance(self, si, radius: float, depth_left, active) -> mi.Spectrum:
+        """``Σ f Φ_p / (π r²)`` over the photons within ``radius`` (at most the cell edge) of
+        ``si`` — the reflected radiance towards ``si.wi``; lazy, it fuses into the caller's
+        kernel (an eye-path loop)."""
+        bsdf = si.bsdf()
+
+        def share(j, near):
+            return self.reflected(si, bsdf, j, near, depth_left)[0]
+
+        zero = dr.zeros(mi.Spectrum, dr.width(si.p))
+        total = self.grid.sum_within(si.p, dr.opaque(mi.Float, radius**2), share, zero, active)
+        return total * dr.opaque(mi.Float, 1.0 / (math.pi * radius**2))
+
+
 def gather(
     points: VisiblePoints, radius: mi.Float, photons: Photons, settings: PathSettings
 ) -> Gathered:
@@ -61,22 +107,17 @@ def gather(
     if photons.count == 0:
         return Gathered(dr.zeros(mi.Color3f, pixels), dr.zeros(mi.Float, pixels))
     largest = dr.max(dr.select(points.found, radius, 0.0), axis=None)[0]
-    grid = HashGrid(photons.position, cell_size=max(largest, 1e-6))
-    power = dr.gather(mi.Color3f, photons.power, grid.order)
-    direction = dr.gather(mi.Vector3f, photons.direction, grid.order)
-    depth = dr.gather(mi.UInt32, photons.depth, grid.order)
+    stored = PhotonGrid.build(photons, largest)
     max_depth = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
     depth_left = dr.opaque(mi.UInt32, max_depth) - dr.minimum(points.depth, max_depth)
-    si, bsdf, ctx = points.si, points.si.bsdf(), mi.BSDFContext()
+    si, bsdf = points.si, points.si.bsdf()
 
     def flux(j, near):
-        ok = near & (dr.gather(mi.UInt32, depth, j, near) <= depth_left)
-        wo = si.to_local(-dr.gather(mi.Vector3f, direction, j, ok))
-        f = bsdf.eval(ctx, si, wo, ok) / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
-        return mi.Vector4f(*(f * dr.gather(mi.Color3f, power, j, ok)), dr.select(ok, 1.0, 0.0))
+        value, ok = stored.reflected(si, bsdf, j, near, depth_left)
+        return mi.Vector4f(*value, dr.select(ok, 1.0, 0.0))
 
     zero = dr.zeros(mi.Vector4f, lanes)
-    total = grid.sum_within(si.p, dr.square(radius), flux, zero, points.found)
+    total = stored.grid.sum_within(si.p, dr.square(radius), flux, zero, points.found)
     flux_sum = mi.Color3f(total.x, total.y, total.z) * points.beta
     dr.eval(flux_sum, total.w)
     per_pixel = pixel_means(mi.Spectrum(flux_sum), points.spp)

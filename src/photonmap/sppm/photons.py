@@ -8,10 +8,10 @@ first hits are the direct light the eye pass computes by emitter sampling (:mod:
 powers carry the ``1/M`` of the iteration, so a density estimate over one iteration's photons is
 the iteration's estimate of the reflected indirect radiance.
 
-In a scene with participating media the eye paths find the light in the media themselves
-(volumetric path tracing, :mod:`.visible`), except the light that reached the medium only
-through mirrors and glass: the iteration's *caustic* volume photons (a pure specular history,
-Jensen & Christensen 1998's volume caustics) are kept for that.
+In a scene with participating media the eye paths find the light themselves (volumetric path
+tracing, :mod:`.visible`), except the light that reached a surface or a medium only through
+mirrors and glass: the photon pass then traces those *caustic* photons alone (a pure specular
+history; Jensen & Christensen 1998's volume caustics among them).
 """
 
 from __future__ import annotations
@@ -54,14 +54,18 @@ def photon_pass(
     traits: SceneTraits,
     media: list | None = None,
     powers=None,
+    caustics_only: bool = False,
 ) -> Photons:
     """Trace ``paths`` photon paths (random numbers from ``seed``, the iteration's seed), the
     fraction ``aim`` of the area lights' paths aimed at the specular shapes, and keep the records
     after the first interaction; in a scene with media also the caustic volume photons (module
-    docstring). ``media``, ``powers``: the emitters' media and checked powers, if known."""
+    docstring). ``media``, ``powers``: the emitters' media and checked powers, if known.
+    ``caustics_only``: only the photons that reached a surface or a medium through mirrors and
+    glass (every area light's paths aimed at them)."""
     traced = trace_photons(
-        scene, paths, settings, seed, aim, traits=traits, media=media, powers=powers
-    )
+        scene, paths, settings, seed, 1.0 if caustics_only else aim, caustics_only,
+        traits=traits, media=media, powers=powers,
+    )  # fmt: skip
     kept = traced.records.after_first()
     volume = None
     if traced.volume is not None:

@@ -21,14 +21,15 @@ distance of the surfaces the camera sees; in ``sppm`` mode the first iteration t
 pixel's radius to hold about :data:`FIRST_PHOTONS` photons (:meth:`.gather.PixelState.updated`:
 small radii where photons are dense, in caustics). A given ``radius`` is every pixel's start.
 
-**Participating media** (Jensen & Christensen 1998; Mitsuba's ``volpath``): the eye paths run
-through the media by volumetric path tracing (:mod:`.visible`), and each iteration's photon pass
-keeps its caustic volume photons (:mod:`.photons`), read at the eye paths' medium collisions in
-spheres of radius ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates:
-the variance of one estimate grows as ``1/ρ³``), memoryless in both modes: the bias shrinks with
-``ρ_i`` while the averaged variance falls. ``ρ_1``: ``volume_radius``, or the sphere that
-holds about :data:`FIRST_PHOTONS` of the first caustic volume photons traced (at most
-:data:`VOLUME_RADIUS` × the scene diagonal).
+**Participating media** (Jensen & Christensen 1998; Mitsuba's ``volpath``): in a scene with
+media the eye paths are volumetric path tracing throughout (:mod:`.visible`) and the photon pass
+traces the caustic photons alone (:mod:`.photons`: light that reached a surface or a medium
+through mirrors and glass only, which no eye path finds; no photon pass without delta lobes),
+read at every vertex of the eye paths: on surfaces within the iteration's global radius ``r_i``,
+in the media within ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates:
+the variance of one estimate grows as ``1/ρ³``). The iterations are then memoryless in both
+modes. ``ρ_1``: ``volume_radius``, or the sphere that holds about :data:`FIRST_PHOTONS` of
+iteration 1's caustic volume photons (at most :data:`VOLUME_RADIUS` × the scene diagonal).
 
 **The scene file's settings**: ``max_depth``, ``rr_depth`` and ``hide_emitters`` default to the
 file's ``<integrator>`` (:class:`~photonmap.core.settings.PathSettings`), with Mitsuba's meaning;
@@ -46,9 +47,11 @@ import mitsuba as mi
 import numpy as np
 
 from ..core import interrupt
+from ..core.bsdf import has_delta_lobes
 from ..core.camera import MovableCamera, pixel_rays, scene_bounds
 from ..core.emission import checked_powers
 from ..core.errors import ParameterError, SceneError
+from ..core.eye_trace import Caustics
 from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
@@ -57,7 +60,7 @@ from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
 from ..core.volume_map import VolumeMap, density_radius
 from . import memory
-from .gather import PixelState, gather, iteration_image, memoryless_radius
+from .gather import Gathered, PhotonGrid, PixelState, gather, iteration_image, memoryless_radius
 from .photons import photon_pass
 from .visible import eye_pass
 
@@ -153,6 +156,7 @@ class SPPMPipeline(MovableCamera):
         self.file_settings = PathSettings.of(self.scene, scene)
         self.emitter_media = emitter_media(self.scene)
         self.emitter_powers = checked_powers(self.scene, 0)
+        self.delta_lobes = has_delta_lobes(self.scene)  # caustics possible
         self.params = SPPMParams()
         self.set_params(**own)
         self.timer = StageTimer()
@@ -206,6 +210,12 @@ class SPPMPipeline(MovableCamera):
             self.timer.reset()
 
     @property
+    def memoryless(self) -> bool:
+        """Whether the iterations are memoryless: ``mode``, or a scene with media, whose eye
+        paths read the caustic photons at every vertex with one radius per iteration."""
+        return self.params.mode == "memoryless" or self.traits.media
+
+    @property
     def eye_spp(self) -> int:
         """Eye paths per pixel and iteration: ``spp``, or automatically one — and in a scene with
         participating media, whose light the eye paths carry themselves (volumetric path
@@ -250,7 +260,7 @@ class SPPMPipeline(MovableCamera):
     @property
     def mean_radius(self) -> float:
         """The current mean gather radius (per-pixel radii: their mean)."""
-        if self.params.mode == "memoryless":
+        if self.memoryless:
             return self.radius_at(max(self.iterations, 1))
         if self._state is None:
             return self.initial_radius()
@@ -258,15 +268,21 @@ class SPPMPipeline(MovableCamera):
 
     # ------------------------------------------------------------------------- one iteration
     def _photon_pass(self, i: int):
-        """Iteration ``i``'s photon pass (random numbers from ``(seed, i)``)."""
+        """Iteration ``i``'s photon pass (random numbers from ``(seed, i)``): in a scene with
+        media the caustic photons alone (module docstring), none without delta lobes."""
         p = self.params
+        if self.traits.media and not self.delta_lobes:
+            return None
         return photon_pass(
             self.scene, p.photons_per_iteration, iteration_seeds(p.seed, i)[1], self.settings,
             p.aim, self.traits, self.emitter_media, self.emitter_powers,
+            caustics_only=self.traits.media,
         )  # fmt: skip
 
     def _iteration(self, i: int, radius):
-        """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one)."""
+        """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one);
+        in a scene with media the eye paths read the caustic photons at ``radius`` themselves and
+        no gather follows (the result's flux and count are zero)."""
         p, settings = self.params, self.settings
         check_once(self, p, self.size, self.check_memory)
         eye_seed, _ = iteration_seeds(p.seed, i)
@@ -275,16 +291,37 @@ class SPPMPipeline(MovableCamera):
         with self.timer("eye pass"):
             points = eye_pass(
                 self.scene, self.sensor, eye_seed, settings, self.traits,
-                self.volume_caustics(photons, i), self.eye_spp,
+                self.caustics(photons, i, radius), self.eye_spp,
+                "continue" if self.traits.media else "stop",
             )  # fmt: skip
         with self.timer("gather"):
-            got = gather(points, radius, photons, settings)
-        self.stats["photons"] += p.photons_per_iteration
-        self.stats["photon_records"] += photons.count
-        self.stats["aimed_photons"] += photons.aimed
-        self.stats["aimed_on_specular"] += photons.caustic_fraction * photons.aimed
+            if self.traits.media:
+                w, h = self.size
+                got = Gathered(dr.zeros(mi.Color3f, w * h), dr.zeros(mi.Float, w * h))
+            else:
+                got = gather(points, radius, photons, settings)
+        if photons is not None:
+            self.stats["photons"] += p.photons_per_iteration
+            self.stats["photon_records"] += photons.count
+            self.stats["aimed_photons"] += photons.aimed
+            self.stats["aimed_on_specular"] += photons.caustic_fraction * photons.aimed
         self.stats["gathers"] += dr.width(points.found)
         return points, got
+
+    def caustics(self, photons, i: int, radius) -> Caustics | None:
+        """Iteration ``i``'s caustic photons as the eye paths read them in a scene with media
+        (:class:`~photonmap.core.eye_trace.Caustics`): at surfaces within ``radius``, in the
+        media within ``ρ_i``; None without media or photons."""
+        if not self.traits.media or photons is None:
+            return None
+        surface = None
+        if photons.count:
+            grid = PhotonGrid.build(photons, radius)
+
+            def surface(si, depth_left, active):
+                return grid.radiance(si, radius, depth_left, active)
+
+        return Caustics(self.volume_caustics(photons, i), surface)
 
     def volume_radius_at(self, i: int) -> float:
         """``ρ_i = ρ_1 · i^((α−1)/3)``, the volume estimate's radius in iteration ``i`` (module
@@ -295,8 +332,8 @@ class SPPMPipeline(MovableCamera):
         return r1 * i ** ((p.alpha - 1.0) / 3.0)
 
     def volume_caustics(self, photons, i: int):
-        """Iteration ``i``'s caustic volume photons as the eye paths' ``medium_light``
-        (:func:`~photonmap.core.eye_trace.trace_eye_paths`), or None where there are none. The
+        """Iteration ``i``'s caustic volume photons as the eye paths read them at medium
+        collisions (:class:`~photonmap.core.eye_trace.Caustics`), or None where there are none. The
         automatic ``ρ_1`` is fixed by iteration 1's (whichever iterations run, so memoryless
         blocks agree): the sphere that holds about :data:`FIRST_PHOTONS` of them (the median
         distance of the k-th nearest), within the scene-wide bound."""
@@ -313,7 +350,7 @@ class SPPMPipeline(MovableCamera):
         self.stats["volume_photons"] += vmap.size
         stored = vmap.stored()
 
-        def medium_light(mei, _beta, depth_left, active):
+        def medium_light(mei, depth_left, active):
             return vmap.phase_sum(stored, mei, radius, depth_left, active)
 
         return medium_light
@@ -327,7 +364,7 @@ class SPPMPipeline(MovableCamera):
     def render_block(self, first: int, count: int) -> BlockSums:
         """The summed images of memoryless iterations ``first … first + count − 1`` (1-based;
         ``mode="memoryless"`` only). Independent of what was rendered before."""
-        if self.params.mode != "memoryless":
+        if not self.memoryless:
             raise ParameterError(
                 "render_block needs independent iterations: set mode='memoryless' "
                 f"(the pipeline's mode is {self.params.mode!r})"
@@ -346,7 +383,7 @@ class SPPMPipeline(MovableCamera):
     def step(self) -> None:
         """Run the next iteration and fold it into the image."""
         i = self.iterations + 1
-        if self.params.mode == "memoryless":
+        if self.memoryless:
             w, h = self.size
             state = self._state or BlockSums(np.zeros((h, w, 3)), 0)
             new = state.merge(BlockSums(self._memoryless_image(i), 1))
@@ -364,7 +401,7 @@ class SPPMPipeline(MovableCamera):
         w, h = self.size
         if self._state is None:
             return mi.TensorXf(np.zeros((h, w, 3), np.float32))
-        if self.params.mode == "memoryless":
+        if self.memoryless:
             image = self._state.image()
         else:
             image = np.asarray(self._state.image(), np.float32).T.reshape(h, w, 3)

@@ -13,13 +13,15 @@ at the visible point (emitter sampling and BSDF sampling with MIS,
 :func:`~photonmap.core.direct.direct_lighting`) and the emission seen — lights seen directly or
 through mirrors and glass — from :data:`LIGHT_SPP` paths of their own.
 
-**Participating media** (Jensen & Christensen 1998; as Mitsuba's ``volpath``): the eye path is
-traced through the media by volumetric path tracing — at each medium collision next-event
-estimation with transmittance shadow rays under MIS, then a phase-function sample goes on —
-until it reaches its visible point on a surface. The only light such paths cannot find, light
-reaching the medium through mirrors and glass (volume caustics), comes from the iteration's
-caustic volume photons (``medium_light``); light through mirrors and glass seen after a medium
-collision is then left to them (``volume_caustics``).
+**Participating media** (Jensen & Christensen 1998; as Mitsuba's ``volpath``): in a scene with
+media the eye paths are volumetric path tracing throughout — through the media (direct light
+along each piece, free-flight collisions, phase-function samples) and on through smooth surfaces
+(next-event estimation and BSDF samples under MIS) — and the only light such paths cannot find,
+light that reached a surface or a medium through mirrors and glass, comes from the iteration's
+caustic photons read at each vertex (``caustics``, ``surfaces="continue"``). The light is then
+carried in the same direction as ``volpath``'s — which a file whose media disagree with its
+shapes needs (:func:`~photonmap.core.scene_info.warn_disagreeing_media`) — and the photon pass
+is small (none without mirrors and glass).
 """
 
 from __future__ import annotations
@@ -31,7 +33,7 @@ import mitsuba as mi
 
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
-from ..core.eye_trace import trace_eye_paths
+from ..core.eye_trace import Caustics, trace_eye_paths
 from ..core.media import broadcast
 from ..core.sampling import rng
 from ..core.scene_info import SceneTraits
@@ -64,8 +66,9 @@ def eye_pass(
     seed: int,
     settings: PathSettings,
     traits: SceneTraits,
-    medium_light=None,
+    caustics: Caustics | None = None,
     spp: int = 1,
+    surfaces: str = "stop",
 ) -> VisiblePoints:
     """Trace ``spp`` jittered eye paths per pixel of ``sensor``'s film crop (random numbers from
     ``seed``, the iteration's seed) to their visible points; evaluated before returning. The
@@ -73,7 +76,9 @@ def eye_pass(
     images in mirrors and glass are bright and small, and one sample per iteration leaves a pixel
     that catches one a spike of the light's radiance over the iteration count — with fewer eye
     paths, further paths of their own that only follow mirrors and glass (cheap).
-    ``medium_light``: the iteration's volume caustics (module docstring)."""
+    ``caustics``: the iteration's caustic photons read along the paths; ``surfaces``:
+    ``"continue"`` traces the paths on through smooth surfaces (module docstring), which leaves
+    no visible points."""
     w, h = (int(c) for c in sensor.film().crop_size())
     lanes = w * h * spp
     gen = rng(lanes, seed, 0)
@@ -86,14 +91,13 @@ def eye_pass(
     seen_here = spp >= LIGHT_SPP
     eye = trace_eye_paths(
         scene, ray, weight, start, gen, settings, traits, emission=seen_here,
-        media_mode="continue", medium_light=medium_light,
-        volume_caustics=medium_light is not None,
+        media_mode="continue", surfaces=surfaces, caustics=caustics,
     )  # fmt: skip
-    u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
-    lit = eye.found & settings.allows(eye.depth + 1)
-    L = eye.radiance + eye.beta * direct_lighting(
-        scene, eye.si, u_light, gen, lit, traits, eye.medium
-    )
+    L = eye.radiance
+    if surfaces == "stop":
+        u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
+        lit = eye.found & settings.allows(eye.depth + 1)
+        L += eye.beta * direct_lighting(scene, eye.si, u_light, gen, lit, traits, eye.medium)
     direct = pixel_means(L, spp)
     if not seen_here:
         direct += emission_seen(scene, sensor, seed, settings, traits, w * h)
