@@ -124,13 +124,14 @@ def run_case(name: str, runs: int) -> dict:
     background = Background(Viewer(scene, method, dict(overrides)))
     base = background.url.rstrip("/")
     try:
-        with httpx.Client(timeout=600) as http:
+        with httpx.Client(timeout=600, headers=background.headers) as http:  # the token
             start = time.perf_counter()
             first = http.get(base + "/api/frame.png")
             first.raise_for_status()
             first_ms = 1e3 * (time.perf_counter() - start)
             state = http.get(base + "/api/state").json()
-            with connect(base.replace("http", "ws") + "/api/stream", max_size=None) as ws:
+            stream = f"{base.replace('http', 'ws')}/api/stream?token={background.viewer.token}"
+            with connect(stream, max_size=None) as ws:
                 streamed(ws, 0)
                 light = measure(http, ws, base, [
                     {"lights": [{"position": lights[i % 2]}]} for i in range(runs + 1)

@@ -10,8 +10,18 @@ from __future__ import annotations
 
 import os
 
-from .core import llvm
-from .core.errors import BackendError, ParameterError, PhotonmapError, PhotonmapWarning, SceneError
+from .core import interrupt as _interrupt
+
+_interrupt.guard_command()  # the photonmap command: Ctrl-C during this import is answered too
+
+from .core import llvm  # noqa: E402
+from .core.errors import (  # noqa: E402
+    BackendError,
+    ParameterError,
+    PhotonmapError,
+    PhotonmapWarning,
+    SceneError,
+)
 
 llvm.configure()
 

@@ -3,16 +3,21 @@ same scene, compare two images, list the built-in scenes; on Ray workers, progre
 (``render --workers/--ray``) and frame sequences (``render-sequence``, :mod:`photonmap.cluster`).
 
 Every argument is checked before any work starts (output paths, image size and its memory, the
-``--set`` keys and values); each bad input is one line ``error: ...`` and exit status 2. The CLI
-goes through the package API only (:data:`photonmap.METHODS`).
+``--set`` keys and values); each bad input is one line ``error: ...`` and exit status 2 (1 for a
+failure outside the input, such as a full disk). Outputs are written atomically
+(:func:`photonmap.core.image.write_bytes`). Ctrl-C is answered at the next safe point
+(:mod:`photonmap.core.interrupt`): the image reached is written (a progressive render's) or
+nothing, one line ``interrupted: ...`` says which, exit status 130. The CLI goes through the
+package API only (:data:`photonmap.METHODS`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import warnings
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from typing import Annotated
 
 import typer
@@ -22,18 +27,98 @@ app = typer.Typer(
     add_completion=False, no_args_is_help=True, help="Photon mapping on Mitsuba 3 + Dr.Jit."
 )
 console = Console(stderr=True)
+MaxMemory = Annotated[
+    str | None,
+    typer.Option(
+        "--max-memory",
+        help="memory the render may use, e.g. 8G (default: what the system has available)",
+    ),
+]
+
+
+def main() -> None:
+    """The console script: ``photonmap`` (also ``python -m photonmap``)."""
+    app()
 
 
 def _error(exc) -> typer.Exit:
-    """Print a PhotonmapError on stderr (unwrapped, so keys are never split) → exit status 2."""
+    """Print a PhotonmapError on stderr (unwrapped, so keys are never split) → its exit status
+    (2: bad input; 1: a failure outside the input, e.g. a full disk)."""
     from rich.text import Text
 
     console.print(Text.assemble(("error: ", "red"), str(exc)), soft_wrap=True)
-    return typer.Exit(2)
+    return typer.Exit(getattr(exc, "exit_code", 2))
+
+
+def _root_cause(exc: BaseException) -> str:
+    """The first line of the innermost cause of ``exc`` (Mitsuba wraps its errors)."""
+    while (exc.__cause__ or exc.__context__) is not None:
+        exc = exc.__cause__ or exc.__context__
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+
+
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
 
 
 def _say(text: str) -> None:
     console.print(text, soft_wrap=True, markup=False, highlight=False)
+
+
+class _Run:
+    """What a command wrote, for the line that ends it on Ctrl-C."""
+
+    def __init__(self):
+        self.written: list[str] = []
+        self.note = ""  # what the written image holds (e.g. "5 iterations")
+        self.summary = ""  # replaces the list of files (a sequence's "3 of 8 frames written")
+
+    def write(self, outputs, image) -> None:
+        """Write ``image`` to every output (atomically), saying so unless interrupted."""
+        from .core import interrupt
+        from .core.image import write_image
+
+        for out in outputs:
+            write_image(out, image)
+            self.written.append(out)
+            if not interrupt.requested():
+                _say(f"wrote {out}")
+
+    def describe(self) -> str:
+        what = self.summary or (
+            f"wrote {', '.join(self.written)}" if self.written else "nothing written"
+        )
+        return what + (f" ({self.note})" if self.note and (self.written or self.summary) else "")
+
+
+@contextmanager
+def _command(max_memory: str | None = None):
+    """A command's work: a PhotonmapError is one line and its exit status; Ctrl-C is answered
+    at the next safe point (:func:`photonmap.core.interrupt.check`) with one line saying what
+    was written, exit status 130; running out of memory despite the estimates is one line."""
+    from .core import interrupt
+    from .core.errors import PhotonmapError
+    from .core.memory import set_memory_limit
+
+    run = _Run()
+    with interrupt.deferred(force=True):
+        try:
+            set_memory_limit(max_memory)
+            yield run
+        except KeyboardInterrupt:
+            interrupted = True
+        except PhotonmapError as exc:
+            raise _error(exc) from None
+        except MemoryError as exc:
+            _say(f"error: out of memory ({exc}); lower the photon budget or the image size")
+            raise typer.Exit(1) from None
+        else:
+            interrupted = interrupt.requested()  # during the last writes: they completed
+        finally:
+            set_memory_limit(None)
+    if interrupted:
+        _say(f"interrupted: {run.describe()}")
+        raise typer.Exit(130)
 
 
 def _split_sets(items: list[str]) -> dict[str, str]:
@@ -168,6 +253,7 @@ def render(
     ray_address: Annotated[
         str | None, typer.Option("--ray", help="sppm: iterate on the Ray cluster at HOST:PORT")
     ] = None,
+    max_memory: MaxMemory = None,
 ):
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
 
@@ -178,13 +264,14 @@ def render(
     file's $name parameters (an unknown key lists them all). On a terminal the pipeline stages
     show as a progress bar."""
     from . import METHODS, PhotonmapError
-    from .core.image import check_output, write_image
-    from .core.memory import check_image_memory, check_side
+    from .core import interrupt
+    from .core.image import check_output
+    from .core.memory import check_side
     from .core.params import updated
     from .core.progress import interactive, stage_progress
     from .core.scene_info import pick_method
 
-    try:
+    with _command(max_memory) as run:
         for out in output:
             check_output(out)
         check_side("--width", width)
@@ -201,6 +288,7 @@ def render(
             )
         with console.status(f"loading {scene}") if interactive() else nullcontext():
             mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
+        interrupt.check()
         if method is None and builtin is not None:
             method = builtin.pipeline  # the method the built-in scene is made for
         elif method is None:
@@ -226,33 +314,47 @@ def render(
             warnings.simplefilter("always")
             with console.status(f"loading {scene}") if interactive() else nullcontext():
                 pipe = Pipeline(mi_scene if mi_scene is not None else scene, **params)
+            interrupt.check()
             film = (pipe.sensor if hasattr(pipe, "sensor") else pipe.scene.sensor).film().size()
             size = _image_size(width, height, film)
-            check_image_memory(method, *size, params.get("spp", 1))
+            pipe.check_memory(size=size)  # the method's own estimate, before any allocation
             if size != tuple(int(c) for c in film):
                 pipe.set_camera(width=size[0], height=size[1])
             if workers is not None or ray_address is not None:
                 xml = {k: v for k, v in _split_sets(set_ or []).items() if k not in sets}
                 job = _job(scene, method, params, xml, size)
-                image = _distribute(job, output, time, preview_every, workers, ray_address)
+                image = _distribute(job, output, time, preview_every, workers, ray_address, run)
             elif method == "sppm":
-                image = _iterate(pipe, scene, output, time, "iterations" in params, preview_every)
+                image = _iterate(pipe, scene, output, time, "iterations" in params,
+                                 preview_every, run)  # fmt: skip
             else:
-                with stage_progress(pipe.stages, f"rendering {scene}", console=console) as report:
+                with stage_progress(pipe.stages, f"rendering {scene}", console=console) as bar:
+
+                    def report(stage):
+                        interrupt.check()  # Ctrl-C: stop between stages, write nothing
+                        if bar is not None:
+                            bar(stage)
+
                     image = pipe.render(progress=report)
-        for w in {str(w.message): w for w in caught}.values():
-            _say(f"warning: {w.message}")
-        for out in output:
-            write_image(out, image)
-            _say(f"wrote {out}")
-        if timings:  # a report the user asked for: on stdout
+        if not interrupt.requested():
+            for w in {str(w.message): w for w in caught}.values():
+                _say(f"warning: {w.message}")
+        if image is not None:
+            run.write(output, image)
+        if timings and not interrupt.requested():  # a report the user asked for: on stdout
             out_console = Console()
             out_console.print(pipe.timer.table(f"{scene}: per-stage timings"))
             out_console.print(
                 ", ".join(f"{k.replace('_', ' ')} {v:,}" for k, v in pipe.stats.items())
             )
-    except PhotonmapError as exc:
-        raise _error(exc) from None
+
+
+def _check_seconds(name: str, value) -> None:
+    """A time budget: a finite number of seconds > 0."""
+    from .core.errors import ParameterError
+
+    if not (value > 0 and math.isfinite(value)):
+        raise ParameterError(f"{name} must be a finite number of seconds > 0, got {value}")
 
 
 def _check_progressive(method, seconds, preview_every) -> None:
@@ -264,16 +366,17 @@ def _check_progressive(method, seconds, preview_every) -> None:
             continue
         if method != "sppm":
             raise ParameterError(f"{name} applies to --method sppm only (progressive rendering)")
-        if not value > 0:
-            raise ParameterError(f"{name} must be > 0 seconds, got {value}")
+        _check_seconds(name, value)
 
 
-def _iterate(pipe, scene, outputs, seconds, iterations_set, preview_every):
+def _iterate(pipe, scene, outputs, seconds, iterations_set, preview_every, run):
     """Run the progressive pipeline for ``--time`` seconds (and/or ``--set iterations=N``) with
     a progress bar of iterations and the mean radius; ``--preview-every`` rewrites the outputs
-    during the run; Ctrl-C ends it with the image reached so far."""
+    during the run; Ctrl-C ends it with the image of the whole iterations reached so far (None:
+    not one finished)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from .core import interrupt
     from .core.image import write_image
     from .core.progress import interactive
 
@@ -286,15 +389,18 @@ def _iterate(pipe, scene, outputs, seconds, iterations_set, preview_every):
         def progress(i, elapsed, radius):
             done = elapsed if iterations is None else i
             bar.update(task, completed=done, description=f"sppm: {i} iterations, r {radius:.4g}")
+            interrupt.check()  # Ctrl-C: stop after this whole iteration
 
         def preview(image):
             for out in outputs:
                 write_image(out, image)
 
         try:
+            interrupt.check()
             pipe.run(seconds, iterations, progress, preview, preview_every or float("inf"))
         except KeyboardInterrupt:
-            _say(f"interrupted: writing the image of {pipe.iterations} iterations")
+            run.note = f"the image of {_count(pipe.iterations, 'iteration')}"
+            return pipe.image() if pipe.iterations else None
     _say(f"sppm: {pipe.iterations} iterations, mean radius {pipe.mean_radius:.4g}")
     return pipe.image()
 
@@ -305,9 +411,10 @@ def _job(scene, method, params, scene_params, size):
     return SceneJob(scene, method, params, scene_params, *size)
 
 
-def _distribute(job, outputs, seconds, preview_every, workers, address):
+def _distribute(job, outputs, seconds, preview_every, workers, address, run):
     """``render --workers/--ray``: memoryless iterations in blocks on Ray workers
-    (:mod:`photonmap.cluster.progressive`), previews as blocks arrive, Ctrl-C keeps the merge."""
+    (:mod:`photonmap.cluster.progressive`), previews as blocks arrive, Ctrl-C keeps the merge
+    (None: no block finished)."""
     from rich.progress import Progress
 
     from .cluster.progressive import render_progressive
@@ -332,12 +439,13 @@ def _distribute(job, outputs, seconds, preview_every, workers, address):
             job, iterations, seconds, workers, address, preview=preview,
             preview_every=preview_every or float("inf"), on_block=on_block,
         )  # fmt: skip
+    if res.interrupted:
+        run.note = f"the image of {_count(res.iterations, 'iteration')}"
+        return None if res.sums is None else res.sums.image()
     for text in res.warnings():
         _say(f"warning: {text}")
     if res.sums is None:
-        raise PhotonmapError("interrupted before any block of iterations finished: no image")
-    if res.interrupted:
-        _say(f"interrupted: writing the image of {res.iterations} iterations")
+        raise PhotonmapError("no block of iterations finished: no image")
     pids = {(b["node"], b["pid"]) for b in res.blocks}
     _say(f"sppm: {res.iterations} iterations in {len(res.blocks)} blocks on {len(pids)} "
          f"worker(s), {res.seconds:.1f} s")
@@ -362,18 +470,21 @@ def render_sequence(
     skip_existing: Annotated[
         bool, typer.Option("--skip-existing", help="leave out frames already written (resume)")
     ] = False,
+    max_memory: MaxMemory = None,
 ):
     """Render a sequence of frames of SCENE, one Ray task per frame, each frame written as it
-    finishes; every worker keeps its pipeline's cached stages between the frames it renders."""
+    finishes; every worker keeps its pipeline's cached stages between the frames it renders.
+    Every frame's settings and memory are checked here before the first frame starts."""
     from . import METHODS, PhotonmapError
     from .cluster.frames import load_frames
-    from .cluster.job import FrameState
+    from .cluster.job import check_frames
     from .cluster.sequence import check_outputs
-    from .cluster.sequence import render_sequence as run
+    from .cluster.sequence import render_sequence as run_frames
+    from .core import interrupt
     from .core.memory import check_side
     from .core.scene_info import pick_method
 
-    try:
+    with _command(max_memory) as run:
         check_outputs(output)
         check_side("--width", width)
         check_side("--height", height)
@@ -385,26 +496,23 @@ def render_sequence(
         job, todo = _sequence_job(scene, method, spec, width, height)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # the workers report them
-            state = FrameState(job)
-            for frame in todo:  # every frame's settings are checked before any work
-                state.apply(frame)
+            check_frames(job, todo)  # every frame's settings and memory, before any work
+        interrupt.check()
         done, seen = 0, set()
-        try:
-            for index, paths, info in run(job, todo, output, workers, ray_address,
-                                          skip_existing):
-                done += 1
-                for text in set(info["warnings"]) - seen:
-                    _say(f"warning: {text}")
-                seen |= set(info["warnings"])
-                reran = info["recomputed"]
-                reran = "" if reran is None else f", reran {len(reran)} stage(s)"
-                _say(f"wrote {', '.join(paths)} (frame {index}, {done}/{len(todo)}; worker "
-                     f"{info['node']}:{info['pid']}, {info['seconds']:.2f} s{reran})")
-        except KeyboardInterrupt:
-            _say(f"interrupted: {done} of {len(todo)} frames written")
-            raise typer.Exit(130) from None
-    except PhotonmapError as exc:
-        raise _error(exc) from None
+        run.summary = f"0 of {len(todo)} frames written"
+        for index, paths, info in run_frames(job, todo, output, workers, ray_address,
+                                             skip_existing):  # fmt: skip
+            done += 1
+            run.summary = f"{done} of {len(todo)} frames written"
+            if interrupt.requested():
+                continue  # the frame is on disk; the line that ends the command says so
+            for text in set(info["warnings"]) - seen:
+                _say(f"warning: {text}")
+            seen |= set(info["warnings"])
+            reran = info["recomputed"]
+            reran = "" if reran is None else f", reran {len(reran)} stage(s)"
+            _say(f"wrote {', '.join(paths)} (frame {index}, {done}/{len(todo)}; worker "
+                 f"{info['node']}:{info['pid']}, {info['seconds']:.2f} s{reran})")
 
 
 def _sequence_job(scene, method, spec, width, height):
@@ -455,15 +563,16 @@ def reference(
     file, in passes that bound memory, with a progress bar on a terminal."""
     from rich.progress import Progress
 
-    from . import PhotonmapError, mi
-    from .core.errors import ParameterError
-    from .core.image import check_output, write_image
-    from .core.memory import check_side
+    from . import mi
+    from .core import interrupt
+    from .core.errors import ParameterError, SceneError
+    from .core.image import check_output
+    from .core.memory import check_memory, check_side
     from .core.progress import interactive
-    from .core.reference import INTEGRATORS, render_reference
+    from .core.reference import BYTES_PER_SAMPLE, INTEGRATORS, render_reference
     from .scenes import load_scene
 
-    try:
+    with _command() as run:
         for out in output:
             check_output(out)
         check_side("--width", width)
@@ -474,8 +583,8 @@ def reference(
             )
         if spp < 1:
             raise ParameterError(f"--spp must be at least 1, got {spp}")
-        if time is not None and not time > 0:
-            raise ParameterError(f"--time must be > 0 seconds, got {time}")
+        if time is not None:
+            _check_seconds("--time", time)
         if not 0 <= seed < 2**32:
             raise ParameterError(f"--seed must lie in 0 … 2³²−1, got {seed}")
         sets = _split_sets(set_ or [])
@@ -488,28 +597,35 @@ def reference(
             )
         if not mi_scene.sensors():
             raise ParameterError("the scene has no sensor (camera) to render from")
+        interrupt.check()
         film = mi_scene.sensors()[0].film().size()
         size = _image_size(width, height, film)
+        check_memory("reference", {"film and one pass": (BYTES_PER_SAMPLE + 64) * size[0] * size[1]},
+                     "render a smaller image (--width, --height)")  # fmt: skip
         if size != tuple(int(c) for c in film):
             params = mi.traverse(mi_scene.sensors()[0])
             params["film.size"] = size
             params["film.crop_size"] = size
             params.update()
+
+        def passed(done, total):  # after each pass: Ctrl-C stops here, nothing is written
+            bar.update(task, completed=done)
+            interrupt.check()
+
         with Progress(console=console, disable=not interactive()) as bar:
             task = bar.add_task(f"reference {scene}", total=spp)
-            image, info = render_reference(
-                mi_scene, spp, integrator, max_depth, time, seed,
-                progress=lambda done, total: bar.update(task, completed=done),
-            )  # fmt: skip
-        for out in output:
-            write_image(out, image)
-            _say(f"wrote {out}")
-        _say(
-            f"{info['integrator']}: {info['spp']} spp in {info['seconds']:.1f} s "
-            f"({info['passes']} pass{'es' if info['passes'] > 1 else ''})"
-        )
-    except PhotonmapError as exc:
-        raise _error(exc) from None
+            try:
+                image, info = render_reference(
+                    mi_scene, spp, integrator, max_depth, time, seed, progress=passed
+                )
+            except (RuntimeError, TypeError) as exc:  # Mitsuba refused the scene or its film
+                raise SceneError(f"Mitsuba could not render {scene!r}: {_root_cause(exc)}") from None
+        run.write(output, image)
+        if not interrupt.requested():
+            _say(
+                f"{info['integrator']}: {info['spp']} spp in {info['seconds']:.1f} s "
+                f"({info['passes']} pass{'es' if info['passes'] > 1 else ''})"
+            )
 
 
 @app.command()
@@ -519,6 +635,11 @@ def scenes():
 
     from .scenes import SCENES
 
+    with _command():
+        _scenes_table(Table, SCENES)
+
+
+def _scenes_table(Table, SCENES) -> None:
     t = Table(title="built-in scenes")
     t.add_column("name")
     t.add_column("method")
@@ -537,14 +658,11 @@ def compare(
 ):
     """Errors of image A against reference B: RMSE, relative RMSE, relative RMSE of 4×4-pixel
     block means (noise averages out, bias does not), brightness ratio and PSNR."""
-    from . import PhotonmapError
     from .core.image import compare as compare_images
     from .core.image import read_image
 
-    try:
+    with _command():
         m = compare_images(read_image(a), read_image(b))
-    except PhotonmapError as exc:
-        raise _error(exc) from None
     print(
         f"RMSE {m['rmse']:.6g}  relative RMSE {m['rel_rmse']:.6g}  "
         f"4x4-block relative RMSE {m['block_rel_rmse']:.6g}  brightness {m['brightness']:.4f}  "
@@ -576,23 +694,26 @@ def view(
         list[str] | None,
         typer.Option("--set", help="KEY=VALUE: a method or scene parameter (repeatable)"),
     ] = None,
+    max_memory: MaxMemory = None,
 ):
     """Interactive relighting in the browser: drag the light, orbit the camera, change the
     glass and the fog, paint the volume; per-stage timings of each change. README "Interactive
-    viewer" documents the page and its HTTP API."""
+    viewer" documents the page and its HTTP API. The page's URL carries a token the server
+    requires (only that page drives the viewer)."""
     from . import METHODS, PhotonmapError
+    from .core import interrupt
     from .core.errors import ParameterError
     from .core.memory import check_side
     from .core.scene_info import pick_method
 
     try:
-        from .viewer import Viewer, serve
+        from .viewer import Viewer, page_url, serve
     except ImportError as exc:
         raise _error(PhotonmapError(
             f"the viewer needs the 'viewer' extra ({exc.name} is missing): "
             "pip install 'photonmap[viewer]'"
         )) from None
-    try:
+    with _command(max_memory) as run:
         check_side("--width", width)
         check_side("--height", height)
         if not 1 <= port <= 65535:
@@ -617,13 +738,17 @@ def view(
 
             probe = mi_scene if mi_scene is not None else load_scene(scene)[0]
             size = _image_size(width, height, probe.sensors()[0].film().size())
+        interrupt.check()
         _say(f"loading {scene} ({method})")
         viewer = Viewer(mi_scene if mi_scene is not None else scene, method, params, size,
                         frames, name=scene)  # fmt: skip
-        _say(f"photonmap view: http://{host}:{port}/  (Ctrl-C stops)")
-        serve(viewer, host, port, open_browser=not no_browser)
-    except PhotonmapError as exc:
-        raise _error(exc) from None
+        run.summary = "the viewer stopped, nothing written"
+        try:
+            interrupt.check()
+            _say(f"photonmap view: {page_url(viewer, host, port)}  (Ctrl-C stops)")
+            serve(viewer, host, port, open_browser=not no_browser)
+        finally:
+            viewer.close()
 
 
 analyze_app = typer.Typer(
@@ -658,15 +783,12 @@ def analyze_bandwidth(
     """Photon-map memory traffic of SCENE's final gathers per gather order: exact k-NN gathers
     on the heap-order kd-tree, a fully associative LRU cache (and 8-way set-associative), bytes
     per image against the dissertation's uncached 20 bytes per visited node."""
-    from . import PhotonmapError
     from .analysis.report import bandwidth_report
 
-    try:
+    with _command():
         mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
         params = _typed_params("surface", sets, builtin)
         text = bandwidth_report(
             scene, builtin, order, cache, line, tile, sweep, plot, size, crop, params, structure
         )
         Console().print(text, markup=False, highlight=False, soft_wrap=True)
-    except PhotonmapError as exc:
-        raise _error(exc) from None

@@ -15,7 +15,7 @@ import ray
 from typer.testing import CliRunner
 
 from photonmap.cli import app
-from photonmap.cluster.connect import spawn, start_local
+from photonmap.cluster.connect import remove_session_files, spawn, start_local
 from photonmap.cluster.frames import parse_frames
 from photonmap.cluster.job import FrameState, SceneJob, build_pipeline
 from photonmap.cluster.progressive import render_progressive
@@ -39,6 +39,7 @@ def address():
     addr = start_local(ray, 2)
     yield addr
     ray.shutdown()
+    remove_session_files()
 
 
 @pytest.fixture(scope="module")
@@ -149,3 +150,77 @@ def test_a_worker_error_reaches_the_driver_as_itself(address):
     job = SceneJob("no/such/scene.xml", "sppm", {"photons_per_iteration": 100})
     with pytest.raises(SceneError, match="neither a built-in nor a file on this node"):
         render_progressive(job, 2, workers=1, address=address)
+
+
+@pytest.fixture
+def quiet_sigint():
+    """A late SIGINT (after a command returned) must not stop the test session."""
+    previous = signal.signal(signal.SIGINT, lambda *_: None)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def _sigint_when(condition, timeout=120.0):
+    """SIGINT this process (from a thread) once ``condition()`` holds."""
+    import threading
+    import time
+
+    def wait():
+        deadline = time.monotonic() + timeout
+        while not condition() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    thread = threading.Thread(target=wait, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_ctrl_c_on_a_sequence_keeps_whole_frames(address, tmp_path, quiet_sigint):
+    """Ctrl-C after the first frame is on disk: the frames written stay whole, one line says how
+    many, exit 130 (issue 21 item 2)."""
+    spec = tmp_path / "light.json"
+    spec.write_text(json.dumps({**LIGHT_PATH, "frames": 12, "width": 48, "height": 36,
+                                "set": VOLUME.params}))  # fmt: skip
+    thread = _sigint_when(lambda: any(tmp_path.glob("f*.exr")))
+    result = CliRunner().invoke(app, ["render-sequence", "glass_sphere_fog", "--frames", str(spec),
+                                      "-o", str(tmp_path / "f%03d.exr"), "--ray", address])  # fmt: skip
+    thread.join()
+    written = sorted(tmp_path.glob("f*.exr"))
+    assert result.exit_code == 130, result.output
+    lines = result.output.strip().splitlines()
+    assert lines[-1] == f"interrupted: {len(written)} of 12 frames written"
+    assert "Traceback" not in result.output and 1 <= len(written) <= 12
+    for path in written:
+        assert read_image(str(path)).shape == (36, 48, 3)
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_ctrl_c_on_distributed_sppm_writes_the_merged_blocks(address, tmp_path, quiet_sigint):
+    out = tmp_path / "box.exr"
+    p = SPPM.params
+    args = ["render", SPPM.scene, "--method", "sppm", "--seed", str(p["seed"]),
+            "--set", f"photons_per_iteration={p['photons_per_iteration']}",
+            "--set", "iterations=400", "--width", str(SPPM.width), "--height", str(SPPM.height),
+            "--preview-every", "0.01", "--ray", address, "-o", str(out)]  # fmt: skip
+    thread = _sigint_when(out.exists)  # after the first preview: some blocks merged
+    result = CliRunner().invoke(app, args)
+    thread.join()
+    assert result.exit_code == 130, result.output
+    last = result.output.strip().splitlines()[-1]
+    assert re.fullmatch(rf"interrupted: wrote {re.escape(str(out))} \(the image of \d+ iterations?\)",
+                        last), result.output  # fmt: skip
+    assert "Traceback" not in result.output
+    assert read_image(str(out)).shape == (SPPM.height, SPPM.width, 3)
+
+
+def test_a_local_instance_keeps_its_files_in_its_own_temporary_folder(address):
+    """Issue 21: Ray left a /tmp/ray/session_* folder per run; a private instance's session
+    lives in a temporary folder of its own, removed when it is shut down."""
+    from ray._private import worker
+
+    from photonmap.cluster import connect
+
+    session = worker._global_node.get_session_dir_path()
+    assert connect._session_dirs and session.startswith(connect._session_dirs[-1] + os.sep)
+    assert not session.startswith("/tmp/ray/")

@@ -109,7 +109,7 @@ def test_cli(tmp_path):
     result = runner.invoke(app, [*args, "--time", "0.5", "--set", "photons_per_iteration=4000"])
     assert result.exit_code == 0, result.output
     for extra, message in (
-        (["--time", "0"], "--time must be > 0"),
+        (["--time", "0"], "--time must be a finite number of seconds > 0"),
         (["--set", "alpha=1"], "alpha must lie in (0, 1)"),
         (["--set", "radius=-1"], "radius must be >= 0"),
     ):

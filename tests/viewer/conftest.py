@@ -29,7 +29,8 @@ def client(viewer):
 
     from photonmap.viewer import create_app
 
-    with TestClient(create_app(viewer)) as c:
+    with TestClient(create_app(viewer), base_url="http://127.0.0.1",
+                    headers={"X-Photonmap-Token": viewer.token}) as c:  # fmt: skip
         yield c
 
 

@@ -113,7 +113,8 @@ def test_bad_update_is_422_and_changes_nothing(client, body, reason):
 
 
 def test_bad_bodies(client):
-    reply = client.post("/api/update", content=b"{not json", headers={"content-type": "x"})
+    reply = client.post("/api/update", content=b"{not json",
+                        headers={"content-type": "application/json"})  # fmt: skip
     assert reply.status_code == 422 and "not valid JSON" in reply.json()["detail"]
     for stroke, reason in [
         ({"center": [0, 0, 0], "radius": 0, "amount": 1}, "stroke.radius must be > 0"),
@@ -162,7 +163,8 @@ def test_volume_sequence(tmp_path):
         Viewer(SCENE, "volume", dict(OVERRIDES), SIZE, frames={"kappa": np.zeros((2, 8, 8, 8))})
     viewer = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE, frames=frames)
     try:
-        with TestClient(create_app(viewer)) as client:
+        with TestClient(create_app(viewer), base_url="http://127.0.0.1",
+                        headers={"X-Photonmap-Token": viewer.token}) as client:  # fmt: skip
             assert client.get("/api/state").json()["frames"] == 2
             own = viewer.adapter.own_grids() if client.get("/api/frame.png") else None
             images = []
@@ -182,7 +184,8 @@ def test_volume_sequence(tmp_path):
 
 def test_stream_sends_meta_then_the_image(client):
     png = client.get("/api/frame.png").content
-    with client.websocket_connect("/api/stream") as ws:
+    token = client.headers["x-photonmap-token"]
+    with client.websocket_connect(f"ws://127.0.0.1/api/stream?token={token}") as ws:
         meta = ws.receive_json()
         data = ws.receive_bytes()
     assert meta["type"] == "frame" and not meta["preview"] and meta["mime"] == "image/jpeg"
@@ -294,20 +297,34 @@ def test_progressive_method_refines_and_restarts(monkeypatch):
         viewer.close()
 
 
-def test_a_change_the_pipeline_refuses_is_undone_and_reported(viewer):
-    """An update that passes the checks but fails in the pipeline (photons beyond memory: the
-    pipeline's own check_grid): the parts applied before it stay, the rest is undone, the page
-    is told why."""
+def test_a_change_the_pipeline_refuses_is_undone_and_reported(viewer, monkeypatch):
+    """An update that passes the checks but that the pipeline refuses (a setter raising after
+    the camera part was applied) is undone whole: the state and the frame are those before it,
+    and the reason comes once, on the stream and on the frame that undid it."""
+    from photonmap import ParameterError
+
     worker = viewer.worker
-    worker.wait_frame()
+    before = worker.wait_frame()
+    state0 = worker.target_state()
+    pipe = viewer.adapter.pipe
+    real = pipe.set_params
+
+    def refuse(**params):
+        if params.get("photons") == 8192:
+            raise ParameterError("photons=8192 refused by the pipeline")
+        real(**params)
+
+    monkeypatch.setattr(pipe, "set_params", refuse)
     errors = []
     worker.subscribe(lambda meta, frame: meta["type"] == "error" and errors.append(meta))
     camera = {"origin": [0.5, 0.9, 2.6], "target": [0.5, 0.4, 0.5]}
-    worker.update({"camera": camera, "params": {"photons": 2**31}})
+    worker.update({"camera": camera, "params": {"photons": 8192}})
     frame = worker.wait_frame()
-    assert len(errors) == 1 and "GB of memory" in errors[0]["message"]
+    assert len(errors) == 1 and "refused by the pipeline" in errors[0]["message"]
     assert frame.error == errors[0]["message"] and frame.meta()["error"] == frame.error
-    state = worker.target_state()
-    assert state["params"]["photons"] == OVERRIDES["photons"]
-    assert state["camera"]["origin"] == camera["origin"]
+    assert worker.target_state() == state0  # the camera part too
+    np.testing.assert_array_equal(frame.pixels, before.pixels)
+    worker.update({"camera": camera})  # a good change after it: no stale error
+    frame = worker.wait_frame()
+    assert frame.error is None
     np.testing.assert_array_equal(frame.pixels, direct(lambda p: p.set_camera(**camera)))

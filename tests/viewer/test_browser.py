@@ -32,14 +32,23 @@ def browser():
         b.close()
 
 
+def _get(url: str, **kwargs):
+    """GET with the token of the viewer under test (its API refuses requests without it)."""
+    return httpx.get(url, headers=HEADERS, **kwargs)
+
+
+HEADERS: dict = {}
+
+
 @pytest.fixture
 def page(browser, server):
-    base, _ = server
+    base, viewer = server
+    HEADERS["X-Photonmap-Token"] = viewer.token
     page = browser.new_page(viewport={"width": 900, "height": 600})
     page.problems = []
     page.on("console", lambda m: m.type == "error" and page.problems.append(m.text))
     page.on("pageerror", lambda e: page.problems.append(str(e)))
-    page.goto(base + "/")
+    page.goto(f"{base}/?token={viewer.token}")  # the URL photonmap view prints
     page.wait_for_function("window.viewer && viewer.frames > 0 && viewer.state !== null")
     yield page
     page.close()
@@ -49,7 +58,7 @@ def settled(page, base) -> np.ndarray:
     """Wait until the page shows the full-size frame of every change made so far; return the
     pixels it shows, after checking they are the server's current frame."""
     page.wait_for_function("!viewer.busy()")
-    version = httpx.get(base + "/api/frame.json", timeout=60).json()["version"]
+    version = _get(base + "/api/frame.json", timeout=60).json()["version"]
     page.wait_for_function(
         f"viewer.meta && !viewer.meta.preview && viewer.meta.version >= {version}", timeout=30000
     )
@@ -61,7 +70,7 @@ def settled(page, base) -> np.ndarray:
         }"""
     )
     image = pixels(base64.b64decode(shown))
-    latest = httpx.get(base + "/api/frame.png", timeout=60)
+    latest = _get(base + "/api/frame.png", timeout=60)
     if int(latest.headers["X-Frame-Version"]) == page.evaluate("viewer.meta.version"):
         # the streamed JPEG (quality 92) is the frame within JPEG's error (measured 0.77 / 255)
         assert np.abs(image.astype(int) - pixels(latest.content)).mean() < 1.5
@@ -69,7 +78,7 @@ def settled(page, base) -> np.ndarray:
 
 
 def state(base) -> dict:
-    return httpx.get(base + "/api/state").json()
+    return _get(base + "/api/state").json()
 
 
 def test_page_loads_without_console_errors(page, server):

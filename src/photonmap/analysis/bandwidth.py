@@ -9,12 +9,15 @@ dissertation does (spec A6), and against the cached naive order.
 
 from __future__ import annotations
 
+import io
 import os
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, wait
 from dataclasses import replace
 
 import numpy as np
 
+from ..core import interrupt
+from ..core.image import write_bytes
 from ..surface.gather_batch import ORDERS, OrderParams
 from .cache import simulate_lines
 from .stream import CacheCounts
@@ -44,16 +47,29 @@ def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> 
     return CacheCounts(np.array(rows), np.array(sa) if ways else None, np.array(compulsory), reads)
 
 
+def _checked(fn, x):
+    interrupt.check()  # Ctrl-C: between items
+    return fn(x)
+
+
 def _each(trace, fn, items, line_bytes=None) -> list:
     """``fn`` over ``items``; for a streaming trace on one thread per core (the compiled
     simulation releases the GIL and each order's caches are independent), after walking the
     gathers once and keeping their reads at ``line_bytes`` if they fit in memory."""
     if not hasattr(trace, "simulate") or len(items) < 2:
-        return [fn(x) for x in items]
+        return [_checked(fn, x) for x in items]
     if line_bytes is not None:
         trace.store_reads(line_bytes)
     with ThreadPoolExecutor(max(1, min(len(items), os.cpu_count() or 1))) as pool:
-        return list(pool.map(fn, items))
+        futures = [pool.submit(fn, x) for x in items]
+        try:  # Ctrl-C: the orders running finish, the others do not start
+            while wait(futures, timeout=0.25).not_done:
+                interrupt.check()
+        except interrupt.Interrupted:
+            for f in futures:
+                f.cancel()
+            raise
+        return [f.result() for f in futures]
 
 
 def bandwidth_table(
@@ -151,8 +167,10 @@ def plot_sweep(curves: dict, xs, xlabel: str, path: str, title: str, uncached=No
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    data = io.BytesIO()
+    fig.savefig(data, format="png", dpi=110)
     plt.close(fig)
+    write_bytes(path, data.getvalue())  # atomic: a failed write keeps the previous file
 
 
 SWEEPS = {

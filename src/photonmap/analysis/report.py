@@ -4,7 +4,9 @@ order, or the curves of a sweep."""
 
 from __future__ import annotations
 
+from ..core import interrupt
 from ..core.errors import ParameterError
+from ..core.image import check_output
 from ..surface.gather_batch import ORDERS, OrderParams
 from .bandwidth import SWEEP_ORDERS, SWEEPS, WAYS, bandwidth_table, plot_sweep, sweep
 from .cache import parse_size
@@ -52,6 +54,8 @@ def bandwidth_report(
         raise ParameterError(f"--sweep must be one of {', '.join(SWEEPS)}, got {sweep_kind!r}")
     if plot is not None and (sweep_kind is None or not plot.lower().endswith(".png")):
         raise ParameterError("--plot needs --sweep and a .png path")
+    if plot is not None:
+        check_output(plot, (".png",))
     order_params = OrderParams(tile=tile)
     order_params.validate()
     window = _crop(crop, size)
@@ -65,6 +69,7 @@ def bandwidth_report(
     else:
         target = scene
     trace = trace_final_gathers(target, **surface)
+    interrupt.check()
     if sweep_kind is None:
         rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
     else:

@@ -15,8 +15,11 @@ workers what still fails.
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
 import socket
+import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -107,6 +110,7 @@ def cluster(workers: int | None = None, address: str | None = None, timeout=CONN
     finally:
         if own:
             ray.shutdown()
+            remove_session_files()
 
 
 def _init(ray, workers, address) -> None:
@@ -121,9 +125,24 @@ def _init(ray, workers, address) -> None:
         raise ClusterError(f"cannot start or join Ray {where}: {first}") from None
 
 
+_session_dirs: list[str] = []  # the temporary folders of the local instances this process started
+
+
+def remove_session_files() -> None:
+    """Remove the session folders (logs, sockets, spilled objects) of the local Ray instances
+    this process started and shut down; also run at exit."""
+    while _session_dirs:
+        shutil.rmtree(_session_dirs.pop(), ignore_errors=True)
+
+
+atexit.register(remove_session_files)
+
+
 def start_local(ray, cpus: int) -> str:
     """Start a private Ray instance with ``cpus`` CPUs on the loopback address, its workers
-    importing the same photonmap as this process; return its address (``host:port``)."""
+    importing the same photonmap as this process; return its address (``host:port``). Its
+    session files go to a temporary folder of its own (not ``/tmp/ray``), removed when it is
+    shut down (:func:`remove_session_files`) or at exit."""
     from ray._private import ray_constants
 
     # A private instance stays on the loopback address: without this Ray advertises the
@@ -132,10 +151,14 @@ def start_local(ray, cpus: int) -> str:
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")  # a private instance reports nothing
     src = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
     path = os.pathsep.join(p for p in (src, os.environ.get("PYTHONPATH")) if p)
+    # a short path: Ray's Unix sockets live in it (at most 107 characters)
+    folder = tempfile.mkdtemp(prefix="photonmap-ray-", dir="/tmp" if os.path.isdir("/tmp") else None)
+    _session_dirs.append(folder)
     context = ray.init(
         num_cpus=cpus,
         object_store_memory=OBJECT_STORE,
         _node_ip_address="127.0.0.1",
+        _temp_dir=folder,
         runtime_env={"env_vars": {"PYTHONPATH": path}},
         **QUIET,
     )

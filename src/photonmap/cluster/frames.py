@@ -126,7 +126,22 @@ def _part(value, part: str, where: str) -> dict:
             )
     for key, v in value.items():
         _check_value(v, f"{where}: {part}.{key}")
+    if part == "camera":
+        _check_camera(value, where)
     return dict(value)
+
+
+def _check_camera(camera: dict, where: str) -> None:
+    """``origin``, ``target``, ``up``: 3 numbers each; ``fov``: degrees in (0, 180)."""
+    for key in ("origin", "target", "up"):
+        v = camera.get(key)
+        if v is not None and not (isinstance(v, list) and len(v) == 3):
+            raise FrameSpecError(f"{where}: camera.{key} must be 3 numbers [x, y, z], got {v!r}")
+    fov = camera.get("fov")
+    if fov is not None and (
+        isinstance(fov, bool) or not isinstance(fov, int | float) or not 0 < fov < 180
+    ):
+        raise FrameSpecError(f"{where}: camera.fov must be degrees in (0, 180), got {fov!r}")
 
 
 def _check_value(value, what: str) -> None:

@@ -14,7 +14,8 @@ import dataclasses
 import os
 from dataclasses import dataclass, field
 
-from ..core.errors import ParameterError, SceneError
+from ..core import interrupt
+from ..core.errors import ParameterError, PhotonmapError, SceneError
 from .frames import Frame, FrameSpecError
 
 
@@ -130,3 +131,22 @@ class FrameState:
                 )
             pipe.set_light(**frame.light)
         return pipe
+
+
+def check_frames(job: SceneJob, frames) -> None:
+    """Apply every frame to one pipeline here, in order, and check its memory estimate at the
+    job's image size: before the first frame starts, a bad value anywhere (a type, a length, a
+    range, more memory than is available) is one error naming its frame."""
+    from .schedule import named
+
+    state = FrameState(job)
+    for frame in frames:
+        interrupt.check()
+        try:
+            state.apply(frame).check_memory()
+        except PhotonmapError as exc:
+            raise named(exc, f"frame {frame.index}") from None
+        except (TypeError, ValueError) as exc:
+            raise FrameSpecError(
+                f"frame {frame.index}: its settings cannot be applied ({exc})"
+            ) from None

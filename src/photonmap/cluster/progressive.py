@@ -140,7 +140,8 @@ def render_progressive(
         merged, last_preview = InOrder(), start
         try:
             tasks = blocks(iterations, size, deadline)
-            for first, (sums, info) in run_tasks(ray, actors, "render_block", tasks):
+            for first, (sums, info) in run_tasks(ray, actors, "render_block", tasks,
+                                                 label="the block from iteration"):  # fmt: skip
                 result.blocks.append({"first": first, "count": sums.iterations, **info})
                 merged.add(first, sums)
                 result.sums = merged.sums

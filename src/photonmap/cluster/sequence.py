@@ -59,7 +59,7 @@ def render_sequence(
         place = dataclasses.replace(place, workers=min(place.workers, len(todo)))
         tasks = [(f.index, (f,)) for f in todo]
         with spawn(ray, FrameWorker, place, job) as actors:
-            for index, (image, info) in run_tasks(ray, actors, "render", tasks):
+            for index, (image, info) in run_tasks(ray, actors, "render", tasks, label="frame"):
                 image = np.array(image)  # writable: Ray hands out read-only views of its store
                 paths = [write_image(frame_path(p, index), image) for p in patterns]
                 yield index, paths, info

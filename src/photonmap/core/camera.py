@@ -7,6 +7,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .params import check_fov, check_view
+
 
 def moved_sensor(
     old, focus_hint, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None
@@ -14,13 +16,16 @@ def moved_sensor(
     """A perspective sensor like ``old`` with the given changes. Without a new ``target`` the camera
     keeps looking at the point of its old view axis nearest ``focus_hint`` (e.g. the scene centre);
     ``fov`` is horizontal, in degrees; unspecified values are kept."""
+    check_fov(fov)
     matrix = np.array(old.world_transform().matrix, dtype=np.float64)[..., 0]
     to_world = mi.ScalarTransform4f(matrix)
     if origin is not None or target is not None:
         o_old, forward = matrix[:3, 3], matrix[:3, 2]
         focus = o_old + max(np.dot(np.asarray(focus_hint) - o_old, forward), 1e-6) * forward
-        o = np.asarray(origin if origin is not None else o_old, dtype=np.float64)
-        t = np.asarray(target if target is not None else focus, dtype=np.float64)
+        o = origin if origin is not None else o_old
+        t = target if target is not None else focus
+        check_view(o, t, up)  # a degenerate placement would render black
+        o, t = np.asarray(o, dtype=np.float64), np.asarray(t, dtype=np.float64)
         to_world = mi.ScalarTransform4f().look_at(
             origin=o.tolist(), target=t.tolist(), up=np.asarray(up, float).tolist()
         )

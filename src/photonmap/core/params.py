@@ -149,3 +149,42 @@ def parse_value(key: str, text: str, kind: type):
         return kind(text)
     except ValueError:
         raise ParameterError(f"--set {key}: cannot read {text!r} as {kind.__name__}") from None
+
+
+def check_view(origin, target, up, fov=None) -> None:
+    """A camera placement ``look_at(origin, target, up)`` with horizontal ``fov`` (degrees):
+    origin, target and up 3 finite numbers each, origin apart from target, up not along the
+    view direction, fov in (0, 180); else a :class:`ParameterError` (a degenerate placement would
+    give a NaN transform and a black image)."""
+    vectors = {}
+    for name, value in (("origin", origin), ("target", target), ("up", up)):
+        try:
+            a = np.asarray(value, dtype=np.float64)
+        except (TypeError, ValueError):
+            a = np.zeros(0)
+        if a.shape != (3,) or isinstance(value, str | dict):
+            raise ParameterError(f"camera {name} must be 3 numbers [x, y, z], got {value!r}")
+        if not np.all(np.isfinite(a)):
+            raise ParameterError(f"camera {name} must be finite, got {a.tolist()}")
+        vectors[name] = a
+    forward = vectors["target"] - vectors["origin"]
+    length = float(np.linalg.norm(forward))
+    if not length > 1e-9 * max(1.0, float(np.abs(vectors["origin"]).max())):
+        raise ParameterError(
+            f"camera origin and target must differ (both {vectors['origin'].tolist()}): the "
+            "camera needs a direction to look in"
+        )
+    up_length = float(np.linalg.norm(vectors["up"]))
+    if not up_length > 0 or np.linalg.norm(np.cross(forward / length, vectors["up"] / up_length)) < 1e-6:
+        raise ParameterError(
+            f"camera up {vectors['up'].tolist()} must be non-zero and not along the view "
+            "direction (target - origin)"
+        )
+    check_fov(fov)
+
+
+def check_fov(fov) -> None:
+    """A horizontal field of view in degrees, in (0, 180); None: unchanged."""
+    if fov is not None:
+        check_type("camera fov", fov, float)
+        check_range("camera fov", fov, 0, 180, "horizontal, in degrees", lo_open=True, hi_open=True)

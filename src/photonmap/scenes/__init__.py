@@ -136,6 +136,11 @@ def load_scene(scene, **params) -> tuple[mi.Scene, dict]:
                 f"scene parameters {sorted(params)} apply only to built-in scenes and XML files"
             )
         return (scene if isinstance(scene, mi.Scene) else _load(mi.load_dict, scene, "dict")), {}
+    if not isinstance(scene, str | os.PathLike):
+        raise SceneError(
+            f"a scene is a built-in name ({', '.join(SCENES)}), the path of a Mitsuba 3 XML "
+            f"file, a scene dict or an mi.Scene; got {type(scene).__name__}"
+        )
     name = os.fspath(scene)
     if name in SCENES:
         builtin = SCENES[name]

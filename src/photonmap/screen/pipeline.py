@@ -46,9 +46,11 @@ import numpy as np
 from ..core.bsdf import is_null
 from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
+from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import refuse_media
 from ..core.stages import StageCache, StagedPipeline
+from . import memory
 from .composite import composite, glass_eye
 from .direct import direct_light
 from .gbuffer import eye_gbuffer
@@ -214,8 +216,18 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
 
     # ------------------------------------------------------------------------------- changes
     def set_params(self, **params) -> None:
-        """Change :class:`ScreenParams` fields; the next render reruns only what they affect."""
-        self.params = updated(self.params, params, "screen")
+        """Change :class:`ScreenParams` fields; the next render reruns only what they affect.
+        Settings that would not fit in memory are refused (:meth:`check_memory`)."""
+        new = updated(self.params, params, "screen")
+        self.check_memory(new)
+        self.params = new
+
+    def check_memory(self, params: ScreenParams | None = None, size=None) -> int:
+        """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
+        (width, height; default: the camera's) would need more memory than is available
+        (:mod:`.memory`); return the estimate in bytes."""
+        w, h = size or (int(c) for c in self.sensor.film().crop_size())
+        return memory.check(params or self.params, w, h)
 
     def set_light(self, position=None, target=None, intensity=None, cutoff=None, index=None):
         """Move or re-aim the spot / point light (``target``: a point the spot aims at), scale its
@@ -281,6 +293,7 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         from .upsample import subsample, upsample
 
         p, scene, diag = self.params, self.scene, self.diagonal
+        check_once(self, p, self.sensor.film().crop_size(), self.check_memory)
         self.cache.new_frame(progress)
         stage = self.cache.stage
         cam_key = _sensor_key(self.sensor)

@@ -38,6 +38,7 @@ a photon counts at a visible point where the two paths together fit ``max_depth`
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -45,17 +46,20 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core import interrupt
 from ..core.bsdf import has_delta_lobes
 from ..core.camera import MovableCamera, pixel_rays, scene_bounds
 from ..core.emission import checked_powers
 from ..core.errors import ParameterError, SceneError
 from ..core.eye_trace import Caustics
 from ..core.media import emitter_media
+from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
 from ..core.volume_map import VolumeMap, density_radius
+from . import memory
 from .gather import Gathered, PhotonGrid, PixelState, gather, iteration_image, memoryless_radius
 from .photons import photon_pass
 from .visible import eye_pass
@@ -162,8 +166,11 @@ class SPPMPipeline(MovableCamera):
         self.reset()
 
     def set_params(self, **params) -> None:
-        """Change parameters (:class:`SPPMParams` fields); the progressive state restarts."""
-        self.params = updated(self.params, params, "sppm")
+        """Change parameters (:class:`SPPMParams` fields); the progressive state restarts.
+        Settings that would not fit in memory are refused (:meth:`check_memory`)."""
+        new = updated(self.params, params, "sppm")
+        self.check_memory(new)
+        self.params = new
         self._r1 = self._rho1 = None
         self.reset()
 
@@ -171,6 +178,19 @@ class SPPMPipeline(MovableCamera):
         super().set_camera(*args, **kwargs)
         self._r1 = None
         self.reset()
+
+    def check_memory(self, params: SPPMParams | None = None, size=None) -> int:
+        """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
+        (width, height; default: the camera's) would need more memory than is available
+        (:mod:`.memory`); return the estimate in bytes."""
+        p = params or self.params
+        w, h = size or self.size
+        depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
+        spp = p.spp or (  # as eye_spp, for these parameters and this size
+            int(np.clip(round(p.photons_per_iteration / (w * h)), 1, AUTO_SPP))
+            if self.traits.media else 1
+        )
+        return memory.check(p, w, h, depth, spp, self.traits.media)
 
     @property
     def settings(self) -> PathSettings:
@@ -264,6 +284,7 @@ class SPPMPipeline(MovableCamera):
         in a scene with media the eye paths read the caustic photons at ``radius`` themselves and
         no gather follows (the result's flux and count are zero)."""
         p, settings = self.params, self.settings
+        check_once(self, p, self.size, self.check_memory)
         eye_seed, _ = iteration_seeds(p.seed, i)
         with self.timer("photon pass"):
             photons = self._photon_pass(i)
@@ -396,11 +417,15 @@ class SPPMPipeline(MovableCamera):
         first; one of them is required) and return :meth:`image`. ``progress(iterations,
         elapsed, mean_radius)`` is called after each iteration; ``preview(image)`` every
         ``preview_every`` seconds. An interrupt (Ctrl-C) stops after a whole iteration: the
-        image so far stays available through :meth:`image`."""
+        image so far stays available through :meth:`image` (the interrupt is raised as
+        :class:`~photonmap.core.interrupt.Interrupted`, a ``KeyboardInterrupt``, after the step
+        in progress: :mod:`photonmap.core.interrupt`)."""
         if seconds is None and iterations is None:
             raise ParameterError("run() needs a budget: seconds=… or iterations=…")
         if seconds is not None:
             check_range("seconds", seconds, 0, None, "the time budget", lo_open=True)
+            if not math.isfinite(seconds):
+                raise ParameterError(f"seconds must be finite, got {seconds}: give a time budget")
         if iterations is not None:
             if not isinstance(iterations, int):
                 raise ParameterError(f"iterations must be an integer, got {iterations!r}")
@@ -408,19 +433,21 @@ class SPPMPipeline(MovableCamera):
         start = time.perf_counter()
         last_preview = start
         done = 0
-        while True:
-            self.step()
-            done += 1
-            now = time.perf_counter()
-            if progress is not None:
-                progress(self.iterations, now - start, self.mean_radius)
-            if preview is not None and now - last_preview >= preview_every:
-                preview(self.image())
-                last_preview = now
-            if iterations is not None and done >= iterations:
-                break
-            if seconds is not None and now - start >= seconds:
-                break
+        with interrupt.deferred():  # Ctrl-C is answered between iterations, never inside one
+            while True:
+                self.step()
+                done += 1
+                now = time.perf_counter()
+                if progress is not None:
+                    progress(self.iterations, now - start, self.mean_radius)
+                interrupt.check()
+                if preview is not None and now - last_preview >= preview_every:
+                    preview(self.image())
+                    last_preview = now
+                if iterations is not None and done >= iterations:
+                    break
+                if seconds is not None and now - start >= seconds:
+                    break
         return self.image()
 
     def render(self, progress=None) -> mi.TensorXf:

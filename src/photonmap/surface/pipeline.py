@@ -52,12 +52,14 @@ from ..core.direct import direct_lighting
 from ..core.errors import SceneError
 from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
+from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.timer import StageTimer
 from ..core.volume_map import ScatteredDensity, VolumeMap
+from . import memory
 from .cis import TABLE_SAMPLING, sampling_table
 from .final_gather import final_gather
 from .gather import radiance_estimate
@@ -181,8 +183,20 @@ class SurfacePipeline(MovableCamera):
         self._ravg = None  # (tracing key, R_avg precomputed at photons), for self._maps
 
     def set_params(self, **params) -> None:
-        """Change pipeline parameters (:class:`SurfaceParams` fields)."""
-        self.params = updated(self.params, params, "surface")
+        """Change pipeline parameters (:class:`SurfaceParams` fields); settings that would not
+        fit in memory are refused (:meth:`check_memory`)."""
+        new = updated(self.params, params, "surface")
+        self.check_memory(new)
+        self.params = new
+
+    def check_memory(self, params: SurfaceParams | None = None, size=None) -> int:
+        """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
+        (width, height; default: the camera's) would need more memory than is available
+        (:mod:`.memory`); return the estimate in bytes."""
+        p = params or self.params
+        w, h = size or (int(c) for c in self.sensor.film().crop_size())
+        depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
+        return memory.check(p, w, h, depth, self.traits.media)
 
     @property
     def settings(self) -> PathSettings:
@@ -385,6 +399,7 @@ class SurfacePipeline(MovableCamera):
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance."""
         p = self.params
+        check_once(self, p, self.sensor.film().crop_size(), self.check_memory)
         self.timer.reset()
         global_map, caustic_map, extra = self.photon_maps(progress)
         r_caustic, r_global = self.radii()

@@ -7,10 +7,10 @@ document and its checks are in :mod:`.state`. Needs the ``viewer`` extra
 (``pip install photonmap[viewer]``: FastAPI, uvicorn, websockets, Pillow).
 
 >>> viewer = Viewer("glass_sphere_fog", "volume", {"grid": 64}, size=(320, 240))
->>> serve(viewer, port=8000)            # http://127.0.0.1:8000/ until Ctrl-C
->>> with Background(viewer) as bg: ...   # on a thread: bg.url
+>>> serve(viewer, port=8000)            # page_url(viewer): http://127.0.0.1:8000/?token=…
+>>> with Background(viewer) as bg: ...   # on a thread: bg.page_url, bg.url + bg.headers
 """
 
-from .app import Background, Viewer, create_app, serve
+from .app import Background, Viewer, create_app, page_url, serve
 
-__all__ = ["Background", "Viewer", "create_app", "serve"]
+__all__ = ["Background", "Viewer", "create_app", "page_url", "serve"]

@@ -20,7 +20,8 @@ variance falls as 1/passes). ``sppm`` is offered this way when the package regis
 
 Only the render thread (:mod:`.worker`) calls :meth:`Adapter.apply`, :meth:`Adapter.render`,
 :meth:`Adapter.refine` and the volume edits; :meth:`Adapter.check` reads nothing the render thread
-changes (the state document and parameters captured at start).
+changes (the state document and parameters captured at start; the pipeline's memory estimate,
+``check_memory``, reads only what the pipeline fixed when it was built).
 """
 
 from __future__ import annotations
@@ -84,6 +85,7 @@ class Adapter(ABC):
         self.method = method
         self.pipe = METHODS[method].pipeline(scene, **(overrides or {}))
         if size is not None:
+            self.pipe.check_memory(size=(int(size[0]), int(size[1])))
             self.pipe.set_camera(width=int(size[0]), height=int(size[1]))
         self._params0 = self.pipe.params  # a frozen copy: check() reads this, never the pipe
         self._seed0 = getattr(self._params0, "seed", 0)
@@ -119,7 +121,7 @@ class Adapter(ABC):
     def check(self, state: dict, update: dict) -> dict:
         """``state`` after ``update``, or a :class:`ParameterError` naming the first bad value."""
         if not isinstance(update, dict):
-            raise ParameterError(f"an update must be a JSON object, got {update!r}")
+            raise ParameterError(f"an update must be a JSON object, got {st.shown(update)}")
         allowed = (*st.SECTIONS, *st.READ_ONLY, "preview")
         unknown = sorted(set(update) - set(allowed))
         if unknown:
@@ -153,6 +155,11 @@ class Adapter(ABC):
             new["params"] = params
         if "volume" in update:
             new["volume"] = self._check_volume(state, update["volume"])
+        cam, old = new["camera"], state["camera"]
+        resized = (cam["width"], cam["height"]) != (old["width"], old["height"])
+        if "params" in update or resized:  # the method's memory estimate (not for a mere move)
+            params = updated(self._params0, new["params"], self.method)
+            self.pipe.check_memory(params, (cam["width"], cam["height"]))
         return new
 
     def _check_light(self, index: int, light: dict) -> None:  # noqa: B027 (a hook: none)

@@ -11,6 +11,10 @@ README "Interactive viewer" documents it).
 ``GET /api/frame.json``    how that image was made: per-stage ms, the stages that reran, fps
 ``WS /api/stream``         every frame: a JSON message, then the image as a binary message
 =========================  ===============================================================
+
+Only the viewer's own page drives it (:mod:`.guard`): a token per server in the URL it prints,
+``Host`` and ``Origin`` of this server only, JSON bodies of at most 1 MB; errors are one short
+line that never repeats the request, and never a traceback.
 """
 
 from __future__ import annotations
@@ -24,12 +28,15 @@ from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from ..core.errors import ParameterError, PhotonmapError
+from .guard import Guard, allowed_hosts, new_token
 from .methods import ADAPTERS
 from .state import READ_ONLY
 from .volume_adapter import VolumeAdapter, check_stroke
 from .worker import RenderWorker
 
 STATIC = files("photonmap.viewer") / "static"
+MAX_DEPTH = 32  # nesting of a request's JSON (the state document needs 4)
+MAX_DETAIL = 300  # characters of an error's detail
 
 
 class Viewer:
@@ -49,6 +56,7 @@ class Viewer:
         self.adapter = ADAPTERS[method](method, scene, overrides, size, **extra)
         self.scene = name or str(scene)
         self.method = method
+        self.token = new_token()  # required by the API and the stream (.guard)
         self.worker = RenderWorker(self.adapter, preview_scale, settle)
 
     def state(self) -> dict:
@@ -77,20 +85,46 @@ class Viewer:
         self.worker.stop()
 
 
+def short(text: str, limit: int = MAX_DETAIL) -> str:
+    """``text`` cut to ``limit`` characters (an error never echoes a whole request)."""
+    text = str(text)
+    return text if len(text) <= limit else text[: limit - 1] + "…"
+
+
 def _unprocessable(exc: Exception) -> JSONResponse:
-    return JSONResponse({"detail": str(exc)}, status_code=422)
+    return JSONResponse({"detail": short(exc)}, status_code=422)
+
+
+def _depth(value) -> int:
+    """The nesting depth of decoded JSON (without recursion)."""
+    deepest, todo = 0, [(value, 1)]
+    while todo:
+        item, depth = todo.pop()
+        if isinstance(item, dict | list):
+            deepest = max(deepest, depth)
+            if depth <= MAX_DEPTH:
+                todo.extend((v, depth + 1) for v in (item.values() if isinstance(item, dict)
+                                                     else item))  # fmt: skip
+    return deepest
 
 
 async def _json(request: Request):
     try:
-        return await request.json()
+        value = json.loads(await request.body())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ParameterError(f"the body is not valid JSON: {exc}") from None
+        raise ParameterError(f"the body is not valid JSON: {short(exc, 80)}") from None
+    except RecursionError:
+        raise ParameterError(f"the JSON body is nested more than {MAX_DEPTH} deep") from None
+    if _depth(value) > MAX_DEPTH:
+        raise ParameterError(f"the JSON body is nested more than {MAX_DEPTH} deep")
+    return value
 
 
-def create_app(viewer: Viewer) -> FastAPI:
-    """The FastAPI application serving ``viewer``."""
-    app = FastAPI(title="photonmap view", docs_url=None, redoc_url=None)
+def create_app(viewer: Viewer, host: str = "127.0.0.1", port: int | None = None):
+    """The application serving ``viewer`` (an ASGI app): the FastAPI routes behind the guard of
+    :mod:`.guard` — ``viewer.token`` required, ``Host``/``Origin`` of ``host`` (and ``port``,
+    when given) only."""
+    app = FastAPI(title="photonmap view", docs_url=None, redoc_url=None, openapi_url=None)
     app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")
 
     @app.exception_handler(PhotonmapError)
@@ -98,8 +132,12 @@ def create_app(viewer: Viewer) -> FastAPI:
         return _unprocessable(exc)
 
     @app.get("/")
-    def index():
-        return FileResponse(str(STATIC / "index.html"))
+    def index(request: Request):
+        page = FileResponse(str(STATIC / "index.html"))
+        token = request.query_params.get("token")
+        if token == viewer.token:  # the page's own requests then carry it as a cookie
+            page.set_cookie("photonmap_token", token, httponly=True, samesite="strict")
+        return page
 
     @app.get("/api/state")
     def get_state():
@@ -192,14 +230,16 @@ def create_app(viewer: Viewer) -> FastAPI:
             viewer.worker.unsubscribe(listener)
             watcher.cancel()
 
-    return app
+    return Guard(app, viewer.token, allowed_hosts(host), port)
 
 
 class Background:
-    """The viewer served by uvicorn on a thread (scripts, tests, notebooks): ``url``, ``stop()``.
+    """The viewer served by uvicorn on a thread (scripts, tests, notebooks): ``url`` (the
+    server), ``page_url`` (the page, with the token), ``headers`` (the token for scripts),
+    ``stop()``.
 
     >>> with Background(Viewer("cornell_ispm", "screen")) as bg:
-    ...     httpx.get(bg.url + "api/state")
+    ...     httpx.get(bg.url + "api/state", headers=bg.headers)
     """
 
     def __init__(self, viewer: Viewer, host: str = "127.0.0.1", port: int = 0,
@@ -216,7 +256,10 @@ class Background:
                 port = s.getsockname()[1]
         self.viewer = viewer
         self.url = f"http://{host}:{port}/"
-        config = uvicorn.Config(create_app(viewer), host=host, port=port, log_level="warning")
+        self.page_url = f"{self.url}?token={viewer.token}"
+        self.headers = {"X-Photonmap-Token": viewer.token}
+        config = uvicorn.Config(create_app(viewer, host, port), host=host, port=port,
+                                log_level="warning")  # fmt: skip
         self._server = uvicorn.Server(config)
         self._thread = threading.Thread(target=self._server.run, daemon=True)
         self._thread.start()
@@ -239,17 +282,23 @@ class Background:
         self.stop()
 
 
+def page_url(viewer: Viewer, host: str = "127.0.0.1", port: int = 8000) -> str:
+    """The URL of the viewer's page, with its token."""
+    name = f"[{host}]" if ":" in host else host
+    return f"http://{name}:{port}/?token={viewer.token}"
+
+
 def serve(viewer: Viewer, host: str = "127.0.0.1", port: int = 8000, open_browser: bool = True):
-    """Run the server until interrupted; open the page in the default browser once it is up."""
+    """Run the server until interrupted; open the page (:func:`page_url`) in the default browser
+    once it is up."""
     import threading
     import webbrowser
 
     import uvicorn
 
-    url = f"http://{host}:{port}/"
     if open_browser:
-        threading.Timer(1.0, webbrowser.open, args=(url,)).start()
+        threading.Timer(1.0, webbrowser.open, args=(page_url(viewer, host, port),)).start()
     try:
-        uvicorn.run(create_app(viewer), host=host, port=port, log_level="warning")
+        uvicorn.run(create_app(viewer, host, port), host=host, port=port, log_level="warning")
     finally:
         viewer.close()

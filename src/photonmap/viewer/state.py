@@ -31,6 +31,15 @@ from ..core.errors import ParameterError
 SECTIONS = ("camera", "lights", "materials", "params", "volume")
 READ_ONLY = ("scene", "method", "methods", "stages", "frames", "brush_fields")
 MAX_SIDE = 4096  # the viewer's largest image side (the CLI's check_side allows 16384)
+SHOWN = 60  # characters of a refused value quoted in an error (never the whole request)
+
+
+def shown(value) -> str:
+    """``repr(value)``, cut to :data:`SHOWN` characters."""
+    text = repr(value) if not isinstance(value, list | dict) or len(value) <= 16 else (
+        f"<{type(value).__name__} of {len(value)}>"
+    )
+    return text if len(text) <= SHOWN else text[: SHOWN - 1] + "…"
 
 
 def vector(name: str, value, nonnegative: bool = False) -> list[float]:
@@ -40,11 +49,11 @@ def vector(name: str, value, nonnegative: bool = False) -> list[float]:
     except (TypeError, ValueError):
         a = np.zeros(0)
     if a.shape != (3,) or isinstance(value, str | dict):
-        raise ParameterError(f"{name} must be 3 numbers [x, y, z], got {value!r}")
+        raise ParameterError(f"{name} must be 3 numbers [x, y, z], got {shown(value)}")
     if not np.all(np.isfinite(a)):
-        raise ParameterError(f"{name} must be finite, got {value!r}")
+        raise ParameterError(f"{name} must be finite, got {shown(value)}")
     if nonnegative and np.any(a < 0):
-        raise ParameterError(f"{name} must be >= 0 in every channel, got {value!r}")
+        raise ParameterError(f"{name} must be >= 0 in every channel, got {shown(value)}")
     return a.tolist()
 
 
@@ -60,20 +69,20 @@ def number(name: str, value, lo=None, hi=None, lo_open=False, integer=False) -> 
     kinds = int if integer else (int, float)
     if isinstance(value, bool) or not isinstance(value, kinds):
         raise ParameterError(f"{name} must be {'an integer' if integer else 'a number'}, got "
-                             f"{value!r}")
+                             f"{shown(value)}")
     if not math.isfinite(value):
-        raise ParameterError(f"{name} must be finite, got {value!r}")
+        raise ParameterError(f"{name} must be finite, got {shown(value)}")
     if lo is not None and (value <= lo if lo_open else value < lo):
-        raise ParameterError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {value!r}")
+        raise ParameterError(f"{name} must be {'>' if lo_open else '>='} {lo}, got {shown(value)}")
     if hi is not None and value > hi:
-        raise ParameterError(f"{name} must be <= {hi}, got {value!r}")
+        raise ParameterError(f"{name} must be <= {hi}, got {shown(value)}")
     return value if integer else float(value)
 
 
 def as_object(name: str, value) -> dict:
     """``value``, which must be a JSON object."""
     if not isinstance(value, dict):
-        raise ParameterError(f"{name} must be an object, got {value!r}")
+        raise ParameterError(f"{name} must be an object, got {shown(value)}")
     return value
 
 
@@ -102,11 +111,11 @@ def light_changes(update, count: int) -> dict[int, dict]:
                 index = -1
             if not 0 <= index < count:
                 raise ParameterError(
-                    f"no light {key!r}; the scene has {count} (indices 0..{count - 1})"
+                    f"no light {shown(key)}; the scene has {count} (indices 0..{count - 1})"
                 )
             items[index] = v
     else:
-        raise ParameterError(f"lights must be a list or an object of indices, got {update!r}")
+        raise ParameterError(f"lights must be a list or an object of indices, got {shown(update)}")
     return {i: as_object(f"lights[{i}]", v) for i, v in items.items()}
 
 
@@ -121,7 +130,7 @@ def check_camera(camera: dict, update: dict) -> dict:
         elif key == "fov":
             new[key] = number("camera.fov", value, 0, 180, lo_open=True)
             if new[key] >= 180:
-                raise ParameterError(f"camera.fov must be < 180 degrees, got {value!r}")
+                raise ParameterError(f"camera.fov must be < 180 degrees, got {shown(value)}")
         else:
             new[key] = number(f"camera.{key}", value, 1, MAX_SIDE, integer=True)
     if np.allclose(new["origin"], new["target"]):

@@ -205,7 +205,7 @@ def check_stroke(stroke) -> dict:
         raise ParameterError(f"a stroke needs {', '.join(sorted(missing))}")
     field = stroke.get("field", "sigma_s")
     if field not in ("sigma_s", "n"):
-        raise ParameterError(f"stroke.field must be 'sigma_s' or 'n', got {field!r}")
+        raise ParameterError(f"stroke.field must be 'sigma_s' or 'n', got {st.shown(field)}")
     return {
         "field": field,
         "center": st.vector("stroke.center", stroke["center"]),

@@ -22,9 +22,9 @@ from __future__ import annotations
 
 import copy
 import io
+import sys
 import threading
 import time
-import traceback
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,7 +33,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.errors import ParameterError, PhotonmapError
-from .state import changes
+from .state import changes, shown
 
 QUALITY, PREVIEW_QUALITY = 92, 80
 
@@ -107,7 +107,8 @@ class RenderWorker:
         self.target = copy.deepcopy(adapter.state)
         self.version = 0
         self.frame: Frame | None = None
-        self.error: str | None = None
+        self.error: str | None = None  # why the next frame undid a change (shown once, on it)
+        self._failure: str | None = None  # why no frame came for version _error_version
         self._error_version = -1
         self._preview = False
         self._actions: list[Callable[[], None]] = []
@@ -128,7 +129,7 @@ class RenderWorker:
         A :class:`ParameterError` leaves the state unchanged."""
         preview = update.get("preview", False) if isinstance(update, dict) else False
         if not isinstance(preview, bool):
-            raise ParameterError(f"preview must be true or false, got {preview!r}")
+            raise ParameterError(f"preview must be true or false, got {shown(preview)}")
         with self._cond:
             new = self.adapter.check(self.target, update)
             self.target = new
@@ -157,8 +158,8 @@ class RenderWorker:
                 ),
                 timeout,
             )  # fmt: skip
-            if self._error_version >= version and self.error is not None:
-                raise PhotonmapError(self.error)
+            if self._error_version >= version and self._failure is not None:
+                raise PhotonmapError(self._failure)
             if not ok or self.frame is None:
                 raise TimeoutError(f"no frame of version {version} within {timeout} s")
             return self.frame
@@ -204,6 +205,7 @@ class RenderWorker:
 
     def _run(self) -> None:
         applied = copy.deepcopy(self.adapter.state)
+        good = None  # the state of the last frame rendered: a failed change goes back to it
         seq = 0
         while (work := self._next()) is not None:
             snapshot, version, preview, actions, refine = work
@@ -228,11 +230,17 @@ class RenderWorker:
                     image = self.adapter.render(self._size(preview), preview)
                     self._refining = self.adapter.progressive and not preview
             except Exception as exc:  # the thread lives on; the page shows the reason
-                if not isinstance(exc, PhotonmapError):
-                    traceback.print_exc()
-                retry = snapshot is not None and applied != snapshot
-                self._fail(exc, applied, version, retry)
+                if not isinstance(exc, PhotonmapError | MemoryError):  # one line, no traceback
+                    first = (str(exc).strip().splitlines() or [""])[0][:200]
+                    print(f"photonmap view: a render failed: {type(exc).__name__}: {first}",
+                          file=sys.stderr, flush=True)  # fmt: skip
+                back = None
+                if snapshot is not None:
+                    back, applied = self._roll_back(snapshot, applied, good)
+                self._fail(exc, snapshot, back, version)
                 continue
+            if not refine:
+                good = copy.deepcopy(applied)
             rendered_at = time.perf_counter()
             pixels = to_srgb8(image)
             data = encode(pixels, "jpeg", PREVIEW_QUALITY if preview else QUALITY)
@@ -259,19 +267,39 @@ class RenderWorker:
             for listener in listeners:
                 listener(frame.meta(), frame)
 
-    def _fail(self, exc: Exception, applied: dict, version: int, retry: bool) -> None:
-        """A change the checks let through failed in the pipeline: back to the state it holds
-        (``retry``: render that again), and tell the page why."""
+    def _roll_back(self, snapshot: dict, applied: dict, good: dict | None):
+        """After the change to ``snapshot`` failed: give the pipeline ``good`` again (the state of
+        the last frame; before the first frame, what the pipeline took). Returns ``(back,
+        holds)``: the state to render next (None: nothing to undo, or undoing failed too) and
+        the state the pipeline holds."""
+        back = good if good is not None else applied
+        if back == snapshot:
+            return None, applied
+        if applied != back:
+            try:
+                self.adapter.apply(changes(applied, back), back)
+            except Exception:  # noqa: BLE001 - undoing failed: no frame, the reason is shown
+                return None, copy.deepcopy(self.adapter.state)
+        return back, copy.deepcopy(self.adapter.state)
+
+    def _fail(self, exc: Exception, snapshot: dict | None, back: dict | None, version: int):
+        """A change the checks let through failed in the pipeline. ``back``: the state the
+        pipeline went back to; unless a newer update came meanwhile it becomes the target, and
+        the next frame renders it carrying the reason (once: ``error``). None: no frame for this
+        version (:meth:`wait_frame` raises the reason). The page is told either way."""
         message = str(exc) if isinstance(exc, PhotonmapError) else f"{type(exc).__name__}: {exc}"
+        message = message if len(message) <= 300 else message[:299] + "…"
         with self._cond:
-            if retry:  # the next frame shows the state the pipeline holds, with the reason
-                self.target = copy.deepcopy(applied)
-                self.version += 1
-            else:  # no frame for this version: wait_frame raises the reason
+            if back is not None:
+                if self.target == snapshot:  # no newer update: the state before the change
+                    self.target = copy.deepcopy(back)
+                    self.version += 1
+                self.error = message
+            else:
                 self._rendered = max(self._rendered, version)
                 self._last_preview = self._refining = False
                 self._error_version = version
-            self.error = message
+                self._failure = message
             listeners = list(self._listeners)
             self._cond.notify_all()
         for listener in listeners:

@@ -39,6 +39,7 @@ import numpy as np
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.grid import filter_separable
+from ..core.memory import check_image_memory, check_once
 from ..core.params import updated
 from ..core.stages import StageCache, StagedPipeline, cache_key
 from . import adaptive, emit, march, mipmap, pilot
@@ -54,6 +55,7 @@ from .params import (
     check_grid,
     check_light,
     light_vector,
+    memory_estimate,
     updated_medium,
 )
 from .scene import Light, VolumeScene, check_has_fog, from_mitsuba
@@ -129,6 +131,20 @@ class VolumePipeline(StagedPipeline):
             photons = new.photons * len(self.scene.lights)
             check_grid(box.n, len(self.scene.objects), photons, dims=box.dims)
         self.params = new
+
+    def check_memory(self, params: VolumeParams | None = None, size=None) -> int:
+        """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
+        (width, height; default: the camera's) would need more memory than is available: the
+        grids and photons (:func:`.params.check_grid`), the viewing pass's samples
+        (:func:`~photonmap.core.memory.check_image_memory`). Returns the estimate in bytes."""
+        p = params or self.params
+        w, h = size or (int(c) for c in self.scene.sensor.film().crop_size())
+        box, objects = self.scene.box, len(self.scene.objects)
+        photons = p.photons * len(self.scene.lights)
+        check_grid(box.n, objects, photons, dims=box.dims)
+        return memory_estimate(box.dims, objects, photons)[0] + check_image_memory(
+            "volume", w, h, p.spp
+        )
 
     def set_camera(
         self, origin=None, target=None, up=(0, 1, 0), fov=None, width=None, height=None, sensor=None
@@ -240,6 +256,7 @@ class VolumePipeline(StagedPipeline):
         ``progress``, if given, is called with the name of each stage (one of :data:`STAGES`) as
         it starts; cached stages are skipped silently.
         """
+        check_once(self, self.params, self.scene.sensor.film().crop_size(), self.check_memory)
         self.cache.new_frame(progress)
         try:
             return self._render()

@@ -6,6 +6,9 @@
 
 const $ = (id) => document.getElementById(id);
 const viewer = (window.viewer = { state: null, meta: null, frames: 0, imageUrl: null, errors: 0 });
+// the server's token, from the URL it printed (the page's cookie carries it too)
+const TOKEN = new URLSearchParams(location.search).get("token") || "";
+const AUTH = TOKEN ? { "X-Photonmap-Token": TOKEN } : {};
 
 // ------------------------------------------------------------------ vectors and the camera
 const sub = (a, b) => a.map((v, i) => v - b[i]);
@@ -62,7 +65,7 @@ async function flush() {
   inFlight = true;
   try {
     const res = await fetch("/api/update", {
-      method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+      method: "POST", headers: { "Content-Type": "application/json", ...AUTH }, body: JSON.stringify(body),
     });
     const reply = await res.json();
     if (res.ok) {
@@ -80,7 +83,7 @@ async function flush() {
 }
 async function post(path, body) {
   const res = await fetch(path, {
-    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body || {}),
+    method: "POST", headers: { "Content-Type": "application/json", ...AUTH }, body: JSON.stringify(body || {}),
   });
   const reply = await res.json();
   if (!res.ok) showError(reply.detail || res.statusText); else showError(null);
@@ -93,12 +96,13 @@ function showError(text) {
   if (text) viewer.errors += 1;
 }
 async function loadState() {
-  viewer.state = await (await fetch("/api/state")).json();
+  viewer.state = await (await fetch("/api/state", { headers: AUTH })).json();
   fillControls();
 }
 
 function connect() {
-  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/api/stream`);
+  const query = TOKEN ? `?token=${encodeURIComponent(TOKEN)}` : "";
+  const ws = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/api/stream${query}`);
   ws.binaryType = "blob";
   let meta = null;
   ws.onmessage = (event) => {

@@ -1,0 +1,5 @@
+"""``python -m photonmap``: the ``photonmap`` command."""
+
+from .cli import main
+
+main()
