@@ -185,5 +185,5 @@ def test_moving_the_light_reuses_the_light_gbuffer_kernels():
     moved = kernels([0.25, 0.5, 0.3])
     assert first and all(first)
     assert len(moved) == len(first)
-    changed = [i for i, (a, b) in enumerate(zip(first, moved)) if a != b]
+    changed = [i for i, (a, b) in enumerate(zip(first, moved, strict=True)) if a != b]
     assert not changed, f"kernels {changed} of {len(first)} changed with the light position"
