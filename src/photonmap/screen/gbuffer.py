@@ -55,7 +55,8 @@ def focal_px(sensor: mi.Sensor) -> float:
 
 
 def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
-    """The eye G-buffer of spec §2.1, one primary ray per pixel centre (Fig 3.1), and the mask of
+    """The eye G-buffer of spec §2.1, one primary ray per pixel centre (Fig 3.1; the pipeline
+    applies the film's reconstruction filter to the finished image), and the mask of
     pixels that see a mirror or glass surface (their ``albedo`` is 0: no diffuse shading, no
     splats; :mod:`.composite` ray-traces them).
 
@@ -65,7 +66,7 @@ def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
     (:func:`_light_edges`).
     """
     w, h = (int(c) for c in sensor.film().crop_size())
-    ray, _ = pixel_rays(sensor, dr.arange(mi.UInt32, w * h), mi.Point2f(0.5))
+    ray, _ = pixel_rays(sensor, dr.arange(mi.UInt32, w * h), mi.Point2f(0.5), filtered=False)
     si = intersect_visible(scene, ray)
     valid = si.is_valid()
     emission = dr.select(valid, si.emitter(scene).eval(si, valid), 0.0)
@@ -118,7 +119,7 @@ def _light_edges(scene: mi.Scene, sensor: mi.Sensor, emission: mi.Color3f) -> mi
     sub = np.arange(k * k)
     jitter = mi.Point2f(np.tile((sub % k + 0.5) / k, len(index)), np.tile((sub // k + 0.5) / k,
                                                                           len(index)))
-    ray, _ = pixel_rays(sensor, mi.UInt32(np.repeat(index, k * k)), jitter)
+    ray, _ = pixel_rays(sensor, mi.UInt32(np.repeat(index, k * k)), jitter, filtered=False)
     si = intersect_visible(scene, ray)
     Le = pixel_means(dr.select(si.is_valid(), si.emitter(scene).eval(si), 0.0), k * k)
     out = mi.Color3f(emission)

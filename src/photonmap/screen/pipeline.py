@@ -33,6 +33,10 @@ the method under study and the one the stage graph is built around (a ``light_si
 ``isg_samples`` change reruns only the gather), and both stay within the tests' bounds against
 ``path`` (:mod:`tests.screen.test_vs_mitsuba`); ``"sampled"`` gives exact penumbrae at the same
 cost where they matter.
+
+The G-buffers hold one sample per pixel centre, so the film's reconstruction filter (Mitsuba's
+default is a gaussian) is applied to the composited image as a discrete separable kernel
+(:func:`photonmap.core.film_filter.filter_image`); a box filter leaves it as it is.
 """
 
 from __future__ import annotations
@@ -46,6 +50,7 @@ import numpy as np
 from ..core.bsdf import is_null
 from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
+from ..core.film_filter import filter_image
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import refuse_media
 from ..core.stages import StageCache, StagedPipeline
@@ -376,7 +381,10 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
             height=gbuf.height,
         )
         self.cache.progress = None
-        image = mi.TensorXf(dr.ravel(out), (gbuf.height, gbuf.width, 3))
+        # one sample per pixel centre: the film's filter applies to the image (film_filter)
+        image = filter_image(
+            mi.TensorXf(dr.ravel(out), (gbuf.height, gbuf.width, 3)), self.sensor.film()
+        )
         if not dr.all(dr.isfinite(dr.sum(out, axis=None))):
             raise SceneError(
                 "the render produced NaN or infinite values; check the scene's textures, BSDF "
