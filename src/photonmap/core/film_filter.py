@@ -24,9 +24,14 @@ it monotonically, so stratified jitter stays stratified). A box filter (Mitsuba'
 0.5) needs none of this: :func:`photonmap.core.camera.pixel_rays` keeps the uniform jitter.
 
 Passes that trace one deterministic ray through each pixel centre filter the finished image
-instead (:func:`filter_image`): the discrete separable kernel is the filter evaluated at integer
-pixel offsets, ``w(d)`` — the midpoint rule of the integral above for radiance known at the
-centres — normalised over the taps inside the crop.
+instead (:func:`filter_image`): a discrete separable kernel, normalised over the taps inside the
+crop, whose taps are the filter's integrals over the pixels, ∫_{d−½}^{d+½} w (exact when each
+pixel's radiance is the constant its centre sample gives). Measured against the oracle of
+Mitsuba's film on emitting rectangles with sharp edges (40 × 30, centre samples, RMS error of the
+pixels, radiance up to 2): gaussian 0.129 unfiltered, 0.079 with the filter at integer offsets
+w(d), 0.064 with the pixel integrals; tent 0.117 / 0.117 (w(±1) = 0: no filter) / 0.069;
+mitchell 0.118 / 0.092 / 0.071. On ``mi.cornell_box()`` (256², screen method, against ``path``
+at 2048 spp) both kernels give a relative RMSE of 0.147, against 0.68 unfiltered.
 """
 
 from __future__ import annotations
@@ -192,15 +197,26 @@ def sample_offsets(
     return offset, weight
 
 
-def pixel_kernel(rfilter) -> np.ndarray:
-    """The discrete kernel of :func:`filter_image`: the filter at integer offsets −n … n,
-    n = ⌈r − ½⌉ (Mitsuba's filter border; the taps beyond are zero or nearly)."""
+RULES = ("footprint", "centre")
+
+
+def pixel_kernel(rfilter, rule: str = "footprint") -> np.ndarray:
+    """The discrete kernel of :func:`filter_image` at integer offsets −n … n, n = ⌈r − ½⌉
+    (Mitsuba's filter border). ``rule`` "footprint": the filter's integral over each pixel,
+    ∫_{d−½}^{d+½} w — the exact weights when a pixel's radiance is constant over it, which is
+    what its centre sample says; "centre": the filter at the offsets, w(d) (the midpoint rule,
+    exact to first order for pixel-area means; the identity for a tent of radius 1)."""
+    if rule not in RULES:
+        raise ValueError(f"rule must be one of {RULES}, got {rule!r}")
     n = int(rfilter.border_size())
-    d = np.arange(-n, n + 1, dtype=np.float32)
-    return np.array(rfilter.eval(mi.Float(d)), dtype=np.float64)
+    d = np.arange(-n, n + 1, dtype=np.float64)
+    if rule == "centre":
+        return np.array(rfilter.eval(mi.Float(d.astype(np.float32))), dtype=np.float64)
+    table = filter_table(rfilter)
+    return table.integrals(d - 0.5, d + 0.5)[1]
 
 
-def filter_image(image, film):
+def filter_image(image, film, rule: str = "footprint"):
     """The film's filter applied to ``image`` (height × width × channels, the film's crop, one
     sample per pixel centre): separable, each output pixel normalised by the sum of the kernel
     taps inside the crop (the film samples only the crop, so the filter of an edge pixel is cut
@@ -209,7 +225,7 @@ def filter_image(image, film):
     rfilter = film.rfilter()
     if rfilter.is_box_filter():
         return image
-    kernel = pixel_kernel(rfilter)
+    kernel = pixel_kernel(rfilter, rule)
     if len(kernel) == 1:
         return image
     tensor = isinstance(image, mi.TensorXf)

@@ -101,27 +101,42 @@ def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
 
 
 def _light_edges(scene: mi.Scene, sensor: mi.Sensor, emission: mi.Color3f) -> mi.Color3f:
-    """``emission`` with the pixels at a light's silhouette (a pixel of the 3 × 3 neighbourhood
-    sees light and another does not) replaced by the mean of :data:`EMISSION_SAMPLES`² stratified
-    sub-pixel rays: a light a few pixels tall covers as many pixels as in a pixel-filtered render
-    (``mi.cornell_box()`` at 64 × 64: 20 pixel centres vs 23.6 pixels of area)."""
+    """``emission`` with the pixels at a light's silhouette replaced by the mean of
+    :data:`EMISSION_SAMPLES`² stratified sub-pixel rays: a light a few pixels tall covers as
+    many pixels as in a pixel-filtered render (``mi.cornell_box()`` at 64 × 64: 20 pixel
+    centres vs 23.6 pixels of area). A silhouette pixel is one whose neighbourhood holds pixels
+    that see light and pixels that do not: 3 × 3 with a box filter; with another filter the
+    neighbourhood reaches as far as the filter, and the sub-pixel rays importance-sample it
+    (:func:`pixel_rays`), so that these pixels hold the film's filtered emission — the pipeline
+    filters the rest of the image, not the emission (:mod:`photonmap.core.film_filter`)."""
     w, h = (int(c) for c in sensor.film().crop_size())
     emits = (dr.max(emission) > 0).numpy().reshape(h, w)
     if not emits.any():
         return emission
-    pad = np.pad(emits, 1, mode="edge")
+    rfilter = sensor.film().rfilter()
+    box = rfilter.is_box_filter()
+    m = 1 if box else int(rfilter.border_size()) + 1
+    pad = np.pad(emits, m, mode="edge")
     edge = np.zeros_like(emits)
-    for dy in range(3):
-        for dx in range(3):
+    for dy in range(2 * m + 1):
+        for dx in range(2 * m + 1):
             edge |= pad[dy : dy + h, dx : dx + w] != emits
     index = np.flatnonzero(edge)
-    k = EMISSION_SAMPLES
+    k = EMISSION_SAMPLES if box else 2 * EMISSION_SAMPLES  # a filter reaches beyond the pixel
     sub = np.arange(k * k)
-    jitter = mi.Point2f(np.tile((sub % k + 0.5) / k, len(index)), np.tile((sub // k + 0.5) / k,
-                                                                          len(index)))
-    ray, _ = pixel_rays(sensor, mi.UInt32(np.repeat(index, k * k)), jitter, filtered=False)
+    # the strata's centres; a filter's tails lie beyond the outer strata's centres, so its
+    # samples are jittered in their strata (a fixed hash: the same image every time)
+    within = np.full((2, len(index) * k * k), 0.5)
+    if not box:
+        within = np.random.default_rng(0x5EED).random(within.shape)
+    jitter = mi.Point2f(
+        (np.tile(sub % k, len(index)) + within[0]) / k,
+        (np.tile(sub // k, len(index)) + within[1]) / k,
+    )
+    ray, weight = pixel_rays(sensor, mi.UInt32(np.repeat(index, k * k)), jitter)
     si = intersect_visible(scene, ray)
-    Le = pixel_means(dr.select(si.is_valid(), si.emitter(scene).eval(si), 0.0), k * k)
+    seen = dr.select(si.is_valid(), si.emitter(scene).eval(si), 0.0)
+    Le = pixel_means(seen if box else seen * weight, k * k)
     out = mi.Color3f(emission)
     dr.scatter(out, Le, mi.UInt32(index))
     return out
