@@ -550,8 +550,11 @@ def reference(
         typer.Option(help="path | volpath | ptracer (default: volpath with fog, else path)"),
     ] = None,
     max_depth: Annotated[
-        int, typer.Option(help="Mitsuba's max_depth (-1 unbounded; 2 = direct light only)")
-    ] = -1,
+        int | None,
+        typer.Option(
+            help="Mitsuba's max_depth (-1 unbounded; 2 = direct light only; default: the file's)"
+        ),
+    ] = None,
     width: Annotated[int | None, typer.Option(help="image width, 1…16384")] = None,
     height: Annotated[int | None, typer.Option(help="image height, 1…16384")] = None,
     seed: Annotated[int, typer.Option(help="seed of the first pass")] = 0,
@@ -560,7 +563,8 @@ def reference(
     ] = None,
 ):
     """Render SCENE with Mitsuba's own integrator, the ground truth for every method: the same
-    file, in passes that bound memory, with a progress bar on a terminal."""
+    file with its own max_depth, rr_depth and hide_emitters, in passes that bound memory, with a
+    progress bar on a terminal."""
     from rich.progress import Progress
 
     from . import mi
@@ -616,7 +620,8 @@ def reference(
             task = bar.add_task(f"reference {scene}", total=spp)
             try:
                 image, info = render_reference(
-                    mi_scene, spp, integrator, max_depth, time, seed, progress=passed
+                    mi_scene, spp, integrator, max_depth, time, seed, progress=passed,
+                    source=scene if builtin is None else None,
                 )
             except (RuntimeError, TypeError) as exc:  # Mitsuba refused the scene or its film
                 raise SceneError(f"Mitsuba could not render {scene!r}: {_root_cause(exc)}") from None

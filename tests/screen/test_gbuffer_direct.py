@@ -2,6 +2,7 @@
 §2.9), against NumPy references on a plane."""
 
 import math
+import re
 
 import drjit as dr
 import mitsuba as mi
@@ -141,11 +142,26 @@ def test_textured_albedo():
     assert values.tolist() == [0.1, 0.7]
 
 
+_KERNEL_NAME = re.compile(r"drjit_[0-9a-f]+")
+_ALIGN = re.compile(r", align \d+")
+
+
+def _kernel_text(kernel) -> str:
+    """A launched kernel's LLVM IR without its name (the hash) and its alignment annotations.
+    Dr.Jit loads an input with ``align 1`` instead of ``align 64`` when the array is a view whose
+    address is not 64-byte aligned, which depends on the allocator's state: the same program then
+    has another IR, another hash and misses the kernel cache, sometimes and not others."""
+    ir = kernel["ir"]
+    text = ir.getvalue() if hasattr(ir, "getvalue") else str(ir)
+    return _ALIGN.sub("", _KERNEL_NAME.sub("drjit_", text))
+
+
 def test_moving_the_light_reuses_the_light_gbuffer_kernels():
     """The light position enters the light G-buffer as opaque values, not literals: a moved
-    light (each step of a drag in the viewer) runs kernels found in Dr.Jit's in-memory kernel
-    cache instead of compiling new ones (~70 ms each on cornell_ispm). (Kernel hashes are not
-    compared: equal IR has been seen to report different hashes.)"""
+    light (each step of a drag in the viewer) runs the same kernels, which Dr.Jit finds in its
+    in-memory kernel cache instead of compiling new ones (~70 ms each on cornell_ispm). Compared
+    as kernel programs (:func:`_kernel_text`), not as cache hits, which also depend on the
+    alignment of the input arrays; a literal position would put its value into the program."""
     import dataclasses
 
     from photonmap.scenes import load_scene
@@ -160,11 +176,14 @@ def test_moving_the_light_reuses_the_light_gbuffer_kernels():
             dr.kernel_history()  # clear it
             moved = dataclasses.replace(light, position=np.asarray(position))
             light_gbuffer(scene, moved, 8, 8)
-            return [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+            launched = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+            return [_kernel_text(k) for k in launched]
         finally:
             dr.set_flag(dr.JitFlag.KernelHistory, False)
 
     first = kernels([0.2, 0.5, 0.3])
     moved = kernels([0.25, 0.5, 0.3])
-    assert first and len(moved) == len(first)
-    assert all(k["cache_hit"] for k in moved), [k["cache_hit"] for k in moved]
+    assert first and all(first)
+    assert len(moved) == len(first)
+    changed = [i for i, (a, b) in enumerate(zip(first, moved, strict=True)) if a != b]
+    assert not changed, f"kernels {changed} of {len(first)} changed with the light position"

@@ -29,15 +29,18 @@ def view_grids(ior=1.0, sigma_s=0.0, kappa=0.0, C=0.0, D=(1.0, 0.0, 0.0), n=N, g
     return ViewGrids.build(ior, grad, grid(kappa, 3), grid(sigma_s, 3), grid(C, 3), grid(D, 3))
 
 
-def sensor(origin, target, width=1, height=1, fov=30.0, up=(0, 1, 0)):
+def sensor(origin, target, width=1, height=1, fov=30.0, up=(0, 1, 0), rfilter="box"):
+    """A camera whose pixels are the view pass's rays through their centres (box filter; the
+    film's own filter is applied to the image, test_the_films_filter_is_applied_to_the_view)."""
     return mi.load_dict(
         {
             "type": "perspective",
             "fov": fov,
             "to_world": mi.ScalarTransform4f().look_at(origin=origin, target=target, up=up),
-            "film": {"type": "hdrfilm", "width": width, "height": height},
+            "film": {"type": "hdrfilm", "width": width, "height": height,
+                     "rfilter": {"type": rfilter}},
         }
-    )
+    )  # fmt: skip
 
 
 def constant_env(value):
@@ -122,6 +125,22 @@ def test_constant_index_rays_take_one_step_per_voxel_of_chord():
     # unit steps, the last one cut at the exit face: the optical depth of the chord itself
     # (whole last steps, as before box grids: up to one voxel more)
     assert np.all(np.abs(steps[hit] - chord[hit]) < 0.01)
+
+
+def test_the_films_filter_is_applied_to_the_view():
+    """One ray per pixel centre (spp 1): the image of a gaussian-filter film is the box film's
+    image filtered with the gaussian at integer offsets, cut at the image's edges (with spp > 1
+    the rays importance-sample the filter through pixel_rays: tests/core/test_film_filter.py)."""
+    from photonmap.core.film_filter import filter_image
+
+    g = view_grids(ior=1.33, kappa=0.01)
+    args = ([150.0, 170.0, -90.0], [64.0, 60.0, 64.0], 12, 9, 40)
+    env = constant_env([1.0, 1.0, 1.0])
+    box = np.array(render_view(g, BOX, sensor(*args), env, ViewSettings()), dtype=np.float64)
+    gauss = sensor(*args, rfilter="gaussian")
+    image = np.array(render_view(g, BOX, gauss, env, ViewSettings()), dtype=np.float64)
+    np.testing.assert_allclose(image, filter_image(box, gauss.film()), rtol=1e-5)
+    assert np.abs(image - box).max() > 0.02  # the filter changed the image (by 0.08 here)
 
 
 # ---- oracle 28: the reflective table ---------------------------------------------------------

@@ -7,6 +7,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .film_filter import sample_offsets
 from .params import check_fov, check_view
 
 
@@ -15,7 +16,8 @@ def moved_sensor(
 ):
     """A perspective sensor like ``old`` with the given changes. Without a new ``target`` the camera
     keeps looking at the point of its old view axis nearest ``focus_hint`` (e.g. the scene centre);
-    ``fov`` is horizontal, in degrees; unspecified values are kept."""
+    ``fov`` is horizontal, in degrees; unspecified values are kept: the film's reconstruction
+    filter and ``sample_border`` always, its crop window while the size stays."""
     check_fov(fov)
     matrix = np.array(old.world_transform().matrix, dtype=np.float64)[..., 0]
     to_world = mi.ScalarTransform4f(matrix)
@@ -29,21 +31,22 @@ def moved_sensor(
         to_world = mi.ScalarTransform4f().look_at(
             origin=o.tolist(), target=t.tolist(), up=np.asarray(up, float).tolist()
         )
-    size = old.film().size()
+    film = old.film()
+    size = film.size()
     fov = float(fov if fov is not None else np.array(mi.traverse(old)["x_fov"])[0])
-    return mi.load_dict(
-        {
-            "type": "perspective",
-            "fov": fov,
-            "to_world": to_world,
-            "film": {
-                "type": "hdrfilm",
-                "width": int(width or size[0]),
-                "height": int(height or size[1]),
-                "rfilter": {"type": "box"},
-            },
-        }
-    )
+    new_film = {
+        "type": "hdrfilm",
+        "width": int(width or size[0]),
+        "height": int(height or size[1]),
+        "rfilter": film.rfilter(),  # the film's reconstruction filter is kept
+        "sample_border": bool(film.sample_border()),
+    }
+    if (new_film["width"], new_film["height"]) == tuple(int(c) for c in size):
+        (ox, oy), (cw, ch) = (
+            tuple(int(c) for c in v) for v in (film.crop_offset(), film.crop_size())
+        )
+        new_film.update(crop_offset_x=ox, crop_offset_y=oy, crop_width=cw, crop_height=ch)
+    return mi.load_dict({"type": "perspective", "fov": fov, "to_world": to_world, "film": new_film})
 
 
 def scene_bounds(scene: mi.Scene) -> tuple[np.ndarray, float]:
@@ -71,20 +74,44 @@ class MovableCamera:
         self.sensor = sensor
 
 
-def pixel_rays(sensor, pixel: mi.UInt32, jitter: mi.Point2f) -> tuple[mi.Ray3f, mi.Spectrum]:
-    """Camera rays through the given pixels of the sensor's film crop (index ``y · width + x``),
-    each placed in its pixel by ``jitter`` (a point in [0, 1)² per ray). Returns the rays and their
-    importance weights."""
+def pixel_rays(
+    sensor, pixel: mi.UInt32, jitter: mi.Point2f, filtered: bool = True
+) -> tuple[mi.Ray3f, mi.Spectrum]:
+    """Camera rays through the given pixels of the sensor's film crop (index ``y · width + x`` of
+    the crop; the sensor maps the crop window to its sample space), each placed in its pixel by
+    ``jitter`` (a point in [0, 1)² per ray). Returns the rays and their
+    importance weights.
+
+    The film's reconstruction filter is importance-sampled (:mod:`.film_filter`, Ernst et al.
+    2006): ``jitter`` goes through the inverse cumulative filter of the pixel, so the mean of a
+    pixel's weighted samples converges to the film's filtered pixel, as Mitsuba's splatting
+    does; the weight carries the filter's sign and normalisation where it has negative lobes.
+    The integer part of a ``jitter`` beyond [0, 1) shifts the ray by whole pixels. A box filter,
+    or ``filtered=False`` (passes of one ray per pixel centre, which filter their image with
+    :func:`.film_filter.filter_image`), places the ray uniformly in the pixel."""
     film = sensor.film()
-    w = int(film.crop_size()[0])
-    ox, oy = (int(c) for c in film.crop_offset())
-    full = film.size()
+    w, h = (int(c) for c in film.crop_size())
+    rfilter = film.rfilter()
+    # the sensor's sample space [0, 1]² spans the crop window (Mitsuba's sample_to_camera)
+    if not filtered or rfilter.is_box_filter():
+        pos = mi.Point2f(
+            (mi.Float(pixel % w) + jitter.x) / float(w),
+            (mi.Float(pixel // w) + jitter.y) / float(h),
+        )
+        ray, weight = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
+        return ray, mi.Spectrum(weight)
+    column, row = pixel % w, pixel // w
+    offset, filter_weight = sample_offsets(
+        rfilter, (w, h), film.sample_border(), column, row, jitter
+    )
     pos = mi.Point2f(
-        (mi.Float(pixel % w + ox) + jitter.x) / float(full[0]),
-        (mi.Float(pixel // w + oy) + jitter.y) / float(full[1]),
+        (mi.Float(column) + (0.5 + offset.x)) / float(w),
+        (mi.Float(row) + (0.5 + offset.y)) / float(h),
     )
     ray, weight = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5))
-    return ray, mi.Spectrum(weight)
+    if filter_weight is None:
+        return ray, mi.Spectrum(weight)
+    return ray, mi.Spectrum(weight) * filter_weight
 
 
 def pixel_means(L: mi.Spectrum, spp: int) -> mi.Spectrum:

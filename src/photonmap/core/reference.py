@@ -5,6 +5,10 @@ Each pass renders ``spp_per_pass`` samples per pixel with its own seed; the imag
 the passes, so any number of samples fits in memory (a pass holds about
 :data:`BYTES_PER_SAMPLE` bytes per sample in flight). A time budget stops after the pass that
 crosses it.
+
+The path-length settings are the scene file's own (:class:`.settings.PathSettings`: ``max_depth``,
+``rr_depth`` and ``hide_emitters`` of its ``<integrator>``, also inside an ``aov`` or ``moment``
+wrapper), so that the reference is Mitsuba's image of the file; arguments override them.
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import numpy as np
 
 from .errors import ParameterError
 from .scene_info import has_media
+from .settings import PathSettings
 
 INTEGRATORS = ("path", "volpath", "ptracer")
 BYTES_PER_SAMPLE = 200  # Mitsuba's wavefront path tracing on the LLVM backend, rough upper bound
@@ -41,18 +46,27 @@ def render_reference(
     scene: mi.Scene,
     spp: int = 1024,
     integrator: str | None = None,
-    max_depth: int = -1,
+    max_depth: int | None = None,
     time_limit: float | None = None,
     seed: int = 0,
     sensor: int = 0,
     progress: Callable[[int, int], None] | None = None,
+    source=None,
+    rr_depth: int | None = None,
+    hide_emitters: bool | None = None,
 ) -> tuple[np.ndarray, dict]:
     """Mitsuba's ``integrator`` (default :func:`default_integrator`) on ``scene`` at ``spp``
     samples per pixel, or fewer if ``time_limit`` seconds run out first (at least one pass; the
     last pass may overrun the limit by about a tenth of it).
-    ``max_depth`` as Mitsuba counts it (-1: unbounded; 2: direct light only). Returns the image
-    (height, width, 3) as float64 and ``{"spp", "seconds", "integrator", "passes"}``;
-    ``progress(samples_done, spp)`` is called after each pass."""
+    ``max_depth`` as Mitsuba counts it (-1: unbounded; 2: direct light only), ``rr_depth`` and
+    ``hide_emitters``: None takes the scene's own (its ``<integrator>``; ``source``, the XML file
+    it was loaded from, if any, supplies what a wrapper integrator hides). Returns the image
+    (height, width, 3) as float64 and ``{"spp", "seconds", "integrator", "passes", "max_depth",
+    "rr_depth", "hide_emitters"}``; ``progress(samples_done, spp)`` is called after each pass."""
+    own = PathSettings.of(scene, source=source)
+    max_depth = own.max_depth if max_depth is None else max_depth
+    rr_depth = own.rr_depth if rr_depth is None else rr_depth
+    hide_emitters = own.hide_emitters if hide_emitters is None else bool(hide_emitters)
     integrator = integrator or default_integrator(scene)
     if integrator not in INTEGRATORS:
         raise ParameterError(
@@ -64,11 +78,16 @@ def render_reference(
         raise ParameterError(f"the time limit must be > 0 seconds, got {time_limit!r}")
     if max_depth < -1 or max_depth == 0:
         raise ParameterError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
+    if isinstance(rr_depth, bool) or not isinstance(rr_depth, int) or rr_depth < 1:
+        raise ParameterError(f"rr_depth must be an integer >= 1, got {rr_depth!r}")
     if not scene.sensors():
         raise ParameterError("the scene has no sensor (camera) to render from")
-    props = {"type": integrator, "max_depth": int(max_depth)}
-    if integrator != "ptracer":
-        props["rr_depth"] = 5
+    props = {
+        "type": integrator,
+        "max_depth": int(max_depth),
+        "rr_depth": int(rr_depth),
+        "hide_emitters": hide_emitters,
+    }
     method = mi.load_dict(props)
     size = scene.sensors()[sensor].film().crop_size()
     per_pass = spp_per_pass(int(size[0]) * int(size[1]), spp)
@@ -94,5 +113,7 @@ def render_reference(
             rate = done / max(elapsed, 1e-6)  # samples per pixel per second
             n = int(max(1, min(per_pass, rate * min(time_limit / 10, time_limit - elapsed))))
     seconds = time.perf_counter() - start
-    return total / done, {"spp": done, "seconds": seconds, "integrator": integrator,
-                          "passes": passes}
+    return total / done, {
+        "spp": done, "seconds": seconds, "integrator": integrator, "passes": passes,
+        "max_depth": int(max_depth), "rr_depth": int(rr_depth), "hide_emitters": hide_emitters,
+    }  # fmt: skip

@@ -98,15 +98,22 @@ def is_wrapper(integrator) -> bool:
     return integrator is not None and integrator.class_name() in WRAPPERS
 
 
+_COMMENT = re.compile(r"<!--.*?-->", re.S)
+_DECLARATION = re.compile(r"^\s*<\?xml[^>]*\?>")
+
+
 def _inner_hide_emitters(source) -> bool:
     """``hide_emitters`` of the innermost ``<integrator>`` of the XML file ``source`` (a literal
-    ``true``; False when unreadable)."""
+    ``true``; False when unreadable). Comments are dropped before parsing: Mitsuba's parser reads
+    a comment holding ``--`` (a command line, say), which strict XML forbids."""
     try:
         path = os.fspath(source)
         if not isinstance(path, str) or not os.path.isfile(path):
             return False
-        node = ET.parse(path).getroot().find("integrator")
-    except (OSError, TypeError, ET.ParseError):
+        with open(path, encoding="utf-8", errors="replace") as f:
+            text = _COMMENT.sub("", f.read())
+        node = ET.fromstring(_DECLARATION.sub("", text, count=1)).find("integrator")
+    except (OSError, TypeError, ValueError, ET.ParseError):
         return False
     while node is not None and node.find("integrator") is not None:
         node = node.find("integrator")

@@ -55,7 +55,8 @@ def focal_px(sensor: mi.Sensor) -> float:
 
 
 def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
-    """The eye G-buffer of spec §2.1, one primary ray per pixel centre (Fig 3.1), and the mask of
+    """The eye G-buffer of spec §2.1, one primary ray per pixel centre (Fig 3.1; the pipeline
+    applies the film's reconstruction filter to the finished image), and the mask of
     pixels that see a mirror or glass surface (their ``albedo`` is 0: no diffuse shading, no
     splats; :mod:`.composite` ray-traces them).
 
@@ -65,7 +66,7 @@ def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
     (:func:`_light_edges`).
     """
     w, h = (int(c) for c in sensor.film().crop_size())
-    ray, _ = pixel_rays(sensor, dr.arange(mi.UInt32, w * h), mi.Point2f(0.5))
+    ray, _ = pixel_rays(sensor, dr.arange(mi.UInt32, w * h), mi.Point2f(0.5), filtered=False)
     si = intersect_visible(scene, ray)
     valid = si.is_valid()
     emission = dr.select(valid, si.emitter(scene).eval(si, valid), 0.0)
@@ -100,27 +101,42 @@ def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
 
 
 def _light_edges(scene: mi.Scene, sensor: mi.Sensor, emission: mi.Color3f) -> mi.Color3f:
-    """``emission`` with the pixels at a light's silhouette (a pixel of the 3 × 3 neighbourhood
-    sees light and another does not) replaced by the mean of :data:`EMISSION_SAMPLES`² stratified
-    sub-pixel rays: a light a few pixels tall covers as many pixels as in a pixel-filtered render
-    (``mi.cornell_box()`` at 64 × 64: 20 pixel centres vs 23.6 pixels of area)."""
+    """``emission`` with the pixels at a light's silhouette replaced by the mean of
+    :data:`EMISSION_SAMPLES`² stratified sub-pixel rays: a light a few pixels tall covers as
+    many pixels as in a pixel-filtered render (``mi.cornell_box()`` at 64 × 64: 20 pixel
+    centres vs 23.6 pixels of area). A silhouette pixel is one whose neighbourhood holds pixels
+    that see light and pixels that do not: 3 × 3 with a box filter; with another filter the
+    neighbourhood reaches as far as the filter, and the sub-pixel rays importance-sample it
+    (:func:`pixel_rays`), so that these pixels hold the film's filtered emission — the pipeline
+    filters the rest of the image, not the emission (:mod:`photonmap.core.film_filter`)."""
     w, h = (int(c) for c in sensor.film().crop_size())
     emits = (dr.max(emission) > 0).numpy().reshape(h, w)
     if not emits.any():
         return emission
-    pad = np.pad(emits, 1, mode="edge")
+    rfilter = sensor.film().rfilter()
+    box = rfilter.is_box_filter()
+    m = 1 if box else int(rfilter.border_size()) + 1
+    pad = np.pad(emits, m, mode="edge")
     edge = np.zeros_like(emits)
-    for dy in range(3):
-        for dx in range(3):
+    for dy in range(2 * m + 1):
+        for dx in range(2 * m + 1):
             edge |= pad[dy : dy + h, dx : dx + w] != emits
     index = np.flatnonzero(edge)
-    k = EMISSION_SAMPLES
+    k = EMISSION_SAMPLES if box else 2 * EMISSION_SAMPLES  # a filter reaches beyond the pixel
     sub = np.arange(k * k)
-    jitter = mi.Point2f(np.tile((sub % k + 0.5) / k, len(index)), np.tile((sub // k + 0.5) / k,
-                                                                          len(index)))
-    ray, _ = pixel_rays(sensor, mi.UInt32(np.repeat(index, k * k)), jitter)
+    # the strata's centres; a filter's tails lie beyond the outer strata's centres, so its
+    # samples are jittered in their strata (a fixed hash: the same image every time)
+    within = np.full((2, len(index) * k * k), 0.5)
+    if not box:
+        within = np.random.default_rng(0x5EED).random(within.shape)
+    jitter = mi.Point2f(
+        (np.tile(sub % k, len(index)) + within[0]) / k,
+        (np.tile(sub // k, len(index)) + within[1]) / k,
+    )
+    ray, weight = pixel_rays(sensor, mi.UInt32(np.repeat(index, k * k)), jitter)
     si = intersect_visible(scene, ray)
-    Le = pixel_means(dr.select(si.is_valid(), si.emitter(scene).eval(si), 0.0), k * k)
+    seen = dr.select(si.is_valid(), si.emitter(scene).eval(si), 0.0)
+    Le = pixel_means(seen if box else seen * weight, k * k)
     out = mi.Color3f(emission)
     dr.scatter(out, Le, mi.UInt32(index))
     return out

@@ -33,6 +33,12 @@ the method under study and the one the stage graph is built around (a ``light_si
 ``isg_samples`` change reruns only the gather), and both stay within the tests' bounds against
 ``path`` (:mod:`tests.screen.test_vs_mitsuba`); ``"sampled"`` gives exact penumbrae at the same
 cost where they matter.
+
+The G-buffers hold one sample per pixel centre, so the film's reconstruction filter (Mitsuba's
+default is a gaussian) is applied to the composited image as a discrete separable kernel
+(:func:`photonmap.core.film_filter.filter_image`), except to the emission seen directly, whose
+silhouette pixels importance-sample the filter (:mod:`.gbuffer`); a box filter leaves the image
+as it is.
 """
 
 from __future__ import annotations
@@ -46,6 +52,7 @@ import numpy as np
 from ..core.bsdf import is_null
 from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
+from ..core.film_filter import filter_image
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.scene_info import refuse_media
@@ -169,11 +176,26 @@ def check_dielectrics(scene: mi.Scene) -> None:
                 )
 
 
+def _film_image(out: mi.Color3f, gbuf, film) -> mi.TensorXf:
+    """The composited pixels as the film's image: one sample per pixel centre, so the film's
+    reconstruction filter is applied to the image (:func:`filter_image`), except to the emission
+    seen, whose silhouette pixels already importance-sample the filter (:mod:`.gbuffer`)."""
+    shape = (gbuf.height, gbuf.width, 3)
+    if film.rfilter().is_box_filter():
+        return mi.TensorXf(dr.ravel(out), shape)
+    emission = gbuf.emission if gbuf.emission is not None else dr.zeros(mi.Color3f, dr.width(out))
+    rest = filter_image(mi.TensorXf(dr.ravel(out - emission), shape), film)
+    return mi.TensorXf(rest.array + dr.ravel(emission), shape)
+
+
 def _sensor_key(sensor) -> tuple:
+    """The camera's cache key: pose, field of view, the film's size, crop window and filter."""
     m = np.array(sensor.world_transform().matrix, dtype=np.float64).ravel()
     fov = np.array(mi.traverse(sensor)["x_fov"]).ravel()
-    size = tuple(int(c) for c in sensor.film().crop_size())
-    return (tuple(m.round(9)), tuple(fov), size, tuple(int(c) for c in sensor.film().size()))
+    film = sensor.film()
+    size = tuple(int(c) for c in film.crop_size())
+    crop = (tuple(int(c) for c in film.crop_offset()), str(film.rfilter()), film.sample_border())
+    return (tuple(m.round(9)), tuple(fov), size, tuple(int(c) for c in film.size()), crop)
 
 
 class ScreenPipeline(MovableCamera, StagedPipeline):
@@ -389,7 +411,7 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
             height=gbuf.height,
         )
         self.cache.progress = None
-        image = mi.TensorXf(dr.ravel(out), (gbuf.height, gbuf.width, 3))
+        image = _film_image(out, gbuf, self.sensor.film())
         if not dr.all(dr.isfinite(dr.sum(out, axis=None))):
             raise SceneError(
                 "the render produced NaN or infinite values; check the scene's textures, BSDF "

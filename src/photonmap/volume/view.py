@@ -48,6 +48,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.camera import pixel_means, pixel_rays
+from ..core.film_filter import filter_image
 from ..core.grid import GridBox, grid_extent, pack, to_tensor, trilinear_packed
 from .emit import box_entry
 from .shading import shade
@@ -265,17 +266,19 @@ def render_view(
 ) -> mi.TensorXf:
     """Render the image seen by ``sensor`` (a Mitsuba perspective sensor) — spec S9; with
     ``shading`` (:class:`~.shading.SurfaceShading`) camera rays end at opaque surfaces and add
-    their radiance (``shading.py``)."""
+    their radiance (``shading.py``). The film's reconstruction filter is honoured:
+    importance-sampled with ``spp`` > 1, applied to the image of the pixel centres with ``spp``
+    = 1 (:mod:`photonmap.core.film_filter`)."""
     w, h = (int(c) for c in sensor.film().crop_size())
     pixels = w * h
     spp = max(int(settings.spp), 1)
     idx = dr.arange(mi.UInt32, pixels * spp)
-    if spp > 1:
+    if spp > 1:  # jittered samples: the film's filter is importance-sampled (pixel_rays)
         rng = mi.PCG32(pixels * spp, mi.UInt64(settings.seed), mi.UInt64(idx))
         jitter = mi.Point2f(rng.next_float32(), rng.next_float32())
-    else:
-        jitter = mi.Point2f(0.5)
-    ray, _ = pixel_rays(sensor, idx // spp, jitter)
+        ray, weight = pixel_rays(sensor, idx // spp, jitter)
+    else:  # one ray per pixel centre: the film's filter is applied to the image
+        ray, weight = pixel_rays(sensor, idx, mi.Point2f(0.5), filtered=False)
     o = mi.Point3f((ray.o - mi.Point3f(*box.lo)) / box.h)
     d = mi.Vector3f(ray.d)
     if shading is None:
@@ -283,7 +286,10 @@ def render_view(
         L = dr.select(inside, L, environment(env, d))
     else:
         L = _view_surfaces(grids, o, d, env, settings, shading)
-    image = mi.TensorXf(dr.ravel(pixel_means(L, spp) if spp > 1 else L), (h, w, 3))
+    if spp > 1:
+        image = mi.TensorXf(dr.ravel(pixel_means(mi.Color3f(L * weight), spp)), (h, w, 3))
+    else:
+        image = filter_image(mi.TensorXf(dr.ravel(L), (h, w, 3)), sensor.film())
     dr.eval(image)
     return image
 
@@ -334,4 +340,6 @@ def sensor_key(sensor) -> tuple:
         tuple(int(c) for c in film.size()),
         tuple(int(c) for c in film.crop_size()),
         tuple(int(c) for c in film.crop_offset()),
+        str(film.rfilter()),
+        bool(film.sample_border()),
     )
