@@ -1,10 +1,10 @@
 """SPPM in participating media (Jensen & Christensen 1998; beyond-seeds §4): the eye paths are
 volumetric path tracing (equiangular direct light along each piece, free-flight collisions, on
-through surfaces), the photons carry the light that came through glass (caustics on surfaces and
-in the fog, whose radius shrinks as ρ_1 · i^((α−1)/3)). On the shared fog box
-(tests/fog_scene.py) with a spot light in the fog, against Mitsuba ``volpath`` and the surface method on the same scene: grey fog over a
-diffuse floor (both modes), the same inside a ``dielectric`` box (media inside glass: eye paths and
-photons refract into the fog), and a ``heterogeneous`` grid medium."""
+through surfaces), the photons carry the light that came through glass (caustics on surfaces and in
+the fog, whose radius shrinks as ρ_1 · i^((α−1)/3)). On the shared fog box (tests/fog_scene.py)
+with a spot light in the fog, against Mitsuba ``volpath`` and the surface method on the same scene:
+grey fog over a diffuse floor (both modes), the same inside a ``dielectric`` box (media inside
+glass: eye paths and photons refract into the fog), and a ``heterogeneous`` grid medium."""
 
 import os
 
