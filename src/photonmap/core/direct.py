@@ -31,8 +31,10 @@ CONTEXT = mi.BSDFContext()
 
 
 def power_heuristic(a, b):
-    a2, b2 = dr.square(a), dr.square(b)
-    return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
+    """Veach's power heuristic ``a² / (a² + b²)`` as ``1 / (1 + (b/a)²)``: a squared density
+    overflows float32 (the emitter density of a point in the light's own plane is ~1e19 per
+    steradian) and the quotient form then gives NaN; 0 where ``a`` is 0."""
+    return dr.select(a > 0, dr.rcp(1.0 + dr.square(b / a)), 0.0)
 
 
 def shadow_transmittance(scene, ray, medium, gen, active, traits: SceneTraits) -> mi.Spectrum:

@@ -46,6 +46,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.direct import power_heuristic
 from ..core.grid import trilinear_packed
 from ..core.sampling import rng as make_rng
 from .emit import box_entry, spot_falloff
@@ -100,11 +101,6 @@ def _world(value) -> mi.Point3f:
     return mi.Point3f(*[dr.opaque(mi.Float, float(c)) for c in np.asarray(value).reshape(3)])
 
 
-def _power_heuristic(a, b):
-    a2, b2 = dr.square(a), dr.square(b)
-    return dr.select(a2 + b2 > 0, a2 / (a2 + b2), 0.0)
-
-
 def _direct(sh, si, gen, active) -> mi.Color3f:
     """Light straight from every light, through the grid's κ (module docstring)."""
     bsdf = si.bsdf()
@@ -152,7 +148,7 @@ def _emitter_mis(sh, light, si, bsdf, gen, active) -> mi.Color3f:
     lit &= ~sh.surfaces.occluded(ray, lit)
     f, pdf_bsdf = bsdf.eval_pdf(SMOOTH, si, si.to_local(ds.d), lit)
     T = transmittance(sh, si.p, ds.d, dr.inf if environment else ds.dist, lit)
-    w = _power_heuristic(ds.pdf, pdf_bsdf)
+    w = power_heuristic(ds.pdf, pdf_bsdf)
     L = dr.select(lit, w * f * mi.Color3f(weight) * T, 0.0)
     # BSDF sampling
     bs, f_bs = bsdf.sample(
@@ -168,7 +164,7 @@ def _emitter_mis(sh, light, si, bsdf, gen, active) -> mi.Color3f:
     L_e = emitter.eval(si_e, hits)
     pdf_e = emitter.pdf_direction(si, mi.DirectionSample3f(sh.surfaces.scene, si_e, si), hits)
     T = transmittance(sh, si.p, ray.d, dr.inf if environment else si_e.t, hits)
-    w = _power_heuristic(bs.pdf, pdf_e)
+    w = power_heuristic(bs.pdf, pdf_e)
     L += dr.select(hits, w * mi.Color3f(f_bs) * L_e * T, 0.0)
     return L * scale
 
