@@ -6,7 +6,7 @@ import pytest
 
 from photonmap import dr, mi
 from photonmap.core import photon_trace
-from photonmap.core.emission import emitter_powers, split_paths
+from photonmap.core.emission import emit, emitter_powers, split_paths
 from photonmap.core.errors import ParameterError, SceneError
 from photonmap.core.photon_trace import PhotonRecords, _check_power
 from photonmap.core.settings import PathSettings
@@ -233,6 +233,48 @@ def test_caustic_records_lie_under_a_glass_sphere():
         }
     )
     assert not np.array(trace_photons(scene, 2**12).caustic).any()
+
+
+def rough_ball_over_floor(light: dict) -> mi.Scene:
+    """A rough glass ball (roughdielectric, GGX α 0.1) 1 m above a diffuse floor."""
+    ball = {"type": "sphere", "center": [0, 1, 0], "radius": 0.5,
+            "bsdf": {"type": "roughdielectric", "int_ior": 1.5, "alpha": 0.1}}  # fmt: skip
+    return mi.load_dict({"type": "scene", "floor": floor_disk(5.0), "ball": ball, "light": light})
+
+
+def test_followed_rough_glass_holds_no_records_and_makes_caustics():
+    """With ``rough_glass`` (the surface method) rough glass is followed as glass is: no record on
+    it, and the light it brings to the floor is caustic — the same light that without it lands
+    there after two smooth bounces (in and out of the ball)."""
+    scene = rough_ball_over_floor(point((0, 4, 0), 10.0))
+    settings = PathSettings(9, 3)
+    followed = photon_trace.trace_photons(scene, 2**17, settings, 1, rough_glass=True).records
+    shaded = photon_trace.trace_photons(scene, 2**17, settings, 1).records
+    for records in (followed, shaded):
+        assert records.count > 0
+    y = np.array(followed.position)[1]
+    assert np.all(np.abs(y) < 1e-4)  # all on the floor
+    assert np.array(shaded.position)[1].max() > 0.4  # records on the ball
+    assert not np.array(shaded.caustic).any()
+
+    def under_the_ball(records, mask):
+        position = np.array(records.position)
+        near = (np.hypot(position[0], position[2]) < 0.45) & (np.abs(position[1]) < 1e-4)
+        return sums(records, near & mask)
+
+    depth = np.array(shaded.depth)
+    caustic, error = under_the_ball(followed, np.array(followed.caustic))
+    through, error2 = under_the_ball(shaded, depth == 3)  # light, ball in, ball out, floor
+    assert caustic.sum() > 0.05 * 10.0 * 4 * np.pi / 100  # a real share of the light
+    assert np.all(np.abs(caustic - through) < 4 * np.hypot(error, error2) + 1e-6)
+
+
+def test_aimed_emission_aims_at_followed_rough_glass():
+    light = {"type": "rectangle", "to_world": T().translate([0, 4, 0]).rotate([1, 0, 0], 90),
+             "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 5.0}}}  # fmt: skip
+    scene = rough_ball_over_floor(light)
+    assert emit(scene, 4096, 0, 0.5).aimed_paths == 0  # rough glass is not specular
+    assert emit(scene, 4096, 0, 0.5, rough_glass=True).aimed_paths > 1000
 
 
 def spot(position=(0, 0, 0), target=(0, -1, 0)) -> dict:

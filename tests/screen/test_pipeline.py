@@ -166,7 +166,10 @@ def _no_light_scene():
         ({"subsample": 0}, ParameterError, "subsample must be >= 1"),
         ({"subsample": 2.5}, ParameterError, "subsample must be an integer"),
         ({"subsample": "x"}, ParameterError, "subsample must be an integer"),
-        ({"bounces": 0}, ParameterError, "bounces must lie in [1, 8]"),
+        ({"bounces": -1}, ParameterError, "bounces must lie in [0, 8]"),
+        ({"bounces": 9}, ParameterError, "bounces must lie in [0, 8]"),
+        ({"max_depth": -2}, ParameterError, "max_depth must be >= -1"),
+        ({"hide_emitters": "yes"}, ParameterError, "hide_emitters must be one of"),
         ({"seed": -1}, ParameterError, "seed must lie in [0, 4294967295]"),
         ({"splat": "disk"}, ParameterError, "splat must be one of quad, icosahedron"),
         ({"shadows": "blurry"}, ParameterError, "shadows must be one of"),
@@ -227,3 +230,42 @@ def test_shadow_modes_bracket_the_hard_shadow(pipe):
         assert vis[mode].min() >= 0 and vis[mode].max() <= 1
         changed = vis[mode] != vis["hard"]
         assert 0 < changed.mean() < 0.5
+
+
+def small_cornell(**integrator) -> dict:
+    scene = mi.cornell_box()
+    scene["sensor"]["film"].update(width=32, height=32, rfilter={"type": "box"})
+    scene["integrator"] = {"type": "path", **integrator}
+    return scene
+
+
+@pytest.mark.parametrize("max_depth, bounces", [(2, 0), (3, 1), (6, 4), (-1, 8)])
+def test_recorded_bounces_come_from_the_files_max_depth(max_depth, bounces):
+    p = ScreenPipeline(small_cornell(max_depth=max_depth), light_res=16)
+    assert p.recorded_bounces() == bounces
+    p.set_params(max_depth=5)
+    assert p.recorded_bounces() == 3
+    p.set_params(bounces=2)
+    assert p.recorded_bounces() == 2
+
+
+def test_max_depth_2_renders_direct_light_only():
+    p = ScreenPipeline(small_cornell(max_depth=2), light_res=16)
+    image = np.array(p.render())
+    assert p.outputs["photons"] is None and p.stats["photon_slots"] == 0
+    assert not np.array(p.outputs["indirect"]).any()
+    p.set_params(max_depth=3)
+    brighter = np.array(p.render())
+    assert brighter.mean() > 1.1 * image.mean()
+
+
+def test_hide_emitters_hides_the_light_seen_directly():
+    shown = ScreenPipeline(small_cornell(max_depth=3), light_res=16)
+    hidden = ScreenPipeline(small_cornell(max_depth=3, hide_emitters=True), light_res=16)
+    a, b = np.array(shown.render()), np.array(hidden.render())
+    light = np.array(shown.outputs["gbuffer"].emission).max(axis=0).reshape(32, 32) > 0
+    assert light.sum() > 4
+    assert np.all(b[light] < 0.5 * a[light])
+    np.testing.assert_allclose(b[~light], a[~light])
+    shown.set_params(hide_emitters="true")
+    np.testing.assert_allclose(np.array(shown.render()), b)

@@ -127,13 +127,21 @@ def test_area_light_photons_carry_the_emitted_power():
 
 
 def test_one_light_is_used_and_the_others_are_named():
-    d = _cornell(lamp={"type": "point", "position": [0, 0.5, 0], "intensity": 0.1})
-    with pytest.warns(PhotonmapWarning, match=r"ignores the light of: AreaLight .* shape 'light'"):
-        pipe = ScreenPipeline(d, **FAST)
-    assert pipe.light.kind == "point"
+    """A faint extra lamp is left out with a warning; lit by the lamp alone, the scene would lack
+    the ceiling light's 98 % of the power: refused."""
+    d = _cornell(lamp={"type": "point", "position": [0, 0.5, 0], "intensity": 0.01})
     with pytest.warns(PhotonmapWarning, match=r"index 1\) and ignores the light of: PointLight"):
         pipe = ScreenPipeline(d, light=1, **FAST)
     assert pipe.light.kind == "area"
+    with pytest.raises(SceneError, match=r"PointLight.*AreaLight .* shape 'light'\) carry 9\d%"):
+        ScreenPipeline(d, **FAST)
+
+
+def test_a_scene_whose_other_lights_matter_is_refused():
+    d = _cornell(lamp={"type": "point", "position": [0, 0.5, 0], "intensity": 0.5})
+    with pytest.raises(SceneError, match=r"carry \d+% of the emitted power; render this scene "
+                       r"with --method sppm"):  # fmt: skip
+        ScreenPipeline(d, **FAST)
 
 
 # ---------------------------------------------------------------------------- null shapes
@@ -177,3 +185,29 @@ def test_a_non_finite_index_of_refraction_is_refused(ior):
     ball = {"type": "sphere", "radius": 0.2, "bsdf": {"type": "dielectric", "int_ior": ior}}
     with pytest.raises(SceneError, match=r"shape 'ball' \(Sphere\).*index of refraction"):
         ScreenPipeline(_cornell(ball=ball))
+
+
+# ---------------------------------------------------------------------------- BSDFs it shades
+def _with_ball(bsdf: dict) -> dict:
+    return _cornell(ball={"type": "sphere", "center": [0.3, -0.6, 0.2], "radius": 0.3,
+                          "bsdf": bsdf})  # fmt: skip
+
+
+@pytest.mark.parametrize("bsdf, says", [
+    ({"type": "roughconductor", "alpha": 0.2}, r"\(RoughConductor\) has no diffuse lobe"),
+    ({"type": "roughdielectric", "alpha": 0.1}, r"\(RoughDielectric\) has no diffuse lobe"),
+    ({"type": "mask", "opacity": 0.3, "bsdf": {"type": "diffuse"}}, r"is partly transparent"),
+])  # fmt: skip
+def test_surfaces_it_would_render_wrong_are_refused(bsdf, says):
+    with pytest.raises(SceneError, match=says + r".*render this scene with --method sppm"):
+        ScreenPipeline(_with_ball(bsdf), **FAST)
+
+
+@pytest.mark.parametrize("bsdf, says", [
+    ({"type": "roughplastic", "alpha": 0.2}, r"the glossy or specular lobes of shape 'ball'"),
+    ({"type": "bumpmap", "arg0": {"type": "checkerboard"}, "arg1": {"type": "diffuse"}},
+     r"the bumpmap of shape 'ball' \(shaded with its own normal\)"),
+])  # fmt: skip
+def test_parts_it_leaves_out_are_named(bsdf, says):
+    with pytest.warns(PhotonmapWarning, match=says):
+        ScreenPipeline(_with_ball(bsdf), **FAST)

@@ -13,7 +13,8 @@ directions where ``y`` lies inside it). Cones may overlap, so the direction's pd
 
 for ``N_a`` aimed paths of that emitter: an unbiased estimate of the power it sends into the
 cones. A *specular* shape has only delta lobes (:func:`~photonmap.core.bsdf.is_specular`:
-mirrors, glass, thin glass); ``null`` boundaries are not aimed at. Every path whose first
+mirrors, glass, thin glass), or is rough glass where the caller follows it
+(:func:`~photonmap.core.bsdf.is_rough_glass`); ``null`` boundaries are not aimed at. Every path whose first
 interaction is on a specular shape left its light inside that shape's cone, so it can be sampled
 aimed.
 """
@@ -32,9 +33,10 @@ _LOBES = int(mi.BSDFFlags.All)
 SURFACE_SAMPLES = 1 << 14  # points that bound a non-mesh shape (specular_spheres)
 
 
-def specular_spheres(scene: mi.Scene) -> list[tuple[np.ndarray, float]]:
+def specular_spheres(scene: mi.Scene, rough_glass: bool = False) -> list[tuple[np.ndarray, float]]:
     """``(centre, radius)`` of a bounding sphere of every shape whose BSDF has only delta
-    lobes (mirrors, glass; ``null`` boundaries and emitters excluded): centred on the shape's
+    lobes (mirrors, glass; ``null`` boundaries and emitters excluded), with ``rough_glass`` also
+    of every rough glass shape: centred on the shape's
     bounding box, through its farthest vertex (meshes) or 1% beyond the farthest of
     :data:`SURFACE_SAMPLES` points on it (spheres, disks, ...: their extremes are smooth, so the
     margin covers what the samples miss) — tighter than the box's own sphere."""
@@ -44,7 +46,14 @@ def specular_spheres(scene: mi.Scene) -> list[tuple[np.ndarray, float]]:
         if bsdf is None or shape.is_emitter():
             continue
         flags = bsdf.flags()
-        if flags & int(mi.BSDFFlags.Smooth) or flags & _LOBES == int(mi.BSDFFlags.Null):
+        rough = (
+            rough_glass
+            and flags & int(mi.BSDFFlags.GlossyTransmission)
+            and not flags & int(mi.BSDFFlags.Diffuse)
+        )
+        if (flags & int(mi.BSDFFlags.Smooth) and not rough) or flags & _LOBES == int(
+            mi.BSDFFlags.Null
+        ):
             continue
         box = shape.bbox()
         lo, hi = (np.array(c, dtype=np.float64).ravel() for c in (box.min, box.max))

@@ -1,7 +1,9 @@
 """BSDF and visibility helpers shared by the pipelines.
 
 - :func:`is_specular` — a BSDF with only delta lobes (mirror, glass): eye and gather rays follow
-  it, photon maps store nothing on it (Steinhurst 2007 §7.3.2; spec seed-001 §2.1).
+  it, photon maps store nothing on it (Steinhurst 2007 §7.3.2; spec seed-001 §2.1); with
+  ``rough_glass``, also a BSDF that transmits through glossy lobes and has no diffuse one
+  (:func:`is_rough_glass`).
 - :func:`diffuse_albedo` — the reflectance of a BSDF's diffuse lobes, for Lambertian lookups.
 - :func:`is_null` — a ``null`` BSDF: an index-matched boundary (a fog box, a medium's container)
   that light crosses unchanged. Every method treats such a shape as invisible: photons, eye rays
@@ -21,9 +23,26 @@ _LOBES = int(mi.BSDFFlags.All)
 MAX_NULL_CROSSINGS = 16  # iteration cap of the loops below (nested fog boxes: 2 per box)
 
 
-def is_specular(bsdf: mi.BSDFPtr, active) -> mi.Bool:
-    """True where the BSDF has only delta (perfectly specular) lobes (``null`` included)."""
-    return active & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+def is_specular(bsdf: mi.BSDFPtr, active, rough_glass: bool = False) -> mi.Bool:
+    """True where the BSDF has only delta (perfectly specular) lobes (``null`` included), and
+    with ``rough_glass`` where it is rough glass (:func:`is_rough_glass`)."""
+    specular = active & ~mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    return specular | is_rough_glass(bsdf, active) if rough_glass else specular
+
+
+def is_rough_glass(bsdf: mi.BSDFPtr, active) -> mi.Bool:
+    """True where the BSDF transmits through glossy lobes and has no diffuse lobe
+    (``roughdielectric``; a ``principled`` or a blend with a diffuse lobe is not). A method may
+    follow such a surface as it follows glass — its BSDF sampled whatever lobe it picks, no
+    visible point and no photon record on it — where a photon density estimate of a
+    near-specular transmission lobe would blur what lies behind it (Jensen 2001 §9.2: glossy
+    surfaces of low roughness are ray traced)."""
+    flags = bsdf.flags()
+    return (
+        active
+        & mi.has_flag(flags, mi.BSDFFlags.GlossyTransmission)
+        & ~mi.has_flag(flags, mi.BSDFFlags.Diffuse)
+    )
 
 
 def is_null(bsdf: mi.BSDFPtr, active) -> mi.Bool:

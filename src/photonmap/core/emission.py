@@ -105,18 +105,20 @@ def emit(
     caustics_only: bool = False,
     media: list | None = None,
     powers: np.ndarray | None = None,
+    rough_glass: bool = False,
 ) -> LightPaths:
     """``paths`` light paths from the scene's emitters (module docstring), the fraction ``aim``
     of the area emitters' paths aimed at the specular shapes (``aim = 1`` with ``caustics_only``:
     all of them, the caller keeping only specular-first paths). ``media``: :func:`emitter_media` of the scene,
     ``powers``: :func:`checked_powers`, if known (a pipeline finds them once). Without specular
-    shapes or area emitters, or with ``aim = 0``, nothing is aimed."""
+    shapes or area emitters, or with ``aim = 0``, nothing is aimed. ``rough_glass``: rough glass
+    counts as specular (:func:`~photonmap.core.aim.specular_spheres`)."""
     if paths < 1:
         raise ParameterError(f"the number of photon paths must be at least 1, got {paths}")
     if not 0 <= aim < 1 and not (caustics_only and aim == 1):
         raise ParameterError(f"aim must lie in [0, 1), got {aim!r}: the fraction aimed")
     counts = split_paths(checked_powers(scene, 0) if powers is None else powers, paths)
-    spheres = specular_spheres(scene) if aim > 0 else []
+    spheres = specular_spheres(scene, rough_glass) if aim > 0 else []
     can = aimable(scene) & (counts >= (1 if caustics_only else 2))
     if not spheres:
         can[:] = False

@@ -18,6 +18,10 @@ lobes: a delta lobe evaluates to zero):
   parts. (A ``BSDFContext`` restricted to some lobes is not honoured by every BSDF: a ``mask``
   asked for its smooth lobes samples its Null lobe.)
 
+With ``rough_glass`` (the surface method) rough glass is followed as glass is, whatever lobe its
+sample picks (:func:`~photonmap.core.bsdf.is_rough_glass`: a visible point there would need a
+photon density estimate of its near-specular transmission, which blurs what lies behind it).
+
 A ``Null`` lobe passes the ray straight on and is no interaction (``volpath``: it adds no depth).
 Medium is optional state (vacuum is the case without one). In a medium the flight is one of:
 
@@ -60,7 +64,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .bsdf import intersect_visible
+from .bsdf import intersect_visible, is_rough_glass
 from .direct import emitter_sampled, piece_direct, power_heuristic
 from .media import (
     Segments,
@@ -133,12 +137,14 @@ def trace_eye_paths(
     start_depth: int | mi.UInt32 = 0,
     active: mi.Bool | None = None,
     segments: int = 4,
+    rough_glass: bool = False,
 ) -> EyeVertices:
     """Follow the rays (unit directions; ``weight``: their throughput; ``medium``: where they
     start) to their vertices (module docstring). ``caustics``: photon estimates read along the
     paths (:class:`Caustics`); ``start_depth``: segments before these rays (per lane for a final
     gather; rays from the camera start at 0); ``segments``: pieces recorded per path in
-    ``"march"`` mode. The result is evaluated."""
+    ``"march"`` mode; ``rough_glass``: follow rough glass (``surfaces="stop"``). The result is
+    evaluated."""
     if media_mode not in MEDIA_MODES:
         raise ValueError(f"media_mode must be one of {MEDIA_MODES}, got {media_mode!r}")
     if surfaces not in SURFACE_MODES:
@@ -160,7 +166,7 @@ def trace_eye_paths(
         scene, ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), gen,
         settings, traits, emission, media_mode, surfaces, caustics or Caustics(),
         caustics is not None, start_depth, active & dr.full(mi.Bool, True, n), buffers, stored,
-        segments,
+        segments, rough_glass,
     )  # fmt: skip
     # every output at once: evaluating one output of a symbolic loop runs the whole loop again
     dr.eval(*(v for v in vars(vertices).values() if v is not None), buffers, stored)
@@ -173,7 +179,7 @@ def trace_eye_paths(
 @dr.syntax
 def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mode, surfaces,
             caustics, photons_carry, start_depth, active, buffers, stored,
-            max_pieces):  # fmt: skip
+            max_pieces, rough_glass):  # fmt: skip
     n = dr.width(beta)
     max_depth = settings.max_depth if settings.max_depth != UNBOUNDED else 2**31 - 1
     max_depth = dr.opaque(mi.UInt32, max_depth)
@@ -295,7 +301,11 @@ def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mod
             ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
             surface & ~skip,
         )  # fmt: skip
-        followed = mi.has_flag(bs.sampled_type, FOLLOWED) & (bs.pdf > 0)
+        whole = dr.zeros(mi.Bool, n)  # rough glass, followed whatever lobe it samples
+        if dr.hint(rough_glass and not continuing, mode="scalar"):
+            whole = is_rough_glass(bsdf, surface)
+            smooth &= ~whole
+        followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
         if dr.hint(continuing, mode="scalar"):
             # next-event estimation and the caustic photons at the smooth lobes, then go on
             # with the BSDF sample, whatever lobe it picked

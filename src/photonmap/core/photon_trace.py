@@ -24,7 +24,9 @@ surface interaction each add one; ``null`` crossings none), as Mitsuba's ``max_d
 segments: a record of depth ``d`` can end a path of at least ``d + 1`` segments, so only records
 with ``d ≤ max_depth − 1`` are kept and paths stop there. ``caustic``: the history is a pure
 specular chain — at least one delta bounce, no smooth bounce and no medium event (spec A5:
-Jensen's caustic map; the volume caustics). From ``rr_depth`` on a photon survives a surface
+Jensen's caustic map; the volume caustics); where rough glass is followed
+(:func:`~photonmap.core.bsdf.is_rough_glass`, the surface method) its bounces count as delta
+ones and nothing is recorded on it. From ``rr_depth`` on a photon survives a surface
 interaction with probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its power is divided
 by ``q`` (Mitsuba's Russian roulette; no η² factor: importance transport through a dielectric
 conserves power).
@@ -47,7 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .bsdf import intersect_visible, is_specular
+from .bsdf import intersect_visible, is_rough_glass, is_specular
 from .emission import LightPaths, emit
 from .errors import SceneError
 from .media import channel, enter, free_flight
@@ -132,6 +134,7 @@ def trace_photons(
     traits: SceneTraits | None = None,
     media: list | None = None,
     powers: np.ndarray | None = None,
+    rough_glass: bool = False,
 ) -> Traced:
     """Emit ``paths`` light paths (:func:`~photonmap.core.emission.emit`, the fraction ``aim``
     aimed at specular shapes) and trace them (:func:`trace_light_paths`): the one way every
@@ -141,13 +144,16 @@ def trace_photons(
     left out); ``media``:
     the emitters' media and ``powers`` their checked powers, if known
     (:func:`~photonmap.core.media.emitter_media`, :func:`~photonmap.core.emission.checked_powers`:
-    a pipeline finds them once)."""
+    a pipeline finds them once); ``rough_glass``: rough glass is followed as glass is
+    (:func:`~photonmap.core.bsdf.is_rough_glass`: aimed at, no records on it, its bounces
+    specular)."""
     settings = settings or PathSettings()
     traits = traits or SceneTraits.of(scene)
-    light = emit(scene, paths, seed, aim, caustics_only, media, powers)
+    light = emit(scene, paths, seed, aim, caustics_only, media, powers, rough_glass)
     records, volume = trace_light_paths(
-        scene, light, rng(paths, seed, stream=1), settings, traits, caustics_only
-    )
+        scene, light, rng(paths, seed, stream=1), settings, traits, caustics_only,
+        rough_glass=rough_glass,
+    )  # fmt: skip
     return Traced(records, volume, light)
 
 
@@ -161,6 +167,7 @@ def trace_light_paths(
     roulette: bool = True,
     first_depth: int = 0,
     redirect=None,
+    rough_glass: bool = False,
 ) -> tuple[PhotonRecords, VolumePhotons | None]:
     """Trace the light paths ``light`` (module docstring) and return their surface records and,
     in a scene with media, their volume photons. ``gen``: one random generator per path (an
@@ -169,7 +176,8 @@ def trace_light_paths(
     only if caustic;
     ``roulette``: Russian roulette from ``settings.rr_depth`` on; ``first_depth``: interactions
     the paths have already had (records then count from it); ``redirect(si, bs, gen)``: a
-    direction to go on in instead of the BSDF sample's (the screen method's glossy rule)."""
+    direction to go on in instead of the BSDF sample's (the screen method's glossy rule);
+    ``rough_glass``: see :func:`trace_photons`."""
     limit = np.iinfo(np.int32).max if settings.max_depth == UNBOUNDED else settings.max_depth - 1
     n = light.count
     state = _PathState.start(light, gen, first_depth)
@@ -177,8 +185,9 @@ def trace_light_paths(
     steps = 0
     while state.count and steps < MAX_STEPS:
         rec, vrec, state = _chunk(
-            scene, state, limit, settings.rr_depth, traits, caustics_only, roulette, redirect
-        )
+            scene, state, limit, settings.rr_depth, traits, caustics_only, roulette, redirect,
+            rough_glass,
+        )  # fmt: skip
         surface.append(rec)
         volume.append(vrec)
         steps += CHUNK
@@ -261,7 +270,8 @@ VOLUME_FIELDS = {
 }  # fmt: skip
 
 
-def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redirect):
+def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redirect,
+           rough_glass):  # fmt: skip
     """One chunk of the loop: the records it stored (compacted, as field lists) and the state of
     the paths still alive."""
     lanes = state.count
@@ -271,7 +281,7 @@ def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redir
     stored = dr.zeros(mi.Bool, slots)
     vstored = dr.zeros(mi.Bool, dr.width(vrec["depth"]))
     alive = _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits,
-                  caustics_only, roulette, redirect)  # fmt: skip
+                  caustics_only, roulette, redirect, rough_glass)  # fmt: skip
     dr.eval(rec, vrec, stored, vstored, alive, *vars(state).values())
     out = []
     for fields_, mask in ((rec, stored), (vrec, vstored)):
@@ -282,7 +292,7 @@ def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redir
 
 @dr.syntax
 def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, caustics_only,
-          roulette, redirect):  # fmt: skip
+          roulette, redirect, rough_glass):  # fmt: skip
     """The symbolic loop of one chunk; updates ``state`` in place, fills the record slots and
     returns which paths are still alive."""
     lanes = state.count
@@ -316,7 +326,7 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
             on_surface = active & si.is_valid()
         bsdf = si.bsdf(ray)
         # the partition of aimed emission (core.emission), at the first interaction
-        first_specular = on_surface & is_specular(bsdf, on_surface)
+        first_specular = on_surface & is_specular(bsdf, on_surface, rough_glass)
         keep = ~fresh | ~partitioned | (aimed == first_specular)
         in_medium &= keep
         on_surface &= keep
@@ -337,7 +347,11 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
 
         # ---- a surface: a record where the BSDF has a smooth lobe
         slot = step * stride + lane
-        store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (depth + 1 <= limit)
+        followed = dr.zeros(mi.Bool, lanes)  # rough glass followed whatever lobe it samples
+        if dr.hint(rough_glass, mode="scalar"):
+            followed = is_rough_glass(bsdf, on_surface)
+        store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & ~followed
+        store &= depth + 1 <= limit
         if dr.hint(caustics_only, mode="scalar"):
             store &= caustic
         values = (si.p, power, ray.d, mi.Vector3f(si.sh_frame.n), depth + 1, caustic,
@@ -356,9 +370,9 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
         bounced = on_surface & ~passed
         depth[bounced] += 1
         power[on_surface] *= weight
-        is_delta = bounced & mi.has_flag(lobe, mi.BSDFFlags.Delta)
+        is_delta = bounced & (mi.has_flag(lobe, mi.BSDFFlags.Delta) | followed)
         specular |= is_delta
-        smooth |= in_medium | (bounced & mi.has_flag(lobe, mi.BSDFFlags.Smooth))
+        smooth |= in_medium | (bounced & ~followed & mi.has_flag(lobe, mi.BSDFFlags.Smooth))
         delta[is_delta] += 1
         glossy[bounced & mi.has_flag(lobe, mi.BSDFFlags.Glossy)] += 1
         wo_surface = bs.wo

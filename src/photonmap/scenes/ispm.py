@@ -2,7 +2,8 @@
 
 All three reuse the Cornell box of :mod:`.cornell` (metres, the published 556 × 548.8 × 559.2 mm
 box and camera), at the thesis's 1024 × 768, lit by a spot light 10 mm under the ceiling centre
-aimed straight down (the thesis renders its Cornell box from a spot light's G-buffer, §3.1):
+aimed straight down (the thesis renders its Cornell box from a spot light's G-buffer, §3.1),
+with the thesis's two recorded bounces as the file's ``path`` ``max_depth`` 4:
 
 - :func:`cornell_ispm` — the Cornell box with the classic short and tall blocks (Fig 5.1; 34
   triangles against the thesis's 30).
@@ -68,6 +69,9 @@ def cornell_mesh(width: int = 1024, height: int = 768, triangles: int = 20000) -
 
 def _box_with_spot(width: int, height: int) -> dict:
     scene = cornell._box(width, height)
+    # the thesis's transport: direct light and two recorded indirect bounces (B = 2), which is
+    # Mitsuba's max_depth 4 (the screen method's default B is the file's max_depth - 2)
+    scene["integrator"] = {"type": "path", "max_depth": 4}
     scene["spot"] = {
         "type": "spot",
         "to_world": cornell._frame(SPOT_POSITION, (1, 0, 0), (0, 0, 1), (0, -1, 0)),

@@ -57,6 +57,9 @@ class Light:
     radius: float = 0.0  # area lights: virtual light radius L of Eqs 2–5 (world units)
 
 
+IGNORED_SHARE = 0.05  # the other emitters' share of the power a one-light render may leave out
+
+
 @dataclass
 class LightGBuffer:
     """Spec §2.2, per texel (row-major, ``width × height``): first hit ``si`` (a Mitsuba
@@ -73,8 +76,10 @@ class LightGBuffer:
 def find_light(scene: mi.Scene, index: int = 0, warn: bool = False) -> Light:
     """The ``index``-th spot, point or area emitter of ``scene`` as a :class:`Light`; raise a
     :class:`SceneError` if there is none. The pipeline lights the scene with this one light
-    (direct light, shadows, photons); ``warn=True`` issues a :class:`PhotonmapWarning` naming every
-    other emitter, whose light the image then lacks (area lights still show their emission)."""
+    (direct light, shadows, photons); ``warn=True`` refuses a scene whose other emitters carry
+    more than :data:`IGNORED_SHARE` of its emitted power (the image would lack their light) and
+    otherwise issues a :class:`PhotonmapWarning` naming them (area lights still show their
+    emission)."""
     indices = [i for i, e in enumerate(scene.emitters()) if _kind(e) is not None]
     lights = [scene.emitters()[i] for i in indices]
     if not lights:
@@ -88,6 +93,14 @@ def find_light(scene: mi.Scene, index: int = 0, warn: bool = False) -> Light:
     emitter = lights[index]
     if warn and len(scene.emitters()) > 1:
         others = [_describe(e) for e in scene.emitters() if e is not emitter]
+        powers = emitter_powers(scene, samples=1 << 14).sum(axis=1)
+        share = 1.0 - powers[indices[index]] / max(powers.sum(), 1e-30)
+        if share > IGNORED_SHARE:
+            raise SceneError(
+                f"the screen method lights the scene with one light ({_describe(emitter)}), and "
+                f"the others ({'; '.join(others)}) carry {share:.0%} of the emitted power; "
+                "render this scene with --method sppm (or surface)"
+            )
         warnings.warn(
             f"the screen method lights the scene with one light ({_describe(emitter)}, light "
             f"index {index}) and ignores the light of: {'; '.join(others)}",

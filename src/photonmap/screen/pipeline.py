@@ -55,7 +55,8 @@ from ..core.errors import ParameterError, SceneError
 from ..core.film_filter import filter_image
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
-from ..core.scene_info import refuse_media
+from ..core.scene_info import refuse_media, warn_unmodelled
+from ..core.settings import HIDE_CHOICES, UNBOUNDED, PathSettings, overridden
 from ..core.stages import StageCache, StagedPipeline
 from . import memory
 from .composite import composite, glass_eye
@@ -69,6 +70,7 @@ SPLATS = ("quad", "icosahedron")
 SHADOWS = (*MODES, "sampled")
 """Shadow modes: those of :mod:`.soft_shadow` and ``"sampled"`` (area lights: each light sample's
 own shadow ray, :mod:`.direct`; spot and point lights: the hard shadow)."""
+MAX_BOUNCES = 8  # recorded bounces at most (a file's unbounded max_depth gets these)
 STAGES = (
     "eye G-buffer",
     "light G-buffer",
@@ -88,7 +90,9 @@ class ScreenParams:
     """Parameters of the screen pipeline (the ``ispm`` plugin and the CLI's ``--set`` keys).
     Defaults: spec §4.2 (thesis values where given, [REC] otherwise)."""
 
-    bounces: int = 2  # B: recorded indirect bounces per path (Tab 1: 1, 2, 3)
+    bounces: int = 0  # B: recorded indirect bounces per path (Tab 1: 1, 2, 3); 0 = the file's
+    max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
+    hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
     light_res: int = 100  # light G-buffer W_L = H_L; photons = light_res² · bounces
     radius: float = 0.045  # splat radius r, × scene diagonal (A17)
     splat: str = "quad"  # quad | icosahedron (Tab 2)
@@ -107,7 +111,14 @@ class ScreenParams:
         """Types (:func:`~photonmap.core.params.check_fields`: integers, finite numbers, the
         seed in [0, 2³²)), then ranges and choices."""
         check_fields(self)
-        check_range("bounces", self.bounces, 1, 8, "recorded indirect bounces (the thesis: 1–3)")
+        check_range(
+            "bounces", self.bounces, 0, MAX_BOUNCES,
+            "recorded indirect bounces (the thesis: 1–3); 0 = the scene's max_depth − 2",
+        )  # fmt: skip
+        check_range("max_depth", self.max_depth, -1, None,
+                    "path segments at most as Mitsuba counts them; 0 = the scene's, -1 = unbounded")
+        check_choice("hide_emitters", self.hide_emitters, HIDE_CHOICES,
+                     "hide emitters seen directly: the scene's setting, or true/false")  # fmt: skip
         check_range(
             "light_res", self.light_res, 1, None,
             "the light G-buffer's side; light_res² · bounces photons are traced (100 → 10k per "
@@ -154,6 +165,41 @@ def _null(shape: mi.Shape) -> bool:
     return bsdf is not None and not shape.is_emitter() and bool(is_null(bsdf, True)[0])
 
 
+def check_shading(scene: mi.Scene) -> None:
+    """The screen method shades a surface by its diffuse reflectance (Yao's G-buffer holds the
+    albedo ρ, Eq 1) with its geometric shading normal, and ray-traces mirrors and glass. Raise a
+    :class:`SceneError` naming the shapes it would render wrong: BSDFs with smooth lobes but no
+    diffuse one (``roughconductor``, ``roughdielectric``: black) and partly transparent ones
+    (``mask``: opaque); warn about the parts it leaves out (the glossy or specular lobes of a
+    BSDF that also has a diffuse one, ``bumpmap`` and ``normalmap``)."""
+    refused, left_out = [], []
+    for number, shape in enumerate(scene.shapes()):
+        bsdf = shape.bsdf()
+        if bsdf is None or shape.is_emitter() or bool(is_null(bsdf, True)[0]):
+            continue
+        flags = int(bsdf.flags())
+        name = f"shape '{shape.id()}'" if shape.id() else f"shape number {number}"
+        what = f"{name} ({bsdf.class_name()})"
+        smooth, diffuse = flags & int(mi.BSDFFlags.Smooth), flags & int(mi.BSDFFlags.Diffuse)
+        if flags & int(mi.BSDFFlags.Null) and smooth:
+            refused.append(f"{what} is partly transparent")
+        elif smooth and not diffuse:
+            refused.append(f"{what} has no diffuse lobe")
+        elif diffuse and flags & int(mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta):
+            left_out.append(f"the glossy or specular lobes of {what}")
+        text = str(bsdf)
+        for kind in ("BumpMap", "NormalMap"):
+            if kind in text:
+                left_out.append(f"the {kind.lower()} of {name} (shaded with its own normal)")
+    if refused:
+        raise SceneError(
+            "the screen method shades surfaces by their diffuse reflectance and ray-traces "
+            f"mirrors and glass; it would render wrong: {'; '.join(refused)}; render this scene "
+            "with --method sppm (or surface)"
+        )
+    warn_unmodelled("screen", left_out, "--method sppm renders them")
+
+
 def check_dielectrics(scene: mi.Scene) -> None:
     """Raise a :class:`SceneError` naming the shape if a BSDF's relative index of refraction
     ``eta`` (a dielectric's ``int_ior / ext_ior``, nested BSDFs included) is not a finite positive
@@ -176,14 +222,15 @@ def check_dielectrics(scene: mi.Scene) -> None:
                 )
 
 
-def _film_image(out: mi.Color3f, gbuf, film) -> mi.TensorXf:
+def _film_image(out: mi.Color3f, emission: mi.Color3f | None, film) -> mi.TensorXf:
     """The composited pixels as the film's image: one sample per pixel centre, so the film's
     reconstruction filter is applied to the image (:func:`filter_image`), except to the emission
     seen, whose silhouette pixels already importance-sample the filter (:mod:`.gbuffer`)."""
-    shape = (gbuf.height, gbuf.width, 3)
+    w, h = (int(c) for c in film.crop_size())
+    shape = (h, w, 3)
     if film.rfilter().is_box_filter():
         return mi.TensorXf(dr.ravel(out), shape)
-    emission = gbuf.emission if gbuf.emission is not None else dr.zeros(mi.Color3f, dr.width(out))
+    emission = emission if emission is not None else dr.zeros(mi.Color3f, dr.width(out))
     rest = filter_image(mi.TensorXf(dr.ravel(out - emission), shape), film)
     return mi.TensorXf(rest.array + dr.ravel(emission), shape)
 
@@ -220,10 +267,12 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         from ..scenes import load_with_sensor
 
         self.scene, self.sensor, own = load_with_sensor(scene, ScreenParams, params)
+        self.file_settings = PathSettings.of(self.scene, scene)
         self.params = ScreenParams()
         self.set_params(**own)
         refuse_media(self.scene, "screen")
         check_dielectrics(self.scene)
+        check_shading(self.scene)
         self.light_index = light
         self.light = find_light(self.scene, light, warn=True)
         check_light_outside(self.scene, self.light)
@@ -298,6 +347,22 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         check_light_outside(self.scene, self.light)
         self._light_version += 1
 
+    @property
+    def settings(self) -> PathSettings:
+        """The file's ``max_depth`` and ``hide_emitters`` with this pipeline's parameters applied
+        (no Russian roulette: every path records its bounces, A8)."""
+        p = self.params
+        return overridden(self.file_settings, p.max_depth, 0, p.hide_emitters)
+
+    def recorded_bounces(self) -> int:
+        """B: ``bounces``, or where it is 0 the file's ``max_depth`` − 2 (a photon recorded after
+        B bounces ends a path of B + 2 segments: light, B bounces, the eye), at most
+        :data:`MAX_BOUNCES`; 0 for direct light only."""
+        if self.params.bounces:
+            return self.params.bounces
+        depth = self.settings.max_depth
+        return MAX_BOUNCES if depth == UNBOUNDED else min(max(depth - 2, 0), MAX_BOUNCES)
+
     def shadow_radius(self) -> float:
         """The world-space radius of the soft shadows: an area light's own virtual radius
         (:func:`.light_gbuffer.light_radius`) with ``shadows="soft"``, else ``light_size`` ×
@@ -333,11 +398,12 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         if self._prm[0] != (p.light_res, p.seed):  # the PRM is made once (§2.4), not a stage
             self._prm = ((p.light_res, p.seed), random_map(p.light_res, p.light_res, p.seed))
         prm = self._prm
-        photon_key = (lgb_key, p.bounces, p.glossy)
+        bounces = self.recorded_bounces()
+        photon_key = (lgb_key, bounces, p.glossy)
         photons = stage(
             "photon tracing",
             photon_key,
-            lambda: trace_photons(scene, lgb, prm[1], p.bounces, p.glossy),
+            lambda: trace_photons(scene, lgb, prm[1], bounces, p.glossy) if bounces else None,
         )
         sampled = p.shadows == "sampled"
         direct_key = (cam_key, light_key)
@@ -367,6 +433,9 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
 
         def splat():
+            if photons is None:  # direct light only
+                zero = dr.zeros(mi.Color3f, low.width * low.height)
+                return zero, zero
             if p.splat == "quad":
                 return splat_quads(low, photons, p.radius * diag)
             return splat_icosahedra(low, photons, p.radius * diag, p.compression)
@@ -379,15 +448,17 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         glass = stage(
             "glass", direct_key, lambda: glass_eye(scene, gbuf, specular, self.light, diag)
         )
+        hide = self.settings.hide_emitters  # Mitsuba hides the emitters seen directly only
+        emission = None if hide else gbuf.emission
         out = stage(
             "composite",
-            (shadow_key, up_key, direct_key),
+            (shadow_key, up_key, direct_key, hide),
             lambda: composite(
                 direct.L_sampled if sampled else direct.L,
                 None if sampled else visibility,
                 indirect,
                 glass,
-                gbuf.emission,
+                emission,
             ),
         )
         self.outputs = {
@@ -405,13 +476,13 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
             "image": out,
         }
         self.stats.update(
-            photons=int(dr.count(photons.valid)[0]),
-            photon_slots=p.light_res**2 * p.bounces,
+            photons=int(dr.count(photons.valid)[0]) if photons is not None else 0,
+            photon_slots=p.light_res**2 * bounces,
             width=gbuf.width,
             height=gbuf.height,
         )
         self.cache.progress = None
-        image = _film_image(out, gbuf, self.sensor.film())
+        image = _film_image(out, emission, self.sensor.film())
         if not dr.all(dr.isfinite(dr.sum(out, axis=None))):
             raise SceneError(
                 "the render produced NaN or infinite values; check the scene's textures, BSDF "

@@ -111,7 +111,7 @@ def final_gather(
         y = trace_eye_paths(
             scene, ray, dr.select(ok, weight, 0.0), medium_x, gen, settings, traits,
             emission=False, media_mode="end", start_depth=dr.gather(mi.UInt32, depth, query),
-            active=ok,
+            active=ok, rough_glass=True,
         )  # fmt: skip
         si_y, throughput, found = y.si, y.beta, y.found & settings.allows(y.depth + 1)
         L_medium = 0.0

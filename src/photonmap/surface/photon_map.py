@@ -90,14 +90,16 @@ def build_photon_maps(
         )
     settings = settings or PathSettings()
     traits = traits or SceneTraits.of(scene)
-    traced = trace_photons(scene, photons, settings, seed, traits=traits, media=media)
+    traced = trace_photons(
+        scene, photons, settings, seed, traits=traits, media=media, rough_glass=True
+    )
     global_records = traced.records
     if settings.max_depth != UNBOUNDED and global_records.count:
         global_records = global_records.select(global_records.depth + 2 <= settings.max_depth)
     if caustic_photons:
         caustic_records = trace_photons(
             scene, caustic_photons, settings, seed + 1, 1.0, caustics_only=True, traits=traits,
-            media=media,
+            media=media, rough_glass=True,
         ).records  # fmt: skip
     else:
         caustic_records = global_records.select(dr.zeros(mi.Bool, global_records.count))

@@ -435,7 +435,7 @@ class SurfacePipeline(MovableCamera):
             medium_light = self.medium_light() if self._volume is not None else None
             eye = trace_eye_paths(
                 self.scene, ray, ray_weight, broadcast(self.sensor.get_medium(), lanes), gen,
-                self.settings, self.traits, emission=True, media_mode="march",
+                self.settings, self.traits, emission=True, media_mode="march", rough_glass=True,
             )  # fmt: skip
             si, beta, found, bounces, medium = eye.si, eye.beta, eye.found, eye.bounces, eye.medium
             found &= self.settings.allows(eye.depth + 1)  # light can still arrive
@@ -518,7 +518,7 @@ def light_images(
     ray, weight = pixel_rays(sensor, pixel, jitter)
     extra = trace_eye_paths(
         scene, ray, weight, broadcast(sensor.get_medium(), lanes), rng(lanes, p.seed, 4),
-        settings, traits, emission=True, media_mode="transmit",
+        settings, traits, emission=True, media_mode="transmit", rough_glass=True,
     ).radiance  # fmt: skip
     dr.scatter(image, pixel_means(extra, p.emitter_spp), flagged)
     return image
