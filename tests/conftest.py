@@ -4,9 +4,9 @@ Dr.Jit's debug mode, which reports out-of-range gathers and scatters (DESIGN.md,
 import os
 import sys
 
-import drjit as dr
+import photonmap  # first, before drjit: it starts Dr.Jit's threads with SIGINT blocked
 
-import photonmap  # noqa: F401
+dr = photonmap.dr
 
 sys.path.insert(0, os.path.dirname(__file__))  # shared test helpers (knn_reference)
 

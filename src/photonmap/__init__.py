@@ -25,8 +25,9 @@ from .core.errors import (  # noqa: E402
 
 llvm.configure()
 
-import drjit as dr  # noqa: E402
-import mitsuba as mi  # noqa: E402
+with _interrupt.held():  # Dr.Jit's worker threads start with SIGINT blocked (interrupt.held)
+    import drjit as dr
+    import mitsuba as mi
 
 VARIANTS = {"cpu": "llvm_ad_rgb", "cuda": "cuda_ad_rgb"}
 
@@ -58,7 +59,9 @@ def _register_plugins() -> None:
     register_sppm()
 
 
-set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
+with _interrupt.held():
+    set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
+    dr.eval(dr.sum(dr.arange(mi.Float, 1 << 22)))  # a parallel job: every worker thread starts
 
 from typing import NamedTuple  # noqa: E402
 

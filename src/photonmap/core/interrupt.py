@@ -116,3 +116,27 @@ def guard_command() -> None:
     if _is_command() and threading.current_thread() is threading.main_thread():
         if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:  # a background job ignores it
             signal.signal(signal.SIGINT, _command_handler)
+
+
+@contextmanager
+def held():
+    """SIGINT held pending in this thread (delivered when the block ends).
+
+    Mitsuba's ``Integrator.render`` installs its own SIGINT handler for the duration of a render,
+    and that handler writes a log line — not async-signal-safe: a Ctrl-C that lands while the
+    thread it interrupts is inside ``malloc`` deadlocks the process. Rendering with Mitsuba's
+    integrators (``photonmap reference``) therefore holds SIGINT in the calling thread; the
+    photonmap package starts Dr.Jit's worker threads under this block (threads inherit the
+    signal mask of the thread that starts them), so that no thread takes the signal while
+    Mitsuba's handler is installed, and Ctrl-C is answered by ours when the render returns.
+    Outside the main thread, or where signal masks do not exist, it does nothing."""
+    if threading.current_thread() is not threading.main_thread() or not hasattr(
+        signal, "pthread_sigmask"
+    ):
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)

@@ -20,6 +20,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from . import interrupt
 from .errors import ParameterError
 from .scene_info import has_media
 from .settings import PathSettings
@@ -98,8 +99,9 @@ def render_reference(
     start = time.perf_counter()
     while done < spp:
         n = min(n, spp - done)
-        image = mi.render(scene, integrator=method, sensor=sensor, spp=n, seed=seed + passes)
-        image = np.array(image, dtype=np.float64)[..., :3]
+        with interrupt.held():  # Mitsuba's own SIGINT handler is not signal-safe
+            image = mi.render(scene, integrator=method, sensor=sensor, spp=n, seed=seed + passes)
+            image = np.array(image, dtype=np.float64)[..., :3]
         dr.sync_thread()
         total = image * n if total is None else total + image * n
         done += n
