@@ -185,3 +185,20 @@ def test_light_kind_matches_volpath_single_scattering(light):
 if __name__ == "__main__":
     for name in CASES:
         print(name, [np.round(compare(name, seed), 4).tolist() for seed in range(3)])
+
+
+def test_a_hidden_environment_matches_volpath():
+    """hide_emitters: the environment met by camera rays themselves — through the fog, which is
+    no interaction — is hidden, as volpath hides it; the fog it lights is not."""
+    scene = fog_box("environment")
+    integrator = mi.load_dict({"type": "volpath", "max_depth": 2, "hide_emitters": True})
+    reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=256))[..., :3]
+    pipe = VolumePipeline(scene, grid=32, photons=128**2, phase_k=0.0, table=0.0, spp=4,
+                          scattering="single", hide_emitters="true")  # fmt: skip
+    hidden = np.array(pipe.render())
+    pipe.set_params(hide_emitters="false")
+    shown = np.array(pipe.render())
+    a, b = block_means(hidden), block_means(reference)
+    assert a.mean() / b.mean() == pytest.approx(1.0, abs=0.03)
+    assert np.sqrt(np.mean((a - b) ** 2)) / b.mean() < 0.05
+    assert np.all(hidden <= shown + 1e-6) and shown.mean() > 2 * hidden.mean()

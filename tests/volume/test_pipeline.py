@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from photonmap import VolumePipeline, mi
-from photonmap.core.errors import ParameterError
+from photonmap import PhotonmapWarning, VolumePipeline, mi
+from photonmap.core.errors import ParameterError, SceneError
 from photonmap.scenes import SCENES
 from photonmap.volume.params import STAGES
 
@@ -278,3 +278,18 @@ def test_public_stage_cache():
         pipe.stage_output("filtering")  # an adaptive stage, uniform emission
     with pytest.raises(ParameterError, match="has not run yet: call render"):
         sphere().stage_output("octree")
+
+
+@pytest.mark.parametrize("depth", [2, 4])
+def test_a_file_whose_max_depth_leaves_out_most_light_is_refused(depth):
+    scene = SCENES["glass_sphere_fog"].build()
+    scene["integrator"] = {"type": "volpath", "max_depth": depth}
+    with pytest.raises(SceneError, match=f"max_depth {depth}; the volume method renders paths of"):
+        VolumePipeline(scene, grid=16)
+
+
+def test_a_file_with_a_moderate_max_depth_is_warned_about():
+    scene = SCENES["glass_sphere_fog"].build()
+    scene["integrator"] = {"type": "volpath", "max_depth": 12}
+    with pytest.warns(PhotonmapWarning, match="the file's max_depth 12"):
+        VolumePipeline(scene, grid=16)

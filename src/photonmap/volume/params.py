@@ -17,6 +17,7 @@ from ..core.errors import ParameterError
 from ..core.grid import voxel_count
 from ..core.memory import available_memory, human_bytes
 from ..core.params import check_choice, check_fields, check_range
+from ..core.settings import HIDE_CHOICES
 from . import mipmap, pilot
 from .scatter import SCATTERING
 from .scene import EMITTER_KINDS, LIGHT_KINDS, Light, Medium
@@ -90,6 +91,7 @@ class VolumeParams:
     placement: str = "importance"  # adaptive: photons placed by the pilot pdf (Pfeuti A4) or
     # "uniform" (the reference's plane points; the filter still reads the pilot pdf's weights)
     mip_block: int = 1  # adaptive: filter level chosen per voxel (1, Pfeuti A7) or per 2×2×2 block
+    hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
     mip_blend: bool = True  # adaptive: fractional photon-weight levels blending two mip levels
     # (False: Pfeuti's integer levels ⌊w/Δweight⌋)
 
@@ -107,6 +109,8 @@ class VolumeParams:
             "Sun Table 2)",
         )
         check_choice("sampler", self.sampler, sampling.SAMPLERS, "the photon-plane point set")
+        check_choice("hide_emitters", self.hide_emitters, HIDE_CHOICES,
+                     "hide emitters seen directly: the scene's setting, or true/false")  # fmt: skip
         check_choice("fidelity", self.fidelity, FIDELITY, "'paper': the papers' literal choices")
         check_choice(
             "scattering",

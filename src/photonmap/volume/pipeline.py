@@ -41,6 +41,8 @@ from ..core.errors import ParameterError, SceneError
 from ..core.grid import filter_separable
 from ..core.memory import check_image_memory, check_once
 from ..core.params import updated
+from ..core.scene_info import warn_unmodelled
+from ..core.settings import UNBOUNDED, PathSettings, overridden
 from ..core.stages import StageCache, StagedPipeline, cache_key
 from . import adaptive, emit, march, mipmap, pilot
 from .material_stages import fog_boundaries, voxelized_materials
@@ -62,6 +64,28 @@ from .scene import Light, VolumeScene, check_has_fog, from_mitsuba
 from .smooth import BINOMIAL, smooth
 from .surface_stages import emission, shading_key, surface_key, surface_shading, warn_settings
 from .view import ViewGrids, ViewSettings, render_view, sensor_key
+
+SHORT_DEPTH = 4  # a file's max_depth up to which the volume method refuses the file
+LONG_DEPTH = 32  # and from which it renders it without a word (paths that long carry little)
+
+
+def check_depth(settings: PathSettings) -> None:
+    """The volume method renders paths of any length — its radiance grid is the steady state of
+    the photons' transport, refracted continuously — so a file's finite ``max_depth`` is not
+    honoured: refuse where it is at most :data:`SHORT_DEPTH` (most of the image would be light
+    the file leaves out), warn below :data:`LONG_DEPTH`."""
+    depth = settings.max_depth
+    if depth == UNBOUNDED or depth >= LONG_DEPTH:
+        return
+    if depth <= SHORT_DEPTH:
+        raise SceneError(
+            f"the scene's integrator says max_depth {depth}; the volume method renders paths of "
+            "any length: render this scene with --method sppm (or surface)"
+        )
+    warn_unmodelled(
+        "volume", [f"the file's max_depth {depth} (it renders paths of any length)"],
+        "--method sppm honours it",
+    )  # fmt: skip
 
 
 class VolumePipeline(StagedPipeline):
@@ -101,6 +125,8 @@ class VolumePipeline(StagedPipeline):
         self.params = VolumeParams()
         self.set_params(**{**defaults, **{k: v for k, v in params.items() if k in valid}})
         self.scene: VolumeScene = from_mitsuba(mi_scene, grid=grid, grid_bbox=grid_bbox)
+        self.file_settings = PathSettings.of(mi_scene, scene)
+        check_depth(self.file_settings)
         check_grid(
             grid,
             objects=len(self.scene.objects),
@@ -328,6 +354,7 @@ class VolumePipeline(StagedPipeline):
             paper=paper,
             spp=p.spp,
             seed=p.seed,
+            hide_emitters=overridden(self.file_settings, hide_emitters=p.hide_emitters).hide_emitters,
         )
         image = self.cache.stage(
             "viewing",

@@ -72,11 +72,14 @@ class SurfaceShading:
     dims: tuple
 
 
-def shade(sh: SurfaceShading, si: mi.SurfaceInteraction3f, seed: int, active) -> mi.Color3f:
-    """Radiance leaving ``si`` towards ``si.wi`` (module docstring), 0 where not ``active``."""
+def shade(
+    sh: SurfaceShading, si: mi.SurfaceInteraction3f, seed: int, active, emitted=True
+) -> mi.Color3f:
+    """Radiance leaving ``si`` towards ``si.wi`` (module docstring), 0 where not ``active``;
+    an area light's own emission only where ``emitted`` (``hide_emitters``)."""
     active = mi.Bool(active) & si.is_valid()
     gen = make_rng(dr.width(si.p), seed, 0x5EED)
-    L = _emitted(sh, si, active)
+    L = _emitted(sh, si, active & emitted)
     L += _direct(sh, si, gen, active)
     if sh.photons is not None and sh.photons.count > 0:
         L += photon_radiance(sh.photons, si, sh.k, sh.max_radius, active)

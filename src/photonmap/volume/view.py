@@ -98,6 +98,20 @@ class ViewSettings:
     paper: bool = False
     spp: int = 1
     seed: int = 0
+    hide_emitters: bool = False  # emitters met by camera rays themselves are not shown
+
+
+STRAIGHT = 1.0 - 1e-5  # cos of the turn below which a camera ray counts as unbent
+
+
+def _shown(settings: ViewSettings, d0: mi.Vector3f, d: mi.Vector3f, camera: bool = True):
+    """Where an emitter met along a ray that left the camera along ``d0`` and arrives along
+    ``d`` is shown: everywhere, or with ``hide_emitters`` only where the ray was bent on the way
+    or is no camera ray (a mirror's) — Mitsuba hides what the camera ray itself meets, through
+    fog and index-matched boundaries (depth 0), not what it meets after a refraction."""
+    if not (settings.hide_emitters and camera):
+        return True
+    return dr.dot(d0, d) < STRAIGHT
 
 
 def schlick(k: float, cos_theta):
@@ -240,25 +254,30 @@ def _march_loop(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
     return L, col * T, dr.normalize(v), x, inside, (t_surf, cast_x, cast_d, hit)
 
 
-def _march_rays(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings, surf=None):
+def _march_rays(
+    grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings, surf=None, camera=True
+):
     """March camera rays (voxel origin ``o``, unit ``d``). Without opaque surfaces ``surf``:
     ``(L, inside)`` with the environment added to the rays that leave the grid. With them
     (:class:`~.surfaces.Surfaces`): ``(L, hit, cast_x, cast_d, weight)`` — a ray ends at the
     first opaque surface, in the grid or beyond it, found by the cast from ``cast_x`` along
     ``cast_d``; ``weight = colScale·T`` is what that surface's radiance counts with, and only the
-    rays that meet none see the environment."""
+    rays that meet none see the environment (``camera``: the rays are the camera's own, whose
+    environment ``hide_emitters`` may hide, :func:`_shown`)."""
     L, weight, out, x, inside, (t_surf, cast_x, cast_d, hit) = _march_loop(
         grids, o, d, env, s, surf
     )
+    sky = weight * environment(env, out)
     if surf is None:
-        return L + weight * environment(env, out), inside
+        return L + dr.select(_shown(s, d, out, camera), sky, 0.0), inside
     # beyond the grid: straight on to a surface (cast again if the last step turned), or away
     again = inside & ~hit & (dr.norm(out - cast_d) > RECAST_TURN)
     t_surf = dr.select(again, surf.distance(x, out, again), t_surf)
     cast_x = dr.select(again, x, cast_x)
     cast_d = dr.select(again, out, cast_d)
     hit |= dr.isfinite(t_surf)
-    return dr.select(hit, L, L + weight * environment(env, out)), hit, cast_x, cast_d, weight
+    sky = dr.select(_shown(s, d, out, camera), sky, 0.0)
+    return dr.select(hit, L, L + sky), hit, cast_x, cast_d, weight
 
 
 def render_view(
@@ -283,7 +302,8 @@ def render_view(
     d = mi.Vector3f(ray.d)
     if shading is None:
         L, inside = _march_rays(grids, o, d, env, settings)
-        L = dr.select(inside, L, environment(env, d))
+        sky = dr.select(_shown(settings, d, d), environment(env, d), 0.0)
+        L = dr.select(inside, L, sky)
     else:
         L = _view_surfaces(grids, o, d, env, settings, shading)
     if spp > 1:
@@ -305,10 +325,14 @@ def _view_surfaces(grids: ViewGrids, o, d, env, settings: ViewSettings, shading)
     lanes = dr.arange(mi.UInt32, dr.width(o))
     throughput = dr.ones(mi.Color3f, dr.width(o))
     for bounce in range(MIRROR_BOUNCES + 1):
-        L_ray, hit, cast_x, cast_d, weight = _march_rays(grids, o, d, env, settings, surfaces)
+        camera = bounce == 0
+        L_ray, hit, cast_x, cast_d, weight = _march_rays(
+            grids, o, d, env, settings, surfaces, camera
+        )
         dr.eval(L_ray, hit, cast_x, cast_d, weight)
         si = surfaces.hit(cast_x, cast_d, hit)
-        L_ray += weight * shade(shading, si, settings.seed + bounce, hit)
+        shown = hit & _shown(settings, d, cast_d, camera)
+        L_ray += weight * shade(shading, si, settings.seed + bounce, hit, shown)
         dr.scatter_reduce(dr.ReduceOp.Add, L, throughput * L_ray, lanes)
         if bounce == MIRROR_BOUNCES:
             break
