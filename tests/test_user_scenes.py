@@ -294,13 +294,13 @@ def test_benchmark_script_writes_its_table(tmp_path):
     spec = importlib.util.spec_from_file_location("benchmarks_user_scenes", path)
     script = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(script)
-    args = ["--scenes", "metals", "--methods", "volume,screen", "--ref-spp", "256"]
+    args = ["--scenes", "box_max_depth3", "--methods", "volume,screen", "--ref-spp", "256"]
     args += ["--mitsuba-spp", "16", "--out-dir", str(tmp_path), "--name", "quick"]
     result = script.main(args)
     data = json.loads((tmp_path / "quick.json").read_text())
-    assert data["scenes"]["metals"]["methods"]["volume"]["status"] == "refused"
-    screen = data["scenes"]["metals"]["methods"]["screen"]
+    assert data["scenes"]["box_max_depth3"]["methods"]["volume"]["status"] == "refused"
+    screen = data["scenes"]["box_max_depth3"]["methods"]["screen"]
     assert screen["status"] == "ok" and 0.5 < screen["brightness"] < 2
     assert data["machine"]["load_average"] and result["name"] == "quick"
     table = (tmp_path / "quick.md").read_text()
-    assert "| metals |" in table and "exit 2 [1]" in table and "load average" in table
+    assert "| box_max_depth3 |" in table and "exit 2 [1]" in table and "load average" in table

@@ -136,7 +136,7 @@ def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
     monkeypatch.setattr(adapters, "MAX_PASSES", 2)
     viewer = Viewer("cornell_ispm", "stepped", {"light_res": 16, "subsample": 2}, SMALL)
     try:
-        assert viewer.state()["params"] == {"bounces": 2}
+        assert viewer.state()["params"] == {"bounces": 0}  # 0: the file's max_depth − 2
         worker, pipe = viewer.worker, viewer.adapter.pipe
         worker.wait_frame()
         deadline = time.monotonic() + 60

@@ -323,7 +323,10 @@ def test_a_change_the_pipeline_refuses_is_undone_and_reported(viewer, monkeypatc
     assert len(errors) == 1 and "refused by the pipeline" in errors[0]["message"]
     assert frame.error == errors[0]["message"] and frame.meta()["error"] == frame.error
     assert worker.target_state() == state0  # the camera part too
-    np.testing.assert_array_equal(frame.pixels, before.pixels)
+    # the frame rendered again: equal up to 8-bit rounding of a few pixels (the photon grids'
+    # atomic float sums are not bit-reproducible across renders)
+    diff = np.abs(frame.pixels.astype(int) - before.pixels.astype(int))
+    assert diff.max() <= 1 and (diff > 0).mean() < 1e-3
     worker.update({"camera": camera})  # a good change after it: no stale error
     frame = worker.wait_frame()
     assert frame.error is None
