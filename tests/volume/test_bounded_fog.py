@@ -190,10 +190,10 @@ def test_open_boundary_is_refused():
         from_mitsuba(mi.load_dict(scene_with(shape)))
 
 
-def test_rough_dielectric_names_the_surface_method():
+def test_rough_dielectric_names_the_methods_that_render_it():
     d = scene_with(cube(BOX_A, "null", homogeneous(MEDIUM_B)))
     d["ball"] = {"type": "sphere", "center": [5, 8, 7], "bsdf": {"type": "roughdielectric"}}
-    with pytest.raises(SceneError, match="RoughDielectric.*--method surface"):
+    with pytest.raises(SceneError, match=r"shape 'ball' has a RoughDielectric.*--method sppm"):
         from_mitsuba(mi.load_dict(d))
 
 

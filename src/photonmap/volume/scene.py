@@ -217,7 +217,7 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     sensor = _camera(scene)
     media = _Media(scene.bbox())
     objects, fog_volumes, exteriors = [], [], []
-    for shape in scene.shapes():
+    for number, shape in enumerate(scene.shapes()):
         bsdf = shape.bsdf()
         kind = bsdf.class_name() if bsdf is not None else "none"
         if kind == "SmoothDielectric":
@@ -226,9 +226,9 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
                 exteriors.append((shape.id(), shape.exterior_medium()))
         elif kind == "RoughDielectric":
             raise SceneError(
-                f"shape '{shape.id()}' has a {kind} BSDF; the volume pipeline refracts only "
-                "through smooth 'dielectric' objects: change its BSDF type to 'dielectric', or "
-                "render the scene with --method surface (Python: photonmap.SurfacePipeline)"
+                f"{_shape_name(shape, number)} has a {kind} BSDF; the volume pipeline refracts "
+                "only through smooth 'dielectric' objects: change its BSDF type to 'dielectric', "
+                "or render the scene with --method sppm (or surface)"
             )
         elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
             name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
@@ -237,7 +237,8 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
             fog_volumes.append(FogVolume(name, shape, medium))
     if not objects and not fog_volumes:
         raise SceneError(
-            "the scene has no refractive or medium-bearing shape: give a closed shape a "
+            "the scene has no refractive or medium-bearing shape, which the volume method's grid "
+            "is fitted to: render it with --method sppm (or surface), or give a closed shape a "
             "'dielectric' BSDF, or a 'null' BSDF with an interior 'homogeneous' medium (the fog)"
         )
     fog, outside = _fog(sensor, exteriors, fog_volumes, media)
@@ -258,6 +259,10 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
 
 
 SURFACE_HINT = "--method sppm renders every BSDF (Python: photonmap.SPPMPipeline)"
+
+
+def _shape_name(shape, number: int) -> str:
+    return f"shape '{shape.id()}'" if shape.id() else f"shape number {number} ({shape.class_name()})"
 
 
 def _rgb(value) -> np.ndarray:
