@@ -117,6 +117,7 @@ def _command(max_memory: str | None = None):
         finally:
             set_memory_limit(None)
     if interrupted:
+        interrupt.answered()
         _say(f"interrupted: {run.describe()}")
         raise typer.Exit(130)
 

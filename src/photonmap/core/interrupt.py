@@ -118,6 +118,14 @@ def guard_command() -> None:
             signal.signal(signal.SIGINT, _command_handler)
 
 
+def answered() -> None:
+    """In the ``photonmap`` command, once it has answered Ctrl-C and is exiting with status 130:
+    a further Ctrl-C changes nothing, and is ignored — one landing while Python shuts down
+    (which restores the default handler) would end the process by the signal instead."""
+    if _is_command() and threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 @contextmanager
 def held():
     """SIGINT held pending in this thread (delivered when the block ends).
