@@ -118,23 +118,30 @@ def intersect_visible(
     si = scene.ray_intersect(ray, active)
     if null_shapes is None:
         null_shapes = has_null_shapes(scene)
-    return _through_null(scene, ray, si, active) if null_shapes else si
+    if not null_shapes:
+        return si
+    return pass_through(
+        scene, ray, si, active, lambda si, ray, going: _passes(scene, si, ray, going)
+    )
 
 
 @dr.syntax
-def _through_null(scene, ray, si, active):
+def pass_through(scene, ray, si, active, passes, limit: int = MAX_NULL_CROSSINGS):
+    """From ``si``, the hit of ``ray``: go on through every hit where ``passes(si, ray, active)``
+    holds (at most ``limit`` of them) and return the first other one, or an invalid
+    interaction; ``si.t`` is measured from ``ray.o``."""
     ray = mi.Ray3f(ray)
     travelled = dr.zeros(mi.Float, dr.width(si.t))
-    going = _passes(scene, si, ray, active)
+    going = passes(si, ray, active)
     crossings = dr.zeros(mi.UInt32, dr.width(si.t))
-    while going & (crossings < MAX_NULL_CROSSINGS):
+    while going & (crossings < limit):
         travelled = dr.select(going, travelled + si.t, travelled)
         nxt = si.spawn_ray(ray.d)
         nxt.maxt = ray.maxt - si.t
         ray = dr.select(going, nxt, ray)
         si_next = scene.ray_intersect(ray, going)
         si = dr.select(going, si_next, si)
-        going = _passes(scene, si, ray, going)
+        going = passes(si, ray, going)
         crossings += 1
     si.t = dr.select(si.is_valid(), si.t + travelled, si.t)
     return si

@@ -36,6 +36,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.bsdf import pass_through
 from ..core.grid import GridBox
 from ..core.hashgrid import HashGrid
 
@@ -87,27 +88,16 @@ def _crosses(scene, si, ray, active, objects: bool) -> mi.Bool:
     return hit & crossing & (si.emitter(scene) == None)  # noqa: E711
 
 
-@dr.syntax
 def first_hit(scene, ray: mi.Ray3f, active, objects: bool = True) -> mi.SurfaceInteraction3f:
     """The first hit along ``ray`` that is not a crossing shape (nor, with ``objects``, a
     refractive object's surface), or an invalid interaction; ``si.t`` from ``ray.o``."""
     active = mi.Bool(active)
     si = scene.ray_intersect(ray, active)
-    ray = mi.Ray3f(ray)
-    travelled = dr.zeros(mi.Float, dr.width(si.t))
-    going = _crosses(scene, si, ray, active, objects)
-    crossings = dr.zeros(mi.UInt32, dr.width(si.t))
-    while going & (crossings < MAX_CROSSINGS):
-        travelled = dr.select(going, travelled + si.t, travelled)
-        nxt = si.spawn_ray(ray.d)
-        nxt.maxt = ray.maxt - si.t
-        ray = dr.select(going, nxt, ray)
-        si_next = scene.ray_intersect(ray, going)
-        si = dr.select(going, si_next, si)
-        going = _crosses(scene, si, ray, going, objects)
-        crossings += 1
-    si.t = dr.select(si.is_valid(), si.t + travelled, si.t)
-    return si
+
+    def crosses(si, ray, going):
+        return _crosses(scene, si, ray, going, objects)
+
+    return pass_through(scene, ray, si, active, crosses, MAX_CROSSINGS)
 
 
 class Surfaces:
