@@ -115,7 +115,7 @@ def test_mirror_pixels_are_ray_traced():
     spec = np.array(specular)
     assert spec.any() and not spec.all()
     assert np.all(np.array(gbuf.albedo)[:, spec] == 0)
-    L = np.array(glass_eye(scene, gbuf, specular, find_light(scene), 20.0)).T
+    L = np.array(glass_eye(scene, gbuf, specular, find_light(scene), 20.0)[0]).T
     assert np.all(L[~spec] == 0)
     eye = np.array(gbuf.eye)
     pos = np.array(gbuf.pos).T[spec]

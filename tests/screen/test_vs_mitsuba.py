@@ -80,7 +80,9 @@ def case(request):
 @pytest.mark.parametrize("shadows", ["soft", "sampled"])
 def test_screen_matches_mitsuba_path(case, shadows):
     name, scene, params, ref, bound = case
-    image = np.array(ScreenPipeline(scene, bounces=2, shadows=shadows, **params).render())
+    image = np.array(
+        ScreenPipeline(scene, bounces=2, max_depth=4, shadows=shadows, **params).render()
+    )
     assert image.shape == ref.shape
     ratio = image.mean() / ref.mean()
     assert abs(ratio - 1) < BRIGHTNESS, (name, ratio)

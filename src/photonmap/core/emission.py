@@ -184,7 +184,10 @@ def checked_powers(scene: mi.Scene, seed: int) -> np.ndarray:
 def _check_finite(obj, what: str) -> None:
     params = mi.traverse(obj)
     for key in params.keys():
-        value = params[key]
+        try:
+            value = params[key]
+        except TypeError:  # an unset parameter (the hair BSDF's sigma_a when it uses pigments)
+            continue
         if isinstance(value, float):
             finite = math.isfinite(value)
         elif dr.is_array_v(value) and dr.is_float_v(value):

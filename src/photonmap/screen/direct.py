@@ -159,8 +159,16 @@ def direct_light(
     shadowed radiance ``L_sampled`` (module docstring)."""
     eps = dr.opaque(mi.Float, EPSILON * diagonal)
     out = DirectLight(
-        *shade(scene, light, gbuf.pos, mi.Vector3f(gbuf.nrm), gbuf.albedo, gbuf.valid, eps,
-               samples=samples)  # fmt: skip
+        *shade(
+            scene,
+            light,
+            gbuf.pos,
+            mi.Vector3f(gbuf.nrm),
+            gbuf.albedo,
+            gbuf.valid,
+            eps,
+            samples=samples,
+        )  # fmt: skip
     )
     dr.eval(out.L, out.hard, out.occluder_dist, out.light_dist, out.L_sampled)
     return out

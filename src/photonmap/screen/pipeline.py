@@ -59,9 +59,9 @@ from ..core.scene_info import refuse_media, warn_unmodelled
 from ..core.settings import HIDE_CHOICES, UNBOUNDED, PathSettings, overridden
 from ..core.stages import StageCache, StagedPipeline
 from . import memory
-from .composite import composite, glass_eye
+from .composite import chain_indirect, composite, glass_eye
 from .direct import direct_light
-from .gbuffer import eye_gbuffer
+from .gbuffer import GBuffer, eye_gbuffer
 from .light_gbuffer import check_light_outside, find_light, light_gbuffer
 from .light_photons import GLOSSY_MODES, random_map, trace_photons
 from .soft_shadow import MODES, soft_visibility
@@ -81,6 +81,7 @@ STAGES = (
     "splatting",
     "upsampling",
     "glass",
+    "glass indirect",
     "composite",
 )
 
@@ -115,8 +116,13 @@ class ScreenParams:
             "bounces", self.bounces, 0, MAX_BOUNCES,
             "recorded indirect bounces (the thesis: 1–3); 0 = the scene's max_depth − 2",
         )  # fmt: skip
-        check_range("max_depth", self.max_depth, -1, None,
-                    "path segments at most as Mitsuba counts them; 0 = the scene's, -1 = unbounded")
+        check_range(
+            "max_depth",
+            self.max_depth,
+            -1,
+            None,
+            "path segments at most as Mitsuba counts them; 0 = the scene's, -1 = unbounded",
+        )
         check_choice("hide_emitters", self.hide_emitters, HIDE_CHOICES,
                      "hide emitters seen directly: the scene's setting, or true/false")  # fmt: skip
         check_range(
@@ -386,9 +392,7 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         cam_key = _sensor_key(self.sensor)
         light_key = (self.light_index, self._light_version)
 
-        gbuf, specular = stage(
-            "eye G-buffer", cam_key, lambda: eye_gbuffer(scene, self.sensor)
-        )
+        gbuf, specular = stage("eye G-buffer", cam_key, lambda: eye_gbuffer(scene, self.sensor))
         lgb_key = (light_key, p.light_res, p.seed)
         lgb = stage(
             "light G-buffer",
@@ -432,27 +436,49 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         low = stage("subsample", low_key, lambda: subsample(gbuf, p.subsample))
         splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
 
-        def splat():
+        def splat(photons, points: GBuffer, cull: bool = True):
             if photons is None:  # direct light only
-                zero = dr.zeros(mi.Color3f, low.width * low.height)
+                zero = dr.zeros(mi.Color3f, points.width * points.height)
                 return zero, zero
             if p.splat == "quad":
-                return splat_quads(low, photons, p.radius * diag)
-            return splat_icosahedra(low, photons, p.radius * diag, p.compression)
+                return splat_quads(points, photons, p.radius * diag, cull)
+            return splat_icosahedra(points, photons, p.radius * diag, p.compression, cull)
 
-        L_low, E_low = stage("splatting", splat_key, splat)
+        L_low, E_low = stage("splatting", splat_key, lambda: splat(photons, low))
         up_key = splat_key
-        indirect = stage(
-            "upsampling", up_key, lambda: upsample(L_low, low, gbuf, p.subsample)
+        indirect = stage("upsampling", up_key, lambda: upsample(L_low, low, gbuf, p.subsample))
+        depth = self.settings.max_depth
+        chains = stage(
+            "glass",
+            (direct_key, depth),
+            lambda: glass_eye(scene, gbuf, specular, self.light, diag, depth),
         )
-        glass = stage(
-            "glass", direct_key, lambda: glass_eye(scene, gbuf, specular, self.light, diag)
+
+        def chain_bounces(level: int) -> int:  # m + k + 2 segments at most (.composite)
+            return bounces if depth == UNBOUNDED else min(bounces, depth - 2 - level)
+
+        def splat_ends(points: GBuffer, k: int):
+            texels = p.light_res**2  # bounce k fills slots [(k - 1) texels, k texels)
+            kept = photons.valid & (dr.arange(mi.UInt32, dr.width(photons.valid)) < k * texels)
+            return splat(dataclasses.replace(photons, valid=kept), points, cull=False)
+
+        glass_indirect = stage(
+            "glass indirect",
+            (direct_key, splat_key, depth),
+            lambda: (
+                None
+                if chains is None or photons is None
+                else chain_indirect(chains[1], splat_ends, chain_bounces, gbuf.width * gbuf.height)
+            ),
         )
+        glass = None if chains is None else chains[0]
+        if glass_indirect is not None:
+            glass = glass + glass_indirect
         hide = self.settings.hide_emitters  # Mitsuba hides the emitters seen directly only
         emission = None if hide else gbuf.emission
         out = stage(
             "composite",
-            (shadow_key, up_key, direct_key, hide),
+            (shadow_key, up_key, direct_key, splat_key, depth, hide),
             lambda: composite(
                 direct.L_sampled if sampled else direct.L,
                 None if sampled else visibility,

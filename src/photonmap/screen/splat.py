@@ -42,27 +42,34 @@ TAU = 0.25
 
 
 def splat_quads(
-    gbuf: GBuffer, photons: ScreenPhotons, radius: float
+    gbuf: GBuffer, photons: ScreenPhotons, radius: float, cull: bool = True
 ) -> tuple[mi.Color3f, mi.Color3f]:
     """Indirect radiance L_ind and irradiance E_ind per pixel of ``gbuf`` from photon quads.
 
     ``radius``: the splat radius r in world units (module docstring). Invalid pixels get 0.
+    ``cull``: leave out the photons facing away from the eye (A13); False for points seen
+    in mirrors and through glass, which face other ways.
     """
-    return _splat(gbuf, photons, radius, TAU, mode="gbuffer")
+    return _splat(gbuf, photons, radius, TAU, "gbuffer", cull)
 
 
 def splat_icosahedra(
-    gbuf: GBuffer, photons: ScreenPhotons, radius: float, compression: float = 1.0
+    gbuf: GBuffer,
+    photons: ScreenPhotons,
+    radius: float,
+    compression: float = 1.0,
+    cull: bool = True,
 ) -> tuple[mi.Color3f, mi.Color3f]:
-    """L_ind and E_ind from icosahedron photon volumes with normal compression c ∈ (0, 1]."""
+    """L_ind and E_ind from icosahedron photon volumes with normal compression c ∈ (0, 1]
+    (``cull`` as in :func:`splat_quads`)."""
     if not 0 < compression <= 1:
         raise ParameterError(
             f"compression must lie in (0, 1] (1 = Yao's uncompressed volume, 0.25 = ISPM-like), "
             f"got {compression!r}"
         )
     if compression == 1:
-        return _splat(gbuf, photons, radius, 1.0, mode="sphere")
-    return _splat(gbuf, photons, radius, compression, mode="gbuffer")
+        return _splat(gbuf, photons, radius, 1.0, "sphere", cull)
+    return _splat(gbuf, photons, radius, compression, "gbuffer", cull)
 
 
 def _check_positive(name: str, value: float):
@@ -70,7 +77,8 @@ def _check_positive(name: str, value: float):
         raise ParameterError(f"{name} must be a positive finite number, got {value!r}")
 
 
-def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mode: str):
+def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mode: str,
+           cull: bool):  # fmt: skip
     _check_positive("radius", radius)
     radius, tau = float(radius), float(tau)
     pixels = gbuf.width * gbuf.height
@@ -81,8 +89,9 @@ def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mod
     # ---- keep the photons that can contribute: valid, facing the eye (A13), some power
     eye = mi.Point3f(gbuf.eye)
     r_p = dr.clip(radius / dr.sqrt(dr.maximum(photons.density, 1e-30)), radius / 8, radius)
-    keep = photons.valid & (dr.dot(eye - photons.pos, photons.nrm) > 0)
-    keep &= dr.max(photons.power) > 0
+    keep = photons.valid & (dr.max(photons.power) > 0)
+    if cull:
+        keep &= dr.dot(eye - photons.pos, photons.nrm) > 0
     keep_idx = dr.compress(keep)
     zero = dr.zeros(mi.Color3f, pixels)
     if dr.width(keep_idx) == 0:
