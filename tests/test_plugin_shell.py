@@ -62,3 +62,15 @@ def test_every_method_is_exported_with_its_stages():
                                  photonmap.ScreenParams, photonmap.SPPMParams)  # fmt: skip
         assert hasattr(method.pipeline, "stages"), name
     assert photonmap.SurfacePipeline.stages == photonmap.SURFACE_STAGES
+
+
+def test_the_fingerprint_reads_scenes_with_unset_parameters():
+    """The ``hair`` BSDF leaves ``sigma_a`` unset when pigments colour it: Mitsuba raises a
+    TypeError when it is read, and the fingerprint passes over it."""
+    scene = mi.load_dict({"type": "scene", "ball": {"type": "sphere", "bsdf": {"type": "hair"}},
+                          "light": {"type": "constant"}})  # fmt: skip
+    first = scene_fingerprint(scene)
+    params = mi.traverse(scene)
+    params["ball.bsdf.eumelanin"] = 0.5
+    params.update()
+    assert scene_fingerprint(scene) != first

@@ -32,6 +32,7 @@ from .aim import aimable, aimed_emission, specular_spheres
 from .errors import ParameterError, SceneError
 from .media import broadcast, emitter_media
 from .sampling import rng
+from .scene_info import parameter_values
 
 
 @dataclass
@@ -182,12 +183,7 @@ def checked_powers(scene: mi.Scene, seed: int) -> np.ndarray:
 
 
 def _check_finite(obj, what: str) -> None:
-    params = mi.traverse(obj)
-    for key in params.keys():
-        try:
-            value = params[key]
-        except TypeError:  # an unset parameter (the hair BSDF's sigma_a when it uses pigments)
-            continue
+    for key, value in parameter_values(obj):
         if isinstance(value, float):
             finite = math.isfinite(value)
         elif dr.is_array_v(value) and dr.is_float_v(value):

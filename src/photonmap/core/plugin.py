@@ -24,6 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from .params import MITSUBA_BASE, read_properties, updated
+from .scene_info import parameter_values
 
 
 def scene_fingerprint(scene: mi.Scene) -> str:
@@ -31,9 +32,7 @@ def scene_fingerprint(scene: mi.Scene) -> str:
     emitters (not its sensors)."""
     digest = hashlib.blake2b(digest_size=16)
     for obj in (*scene.shapes(), *scene.emitters()):
-        params = mi.traverse(obj)
-        for key in sorted(params.keys()):
-            value = params[key]
+        for key, value in parameter_values(obj):
             value = getattr(value, "matrix", value)  # transforms: their matrix
             digest.update(key.encode())
             try:

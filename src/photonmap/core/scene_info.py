@@ -45,6 +45,20 @@ def has_media(scene: mi.Scene) -> bool:
     return bool(media(scene))
 
 
+
+def parameter_values(obj) -> list[tuple[str, object]]:
+    """The ``(key, value)`` pairs of ``mi.traverse(obj)`` that hold a value: a parameter left
+    unset (the ``hair`` BSDF's ``sigma_a`` when it is coloured by pigments) has none, and
+    Mitsuba raises a ``TypeError`` when it is read."""
+    params = mi.traverse(obj)
+    out = []
+    for key in sorted(params.keys()):
+        try:
+            out.append((key, params[key]))
+        except TypeError:
+            continue
+    return out
+
 @dataclass
 class SceneTraits:
     """What the transport loops need to know about a scene once, to leave out the work it does
