@@ -54,18 +54,28 @@ class StageCache:
         self.recomputed = []
         self.progress = progress
 
-    def stage(self, name: str, key, compute: Callable[[], object]):
+    def stage(self, name: str, key, compute: Callable[[], object], timed: bool = True):
         """The output of stage ``name`` for ``key``: the stored one if its key equals ``key``,
-        else ``compute()`` (timed, reported, stored)."""
+        else ``compute()`` (timed, reported, stored). ``timed=False``: an intermediate kept with
+        the stages' outputs but computed inside the stage that asks for it (its time counts
+        there, and it is not reported)."""
         hit = self._entries.get(name)
         if hit is not None and hit[0] == key:
             return hit[1]
+        value = self.run(name, compute) if timed else compute()
+        self._entries[name] = (key, value)
+        return value
+
+    def run(self, name: str, compute: Callable[[], object]):
+        """``compute()`` as stage ``name``, timed and reported but not stored: a stage that runs
+        anew each time (an iteration of a progressive method). Its milliseconds add up over the
+        frame; :attr:`recomputed` lists it once."""
         if self.progress is not None:
             self.progress(name)
         with self.timer(name):
             value = compute()
-        self._entries[name] = (key, value)
-        self.recomputed.append(name)
+        if name not in self.recomputed:
+            self.recomputed.append(name)
         return value
 
     def get(self, name: str, default=None):

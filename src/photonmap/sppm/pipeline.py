@@ -48,16 +48,17 @@ import numpy as np
 
 from ..core import interrupt
 from ..core.bsdf import has_delta_lobes
-from ..core.camera import MovableCamera, pixel_rays, scene_bounds
+from ..core.camera import pixel_rays, scene_bounds
 from ..core.emission import checked_powers
 from ..core.errors import ParameterError, SceneError
 from ..core.eye_trace import Caustics
 from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.pipeline import Pipeline
 from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
-from ..core.timer import StageTimer
+from ..core.stages import StageCache
 from ..core.volume_map import VolumeMap, density_radius
 from . import memory
 from .gather import Gathered, PhotonGrid, PixelState, gather, iteration_image, memoryless_radius
@@ -136,7 +137,7 @@ def iteration_seeds(seed: int, i: int) -> tuple[int, int]:
     return int(state[0]), int(state[1])
 
 
-class SPPMPipeline(MovableCamera):
+class SPPMPipeline(Pipeline):
     """Progressive photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
 
     >>> pipe = SPPMPipeline("examples/glass_sphere_plane.xml", photons_per_iteration=100_000)
@@ -144,11 +145,13 @@ class SPPMPipeline(MovableCamera):
     >>> image = pipe.image()            # mi.TensorXf (height, width, 3)
     """
 
-    stages = STAGES
+    method, params_type, stages = "sppm", SPPMParams, STAGES
+    progressive = True
 
     def __init__(self, scene, **params):
         from ..scenes import load_with_sensor
 
+        self.cache = StageCache()  # its stages run anew each iteration (StageCache.run)
         self.scene, self.sensor, own = load_with_sensor(scene, SPPMParams, params)
         self.traits = SceneTraits.of(self.scene)
         if self.traits.media:
@@ -159,7 +162,6 @@ class SPPMPipeline(MovableCamera):
         self.delta_lobes = has_delta_lobes(self.scene)  # caustics possible
         self.params = SPPMParams()
         self.set_params(**own)
-        self.timer = StageTimer()
         self.stats: dict[str, float] = {}
         self._r1 = None
         self._rho1 = None  # the automatic first volume radius, once found
@@ -206,8 +208,7 @@ class SPPMPipeline(MovableCamera):
             "photons": 0, "photon_records": 0, "gathers": 0, "aimed_photons": 0,
             "aimed_on_specular": 0.0, "volume_photons": 0,
         }  # fmt: skip
-        if hasattr(self, "timer"):
-            self.timer.reset()
+        self.cache.new_frame()
 
     @property
     def memoryless(self) -> bool:
@@ -227,11 +228,6 @@ class SPPMPipeline(MovableCamera):
             return 1
         w, h = self.size
         return int(np.clip(round(self.params.photons_per_iteration / (w * h)), 1, AUTO_SPP))
-
-    @property
-    def size(self) -> tuple[int, int]:
-        w, h = (int(c) for c in self.sensor.film().crop_size())
-        return w, h
 
     # ------------------------------------------------------------------------- radii
     def initial_radius(self) -> float:
@@ -286,20 +282,18 @@ class SPPMPipeline(MovableCamera):
         p, settings = self.params, self.settings
         check_once(self, p, self.size, self.check_memory)
         eye_seed, _ = iteration_seeds(p.seed, i)
-        with self.timer("photon pass"):
-            photons = self._photon_pass(i)
-        with self.timer("eye pass"):
-            points = eye_pass(
-                self.scene, self.sensor, eye_seed, settings, self.traits,
-                self.caustics(photons, i, radius), self.eye_spp,
-                "continue" if self.traits.media else "stop",
-            )  # fmt: skip
-        with self.timer("gather"):
-            if self.traits.media:
-                w, h = self.size
-                got = Gathered(dr.zeros(mi.Color3f, w * h), dr.zeros(mi.Float, w * h))
-            else:
-                got = gather(points, radius, photons, settings)
+        run = self.cache.run
+        photons = run("photon pass", lambda: self._photon_pass(i))
+        points = run("eye pass", lambda: eye_pass(
+            self.scene, self.sensor, eye_seed, settings, self.traits,
+            self.caustics(photons, i, radius), self.eye_spp,
+            "continue" if self.traits.media else "stop",
+        ))  # fmt: skip
+        if self.traits.media:  # the eye paths read the caustic photons themselves
+            w, h = self.size
+            got = Gathered(dr.zeros(mi.Color3f, w * h), dr.zeros(mi.Float, w * h))
+        else:
+            got = run("gather", lambda: gather(points, radius, photons, settings))
         if photons is not None:
             self.stats["photons"] += p.photons_per_iteration
             self.stats["photon_records"] += photons.count

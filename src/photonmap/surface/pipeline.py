@@ -47,17 +47,18 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.bsdf import diffuse_albedo, has_glossy_shapes
-from ..core.camera import MovableCamera, pixel_means, pixel_rays, scene_bounds
+from ..core.camera import pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
 from ..core.errors import SceneError
 from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.pipeline import Pipeline
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
-from ..core.timer import StageTimer
+from ..core.stages import StageCache
 from ..core.volume_map import ScatteredDensity, VolumeMap
 from . import memory
 from .cis import TABLE_SAMPLING, sampling_table
@@ -150,18 +151,19 @@ class SurfaceParams:
         check_range("ic_error", self.ic_error, 1e-6, None, "the irradiance cache's ε_max")
 
 
-class SurfacePipeline(MovableCamera):
+class SurfacePipeline(Pipeline):
     """Two-pass photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
 
     >>> pipe = SurfacePipeline("cornell_steinhurst", photons=200_000, fg_rays=32)
     >>> image = pipe.render()           # mi.TensorXf (height, width, 3)
     """
 
-    stages = STAGES  # the names render() reports to its progress callback, in order
+    method, params_type, stages = "surface", SurfaceParams, STAGES
 
     def __init__(self, scene, **params):
         from ..scenes import load_with_sensor
 
+        self.cache = StageCache()
         self.scene, self.sensor, own = load_with_sensor(scene, SurfaceParams, params)
         self.traits = SceneTraits.of(self.scene)
         if self.traits.media:
@@ -171,16 +173,9 @@ class SurfacePipeline(MovableCamera):
         self.glossy_shapes = has_glossy_shapes(self.scene)  # final gathers need k-NN there
         self.params = SurfaceParams()
         self.set_params(**own)
-        self.timer = StageTimer()
         self.stats: dict[str, float] = {}
-        self._maps = None  # (tracing key, (global map, caustic map))
-        self._extra = None  # (lookup key, irradiance or filtered map), for self._maps
-        self._indirect = None  # (maps key, the indirect photons' map)
-        self._volume: VolumeMap | None = None  # the volume map of self._maps (scenes with media)
-        self._density = None  # (volume key, automatic march step, precomputed density or None)
         self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
         self.requests_only = False  # with kept_requests: keep them without gathering
-        self._ravg = None  # (tracing key, R_avg precomputed at photons), for self._maps
 
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`SurfaceParams` fields); settings that would not
@@ -194,7 +189,7 @@ class SurfacePipeline(MovableCamera):
         (width, height; default: the camera's) would need more memory than is available
         (:mod:`.memory`); return the estimate in bytes."""
         p = params or self.params
-        w, h = size or (int(c) for c in self.sensor.film().crop_size())
+        w, h = size or self.size
         depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
         return memory.check(p, w, h, depth, self.traits.media)
 
@@ -216,42 +211,44 @@ class SurfacePipeline(MovableCamera):
             return self.params.max_radius, self.params.max_radius
         return CAUSTIC_RADIUS * self.diagonal, GLOBAL_RADIUS * self.diagonal
 
-    def photon_maps(self, progress=None):
-        """Global map, caustic map and (for ``lookup="irradiance"``) the precomputed irradiance,
-        built once per parameter set: the maps are traced again only when a parameter of the
-        tracing changes, the derived lookup data when a lookup parameter or the maps change."""
+    @property
+    def _maps_key(self) -> tuple:
+        """What the photon maps depend on."""
         p = self.params
-        key = (p.photons, p.caustic_photons, p.structure, self.settings, p.seed)
-        if self._maps is None or self._maps[0] != key:
-            if progress:
-                progress("photon maps")
-            with self.timer("photon maps"):
-                *maps, self._volume = build_photon_maps(
-                    self.scene, p.photons, p.caustic_photons, p.structure, self.settings,
-                    p.seed, self.traits, self.emitter_media,
-                )  # fmt: skip
-            if self._volume is not None:
-                self.stats.update(volume_photons=self._volume.size)
-            self._maps = (key, tuple(maps))
-            self._extra = None
-            self._density = None
-            self.stats.update(global_photons=maps[0].size, caustic_photons=maps[1].size)
-        global_map, caustic_map = self._maps[1]
-        extra_key = (p.lookup,)  # "direct" (the filtered map) and "knn" need only the maps
+        return (p.photons, p.caustic_photons, p.structure, self.settings, p.seed)
+
+    def _traced_maps(self) -> tuple[object, object, VolumeMap | None]:
+        """Stage "photon maps": the global map, the caustic map and the volume map (scenes
+        with media), traced again only when a parameter of the tracing changes."""
+
+        def trace():
+            p = self.params
+            global_map, caustic_map, volume = build_photon_maps(
+                self.scene, p.photons, p.caustic_photons, p.structure, self.settings,
+                p.seed, self.traits, self.emitter_media,
+            )  # fmt: skip
+            if volume is not None:
+                self.stats.update(volume_photons=volume.size)
+            self.stats.update(global_photons=global_map.size, caustic_photons=caustic_map.size)
+            return global_map, caustic_map, volume
+
+        return self.cache.stage("photon maps", self._maps_key, trace)
+
+    def photon_maps(self):
+        """Global map, caustic map and the lookup's own data — for ``lookup="irradiance"`` the
+        precomputed irradiance, for ``"direct"`` the indirect photons' map — each kept while
+        its inputs are unchanged: the maps are traced again only when a parameter of the
+        tracing changes, the derived data when a lookup parameter or the maps change."""
+        p = self.params
+        global_map, caustic_map, _ = self._traced_maps()
+        extra = None
         if p.lookup == "irradiance":
-            extra_key += (p.k, p.irradiance_every, p.max_radius)
-        if self._extra is None or self._extra[0] != extra_key:
-            extra = None
-            if p.lookup == "irradiance":
-                _, r_global = self.radii()
-                if progress:
-                    progress("irradiance")
-                with self.timer("irradiance"):
-                    extra = precompute_irradiance(global_map, p.irradiance_every, p.k, r_global)
-            elif p.lookup == "direct":  # direct visualisation: only photons after a diffuse bounce
-                extra = self.indirect_photons()
-            self._extra = (extra_key, extra)
-        return global_map, caustic_map, self._extra[1]
+            key = (self._maps_key, p.k, p.irradiance_every, p.max_radius)
+            extra = self.cache.stage("irradiance", key, lambda: precompute_irradiance(
+                global_map, p.irradiance_every, p.k, self.radii()[1]))  # fmt: skip
+        elif p.lookup == "direct":  # direct visualisation: only photons after a diffuse bounce
+            extra = self.indirect_photons()
+        return global_map, caustic_map, extra
 
     def indirect_photons(self):
         """The global map's photons that came from another surface after a diffuse bounce —
@@ -259,11 +256,13 @@ class SurfacePipeline(MovableCamera):
         at x are computed separately): the light a final-gather ray can find, as its own map
         (the direct visualisation, and the photon tables of Jensen's and Steinhurst's
         importance sampling, whose k nearest photons should all be of that light)."""
-        if self._indirect is None or self._indirect[0] != self._maps[0]:
-            later = self._maps[1][0].photons.after_first()
-            selected = photon_map(later.select(~later.caustic), self.params.structure)
-            self._indirect = (self._maps[0], selected)
-        return self._indirect[1]
+        global_map = self._traced_maps()[0]
+
+        def select():
+            later = global_map.photons.after_first()
+            return photon_map(later.select(~later.caustic), self.params.structure)
+
+        return self.cache.stage("indirect photons", self._maps_key, select, timed=False)
 
     def medium_light(self) -> MediumLight:
         """The in-scattered light of the current volume map (:mod:`.volume`): the automatic
@@ -273,18 +272,18 @@ class SurfacePipeline(MovableCamera):
         at every ``irradiance_every``-th volume photon."""
         p = self.params
         radius = p.volume_radius if p.volume_radius > 0 else VOLUME_RADIUS * self.diagonal
-        key = (p.volume_k, radius, p.irradiance_every)
-        if self._density is None or self._density[0] != key:
-            density = None
-            if isotropic(self.scene) and self._volume.size:
-                density = ScatteredDensity.build(
-                    self._volume, p.irradiance_every, p.volume_k, radius
-                )
-            self._density = (key, march_step(self._volume, p.volume_k, radius), density)
-        step = p.march_step if p.march_step > 0 else self._density[1]
-        return MediumLight(
-            self.scene, self._volume, p.volume_k, radius, self._density[2], p.seed, step
-        )
+        volume = self._traced_maps()[2]
+
+        def density():
+            built = None
+            if isotropic(self.scene) and volume.size:
+                built = ScatteredDensity.build(volume, p.irradiance_every, p.volume_k, radius)
+            return march_step(volume, p.volume_k, radius), built
+
+        key = (self._maps_key, p.volume_k, radius, p.irradiance_every)
+        auto_step, built = self.cache.stage("scattered density", key, density, timed=False)
+        step = p.march_step if p.march_step > 0 else auto_step
+        return MediumLight(self.scene, volume, p.volume_k, radius, built, p.seed, step)
 
     def request_layout(
         self, w: int, h: int, bounces: mi.UInt32, lanes=None
@@ -366,12 +365,10 @@ class SurfacePipeline(MovableCamera):
                 self.scene, si.p, normal, RAVG_RAYS, p.seed, limits, self.traits.null_shapes
             )
         else:
-            if self._ravg is None or self._ravg[0] != self._maps[0]:
-                points = precompute_ravg(
-                    self.scene, self._maps[1][0], p.seed, self.traits.null_shapes
-                )
-                self._ravg = (self._maps[0], points)
-            R = self._ravg[1].lookup(si, found, self.radii()[1], limits[0])
+            global_map = self._traced_maps()[0]
+            points = self.cache.stage("R_avg", self._maps_key, lambda: precompute_ravg(
+                self.scene, global_map, p.seed, self.traits.null_shapes), timed=False)  # fmt: skip
+            R = points.lookup(si, found, self.radii()[1], limits[0])
         flags = mi.UInt32(bsdf.flags())
         other = mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta | mi.BSDFFlags.DiffuseTransmission
         lambertian = ((flags & int(other)) == 0) & (
@@ -397,25 +394,16 @@ class SurfacePipeline(MovableCamera):
         return plan
 
     def render(self, progress=None) -> mi.TensorXf:
-        """Render from the current camera: ``(height, width, 3)`` linear radiance."""
+        """Render from the current camera: ``(height, width, 3)`` linear radiance. The photon
+        maps and what derives from them are kept while their inputs are unchanged; the eye
+        pass, direct lighting, caustics, final gather and light images run every frame."""
         p = self.params
-        check_once(self, p, self.sensor.film().crop_size(), self.check_memory)
-        self.timer.reset()
-        global_map, caustic_map, extra = self.photon_maps(progress)
+        check_once(self, p, self.size, self.check_memory)
+        self.cache.new_frame(progress)
+        global_map, caustic_map, extra = self.photon_maps()
+        volume = self._traced_maps()[2]
         r_caustic, r_global = self.radii()
-        if p.lookup == "irradiance":
-
-            def lookup(si_y, bsdf_y, active):
-                L = lookup_radiance(extra, si_y, bsdf_y, active)
-                if not self.glossy_shapes:
-                    return L
-                return with_glossy_estimates(L, global_map, si_y, bsdf_y, p.k, r_global, active)
-        else:
-
-            def lookup(si_y, bsdf_y, active):
-                return radiance_estimate(global_map, si_y, bsdf_y, p.k, r_global, active)
-
-        w, h = (int(c) for c in self.sensor.film().crop_size())
+        w, h = self.size
         lanes = w * h * p.spp  # all samples of all pixels in one wavefront; a pixel's are adjacent
         pixel = dr.arange(mi.UInt32, lanes) // p.spp
         gen = rng(lanes, p.seed, 0)
@@ -428,50 +416,30 @@ class SurfacePipeline(MovableCamera):
             return rotated_hammersley(p.spp, sample, dr.gather(mi.Point2f, shift, pixel))
 
         jitter, u_light = stratified(), stratified()
-        if progress:
-            progress("eye pass")
-        with self.timer("eye pass"):
-            ray, ray_weight = pixel_rays(self.sensor, pixel, jitter)
-            medium_light = self.medium_light() if self._volume is not None else None
-            eye = trace_eye_paths(
-                self.scene, ray, ray_weight, broadcast(self.sensor.get_medium(), lanes), gen,
-                self.settings, self.traits, emission=True, media_mode="march", rough_glass=True,
-            )  # fmt: skip
-            si, beta, found, bounces, medium = eye.si, eye.beta, eye.found, eye.bounces, eye.medium
-            found &= self.settings.allows(eye.depth + 1)  # light can still arrive
-            bsdf = si.bsdf()
-            L = dr.zeros(mi.Spectrum, lanes)  # light at the eye-path ends and in the media
-            if medium_light is not None:
-                L += medium_light.march(eye.segments, lanes, 1 << 24)
-            dr.eval(si, beta, found, bounces, medium, eye.radiance, eye.depth, L)
-        if progress:
-            progress("direct lighting")
-        with self.timer("direct lighting"):
-            L += beta * direct_lighting(self.scene, si, u_light, gen, found, self.traits, medium)
-            dr.eval(L)
-        if progress:
-            progress("caustics")
-        with self.timer("caustics"):
-            L += beta * caustic_radiance(caustic_map, si, found, bounces, p.spp, p.k, r_caustic)
-            dr.eval(L)
-        if progress:
-            progress("final gather")
-        with self.timer("final gather"):
+        run = self.cache.run
+        medium_light = self.medium_light() if volume is not None else None
+        eye, L = run("eye pass", lambda: self._eye_pass(pixel, jitter, gen, medium_light))
+        si, beta, found, bounces = eye.si, eye.beta, eye.found, eye.bounces
+        bsdf = si.bsdf()
+        L = run("direct lighting", lambda: _added(L, lambda: beta * direct_lighting(
+            self.scene, si, u_light, gen, found, self.traits, eye.medium)))  # fmt: skip
+        L = run("caustics", lambda: _added(L, lambda: beta * caustic_radiance(
+            caustic_map, si, found, bounces, p.spp, p.k, r_caustic)))  # fmt: skip
+
+        def final_gather_pass():
             if p.lookup == "direct":
-                L += beta * radiance_estimate(extra, si, bsdf, p.k, r_global, found)
-            else:
-                L += beta * self.indirect(
-                    si, bsdf, found, lookup, (w, h), bounces, eye.depth, medium, medium_light
-                )
-            dr.eval(L)
+                return radiance_estimate(extra, si, bsdf, p.k, r_global, found)
+            return self.indirect(
+                si, bsdf, found, self._lookup(global_map, extra, r_global), (w, h), bounces,
+                eye.depth, eye.medium, medium_light,
+            )  # fmt: skip
+
+        L = run("final gather", lambda: _added(L, lambda: beta * final_gather_pass()))
         image = pixel_means(L, p.spp)
-        if progress:
-            progress("light images")
-        with self.timer("light images"):
-            image += light_images(
-                self.scene, self.sensor, eye.radiance, bounces > 0, w, h, p, self.settings,
-                self.traits,
-            )
+        image += run("light images", lambda: light_images(
+            self.scene, self.sensor, eye.radiance, bounces > 0, w, h, p, self.settings,
+            self.traits,
+        ))  # fmt: skip
         image = mi.TensorXf(dr.ravel(image), (h, w, 3))
         if not np.all(np.isfinite(np.asarray(image))):
             raise SceneError(
@@ -479,6 +447,46 @@ class SurfacePipeline(MovableCamera):
                 "textures and emitters for NaN"
             )
         return image
+
+    def _lookup(self, global_map, extra, r_global):
+        """The radiance a final-gather ray finds at its hit ``(si_y, bsdf_y, active)``: the
+        precomputed irradiance (``lookup="irradiance"``; k-NN estimates on glossy shapes), else
+        the k-NN radiance estimate of the global map."""
+        p = self.params
+        if p.lookup == "irradiance":
+
+            def lookup(si_y, bsdf_y, active):
+                L = lookup_radiance(extra, si_y, bsdf_y, active)
+                if not self.glossy_shapes:
+                    return L
+                return with_glossy_estimates(L, global_map, si_y, bsdf_y, p.k, r_global, active)
+
+            return lookup
+        return lambda si_y, bsdf_y, active: radiance_estimate(
+            global_map, si_y, bsdf_y, p.k, r_global, active
+        )
+
+    def _eye_pass(self, pixel, jitter, gen, medium_light):
+        """Eye paths from the pixels to their first smooth surfaces (the light met on the way
+        in ``radiance``); the light scattered in the media along them (``medium_light``)."""
+        lanes = dr.width(pixel)
+        ray, ray_weight = pixel_rays(self.sensor, pixel, jitter)
+        eye = trace_eye_paths(
+            self.scene, ray, ray_weight, broadcast(self.sensor.get_medium(), lanes), gen,
+            self.settings, self.traits, emission=True, media_mode="march", rough_glass=True,
+        )  # fmt: skip
+        eye.found &= self.settings.allows(eye.depth + 1)  # light can still arrive
+        L = dr.zeros(mi.Spectrum, lanes)  # light at the eye-path ends and in the media
+        if medium_light is not None:
+            L += medium_light.march(eye.segments, lanes, 1 << 24)
+        dr.eval(eye.si, eye.beta, eye.found, eye.bounces, eye.medium, eye.radiance, eye.depth, L)
+        return eye, L
+
+def _added(L: mi.Spectrum, term) -> mi.Spectrum:
+    """``L + term()``, evaluated: a stage's kernels run inside its own time."""
+    out = L + term()
+    dr.eval(out)
+    return out
 
 
 def light_images(
