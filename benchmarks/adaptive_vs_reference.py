@@ -168,7 +168,7 @@ def ground_truth(pipe, photons: int, factor: int) -> np.ndarray:
 
     pipe.set_params(emission="uniform", photons=photons, sampler="halton")
     pipe.render()
-    s, p = pipe.scene, pipe.params
+    s, p = pipe.world, pipe.params
     grids = pipe.stage_output("march grids")
     C = D = None
     for batch in range(factor):

@@ -83,7 +83,7 @@ def run(args) -> dict:
                 image = np.asarray(pipe.render())
                 times.append(time.perf_counter() - start)
             errors = compare(image, ref)
-            box = pipe.scene.box
+            box = pipe.world.box
             row = {
                 "scene": name,
                 "layout": layout,

@@ -225,7 +225,7 @@ def _nudge_light(pipe, start, i: int, step: float = 1.0) -> Callable[[], None]:
         c, s = math.cos(angle), math.sin(angle)
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         return lambda: pipe.set_light(0, direction=rot @ d)
-    offset = amount * pipe.scene.box.h * np.array([1.0, 0.0, 0.0])
+    offset = amount * pipe.world.box.h * np.array([1.0, 0.0, 0.0])
     position = np.asarray(start.position, dtype=np.float64) + offset
     return lambda: pipe.set_light(0, position=position)
 
@@ -235,13 +235,13 @@ def _nudge_camera(pipe, origin: np.ndarray, i: int) -> Callable[[], None]:
     sides of its start), still aimed at the box centre."""
     sign = 1.0 if i % 2 == 0 else -1.0
     amount = sign * (i + 1 + _JITTER.uniform(0.0, 0.25))
-    offset = amount * 0.01 * pipe.scene.box.size * np.array([1.0, 0.5, 0.0])
-    target = np.asarray(pipe.scene.box.center, dtype=np.float64)
+    offset = amount * 0.01 * pipe.world.box.size * np.array([1.0, 0.5, 0.0])
+    target = np.asarray(pipe.world.box.center, dtype=np.float64)
     return lambda: pipe.set_camera(origin=origin + offset, target=target)
 
 
 def _camera_origin(pipe) -> np.ndarray:
-    matrix = np.array(pipe.scene.sensor.world_transform().matrix, dtype=np.float64)[..., 0]
+    matrix = np.array(pipe.sensor.world_transform().matrix, dtype=np.float64)[..., 0]
     return matrix[:3, 3].copy()
 
 
@@ -260,7 +260,7 @@ def measure_interactive(pipe, light_runs: int, view_runs: int) -> dict:
     """Light-change and view-only frames (each after untimed warm-up frames of the same kind) on a
     pipeline whose stages are up to date; restores the light and camera afterwards."""
     origin = _camera_origin(pipe)
-    start = dataclasses.replace(pipe.scene.lights[0])
+    start = dataclasses.replace(pipe.world.lights[0])
     frame = iter(range(10**6))  # every frame gets a new light position / camera origin
     # a light move may compile kernels in every frame (values baked into kernels): then warming
     # up longer does not help, and the timed frames include (and record) the compilation
@@ -268,8 +268,8 @@ def measure_interactive(pipe, light_runs: int, view_runs: int) -> dict:
     light = [_frame(pipe, _nudge_light(pipe, start, next(frame))) for _ in range(light_runs)]
     warm_view = warm_up(pipe, lambda _: _nudge_camera(pipe, origin, next(frame)), 1, limit=2)
     view = [_frame(pipe, _nudge_camera(pipe, origin, next(frame))) for _ in range(view_runs)]
-    pipe.scene.lights[0] = start
-    pipe.set_camera(origin=origin, target=np.asarray(pipe.scene.box.center, dtype=np.float64))
+    pipe.world.lights[0] = start
+    pipe.set_camera(origin=origin, target=np.asarray(pipe.world.box.center, dtype=np.float64))
     return {
         "full_frame_s": 1e-3 * median(f["wall_ms"] for f in light),
         "view_only_s": 1e-3 * median(f["wall_ms"] for f in view),
@@ -288,7 +288,7 @@ def profile_frame(pipe) -> dict:
     pipe.timer = profiling_timer(StageTimer)()
     try:
         # a light position not used before, as in a real light move
-        frame = _frame(pipe, _nudge_light(pipe, pipe.scene.lights[0], 0, step=0.5))
+        frame = _frame(pipe, _nudge_light(pipe, pipe.world.lights[0], 0, step=0.5))
         stages = {}
         for stage, kernels in pipe.timer.kernels.items():
             jit = [k for k in kernels if k.get("type") == "JIT"]
@@ -355,7 +355,7 @@ def profile_march(pipe, repeats: int = 1) -> dict:
     try:
         photons = pipe.stage_output("photon generation")
         grids = pipe.stage_output("march grids")
-        p, h = pipe.params, pipe.scene.box.h
+        p, h = pipe.params, pipe.world.box.h
 
         def run():
             return march.march(photons, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=h)

@@ -69,7 +69,7 @@ def sphere_dict(**extra) -> dict:
 def test_importing_photonmap_registers_the_integrator():
     integ = integrator(eps=0.01)
     assert isinstance(integ, VolumePhotonIntegrator)
-    assert integ.options == {"grid": 32} and integ.params == {"photons": 4096, "eps": 0.01}
+    assert integ.options == {} and integ.params == {"grid": 32, "photons": 4096, "eps": 0.01}
 
 
 def test_builtin_scene_dict_renders_like_the_pipeline():

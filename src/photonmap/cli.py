@@ -135,20 +135,6 @@ def _split_sets(items: list[str]) -> dict[str, str]:
     return out
 
 
-def _parse_bbox(text: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
-    from .core.errors import ParameterError
-
-    try:
-        v = [float(x) for x in text.replace(";", ",").split(",")]
-    except ValueError:
-        v = []
-    if len(v) != 6:
-        raise ParameterError(
-            f"--set grid_bbox: expected six numbers 'xmin,ymin,zmin,xmax,ymax,zmax', got {text!r}"
-        )
-    return tuple(v[:3]), tuple(v[3:])
-
-
 def _load(scene: str, sets: dict[str, str]):
     """``(mi_scene or None, builtin or None, remaining sets)``: a built-in is loaded by its
     pipeline (with its defaults); an XML file is loaded here, its ``$name`` parameters taken
@@ -175,11 +161,10 @@ def _typed_params(method: str, sets: dict[str, str], builtin) -> dict:
     its scene parameters); unknown keys list the valid ones."""
     from . import METHODS
     from .core.errors import ParameterError
-    from .core.params import field_types, parse_value
+    from .core.params import field_types, parse_field, parse_value
 
-    kinds = field_types(METHODS[method].params)
-    if method == "volume":
-        kinds["grid"] = int
+    params_type = METHODS[method].params
+    kinds = field_types(params_type)
     scene_kinds = {}
     if builtin is not None:
         scene_kinds = {
@@ -189,16 +174,15 @@ def _typed_params(method: str, sets: dict[str, str], builtin) -> dict:
         }
     out = {}
     for key, text in sets.items():
-        if method == "volume" and key == "grid_bbox":
-            out[key] = _parse_bbox(text)
-        elif key in kinds or key in scene_kinds:
-            out[key] = parse_value(key, text, kinds.get(key) or scene_kinds[key])
+        if key in kinds:
+            out[key] = parse_field(params_type, key, text)
+        elif key in scene_kinds:
+            out[key] = parse_value(key, text, scene_kinds[key])
         else:
-            valid = sorted(kinds) + (["grid_bbox"] if method == "volume" else [])
             also = f"; scene parameters: {', '.join(sorted(scene_kinds))}" if scene_kinds else ""
             raise ParameterError(
                 f"unknown --set key {key!r} for the {method} method; valid keys: "
-                f"{', '.join(valid)}{also}"
+                f"{', '.join(sorted(kinds))}{also}"
             )
     return out
 
@@ -268,7 +252,6 @@ def render(
     from .core import interrupt
     from .core.image import check_output
     from .core.memory import check_side
-    from .core.params import updated
     from .core.progress import interactive, stage_progress
     from .core.scene_info import pick_method
 
@@ -281,12 +264,6 @@ def render(
             raise PhotonmapError(f"--spp must be at least 1, got {spp}")
         if method is not None and method not in METHODS:
             raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
-        _check_progressive(method, time, preview_every)
-        if (workers is not None or ray_address is not None) and method not in (None, "sppm"):
-            raise PhotonmapError(
-                "--workers/--ray distribute the progressive method's iterations (--method sppm);"
-                " for many frames of any method use 'photonmap render-sequence'"
-            )
         with console.status(f"loading {scene}") if interactive() else nullcontext():
             mi_scene, builtin, sets = _load(scene, _split_sets(set_ or []))
         interrupt.check()
@@ -296,6 +273,12 @@ def render(
             method = pick_method(mi_scene)
             _say(f"method: {method} (renders everything in a Mitsuba file; choose with --method)")
         Pipeline, Params, _ = METHODS[method]
+        _check_progressive(method, Pipeline.progressive, time, preview_every)
+        if (workers is not None or ray_address is not None) and not Pipeline.progressive:
+            raise PhotonmapError(
+                "--workers/--ray distribute a progressive method's iterations (--method sppm); "
+                "for many frames of any method use 'photonmap render-sequence'"
+            )
         params = _typed_params(method, sets, builtin)
         fields = {f.name for f in dataclasses.fields(Params)}
         if "spp" in fields:
@@ -306,17 +289,12 @@ def render(
                 f"pixel centre (got --spp {spp})"
             )
         params.setdefault("seed", seed)
-        updated(Params(), {k: v for k, v in params.items() if k in fields}, method)
-        if method == "volume":
-            from .volume.params import check_grid
-
-            check_grid(params.setdefault("grid", 128))
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             with console.status(f"loading {scene}") if interactive() else nullcontext():
                 pipe = Pipeline(mi_scene if mi_scene is not None else scene, **params)
             interrupt.check()
-            film = (pipe.sensor if hasattr(pipe, "sensor") else pipe.scene.sensor).film().size()
+            film = pipe.sensor.film().size()
             size = _image_size(width, height, film)
             pipe.check_memory(size=size)  # the method's own estimate, before any allocation
             if size != tuple(int(c) for c in film):
@@ -325,7 +303,7 @@ def render(
                 xml = {k: v for k, v in _split_sets(set_ or []).items() if k not in sets}
                 job = _job(scene, method, params, xml, size)
                 image = _distribute(job, output, time, preview_every, workers, ray_address, run)
-            elif method == "sppm":
+            elif pipe.progressive:
                 image = _iterate(pipe, scene, output, time, "iterations" in params,
                                  preview_every, run)  # fmt: skip
             else:
@@ -358,15 +336,17 @@ def _check_seconds(name: str, value) -> None:
         raise ParameterError(f"{name} must be a finite number of seconds > 0, got {value}")
 
 
-def _check_progressive(method, seconds, preview_every) -> None:
-    """``--time`` and ``--preview-every`` are the progressive method's (positive seconds)."""
+def _check_progressive(method, progressive: bool, seconds, preview_every) -> None:
+    """``--time`` and ``--preview-every`` are a progressive method's (positive seconds)."""
     from .core.errors import ParameterError
 
     for name, value in (("--time", seconds), ("--preview-every", preview_every)):
         if value is None:
             continue
-        if method != "sppm":
-            raise ParameterError(f"{name} applies to --method sppm only (progressive rendering)")
+        if not progressive:
+            raise ParameterError(
+                f"{name} applies to a progressive method (--method sppm), not to {method}"
+            )
         _check_seconds(name, value)
 
 
@@ -385,11 +365,11 @@ def _iterate(pipe, scene, outputs, seconds, iterations_set, preview_every, run):
     total = float(seconds) if iterations is None else float(iterations)
     columns = (TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console, transient=True, disable=not interactive()) as bar:
-        task = bar.add_task(f"sppm {scene}", total=total)
+        task = bar.add_task(f"{pipe.method} {scene}", total=total)
 
         def progress(i, elapsed, radius):
             done = elapsed if iterations is None else i
-            bar.update(task, completed=done, description=f"sppm: {i} iterations, r {radius:.4g}")
+            bar.update(task, completed=done, description=f"{pipe.method}: {i} iterations, r {radius:.4g}")
             interrupt.check()  # Ctrl-C: stop after this whole iteration
 
         def preview(image):
@@ -402,7 +382,7 @@ def _iterate(pipe, scene, outputs, seconds, iterations_set, preview_every, run):
         except KeyboardInterrupt:
             run.note = f"the image of {_count(pipe.iterations, 'iteration')}"
             return pipe.image() if pipe.iterations else None
-    _say(f"sppm: {pipe.iterations} iterations, mean radius {pipe.mean_radius:.4g}")
+    _say(f"{pipe.method}: {pipe.iterations} iterations, mean radius {pipe.mean_radius:.4g}")
     return pipe.image()
 
 

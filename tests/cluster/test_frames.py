@@ -14,7 +14,7 @@ from photonmap import BlockSums
 from photonmap.cli import app
 from photonmap.cluster.connect import ClusterError, parse_address, probe
 from photonmap.cluster.frames import FrameSpecError, check_pattern, parse_frames
-from photonmap.cluster.job import FrameState, SceneJob, sensor_of
+from photonmap.cluster.job import FrameState, SceneJob
 from photonmap.cluster.progressive import (
     MAX_BLOCK,
     TIMED_BLOCK,
@@ -185,7 +185,7 @@ def test_frame_state_depends_on_the_frame_only():
 
 
 def _pose(pipe):
-    return np.asarray(sensor_of(pipe).world_transform().matrix, dtype=np.float64)
+    return np.asarray(pipe.sensor.world_transform().matrix, dtype=np.float64)
 
 
 def test_blocks_cover_the_iterations_in_order_and_stop_at_the_deadline():

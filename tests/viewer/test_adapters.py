@@ -107,8 +107,10 @@ def test_surface_spot_position():
 
 
 class SteppedScreen(ScreenPipeline):
-    """A pipeline that refines itself, as the sppm method does (``reset``, ``step``, ``image``):
-    each step adds a render with the next seed to a running mean."""
+    """A pipeline that refines itself, as the sppm method does (``progressive``: ``reset``,
+    ``step``, ``image``): each step adds a render with the next seed to a running mean."""
+
+    progressive = True
 
     def reset(self):
         self.iterations, self._sum = 0, None

@@ -131,9 +131,9 @@ def test_paint_and_reset(client, viewer):
     assert client.post("/api/paint", json=stroke).status_code == 200
     painted = pixels(client.get("/api/frame.png").content)
     # the brush: σ_s (and κ, σ_a kept) raised by a Gaussian of 20 / unit at the stroke's centre
-    grids = viewer.adapter.pipe.scene.grids
+    grids = viewer.adapter.pipe.world.grids
     own = viewer.adapter.own_grids()
-    i = tuple(int(c) for c in viewer.adapter.pipe.scene.box.to_voxel(stroke["center"]))[::-1]
+    i = tuple(int(c) for c in viewer.adapter.pipe.world.box.to_voxel(stroke["center"]))[::-1]
     added = grids["sigma_s"][i] - own["sigma_s"][i]
     assert added == pytest.approx(np.full(3, 20 * np.exp(-0.5 * 0.75 / (0.08 * 32) ** 2)), rel=1e-3)
     np.testing.assert_allclose(grids["kappa"][i] - own["kappa"][i], added, rtol=1e-5)
@@ -144,7 +144,7 @@ def test_paint_and_reset(client, viewer):
     n_stroke = {**stroke, "field": "n", "amount": 0.2}
     assert client.post("/api/paint", json=n_stroke).status_code == 200
     client.get("/api/frame.png")
-    assert viewer.adapter.pipe.scene.grids["n"][i] > own["n"][i] + 0.1
+    assert viewer.adapter.pipe.world.grids["n"][i] > own["n"][i] + 0.1
     assert client.post("/api/reset").status_code == 200
     np.testing.assert_array_equal(pixels(client.get("/api/frame.png").content), original)
 

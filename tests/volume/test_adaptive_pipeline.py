@@ -139,7 +139,7 @@ def test_uniform_placement_marches_the_reference_photons_and_filters_by_the_pilo
     plain, flat = adaptive(), adaptive(placement="uniform")
     a, b = image(plain), image(flat)
     photons, weights = flat.stage_output("photon generation")
-    light, box = flat.scene.lights[0], flat.scene.box
+    light, box = flat.world.lights[0], flat.world.box
     reference = emit.emit(light, box, SMALL["photons"] - SMALL["pilot_photons"], "hammersley", 0)
     assert np.allclose(np.array(photons.origin), np.array(reference.origin), atol=1e-4)
     assert np.allclose(np.array(photons.power), np.array(reference.power), rtol=1e-5)

@@ -25,7 +25,7 @@ def test_zero_photons():
 
 @pytest.mark.parametrize("grid", [32.5, 64.0, "64", True, -8, 0, 3])
 def test_grid_must_be_an_integer_of_at_least_4(grid):
-    with pytest.raises(ParameterError, match=r"grid must be an integer >= 4 .*got"):
+    with pytest.raises(ParameterError, match=r"grid must be an integer.*got"):
         VolumePipeline("glass_sphere_fog", grid=grid)
 
 
@@ -99,9 +99,9 @@ def test_set_params_rejects_bad_values(pipe, params, message):
 def test_unknown_parameters_list_the_valid_ones(pipe):
     with pytest.raises(ParameterError, match=r"unknown volume parameter\(s\) gird; valid: .*eps2"):
         pipe.set_params(gird=3)
-    with pytest.raises(ParameterError, match=r"valid: grid, grid_bbox, .*phase_k.*also accepts"):
+    with pytest.raises(ParameterError, match=r"valid: .*grid, grid_bbox, .*phase_k.*also accepts"):
         VolumePipeline("glass_sphere_fog", grid=32, phtons=5)
-    with pytest.raises(ParameterError, match=r"valid: grid, grid_bbox, .*phase_k.*table$"):
+    with pytest.raises(ParameterError, match=r"valid: .*grid, grid_bbox, .*phase_k.*table$"):
         VolumePipeline({"type": "scene"}, grid=32, width=5)
 
 
@@ -119,10 +119,10 @@ def test_unknown_parameters_list_the_valid_ones(pipe):
     ],
 )
 def test_set_material_rejects_bad_values(pipe, kwargs, message):
-    before = pipe.scene.objects[0].medium
+    before = pipe.world.objects[0].medium
     with pytest.raises(ParameterError, match=message):
         pipe.set_material("glass", **kwargs)
-    assert pipe.scene.objects[0].medium is before
+    assert pipe.world.objects[0].medium is before
 
 
 def test_set_material_names_the_objects(pipe):
@@ -145,10 +145,10 @@ def test_set_material_names_the_objects(pipe):
     ],
 )
 def test_set_light_rejects_bad_values(pipe, kwargs, message):
-    before = pipe.scene.lights[0]
+    before = pipe.world.lights[0]
     with pytest.raises(ParameterError, match=message):
         pipe.set_light(**kwargs)
-    assert pipe.scene.lights[0] is before
+    assert pipe.world.lights[0] is before
     with pytest.raises(ParameterError, match=r"no light 3; the scene has 1 \(valid indices 0..0\)"):
         pipe.set_light(3, intensity=1.0)
 
@@ -168,7 +168,7 @@ def test_set_volume_rejects_bad_grids():
         pipe.set_volume(n=ones[..., :8], sigma_s=ones, kappa=ones)
     with pytest.raises(ParameterError, match="set_volume: sigma_s must be a numeric array"):
         pipe.set_volume(n=ones, sigma_s="fog", kappa=ones)
-    assert pipe.scene.grids is None  # nothing was accepted
+    assert pipe.world.grids is None  # nothing was accepted
     pipe.set_volume(n=ones, sigma_s=ones * 0.5, kappa=ones)
     assert np.all(np.isfinite(np.array(pipe.render())))
 

@@ -111,7 +111,7 @@ def grids() -> dict:
     pipe = VolumePipeline(
         two_boxes(), grid=GRID, grid_bbox=([0, 0, 0], [GRID] * 3), photons=16**2, spp=1
     )
-    assert pipe.scene.box.h == pytest.approx(1.0)
+    assert pipe.world.box.h == pytest.approx(1.0)
     pipe.render()
     return pipe.grids
 
@@ -162,7 +162,7 @@ def test_sensor_medium_fills_the_rest():
 def test_set_material_of_the_fog_and_of_one_fog_volume():
     pipe = VolumePipeline(two_boxes(), grid=GRID, photons=16**2)
     pipe.set_material("fog", sigma_s=1.0, sigma_a=0.5)
-    a, b = sorted(pipe.scene.fog_volumes, key=lambda v: v.name)
+    a, b = sorted(pipe.world.fog_volumes, key=lambda v: v.name)
     np.testing.assert_allclose(a.medium.kappa, 1.5)
     np.testing.assert_allclose(b.medium.kappa, coefficients(MEDIUM_B)[1])
     pipe.set_material("box_b", sigma_s=0.25)
@@ -253,7 +253,7 @@ def test_fog_box_smaller_than_the_grid_matches_volpath_single_scattering(single_
     pipe = VolumePipeline(
         fog_only_box(), grid=48, photons=64**2, phase_k=0.0, table=0.0, spp=4, scattering="single"
     )
-    assert pipe.scene.box.size == pytest.approx(6.0)  # the cube around the box: fog in half of it
+    assert pipe.world.box.size == pytest.approx(6.0)  # the cube around the box: fog in half of it
     ours = np.array(pipe.render())
     ratio = ours.mean() / single_scattering.mean()
     a, b = block_means(ours), block_means(single_scattering)

@@ -199,7 +199,7 @@ def test_long_fog_box_matches_volpath(light):
         reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=512))
     reference = reference[..., :3]
     pipe = VolumePipeline(scene, grid=48, photons=2**16, phase_k=0.0, table=0.0, spp=4)
-    assert pipe.scene.box.dims == (48, 24, 20)
+    assert pipe.world.box.dims == (48, 24, 20)
     image = np.array(pipe.render())
     if light == "sky":  # the background seen beside the box is the sky itself in both
         inside = np.any(np.abs(image - np.array([0.6, 0.7, 1.0])) > 1e-3, axis=-1)

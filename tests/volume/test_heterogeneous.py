@@ -74,10 +74,10 @@ def test_voxels_hold_mitsubas_values():
     pipe = VolumePipeline(
         fog_box_scene(ramp_medium()), grid=20, grid_bbox=([-2.5] * 3, [2.5] * 3), photons=64
     )
-    assert pipe.scene.heterogeneous and pipe.scene.box.h == 0.25
+    assert pipe.world.heterogeneous and pipe.world.box.h == 0.25
     pipe._materials()
     grids = pipe.grids
-    h = pipe.scene.box.h
+    h = pipe.world.box.h
     kappa, sigma_s = grids["kappa"] / h, grids["sigma_s"] / h
     centre = -2.5 + h * (np.arange(20) + 0.5)
     linear = np.abs(centre) < 1.75 - h / 2  # every sub-sample in the linear part

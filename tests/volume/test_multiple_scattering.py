@@ -197,7 +197,7 @@ def test_pure_absorbing_fog_renders_single_scattering_bit_for_bit():
     grids = {}
     for mode in ("single", "multiple"):
         pipe = small_pipeline(scattering=mode)
-        pipe.set_material("fog", sigma_s=0.0, sigma_a=pipe.scene.fog.kappa)
+        pipe.set_material("fog", sigma_s=0.0, sigma_a=pipe.world.fog.kappa)
         image = np.array(pipe.render())
         grids[mode] = (pipe.grids["C"], pipe.grids["D"], image)
         assert pipe.stats["scatterings"] == 0
@@ -220,7 +220,7 @@ def test_sigma_s_and_phase_k_rerun_the_photon_stages_only_with_multiple_scatteri
     sigma_change, phase_change = RERUNS[mode]
     pipe = small_pipeline(scattering=mode)
     pipe.render()
-    fog = pipe.scene.fog
+    fog = pipe.world.fog
     half = {"sigma_s": 0.5 * fog.sigma_s, "sigma_a": fog.kappa - 0.5 * fog.sigma_s}
     pipe.set_material("fog", **half)
     pipe.render()
@@ -416,7 +416,7 @@ def test_glass_ball_in_fog_agrees_with_volpath():
         spp=4,
     )
     image = np.array(pipe.render())
-    assert [light.kind for light in pipe.scene.lights] == ["area"]
+    assert [light.kind for light in pipe.world.lights] == ["area"]
     mean = reference.mean()
     assert abs(image.mean() / mean - 1) < BALL_RATIO_BOUND
     error = np.sqrt(np.mean((block_means(image) - block_means(reference)) ** 2)) / mean

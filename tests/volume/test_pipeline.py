@@ -44,7 +44,7 @@ CHANGES = {
     "phase_k": (lambda p: p.set_params(phase_k=-0.2), PHOTON_STAGES[1:], False),
     "light": (lambda p: p.set_light(position=[0.7, 3.0, 0.4]), PHOTON_STAGES, False),
     "sigma_s only": (
-        lambda p: p.set_material("fog", **half_split(p.scene.fog.kappa)),
+        lambda p: p.set_material("fog", **half_split(p.world.fog.kappa)),
         ["materials", "march grids", *PHOTON_STAGES[1:]],
         False,
     ),
@@ -151,14 +151,14 @@ def test_set_volume_bypasses_voxelization():
     z, y, x = np.meshgrid(*[np.arange(GRID) + 0.5] * 3, indexing="ij")
     r = np.sqrt((x - 16) ** 2 + (y - 18) ** 2 + (z - 16) ** 2)
     n = 1.0 + 0.4 * np.clip((10 - r) / 4, 0, 1)  # a smooth lens, world-independent
-    fog = float(pipe.scene.fog.sigma_s[0])
+    fog = float(pipe.world.fog.sigma_s[0])
     sigma_s = np.full((GRID,) * 3, fog)
     kappa = np.repeat(sigma_s[..., None], 3, -1) + np.where(r < 10, 2.0, 0.0)[..., None]
     pipe.set_volume(n=n, sigma_s=sigma_s, kappa=kappa)
     first = image(pipe)
     assert "voxelization" not in pipe.recomputed and "materials" in pipe.recomputed
     np.testing.assert_allclose(pipe.grids["ior"][..., 0], n, rtol=1e-6)
-    np.testing.assert_allclose(pipe.grids["kappa"], kappa * pipe.scene.box.h, rtol=1e-5)
+    np.testing.assert_allclose(pipe.grids["kappa"], kappa * pipe.world.box.h, rtol=1e-5)
     C = pipe.grids["C"]
 
     pipe.set_volume(sigma_s=sigma_s / 2)  # painting scattering, κ unchanged
@@ -236,7 +236,7 @@ def test_full_pipeline_single_scattering_in_a_homogeneous_slab():
     pipe = VolumePipeline(
         slab_scene(kappa, x0, n), grid=n, photons=4**7, phase_k=0.0, scattering="single"
     )
-    assert not pipe.scene.objects
+    assert not pipe.world.objects
     value = image(pipe).ravel()
     assert np.all(value == value[0])  # grey
     p = 1 / (4 * math.pi)

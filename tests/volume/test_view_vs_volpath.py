@@ -82,7 +82,7 @@ def volpath() -> np.ndarray:
 @pytest.fixture(scope="module")
 def ours() -> np.ndarray:
     pipe = VolumePipeline(scene(), grid=GRID, photons=64**2, spp=4)
-    assert pipe.scene.fog.sigma_s.max() == 0 and pipe.scene.fog.sigma_a.min() > 0
+    assert pipe.world.fog.sigma_s.max() == 0 and pipe.world.fog.sigma_a.min() > 0
     return np.array(pipe.render())
 
 

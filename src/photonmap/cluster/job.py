@@ -56,17 +56,12 @@ def build_pipeline(job: SceneJob):
             f"({os.uname().nodename}); on a cluster every node needs the scene at the same path"
         )
     if job.width or job.height:
-        w0, h0 = (int(c) for c in sensor_of(pipe).film().size())
+        w0, h0 = (int(c) for c in pipe.sensor.film().size())
         width = job.width or max(1, round(job.height * w0 / h0))
         height = job.height or max(1, round(job.width * h0 / w0))
         if (width, height) != (w0, h0):
             pipe.set_camera(width=width, height=height)
     return pipe
-
-
-def sensor_of(pipe):
-    """The pipeline's current Mitsuba sensor."""
-    return pipe.sensor if hasattr(pipe, "sensor") else pipe.scene.sensor
 
 
 def split_set(job: SceneJob, values: dict) -> tuple[dict, dict]:
@@ -116,7 +111,7 @@ class FrameState:
         if self.pipe is None or key != self._scene_key:
             self.pipe = build_pipeline(self.job.with_scene_params(scene_params))
             self._scene_key = key
-            self._sensor = sensor_of(self.pipe)
+            self._sensor = self.pipe.sensor
         pipe = self.pipe
         if params:  # every frame sets the same keys (frames.py), so none needs undoing
             pipe.set_params(**params)
@@ -124,7 +119,7 @@ class FrameState:
             pipe.set_camera(sensor=self._sensor)
             pipe.set_camera(**frame.camera)
         if frame.light:
-            if not hasattr(pipe, "set_light"):
+            if "light" not in pipe.edits:
                 raise FrameSpecError(
                     f"the {self.job.method} method cannot move lights (no set_light); move a "
                     "light with a scene parameter instead (an XML file's $name in 'set')"

@@ -59,7 +59,7 @@ class FrameWorker(_Worker):
         info = {
             "seconds": time.perf_counter() - t0,
             "cpu_seconds": time.process_time() - c0,
-            "recomputed": list(pipe.recomputed) if hasattr(pipe, "recomputed") else None,
+            "recomputed": list(pipe.recomputed),
             "warnings": sorted({str(w.message) for w in caught}),
             **self.where(),
         }

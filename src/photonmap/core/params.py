@@ -151,6 +151,16 @@ def parse_value(key: str, text: str, kind: type):
         raise ParameterError(f"--set {key}: cannot read {text!r} as {kind.__name__}") from None
 
 
+def parse_field(params_type, key: str, text: str):
+    """A CLI ``KEY=VALUE`` string as field ``key`` of ``params_type`` (a dataclass): through the
+    field's own ``metadata["parse"]`` where it has one (e.g. a bounding box), else as its type
+    (:func:`parse_value`)."""
+    field = next(f for f in dataclasses.fields(params_type) if f.name == key)
+    if "parse" in field.metadata:
+        return field.metadata["parse"](text)
+    return parse_value(key, text, field_types(params_type)[key])
+
+
 def check_view(origin, target, up, fov=None) -> None:
     """A camera placement ``look_at(origin, target, up)`` with horizontal ``fov`` (degrees):
     origin, target and up 3 finite numbers each, origin apart from target, up not along the

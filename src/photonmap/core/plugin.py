@@ -10,8 +10,8 @@ A subclass names its pipeline, its parameter dataclass and its plugin name::
 Scene edits: before each render the shell fingerprints the parameters of every shape and emitter
 of the scene (``mi.traverse``: radiance, BSDF values, vertex positions, media, ...; sensors are
 left out, since a camera move is what the pipelines cache for). When the fingerprint changed, the
-pipeline re-reads the scene (:meth:`scene_changed`): the volume pipeline through its ``reload``,
-the others by building the pipeline again. Errors are :class:`photonmap.PhotonmapError`
+pipeline re-reads the scene (:meth:`scene_changed`): through its ``reload`` where it declares that
+edit (the volume method), else by building the pipeline again. Errors are :class:`photonmap.PhotonmapError`
 (``mi.render`` wraps them in a ``RuntimeError`` whose ``__cause__`` is the original error).
 """
 
@@ -74,8 +74,13 @@ class PipelineIntegrator(mi.SamplingIntegrator):
         return self.pipeline_type(scene, **self.options, **self.params)
 
     def scene_changed(self, scene: mi.Scene) -> None:
-        """The scene was edited in place: rebuild the pipeline (subclasses may reload less)."""
-        self.pipeline = self.new_pipeline(scene)
+        """The scene was edited in place: a pipeline that re-reads an edited scene (its
+        ``edits`` hold ``"reload"``) does so, keeping what did not change; another is built
+        again."""
+        if "reload" in self.pipeline.edits:
+            self.pipeline.reload(scene)
+        else:
+            self.pipeline = self.new_pipeline(scene)
 
     def render(self, scene, sensor=0, seed=0, spp=0, develop=True, evaluate=True):
         if isinstance(sensor, int):

@@ -50,14 +50,14 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.bsdf import is_null
-from ..core.camera import MovableCamera
 from ..core.errors import ParameterError, SceneError
 from ..core.film_filter import filter_image
 from ..core.memory import check_once
 from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.pipeline import Pipeline
 from ..core.scene_info import refuse_media, warn_unmodelled
 from ..core.settings import HIDE_CHOICES, UNBOUNDED, PathSettings, overridden
-from ..core.stages import StageCache, StagedPipeline
+from ..core.stages import StageCache
 from . import memory
 from .composite import chain_indirect, composite, glass_eye
 from .direct import direct_light
@@ -91,6 +91,7 @@ class ScreenParams:
     """Parameters of the screen pipeline (the ``ispm`` plugin and the CLI's ``--set`` keys).
     Defaults: spec §4.2 (thesis values where given, [REC] otherwise)."""
 
+    light: int = 0  # the light: its index among the scene's spot, point and area lights
     bounces: int = 0  # B: recorded indirect bounces per path (Tab 1: 1, 2, 3); 0 = the file's
     max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
     hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
@@ -112,6 +113,8 @@ class ScreenParams:
         """Types (:func:`~photonmap.core.params.check_fields`: integers, finite numbers, the
         seed in [0, 2³²)), then ranges and choices."""
         check_fields(self)
+        check_range("light", self.light, 0, None, "the index of the light among the scene's "
+                    "spot, point and area lights")  # fmt: skip
         check_range(
             "bounces", self.bounces, 0, MAX_BOUNCES,
             "recorded indirect bounces (the thesis: 1–3); 0 = the scene's max_depth − 2",
@@ -251,7 +254,7 @@ def _sensor_key(sensor) -> tuple:
     return (tuple(m.round(9)), tuple(fov), size, tuple(int(c) for c in film.size()), crop)
 
 
-class ScreenPipeline(MovableCamera, StagedPipeline):
+class ScreenPipeline(Pipeline):
     """Image-space photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``) with
     a spot, point or area light (rectangle, disk, sphere, mesh).
 
@@ -267,20 +270,20 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
     >>> image = pipe.render()                  # photons kept
     """
 
-    stages = STAGES
+    method, params_type, stages = "screen", ScreenParams, STAGES
+    edits = frozenset({"camera", "params", "light"})
 
-    def __init__(self, scene, light: int = 0, **params):
+    def __init__(self, scene, **params):
         from ..scenes import load_with_sensor
 
         self.scene, self.sensor, own = load_with_sensor(scene, ScreenParams, params)
+        self.params = updated(ScreenParams(), own, "screen")  # named before the scene is judged
         self.file_settings = PathSettings.of(self.scene, scene)
-        self.params = ScreenParams()
-        self.set_params(**own)
         refuse_media(self.scene, "screen")
         check_dielectrics(self.scene)
         check_shading(self.scene)
-        self.light_index = light
-        self.light = find_light(self.scene, light, warn=True)
+        self.check_memory()
+        self.light = find_light(self.scene, self.params.light, warn=True)
         check_light_outside(self.scene, self.light)
         self._light_version = 0
         self.cache = StageCache()
@@ -297,13 +300,17 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         Settings that would not fit in memory are refused (:meth:`check_memory`)."""
         new = updated(self.params, params, "screen")
         self.check_memory(new)
+        if new.light != self.params.light:
+            light = find_light(self.scene, new.light, warn=True)
+            check_light_outside(self.scene, light)
+            self.light, self._light_version = light, self._light_version + 1
         self.params = new
 
     def check_memory(self, params: ScreenParams | None = None, size=None) -> int:
         """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
         (width, height; default: the camera's) would need more memory than is available
         (:mod:`.memory`); return the estimate in bytes."""
-        w, h = size or (int(c) for c in self.sensor.film().crop_size())
+        w, h = size or self.size
         return memory.check(params or self.params, w, h)
 
     def set_light(self, position=None, target=None, intensity=None, cutoff=None, index=None):
@@ -311,8 +318,8 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         colour (``intensity``: RGB or scalar, W/sr) or change the spot's cut-off (degrees).
         Everything but the random map reruns."""
         if index is not None:
-            self.light_index = index
-        light = find_light(self.scene, self.light_index)
+            self.set_params(light=index)
+        light = find_light(self.scene, self.params.light)
         params = mi.traverse(light.emitter)
         if light.kind == "area" and any(v is not None for v in (position, target, cutoff)):
             raise ParameterError(
@@ -349,7 +356,7 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
             params["cutoff_angle"] = float(cutoff)
             params["beam_width"] = min(float(np.array(params["beam_width"]).ravel()[0]), cutoff)
         params.update()
-        self.light = find_light(self.scene, self.light_index)
+        self.light = find_light(self.scene, self.params.light)
         check_light_outside(self.scene, self.light)
         self._light_version += 1
 
@@ -390,7 +397,7 @@ class ScreenPipeline(MovableCamera, StagedPipeline):
         self.cache.new_frame(progress)
         stage = self.cache.stage
         cam_key = _sensor_key(self.sensor)
-        light_key = (self.light_index, self._light_version)
+        light_key = (self.params.light, self._light_version)
 
         gbuf, specular = stage("eye G-buffer", cam_key, lambda: eye_gbuffer(scene, self.sensor))
         lgb_key = (light_key, p.light_res, p.seed)

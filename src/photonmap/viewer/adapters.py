@@ -272,8 +272,8 @@ class Adapter(ABC):
 
     @property
     def _steps(self) -> bool:
-        """The pipeline refines itself (``reset``, ``step``, ``image``)."""
-        return all(hasattr(self.pipe, name) for name in ("reset", "step", "image"))
+        """The pipeline refines itself (a progressive method: ``reset``, ``step``, ``image``)."""
+        return self.pipe.progressive
 
     @property
     def timings(self) -> dict[str, float]:
@@ -283,7 +283,7 @@ class Adapter(ABC):
     @property
     def recomputed(self) -> list[str]:
         """The stages the last render ran (the others were reused)."""
-        return list(getattr(self.pipe, "recomputed", self.pipe.timer.ms))
+        return list(self.pipe.recomputed)
 
     @property
     def stages(self) -> tuple[str, ...]:

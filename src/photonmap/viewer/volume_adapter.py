@@ -31,15 +31,15 @@ class VolumeAdapter(Adapter):
 
     @property
     def sensor(self):
-        return self.pipe.scene.sensor
+        return self.pipe.sensor
 
     @property
     def centre(self):
-        return self.pipe.scene.box.center
+        return self.pipe.world.box.center
 
     def _lights(self):
         out = []
-        for light in self.pipe.scene.lights:
+        for light in self.pipe.world.lights:
             color, intensity = light_power(light.intensity)
             entry = {"kind": light.kind, "color": color, "intensity": intensity}
             if light.position is not None:
@@ -48,7 +48,7 @@ class VolumeAdapter(Adapter):
         return out
 
     def _materials(self):
-        s = self.pipe.scene
+        s = self.pipe.world
         out = {
             o.name: {
                 "ior": float(o.medium.ior),
@@ -66,7 +66,7 @@ class VolumeAdapter(Adapter):
     def _check_light(self, index, light):
         from ..volume.params import check_light
 
-        old = self.pipe.scene.lights[index]
+        old = self.pipe.world.lights[index]
         position = light.get("position")
         check_light(dataclasses.replace(
             old, intensity=np.asarray(light_rgb(light)),
@@ -91,7 +91,7 @@ class VolumeAdapter(Adapter):
 
     # ---------------------------------------------------------- sequences and painting
     def _check_frames(self, frames) -> dict[str, np.ndarray]:
-        n = self.pipe.scene.box.n
+        n = self.pipe.world.box.n
         keys = {"n", "sigma_s", "kappa"}
         arrays = {k: np.asarray(frames[k], dtype=np.float32) for k in frames if k in keys}
         if not arrays or set(frames) - keys:
@@ -129,8 +129,8 @@ class VolumeAdapter(Adapter):
 
     def render(self, size, preview=False):
         image = super().render(size, preview)
-        if self._own is None and self.pipe.scene.grids is None:
-            mats, h = self.pipe.cache.get("materials"), self.pipe.scene.box.h
+        if self._own is None and self.pipe.world.grids is None:
+            mats, h = self.pipe.cache.get("materials"), self.pipe.world.box.h
             self._own = {
                 "n": np.asarray(mats.ior)[..., 0],
                 "sigma_s": np.asarray(mats.sigma_s) / h,
@@ -153,7 +153,7 @@ class VolumeAdapter(Adapter):
     def _set_volume(self, volume):
         grids = self._grids_of(volume["frame"])
         if grids is None:
-            self.pipe.scene.grids = None  # back to the scene's own materials (S1/S2)
+            self.pipe.world.grids = None  # back to the scene's own materials (S1/S2)
         else:
             self.pipe.set_volume(**grids)
 
@@ -166,8 +166,8 @@ class VolumeAdapter(Adapter):
         """Add a Gaussian brush (Sun §6.2.1: a precomputed pattern, scaled and weighted) of
         ``amount`` at ``center`` (world units) with standard deviation ``radius`` to σ_s (κ
         follows: σ_a is kept) or to n; the result is clamped to σ_s >= 0 and n >= 1."""
-        box = self.pipe.scene.box
-        grids = self.pipe.scene.grids or self.own_grids()
+        box = self.pipe.world.box
+        grids = self.pipe.world.grids or self.own_grids()
         grids = {k: np.array(v, dtype=np.float32) for k, v in grids.items()}
         c = box.to_voxel(stroke["center"])
         r = stroke["radius"] / box.h

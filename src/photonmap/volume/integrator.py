@@ -30,7 +30,7 @@ from __future__ import annotations
 import mitsuba as mi
 
 from ..core.plugin import PipelineIntegrator
-from .params import VolumeParams, check_grid
+from .params import VolumeParams
 from .pipeline import VolumePipeline
 
 
@@ -38,13 +38,6 @@ class VolumePhotonIntegrator(PipelineIntegrator):
     """Mitsuba integrator running :class:`~photonmap.volume.pipeline.VolumePipeline`."""
 
     pipeline_type, params_type, plugin_name = VolumePipeline, VolumeParams, "volume_photon"
-    extra = {"grid": int}
-
-    def check_options(self, options: dict) -> None:
-        check_grid(options.setdefault("grid", 128))
-
-    def scene_changed(self, scene: mi.Scene) -> None:
-        self.pipeline.reload(scene)
 
 
 def register() -> None:

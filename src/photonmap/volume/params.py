@@ -56,6 +56,10 @@ class VolumeParams:
     """Pipeline parameters (the CLI's ``--set`` keys). Defaults: spec seed-000-002 §1 parameter
     table and §6 recommendations."""
 
+    grid: int = 128  # N: voxels along the longest side of the grid box (Sun §4.1: 128)
+    grid_bbox: tuple | None = dataclasses.field(
+        default=None, metadata={"type": object, "parse": lambda text: parse_bbox(text)}
+    )  # the grid box ((x, y, z) min, (x, y, z) max), world units; None: fitted to the media
     photons: int = 1024**2  # initial photons on the photon plane (Sun Table 2)
     sampler: str = "hammersley"  # photon plane point set (Pfeuti §4.1)
     seed: int = 0
@@ -100,6 +104,8 @@ class VolumeParams:
         types (floats finite, seed in [0, 2³²)) by :func:`~photonmap.core.params.check_fields`,
         then the ranges of spec seed-000-002 §1 and §A."""
         check_fields(self)
+        check_grid(self.grid)
+        check_bbox(self.grid_bbox)
         check_range(
             "photons",
             self.photons,
@@ -221,6 +227,36 @@ class VolumeParams:
             "photon weight per mip level; 1 = level 1 at 16 uniform photons per voxel column",
             lo_open=True,
         )
+
+
+def parse_bbox(text: str) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """``grid_bbox`` from the command line: six numbers ``xmin,ymin,zmin,xmax,ymax,zmax``."""
+    try:
+        v = [float(t) for t in text.replace(";", ",").split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 6:
+        raise ParameterError(
+            f"--set grid_bbox: expected six numbers 'xmin,ymin,zmin,xmax,ymax,zmax', got {text!r}"
+        )
+    return tuple(v[:3]), tuple(v[3:])
+
+
+def check_bbox(bbox) -> None:
+    """``grid_bbox``: None, or two corners (min, max) of 3 finite numbers with min < max."""
+    if bbox is None:
+        return
+    try:
+        lo, hi = (np.asarray(c, dtype=np.float64) for c in bbox)
+    except (TypeError, ValueError):
+        lo = hi = np.zeros(0)
+    if lo.shape != (3,) or hi.shape != (3,) or not np.all(np.isfinite([lo, hi])):
+        raise ParameterError(
+            f"grid_bbox must be two corners ((xmin, ymin, zmin), (xmax, ymax, zmax)) of finite "
+            f"numbers, got {bbox!r}"
+        )
+    if not np.all(lo < hi):
+        raise ParameterError(f"grid_bbox: every min must be below its max, got {bbox!r}")
 
 
 # ------------------------------------------------------------------------------------------------

@@ -41,9 +41,10 @@ from ..core.errors import ParameterError, SceneError
 from ..core.grid import filter_separable
 from ..core.memory import check_image_memory, check_once
 from ..core.params import updated
+from ..core.pipeline import Pipeline
 from ..core.scene_info import warn_unmodelled
 from ..core.settings import UNBOUNDED, PathSettings, overridden
-from ..core.stages import StageCache, StagedPipeline, cache_key
+from ..core.stages import StageCache, cache_key
 from . import adaptive, emit, march, mipmap, pilot
 from .material_stages import fog_boundaries, voxelized_materials
 from .materials import MaterialGrids, from_arrays, gradient
@@ -88,7 +89,7 @@ def check_depth(settings: PathSettings) -> None:
     )  # fmt: skip
 
 
-class VolumePipeline(StagedPipeline):
+class VolumePipeline(Pipeline):
     """Voxel photon tracing through refractive participating media, relightable.
 
     ``scene`` is a Mitsuba scene (``mi.Scene``), a scene dict, an XML path or a built-in name
@@ -104,10 +105,13 @@ class VolumePipeline(StagedPipeline):
     >>> image = pipe.render()               # reruns only the viewing pass
     """
 
-    def __init__(self, scene, grid: int = 128, grid_bbox=None, **params):
+    method, params_type = "volume", VolumeParams
+    edits = frozenset({"camera", "params", "light", "material", "volume", "reload"})
+    world: VolumeScene  # what the method reads of ``scene``, in world units (:mod:`.scene`)
+
+    def __init__(self, scene, **params):
         from ..scenes import SCENES, load_scene
 
-        check_grid(grid)  # before anything is loaded or allocated
         valid = {f.name for f in dataclasses.fields(VolumeParams)}
         scene_params = {k: v for k, v in params.items() if k not in valid}
         builtin = SCENES.get(scene) if isinstance(scene, str) else None
@@ -118,45 +122,57 @@ class VolumePipeline(StagedPipeline):
                 also = f"; scene {scene!r} also accepts {', '.join(sorted(accepted))}"
                 raise ParameterError(
                     f"unknown volume parameter(s) {', '.join(unknown)}; valid: "
-                    f"grid, grid_bbox, {', '.join(sorted(valid))}{also if builtin else ''}"
+                    f"{', '.join(sorted(valid))}{also if builtin else ''}"
                 )
-        mi_scene, defaults = load_scene(scene, **scene_params)
-        check_has_fog(mi_scene, scene)
-        self.params = VolumeParams()
-        self.set_params(**{**defaults, **{k: v for k, v in params.items() if k in valid}})
-        self.scene: VolumeScene = from_mitsuba(mi_scene, grid=grid, grid_bbox=grid_bbox)
-        self.file_settings = PathSettings.of(mi_scene, scene)
+        self.scene, defaults = load_scene(scene, **scene_params)
+        own = {**defaults, **{k: v for k, v in params.items() if k in valid}}
+        new = updated(VolumeParams(), own, "volume")  # a bad value is named before the scene
+        check_has_fog(self.scene, scene)
+        self.file_settings = PathSettings.of(self.scene, scene)
         check_depth(self.file_settings)
-        check_grid(
-            grid,
-            objects=len(self.scene.objects),
-            photons=self.params.photons * len(self.scene.lights),
-            dims=self.scene.box.dims,
-        )
         self.cache = StageCache()
         self._warned: set[str] = set()
         self.stats: dict[str, float] = {}
         self._geometry_version = 0
-        self._grid_bbox = grid_bbox
+        self._apply(new)
+
+    @property
+    def sensor(self) -> mi.Sensor:
+        """The camera (the volume scene's: the viewing pass asks it for primary rays)."""
+        return self.world.sensor
+
+    @sensor.setter
+    def sensor(self, sensor: mi.Sensor) -> None:
+        self.world.sensor = sensor
 
     def reload(self, scene: mi.Scene) -> None:
         """Re-read lights, media, sensor and shapes from ``scene`` (a Mitsuba scene, possibly
         edited through ``mi.traverse``); cached stages whose inputs did not change are kept.
         Grids given by :meth:`set_volume` stay."""
         check_has_fog(scene, scene)
-        new = from_mitsuba(scene, grid=self.scene.box.n, grid_bbox=self._grid_bbox)
-        new.grids = self.scene.grids
-        self.scene = new
+        new = from_mitsuba(scene, grid=self.params.grid, grid_bbox=self.params.grid_bbox)
+        new.grids = self.world.grids
+        self.scene, self.world = scene, new
 
     # ------------------------------------------------------------------ changes
     def set_params(self, **params) -> None:
-        """Change pipeline parameters (:class:`VolumeParams` fields)."""
-        new = updated(self.params, params, "volume")
-        if hasattr(self, "scene") and new.photons != self.params.photons:
-            box = self.scene.box
-            photons = new.photons * len(self.scene.lights)
-            check_grid(box.n, len(self.scene.objects), photons, dims=box.dims)
-        self.params = new
+        """Change pipeline parameters (:class:`VolumeParams` fields). ``grid`` and ``grid_bbox``
+        are fixed once the pipeline is built (its volume scene is voxelized for them)."""
+        self._apply(updated(self.params, params, "volume"))
+
+    def _apply(self, new: VolumeParams) -> None:
+        """Take the validated parameters ``new``; the first time, build the volume scene."""
+        world = getattr(self, "world", None)
+        if world is None:  # building: the volume scene in the grid box of these parameters
+            world = from_mitsuba(self.scene, grid=new.grid, grid_bbox=new.grid_bbox)
+        elif (new.grid, new.grid_bbox) != (self.params.grid, self.params.grid_bbox):
+            raise ParameterError(
+                "grid and grid_bbox are fixed when the volume pipeline is built (its scene is "
+                "voxelized for them); build a new pipeline with the new values"
+            )
+        photons = new.photons * len(world.lights)
+        check_grid(new.grid, len(world.objects), photons, dims=world.box.dims)
+        self.params, self.world = new, world
 
     def check_memory(self, params: VolumeParams | None = None, size=None) -> int:
         """Raise a :class:`ParameterError` when ``params`` (default: the pipeline's) at ``size``
@@ -164,9 +180,9 @@ class VolumePipeline(StagedPipeline):
         grids and photons (:func:`.params.check_grid`), the viewing pass's samples
         (:func:`~photonmap.core.memory.check_image_memory`). Returns the estimate in bytes."""
         p = params or self.params
-        w, h = size or (int(c) for c in self.scene.sensor.film().crop_size())
-        box, objects = self.scene.box, len(self.scene.objects)
-        photons = p.photons * len(self.scene.lights)
+        w, h = size or self.size
+        box, objects = self.world.box, len(self.world.objects)
+        photons = p.photons * len(self.world.lights)
         check_grid(box.n, objects, photons, dims=box.dims)
         return memory_estimate(box.dims, objects, photons)[0] + check_image_memory(
             "volume", w, h, p.spp
@@ -179,19 +195,19 @@ class VolumePipeline(StagedPipeline):
         ``target``, ``up``, ``fov`` (horizontal, degrees), ``width``, ``height``; the rest is kept."""
         if sensor is None:
             sensor = moved_sensor(
-                self.scene.sensor, self.scene.box.center, origin, target, up, fov, width, height
+                self.world.sensor, self.world.box.center, origin, target, up, fov, width, height
             )
-        self.scene.sensor = sensor
+        self.world.sensor = sensor
 
     def set_light(self, index: int = 0, **changes) -> None:
         """Change light ``index`` (fields of :class:`~.scene.Light`: position, direction, intensity,
         kind, cos_inner, cos_outer). Reruns S5–S9."""
-        if not 0 <= index < len(self.scene.lights):
+        if not 0 <= index < len(self.world.lights):
             raise ParameterError(
-                f"no light {index}; the scene has {len(self.scene.lights)} "
-                f"(valid indices 0..{len(self.scene.lights) - 1})"
+                f"no light {index}; the scene has {len(self.world.lights)} "
+                f"(valid indices 0..{len(self.world.lights) - 1})"
             )
-        light = self.scene.lights[index]
+        light = self.world.lights[index]
         fields = {f.name for f in dataclasses.fields(Light)}
         unknown = sorted(set(changes) - fields)
         if unknown:
@@ -202,14 +218,14 @@ class VolumePipeline(StagedPipeline):
         }
         new = dataclasses.replace(light, **changes)
         check_light(new)
-        self.scene.lights[index] = new
+        self.world.lights[index] = new
 
     def set_material(self, name: str | None = None, ior=None, sigma_s=None, sigma_a=None) -> None:
         """Change the medium of the refractive object ``name`` (all objects if None), of the fog
         volume ``name`` (a ``null``-BSDF shape's interior), or with ``"fog"`` of the fog wherever
         it is (:attr:`~.scene.VolumeScene.fog`). World units. Changing only σ_s while keeping
         κ = σ_s + σ_a reruns S9 alone; κ reruns S6–S9; n reruns S2–S9."""
-        s = self.scene
+        s = self.world
         if name == "fog":
             s.replace_medium(s.fog, updated_medium(s.fog, ior, sigma_s, sigma_a, "fog"))
             return
@@ -234,7 +250,7 @@ class VolumePipeline(StagedPipeline):
         """Supply material grids directly (simulation data, painting; Sun §6.2): NumPy arrays of
         shape ``scene.box.shape`` (N_z, N_y, N_x) or (N_z, N_y, N_x, 3) indexed [z, y, x], world
         units. Bypasses S1/S2."""
-        grids = dict(self.scene.grids or {})
+        grids = dict(self.world.grids or {})
         for key, value in (("n", n), ("sigma_s", sigma_s), ("kappa", kappa)):
             if value is not None:
                 try:
@@ -249,12 +265,12 @@ class VolumePipeline(StagedPipeline):
             raise ParameterError(
                 f"set_volume needs n, sigma_s and kappa the first time; missing {sorted(missing)}"
             )
-        from_arrays(grids, self.scene.box)  # validates
-        self.scene.grids = grids
+        from_arrays(grids, self.world.box)  # validates
+        self.world.grids = grids
 
     def set_geometry(self, name: str, shape) -> None:
         """Replace the shape of refractive object ``name`` (a deformed mesh). Reruns S1–S9."""
-        for obj in self.scene.objects:
+        for obj in self.world.objects:
             if obj.name == name:
                 obj.shape = shape
                 self._geometry_version += 1
@@ -274,7 +290,7 @@ class VolumePipeline(StagedPipeline):
 
     def _materials(self) -> tuple[MaterialGrids, tuple, tuple, tuple]:
         """S1 + S2 (cached; :func:`.material_stages.voxelized_materials`)."""
-        return voxelized_materials(self.cache, self.scene, self.params, self._geometry_version)
+        return voxelized_materials(self.cache, self.world, self.params, self._geometry_version)
 
     def render(self, progress=None) -> mi.TensorXf:
         """Run (or reuse) every stage and return the image (height, width, 3), linear radiance.
@@ -282,7 +298,7 @@ class VolumePipeline(StagedPipeline):
         ``progress``, if given, is called with the name of each stage (one of :data:`STAGES`) as
         it starts; cached stages are skipped silently.
         """
-        check_once(self, self.params, self.scene.sensor.film().crop_size(), self.check_memory)
+        check_once(self, self.params, self.size, self.check_memory)
         self.cache.new_frame(progress)
         try:
             return self._render()
@@ -290,7 +306,7 @@ class VolumePipeline(StagedPipeline):
             self.cache.progress = None
 
     def _render(self) -> mi.TensorXf:
-        s, p = self.scene, self.params
+        s, p = self.world, self.params
         paper = p.fidelity == "paper"
 
         mats, ior_key, kappa_key, sigma_key = self._materials()
@@ -373,7 +389,7 @@ class VolumePipeline(StagedPipeline):
 
     def _uniform(self, march_grids, octree_key, kappa_key, scatter=None, scatter_key=None):
         """S5–S8: uniform photons on the photon plane, marched and smoothed."""
-        s, p = self.scene, self.params
+        s, p = self.world, self.params
         light_key = (
             cache_key(s.lights),
             cache_key(s.box),
@@ -423,7 +439,7 @@ class VolumePipeline(StagedPipeline):
     def _adaptive(self, march_grids, octree_key, kappa_key, scatter=None, scatter_key=None):
         """A1–A7 (Pfeuti §3.2): pilot photons → photon-plane pdf per light → importance photons
         marched with their weights → mipmaps → level-selecting filter."""
-        s, p = self.scene, self.params
+        s, p = self.world, self.params
         box, lights = s.box, s.lights
         pilot_key = (cache_key(lights), cache_key(box), p.pilot_photons, p.seed, p.fidelity)
         pilots = self.cache.stage(
@@ -508,7 +524,7 @@ class VolumePipeline(StagedPipeline):
         (:attr:`VolumeScene.phase_k`: isotropic 0, Henyey–Greenstein g → 1.55 g − 0.55 g³)."""
         if self.params.phase_k is not None:
             return self.params.phase_k
-        k = self.scene.phase_k
+        k = self.world.phase_k
         if k is None:
             raise SceneError(
                 "the fog's phase function is neither isotropic nor Henyey–Greenstein ('hg'), "
@@ -522,7 +538,7 @@ class VolumePipeline(StagedPipeline):
         return ADAPTIVE_STAGES if self.params.emission == "adaptive" else STAGES
 
     def _iso_ior(self, mats: MaterialGrids) -> float | None:
-        p, s = self.params, self.scene
+        p, s = self.params, self.world
         if p.iso_reflect <= 0 or s.environment is None:
             return None
         if p.iso_ior > 0:
