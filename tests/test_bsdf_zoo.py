@@ -44,7 +44,7 @@ BSDFS = {
 SIZE = 24
 SETS = {
     "surface": {"photons": 20000, "caustic_photons": 50000, "fg_rays": 4, "spp": 4},
-    "sppm": {"iterations": 8, "photons_per_iteration": 10000},
+    "sppm": {"iterations": 8, "photons": 10000},
     "screen": {},
     "volume": {},
 }

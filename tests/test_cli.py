@@ -207,7 +207,7 @@ def test_the_method_is_picked_from_the_scene_and_named(tmp_path):
     built-in with the method it is made for."""
     for name in ("cornell_box.xml", "fog_box.xml"):
         result = run("render", f"{S}/{name}", "-o", tmp_path / "a.exr", "--width", 16,
-                     "--set", "iterations=2", "--set", "photons_per_iteration=2000")  # fmt: skip
+                     "--set", "iterations=2", "--set", "photons=2000")  # fmt: skip
         assert result.exit_code == 0, result.output
         assert "method: sppm (renders everything in a Mitsuba file" in result.output
 

@@ -32,7 +32,7 @@ def _rel_rmse(image, ref) -> float:
 
 RUNS = {
     "surface": dict(photons=50_000, caustic_photons=0, fg_rays=8, spp=16),
-    "sppm": dict(iterations=32, photons_per_iteration=20_000),
+    "sppm": dict(iterations=32, photons=20_000),
     "screen": dict(),
 }
 

@@ -32,7 +32,7 @@ CASES = {  # command lines of a fraction of a second to a second (after the firs
                 "--set", "photons=20000", "--set", "caustic_photons=0", "--set", "fg_rays=4"],
     "screen": ["render", "cornell_ispm", *SIZE],
     "sppm": ["render", "examples/cornell_box.xml", "--method", "sppm", *SIZE, "--time", "1",
-             "--preview-every", "0.3", "--set", "photons_per_iteration=20000"],
+             "--preview-every", "0.3", "--set", "photons=20000"],
     "reference": ["reference", "examples/cornell_box.xml", *SIZE, "--spp", "4096", "--time", "1"],
 }  # fmt: skip
 RUNS = 30
@@ -129,7 +129,7 @@ def test_sigint_to_the_process(tmp_path, delay):
     """The process: during the package import (the first delays) and during the iterations.
     Exit status 130 at the process level, one line, the image of whole iterations or none."""
     out = tmp_path / "y.exr"
-    args = [*CASES["sppm"][:-6], "--time", "30", "--set", "photons_per_iteration=20000"]
+    args = [*CASES["sppm"][:-6], "--time", "30", "--set", "photons=20000"]
     code, output = run_process([*args, "-o", str(out)], delay)
     assert code == 130, output
     assert check_outcome("sppm process", code, output, out)
@@ -181,7 +181,7 @@ def test_sigint_twice(tmp_path):
     stops the process at once (it arrived while Python ran) or was folded into the first (both
     arrived during one Dr.Jit kernel: Python runs a handler once per burst)."""
     out = tmp_path / "y.exr"
-    args = [*CASES["sppm"][:-6], "--time", "30", "--set", "photons_per_iteration=500000",
+    args = [*CASES["sppm"][:-6], "--time", "30", "--set", "photons=500000",
             "-o", str(out)]  # fmt: skip
     env = {**os.environ, "PYTHONPATH": os.path.join(ROOT, "src")}
     proc = subprocess.Popen([sys.executable, "-m", "photonmap", *args], cwd=ROOT, env=env,

@@ -32,14 +32,14 @@ def render(*args):
     [
         ([BOX, "--method", "surface", "--set", "photons=1e12"],
          "these surface settings need about"),
-        ([BOX, "--method", "sppm", "--set", "photons_per_iteration=1e12"],
+        ([BOX, "--method", "sppm", "--set", "photons=1e12"],
          "these sppm settings need about"),
-        ([BOX, "--method", "screen", "--set", "light_res=1000000"],
+        ([BOX, "--method", "screen", "--set", "photons=1000000000000"],
          "these screen settings need about"),
         (["glass_sphere_fog", "--set", "photons=2147483648"], "or fewer photons"),
         ([BOX, "--method", "surface", "--set", "photons=2000000", "--max-memory", "256M"],
          "but only 256.0 MB is available: lower photons"),
-        ([BOX, "--method", "screen", "--set", "light_res=70000", "--set", "bounces=1",
+        ([BOX, "--method", "screen", "--set", "photons=4900000000", "--set", "bounces=1",
           "--max-memory", "1P"], "more than Dr.Jit's limit of 2³² per array"),
     ],
 )
@@ -83,10 +83,10 @@ def test_python_api_refuses_before_allocating(method):
     Pipeline = METHODS[method].pipeline
     scene = "glass_sphere_fog" if method == "volume" else BOX
     small = {"volume": {"grid": 16, "photons": 1024}, "surface": {"photons": 1000},
-             "sppm": {"photons_per_iteration": 1000}, "screen": {"light_res": 16}}[method]
+             "sppm": {"photons": 1000}, "screen": {"photons": 16**2}}[method]
     pipe = Pipeline(scene, **small)
     huge = {"volume": {"photons": 2**31 - 1}, "surface": {"photons": 10**12},
-            "sppm": {"photons_per_iteration": 10**12}, "screen": {"light_res": 10**6}}[method]
+            "sppm": {"photons": 10**12}, "screen": {"photons": 10**12}}[method]
     with pytest.raises(ParameterError, match="needs? about"):
         pipe.set_params(**huge)
     assert pipe.params == METHODS[method].pipeline(scene, **small).params  # unchanged
@@ -104,7 +104,7 @@ def test_python_api_refuses_before_allocating(method):
 def test_a_frame_is_checked_once_not_against_what_it_holds():
     """The memory a pipeline keeps between frames is not counted against it again: an unchanged
     frame renders under any limit; a new size is checked again."""
-    pipe = ScreenPipeline("cornell_ispm", light_res=16, width=32, height=24)
+    pipe = ScreenPipeline("cornell_ispm", photons=16**2, width=32, height=24)
     pipe.render()
     try:
         set_memory_limit(1)

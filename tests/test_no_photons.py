@@ -32,7 +32,7 @@ def test_a_light_shining_past_the_scene_renders_black():
         },
     }
     pipelines = [
-        SPPMPipeline(scene, iterations=2, photons_per_iteration=500, mode=mode)
+        SPPMPipeline(scene, iterations=2, photons=500, mode=mode)
         for mode in ("sppm", "memoryless")
     ]
     pipelines += [

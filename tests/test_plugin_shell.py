@@ -11,7 +11,7 @@ from photonmap.scenes import SCENES
 SMALL = {
     "volume_photon": {"grid": 24, "photons": 4096},
     "photon_mapper": {"photons": 4000, "caustic_photons": 4000, "fg_rays": 2, "emitter_spp": 1},
-    "ispm": {"light_res": 16, "subsample": 2},
+    "ispm": {"photons": 16**2, "subsample": 2},
 }
 
 

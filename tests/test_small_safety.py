@@ -32,7 +32,7 @@ def test_an_infinite_time_budget_is_refused(tmp_path, args):
 
 
 def test_run_refuses_an_infinite_budget():
-    pipe = SPPMPipeline("examples/cornell_box.xml", photons_per_iteration=1000)
+    pipe = SPPMPipeline("examples/cornell_box.xml", photons=1000)
     with pytest.raises(ParameterError, match="seconds must be finite"):
         pipe.run(seconds=float("inf"))
 

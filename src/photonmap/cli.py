@@ -161,10 +161,11 @@ def _typed_params(method: str, sets: dict[str, str], builtin) -> dict:
     its scene parameters); unknown keys list the valid ones."""
     from . import METHODS
     from .core.errors import ParameterError
-    from .core.params import field_types, parse_field, parse_value
+    from .core.params import field_types, parameter_names, parse_field, parse_value
 
     params_type = METHODS[method].params
     kinds = field_types(params_type)
+    names = parameter_names(params_type)
     scene_kinds = {}
     if builtin is not None:
         scene_kinds = {
@@ -174,7 +175,7 @@ def _typed_params(method: str, sets: dict[str, str], builtin) -> dict:
         }
     out = {}
     for key, text in sets.items():
-        if key in kinds:
+        if key in names:
             out[key] = parse_field(params_type, key, text)
         elif key in scene_kinds:
             out[key] = parse_value(key, text, scene_kinds[key])

@@ -202,8 +202,8 @@ def test_blocks_cover_the_iterations_in_order_and_stop_at_the_deadline():
 
 
 def test_progressive_jobs_are_memoryless_sppm():
-    job = SceneJob("cornell_steinhurst", "sppm", {"photons_per_iteration": 10})
-    assert check_job(job).params == {"photons_per_iteration": 10, "mode": "memoryless"}
+    job = SceneJob("cornell_steinhurst", "sppm", {"photons": 10})
+    assert check_job(job).params == {"photons": 10, "mode": "memoryless"}
     with pytest.raises(ParameterError, match="mode=memoryless"):
         check_job(SceneJob("cornell_steinhurst", "sppm", {"mode": "sppm"}))
     with pytest.raises(ParameterError, match="render-sequence"):

@@ -27,7 +27,7 @@ from photonmap.core.image import read_image
 ITERATIONS, BLOCK = 6, 2
 SPPM = SceneJob(
     "cornell_steinhurst", "sppm",
-    {"photons_per_iteration": 8000, "seed": 5, "mode": "memoryless"}, width=48, height=36,
+    {"photons": 8000, "seed": 5, "mode": "memoryless"}, width=48, height=36,
 )  # fmt: skip
 VOLUME = SceneJob("glass_sphere_fog", "volume", {"grid": 32, "photons": 4096}, width=48, height=36)
 LIGHT_PATH = {"frames": 4, "light": [{"position": [0.3, 3.0, 0.5]}, {"position": [0.7, 2.0, 0.5]}]}
@@ -54,7 +54,7 @@ def test_merged_blocks_equal_single_process(address, single, tmp_path):
     p = SPPM.params
     result = CliRunner().invoke(app, [
         "render", SPPM.scene, "--method", "sppm", "--seed", str(p["seed"]),
-        "--set", f"photons_per_iteration={p['photons_per_iteration']}",
+        "--set", f"photons={p['photons']}",
         "--set", f"iterations={ITERATIONS}", "--width", str(SPPM.width),
         "--height", str(SPPM.height), "--ray", address, "-o", str(out),
     ])  # fmt: skip
@@ -147,7 +147,7 @@ def test_sequence_survives_a_worker_that_dies(address, light_path):
 def test_a_worker_error_reaches_the_driver_as_itself(address):
     """Bad input on a worker (here a scene file the node lacks) is raised as the worker's own
     PhotonmapError, not retried and not reported as a dead worker."""
-    job = SceneJob("no/such/scene.xml", "sppm", {"photons_per_iteration": 100})
+    job = SceneJob("no/such/scene.xml", "sppm", {"photons": 100})
     with pytest.raises(SceneError, match="neither a built-in nor a file on this node"):
         render_progressive(job, 2, workers=1, address=address)
 
@@ -200,7 +200,7 @@ def test_ctrl_c_on_distributed_sppm_writes_the_merged_blocks(address, tmp_path, 
     out = tmp_path / "box.exr"
     p = SPPM.params
     args = ["render", SPPM.scene, "--method", "sppm", "--seed", str(p["seed"]),
-            "--set", f"photons_per_iteration={p['photons_per_iteration']}",
+            "--set", f"photons={p['photons']}",
             "--set", "iterations=400", "--width", str(SPPM.width), "--height", str(SPPM.height),
             "--preview-every", "0.01", "--ray", address, "-o", str(out)]  # fmt: skip
     thread = _sigint_when(out.exists)  # after the first preview: some blocks merged

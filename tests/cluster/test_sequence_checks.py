@@ -52,8 +52,8 @@ def test_every_frame_is_checked_before_any_work(tmp_path, spec, message):
 
 def test_a_sppm_frame_beyond_memory_names_its_frame(tmp_path):
     spec = {"method": "sppm", "width": 32, "height": 24,
-            "frames": [{"set": {"photons_per_iteration": 1000, "iterations": 1}},
-                       {"set": {"photons_per_iteration": 10**12, "iterations": 1}}]}  # fmt: skip
+            "frames": [{"set": {"photons": 1000, "iterations": 1}},
+                       {"set": {"photons": 10**12, "iterations": 1}}]}  # fmt: skip
     path = tmp_path / "spec.json"
     path.write_text(json.dumps(spec))
     result = CliRunner().invoke(app, ["render-sequence", "examples/cornell_box.xml", "--frames",

@@ -17,7 +17,7 @@ def run(*args):
 
 def test_render_cornell_ispm_with_screen_keys(tmp_path):
     exr = tmp_path / "x.exr"
-    keys = ["bounces=1", "light_res=20", "radius=0.05", "splat=icosahedron", "subsample=2",
+    keys = ["bounces=1", "photons=400", "radius=0.05", "splat=icosahedron", "subsample=2",
             "shadows=hard", "isg_samples=4+7", "light_size=0.01"]  # fmt: skip
     sets = [a for k in keys for a in ("--set", k)]
     result = run(
@@ -25,7 +25,7 @@ def test_render_cornell_ispm_with_screen_keys(tmp_path):
     )
     assert result.exit_code == 0, result.output
     image = np.array(mi.Bitmap(str(exr)))[..., :3]
-    ref = ScreenPipeline("cornell_ispm", width=40, height=30, bounces=1, light_res=20,
+    ref = ScreenPipeline("cornell_ispm", width=40, height=30, bounces=1, photons=400,
                          radius=0.05, splat="icosahedron", subsample=2, shadows="hard",
                          isg_samples="4+7", light_size=0.01).render()  # fmt: skip
     assert np.allclose(image, np.array(ref), atol=1e-6)
@@ -35,8 +35,8 @@ def test_render_cornell_ispm_with_screen_keys(tmp_path):
 
 
 def test_scene_default_method_is_screen_and_bad_keys_exit_2(tmp_path):
-    result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "radius=0")
-    assert result.exit_code == 2 and "radius must be > 0, got 0.0" in result.output
+    result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "radius=-1")
+    assert result.exit_code == 2 and "radius must be >= 0, got -1.0" in result.output
     result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "splat=disc")
     assert result.exit_code == 2 and "splat must be one of quad, icosahedron" in result.output
     result = run("render", "cornell_ispm", "-o", tmp_path / "x.png", "--set", "subsample=1.5")
@@ -48,7 +48,7 @@ def test_spp_does_not_apply_to_the_screen_method(tmp_path):
     """The screen pipeline casts one primary ray per pixel centre: --spp 1 is accepted, any other
     count exits 2 with a clear error, and spp is no screen --set key."""
     out = tmp_path / "x.png"
-    small = ["--width", 16, "--height", 12, "--set", "light_res=8"]
+    small = ["--width", 16, "--height", 12, "--set", "photons=64"]
     result = run("render", "cornell_ispm", "-o", out, "--spp", 4, *small)
     assert result.exit_code == 2 and "--spp does not apply to the screen method" in result.output
     assert not out.exists()

@@ -22,6 +22,7 @@ import numpy as np
 
 from photonmap import ScreenPipeline
 from photonmap.scenes import SCENES
+from photonmap.screen.pipeline import visible_diagonal
 
 W, H = 64, 48
 SEQUENCE = ((50, 0.06), (150, 0.035), (400, 0.02))
@@ -49,9 +50,10 @@ def test_converges_toward_path():
     path = mi.load_dict({"type": "path", "max_depth": 4})
     ref = np.array(mi.render(scene, integrator=path, spp=512, seed=1))
     errors, ratios = [], []
-    for light_res, radius in SEQUENCE:
+    for side, fraction in SEQUENCE:  # light G-buffer side, splat radius / scene diagonal
+        radius = fraction * visible_diagonal(scene)
         pipe = ScreenPipeline(
-            scene, bounces=2, light_res=light_res, radius=radius, subsample=1, shadows="hard"
+            scene, bounces=2, photons=side**2, radius=radius, subsample=1, shadows="hard"
         )
         image = np.array(pipe.render())
         mask = interior(pipe)

@@ -12,7 +12,7 @@ import pytest
 from photonmap import PhotonmapWarning, SceneError, ScreenPipeline
 
 W = H = 32
-FAST = {"light_res": 48, "subsample": 2}
+FAST = {"photons": 48**2, "subsample": 2}
 
 
 def _cornell(width=W, height=H, **extra):

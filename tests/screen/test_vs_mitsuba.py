@@ -29,6 +29,7 @@ import numpy as np
 import pytest
 
 from photonmap import ScreenPipeline
+from photonmap.screen.pipeline import visible_diagonal
 
 # the plain Mitsuba files of ../shared/tools/scenes, beside the repository (CI has them there)
 GLASS_SCENE = str(Path(__file__).resolve().parents[3] / "shared/tools/scenes/glass_sphere_plane.xml")
@@ -37,7 +38,7 @@ CASES = {
     # scene: (screen parameters, reference spp, block RMSE bound (≈ 1.6 × measured))
     "cornell_box": ({}, 512, 0.12),
     "cornell_mesh_light": ({}, 512, 0.2),
-    "glass_sphere_plane": ({"light_res": 200, "radius": 0.015, "subsample": 1}, 2048, 0.24),
+    "glass_sphere_plane": ({"photons": 200**2, "radius": 0.015, "subsample": 1}, 2048, 0.24),
 }
 
 
@@ -72,6 +73,8 @@ def _scene(name: str) -> mi.Scene:
 def case(request):
     scene = _scene(request.param)
     params, spp, bound = CASES[request.param]
+    if "radius" in params:  # given as a fraction of the scene's diagonal
+        params = {**params, "radius": params["radius"] * visible_diagonal(scene)}
     path = mi.load_dict({"type": "path", "max_depth": 4})
     ref = np.array(mi.render(scene, integrator=path, spp=spp, seed=1))
     return request.param, scene, params, ref, bound

@@ -15,7 +15,7 @@ SCENE = str(pathlib.Path(__file__).resolve().parents[2] / "examples/glass_sphere
 
 @pytest.fixture(scope="module")
 def pipe():
-    p = SPPMPipeline(SCENE, photons_per_iteration=20_000, mode="memoryless", seed=3)
+    p = SPPMPipeline(SCENE, photons=20_000, mode="memoryless", seed=3)
     p.set_camera(width=40, height=30)
     return p
 
@@ -42,7 +42,7 @@ def test_iterations_differ_and_depend_on_seed(pipe):
     a, b = pipe.render_block(1, 1).total, pipe.render_block(2, 1).total
     assert not np.array_equal(a, b)  # new random numbers (and radius) per iteration
     assert np.array_equal(a, pipe.render_block(1, 1).total)
-    other = SPPMPipeline(SCENE, photons_per_iteration=20_000, mode="memoryless", seed=4)
+    other = SPPMPipeline(SCENE, photons=20_000, mode="memoryless", seed=4)
     other.set_camera(width=40, height=30)
     assert not np.array_equal(a, other.render_block(1, 1).total)
 
@@ -54,7 +54,7 @@ def test_block_errors(pipe):
         pipe.render_block(1, 0)
     with pytest.raises(ParameterError, match="different image sizes"):
         BlockSums(np.zeros((2, 2, 3)), 1).merge(BlockSums(np.zeros((3, 2, 3)), 1))
-    sppm = SPPMPipeline(SCENE, photons_per_iteration=1000)
+    sppm = SPPMPipeline(SCENE, photons=1000)
     with pytest.raises(ParameterError, match="mode='memoryless'"):
         sppm.render_block(1, 1)
 

@@ -24,7 +24,7 @@ FLOOR = {  # a diffuse floor inside the fog, lit by the spot through it
     "to_world": T().translate([0, -0.9, 0]).rotate([1, 0, 0], -90).scale([1.4, 0.9, 1]),
     "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.6}},
 }
-PARAMS = {"photons_per_iteration": 5_000, "iterations": 32, "max_depth": 32}
+PARAMS = {"photons": 5_000, "iterations": 32, "max_depth": 32}
 
 
 def scene(kind: str) -> mi.Scene:
@@ -87,7 +87,7 @@ def test_sppm_in_fog_agrees_with_the_surface_method():
 def test_media_blocks_are_deterministic_and_merge():
     """``render_block`` in fog: an iteration depends on ``(seed, i)`` alone (the volume map,
     the march and its radius ρ_i included)."""
-    pipe = SPPMPipeline(scene("floor"), mode="memoryless", photons_per_iteration=5_000, seed=2)
+    pipe = SPPMPipeline(scene("floor"), mode="memoryless", photons=5_000, seed=2)
     pipe.set_camera(width=24, height=18)
     whole = pipe.render_block(1, 2)
     parts = pipe.render_block(2, 1).merge(pipe.render_block(1, 1))

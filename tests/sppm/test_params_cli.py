@@ -14,15 +14,15 @@ from photonmap.core.image import read_image
 from photonmap.sppm import SPPMParams, SPPMPipeline
 
 EXAMPLE = str(pathlib.Path(__file__).resolve().parents[2] / "examples/glass_sphere_plane.xml")
-SMALL = {"photons_per_iteration": 5_000, "seed": 2}
+SMALL = {"photons": 5_000, "seed": 2}
 
 
 @pytest.mark.parametrize(
     ("params", "message"),
     [
         ({"iterations": 0}, "iterations must be >= 1"),
-        ({"photons_per_iteration": 0}, "photons_per_iteration must be >= 1"),
-        ({"photons_per_iteration": -5}, "photons_per_iteration must be >= 1"),
+        ({"photons": 0}, "photons must be >= 1"),
+        ({"photons": -5}, "photons must be >= 1"),
         ({"alpha": 0.0}, r"alpha must lie in \(0, 1\)"),
         ({"alpha": 1.0}, r"alpha must lie in \(0, 1\)"),
         ({"alpha": 1.5}, r"alpha must lie in \(0, 1\)"),
@@ -89,24 +89,24 @@ def test_step_run_and_render():
 
 def test_plugin_renders_like_the_pipeline():
     scene = mi.load_file(EXAMPLE)
-    props = {"type": "sppm", "iterations": 2, "photons_per_iteration": 5000, "seed": 2}
+    props = {"type": "sppm", "iterations": 2, "photons": 5000, "seed": 2}
     image = np.array(mi.render(scene, integrator=mi.load_dict(props), seed=2))
     direct = SPPMPipeline(scene, iterations=2, **SMALL).render()
     np.testing.assert_array_equal(image, np.array(direct))
     with pytest.raises(RuntimeError, match="sppm: unknown parameter"):
-        mi.load_dict({"type": "sppm", "photons": 3})
+        mi.load_dict({"type": "sppm", "photon_count": 3})
 
 
 def test_cli(tmp_path):
     out = tmp_path / "sppm.exr"
     runner = CliRunner()
     args = ["render", EXAMPLE, "-o", str(out), "--method", "sppm", "--width", "32"]
-    sets = ["--set", "iterations=3", "--set", "photons_per_iteration=4000"]
+    sets = ["--set", "iterations=3", "--set", "photons=4000"]
     result = runner.invoke(app, [*args, *sets, "--preview-every", "0.01"])
     assert result.exit_code == 0, result.output
     assert "sppm: 3 iterations" in result.output
     assert read_image(str(out)).shape == (24, 32, 3)
-    result = runner.invoke(app, [*args, "--time", "0.5", "--set", "photons_per_iteration=4000"])
+    result = runner.invoke(app, [*args, "--time", "0.5", "--set", "photons=4000"])
     assert result.exit_code == 0, result.output
     for extra, message in (
         (["--time", "0"], "--time must be a finite number of seconds > 0"),
@@ -115,5 +115,9 @@ def test_cli(tmp_path):
     ):
         result = runner.invoke(app, [*args, *extra])
         assert result.exit_code == 2 and message in result.output, result.output
-    result = runner.invoke(app, ["render", EXAMPLE, "-o", str(out), "--time", "3"])
-    assert result.exit_code == 2 and "--method sppm only" in result.output
+    result = runner.invoke(app, ["render", EXAMPLE, "-o", str(out), "--time", "3",
+                                 "--method", "surface"])  # fmt: skip
+    assert result.exit_code == 2 and "applies to a progressive method" in result.output
+    result = runner.invoke(app, ["render", EXAMPLE, "-o", str(out), "--width", "32", "--time",
+                                 "0.5", "--set", "photons=4000"])  # a file's method: sppm
+    assert result.exit_code == 0 and "sppm:" in result.output, result.output

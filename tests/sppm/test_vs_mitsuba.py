@@ -38,7 +38,7 @@ def caustic():
 @pytest.mark.parametrize(("mode", "radius"), [("sppm", 0.25), ("memoryless", 0.0), ("sppm", 0.0)])
 def test_error_falls_with_iterations(caustic, mode, radius):
     scene, ref = caustic
-    pipe = SPPMPipeline(scene, photons_per_iteration=20_000, mode=mode, seed=0, radius=radius)
+    pipe = SPPMPipeline(scene, photons=20_000, mode=mode, seed=0, radius=radius)
     early = compare(np.array(pipe.run(iterations=4)), ref)
     late = compare(np.array(pipe.run(iterations=12)), ref)  # 16 in all
     assert pipe.iterations == 16
@@ -72,7 +72,7 @@ def furnace(rho: float) -> mi.Scene:
 def test_furnace(mode):
     """Measured: mean / expected 0.994-1.003 (ρ = 0.7, seeds 0-2, both modes)."""
     rho = 0.7
-    pipe = SPPMPipeline(furnace(rho), photons_per_iteration=20_000, max_depth=64, mode=mode)
+    pipe = SPPMPipeline(furnace(rho), photons=20_000, max_depth=64, mode=mode)
     image = np.array(pipe.run(iterations=8))
     expected = rho / math.pi / (1 - rho)
     assert abs(image.mean() / expected - 1) < 0.01, image.mean() / expected
@@ -88,7 +88,7 @@ def test_cornell_box_against_path():
     scene = mi.load_dict(d)
     path = mi.load_dict({"type": "path", "max_depth": 16})
     ref = np.array(mi.render(scene, integrator=path, spp=512, seed=0))
-    pipe = SPPMPipeline(scene, photons_per_iteration=20_000, max_depth=16)
+    pipe = SPPMPipeline(scene, photons=20_000, max_depth=16)
     image = np.array(pipe.run(iterations=16))
     lit = ref.max(axis=2) < 1  # not the light itself
     assert abs(image[lit].mean() / ref[lit].mean() - 1) < 0.02

@@ -130,9 +130,9 @@ def test_same_seed_same_image_and_structures_agree():
     assert np.array_equal(a, d)  # the same photons found either way
 
 
-@pytest.mark.parametrize("change", [{"k": 50}, {"lookup": "knn"}, {"max_radius": 0.3}])
+@pytest.mark.parametrize("change", [{"k": 50}, {"lookup": "knn"}, {"radius": 0.3}])
 def test_lookup_changes_keep_the_photon_maps(change):
-    """k, lookup, irradiance_every and max_radius only change the derived lookup data: the photons
+    """k, lookup, irradiance_every and radius only change the derived lookup data: the photons
     are not traced again, and the image is a fresh pipeline's with the same parameters."""
     kw = dict(photons=5000, caustic_photons=5000, fg_rays=2, width=16, height=16)
     pipe = SurfacePipeline("cornell_steinhurst", **kw)
@@ -171,8 +171,8 @@ def test_lookup_modes_agree_with_the_default_on_average(lookup):
         ({"k": 2.5}, "k must be an integer, got 2.5"),
         ({"fg_rays": True}, "fg_rays must be an integer, got True"),
         ({"caustic_photons": -1}, "caustic_photons must be >= 0"),
-        ({"max_radius": -1.0}, "max_radius must be >= 0"),
-        ({"max_radius": float("nan")}, "max_radius must be a finite number"),
+        ({"radius": -1.0}, "radius must be >= 0"),
+        ({"radius": float("nan")}, "radius must be a finite number"),
         ({"seed": -1}, r"seed must lie in \[0, 4294967295\]"),
         ({"seed": 2**32}, "seed must lie in"),
         ({"structure": "octree"}, "structure must be one of hash, kdtree, got 'octree'"),

@@ -47,13 +47,13 @@ def set_eta(pipe, name, eta):
 
 
 def test_screen_light_material_camera():
-    a = ScreenAdapter("screen", "cornell_glass_sphere", {"light_res": 16, "subsample": 2}, SMALL)
+    a = ScreenAdapter("screen", "cornell_glass_sphere", {"photons": 16**2, "subsample": 2}, SMALL)
     assert a.state["materials"] == {"glass_sphere": {"ior": 1.5}}
     assert a.state["lights"][0]["kind"] == "spot" and len(a.state["lights"]) == 1
     a.render(SMALL)
     moved = change(a, {"lights": [{"position": [0.2, 0.5, 0.3], "intensity": 1.0}]})
     assert "eye G-buffer" not in a.recomputed and "light G-buffer" in a.recomputed
-    ref = ScreenPipeline("cornell_glass_sphere", light_res=16, subsample=2)
+    ref = ScreenPipeline("cornell_glass_sphere", photons=16**2, subsample=2)
     ref.set_camera(width=SMALL[0], height=SMALL[1])
     color = np.asarray(a.state["lights"][0]["color"])
     ref.set_light(position=[0.2, 0.5, 0.3], intensity=color * 1.0)
@@ -67,8 +67,8 @@ def test_screen_light_material_camera():
     np.testing.assert_array_equal(dragged, np.asarray(ref.render()))
     change(a, {"camera": {"origin": [0.3, 0.3, -0.7]}})
     assert "light G-buffer" not in a.recomputed and "photon tracing" not in a.recomputed
-    with pytest.raises(ParameterError, match="light_res"):
-        a.check(a.state, {"params": {"light_res": 0}})
+    with pytest.raises(ParameterError, match="photons must be >= 1"):
+        a.check(a.state, {"params": {"photons": 0}})
 
 
 def test_surface_light_material_camera():
@@ -136,7 +136,7 @@ def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
     monkeypatch.setitem(methods.ADAPTERS, "stepped",
                         adapters.progressive(ScreenAdapter, ("bounces",)))  # fmt: skip
     monkeypatch.setattr(adapters, "MAX_PASSES", 2)
-    viewer = Viewer("cornell_ispm", "stepped", {"light_res": 16, "subsample": 2}, SMALL)
+    viewer = Viewer("cornell_ispm", "stepped", {"photons": 16**2, "subsample": 2}, SMALL)
     try:
         assert viewer.state()["params"] == {"bounces": 0}  # 0: the file's max_depth − 2
         worker, pipe = viewer.worker, viewer.adapter.pipe
@@ -147,7 +147,7 @@ def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
         assert worker.frame.passes == 3 and pipe.iterations == 3  # then no more (MAX_PASSES)
         renders = []
         for seed in range(3):
-            ref = ScreenPipeline("cornell_ispm", light_res=16, subsample=2, seed=seed)
+            ref = ScreenPipeline("cornell_ispm", photons=16**2, subsample=2, seed=seed)
             ref.set_camera(width=SMALL[0], height=SMALL[1])
             renders.append(np.asarray(ref.render()))
         np.testing.assert_allclose(np.asarray(pipe.image()), np.mean(renders, axis=0), rtol=1e-5,

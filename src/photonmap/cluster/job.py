@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 from ..core import interrupt
 from ..core.errors import ParameterError, PhotonmapError, SceneError
+from ..core.params import parameter_names
 from .frames import Frame, FrameSpecError
 
 
@@ -70,7 +71,7 @@ def split_set(job: SceneJob, values: dict) -> tuple[dict, dict]:
     from .. import METHODS
     from ..scenes import SCENES
 
-    fields = {f.name for f in dataclasses.fields(METHODS[job.method].params)}
+    fields = parameter_names(METHODS[job.method].params)
     if job.scene in SCENES:
         scene_keys = set(SCENES[job.scene].params) - {"width", "height"}
     else:

@@ -39,3 +39,8 @@ class BackendError(PhotonmapError):
 class PhotonmapWarning(UserWarning):
     """Something in the scene that the chosen method does not model (a medium in the surface or
     screen method, ...): the image is rendered without it, and this says so."""
+
+
+class DeprecatedParameter(PhotonmapWarning, FutureWarning):
+    """A parameter given by its old name (or unit), which keeps working for one release: the
+    warning names the current one."""

@@ -8,19 +8,69 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
+from collections.abc import Callable
 
 import mitsuba as mi
 import numpy as np
 
-from .errors import ParameterError
+from .errors import DeprecatedParameter, ParameterError
 
 # properties every Mitsuba integrator may receive; the pipelines ignore them
 MITSUBA_BASE = {"samples_per_pass", "hide_emitters", "timeout", "max_depth", "rr_depth"}
 
 
+@dataclasses.dataclass(frozen=True)
+class Renamed:
+    """An old parameter name that keeps working for one release (a ``*Params`` class lists them
+    in its ``RENAMED`` dict, old name → :class:`Renamed`): ``kind`` is the old value's type,
+    ``convert`` (if given) turns it into the value of the parameter ``new``."""
+
+    new: str
+    kind: type
+    convert: Callable | None = None
+
+
+def renamed(params_type) -> dict[str, Renamed]:
+    """The old names ``params_type`` still accepts."""
+    return getattr(params_type, "RENAMED", {})
+
+
+def parameter_names(params_type) -> set[str]:
+    """Every name ``params_type`` accepts: its fields and their old names."""
+    return {f.name for f in dataclasses.fields(params_type)} | set(renamed(params_type))
+
+
+def current_names(params_type, changes: dict, what: str) -> dict:
+    """``changes`` with old names (:class:`Renamed`) replaced by the current ones and their
+    values converted, each with a :class:`~.errors.DeprecatedParameter` warning."""
+    old = renamed(params_type)
+    out = {}
+    for key, value in changes.items():
+        if key not in old:
+            out[key] = value
+            continue
+        r = old[key]
+        if r.new in changes:
+            raise ParameterError(
+                f"{key} is the old name of {r.new}; give {r.new} only (got both)"
+            )
+        check_type(key, value, r.kind)
+        warnings.warn(
+            f"the {what} parameter {key!r} is now {r.new!r}; {key!r} will be removed in the next "
+            "release (docs/python.md, parameter names)",
+            DeprecatedParameter,
+            stacklevel=3,
+        )
+        out[r.new] = r.convert(value) if r.convert else value
+    return out
+
+
 def updated(params, changes: dict, what: str):
     """``params`` (a dataclass with ``validate()``) with ``changes`` applied and validated;
-    unknown names raise a :class:`ParameterError` listing the valid ones."""
+    old names are translated (:func:`current_names`); unknown names raise a
+    :class:`ParameterError` listing the valid ones."""
+    changes = current_names(type(params), changes, what)
     valid = {f.name for f in dataclasses.fields(params)}
     unknown = sorted(set(changes) - valid)
     if unknown:
@@ -48,7 +98,8 @@ def read_properties(
 ) -> dict:
     """The properties that are fields of ``params_type`` (or of ``extra``: name → type), converted;
     unknown names raise a :class:`ParameterError` listing the valid ones."""
-    fields = {**field_types(params_type), **(extra or {})}
+    old = {name: r.kind for name, r in renamed(params_type).items()}
+    fields = {**field_types(params_type), **old, **(extra or {})}
     names = set(props.keys())
     unknown = sorted(names - set(fields) - set(ignore))
     if unknown:
@@ -155,6 +206,8 @@ def parse_field(params_type, key: str, text: str):
     """A CLI ``KEY=VALUE`` string as field ``key`` of ``params_type`` (a dataclass): through the
     field's own ``metadata["parse"]`` where it has one (e.g. a bounding box), else as its type
     (:func:`parse_value`)."""
+    if key in renamed(params_type):
+        return parse_value(key, text, renamed(params_type)[key].kind)
     field = next(f for f in dataclasses.fields(params_type) if f.name == key)
     if "parse" in field.metadata:
         return field.metadata["parse"](text)

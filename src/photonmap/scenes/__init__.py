@@ -7,7 +7,6 @@ loaded ``mi.Scene``. Built-ins also carry the photonmap pipeline they are made f
 
 from __future__ import annotations
 
-import dataclasses
 import inspect
 import os
 from collections.abc import Callable
@@ -16,6 +15,7 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 
 from ..core.errors import ParameterError, SceneError
+from ..core.params import parameter_names
 from . import bushes, cornell, ispm, volume_scenes
 
 
@@ -116,7 +116,7 @@ def load_with_sensor(scene, params_type, params: dict) -> tuple[mi.Scene, mi.Sen
     """:func:`load_scene` for a pipeline that renders from the scene's first sensor: ``params``
     split into the fields of the dataclass ``params_type`` (returned) and scene parameters
     (passed to :func:`load_scene`); a scene without a sensor is refused."""
-    own = {f.name for f in dataclasses.fields(params_type)}
+    own = parameter_names(params_type)
     mi_scene, _ = load_scene(scene, **{k: v for k, v in params.items() if k not in own})
     if not mi_scene.sensors():
         raise ParameterError("the scene has no sensor (camera) to render from")

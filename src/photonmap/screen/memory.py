@@ -23,7 +23,7 @@ from ..core.photon_trace import CHUNK
 
 TEXEL_BYTES = 900  # per light G-buffer texel: G-buffer entry, random map, path, record slots
 PHOTON_BYTES = 100  # per texel and bounce: photon record and splatting state
-HINT = "lower light_res (light_res² · bounces photons), bounces or the image size"
+HINT = "lower photons (photons · bounces slots), bounces or the image size"
 
 
 def estimate(params, width: int, height: int):

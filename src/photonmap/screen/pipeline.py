@@ -16,9 +16,10 @@ shadows and compositing (``shadows`` to or from ``"sampled"`` also the direct li
 ``recomputed`` lists the stages the last :meth:`render` ran, ``timer`` their milliseconds,
 :meth:`invalidate` forgets stages.
 
-Lengths ``radius`` and ``light_size`` are fractions of the scene's bounding-box diagonal (spec
-A17, A19e; ``null``-BSDF shapes do not count): the thesis's radii 4.5 / 8.5 / 10.5 have no unit,
-and 0.045 × diagonal is the photon-per-kernel regime its Cornell box figure shows.
+The splat ``radius`` is in scene units, as every method's gather radius; its default (0) is
+:data:`RADIUS` × the scene's bounding-box diagonal (``null``-BSDF shapes do not count): the
+thesis's radii 4.5 / 8.5 / 10.5 have no unit, and 0.045 × diagonal is the photon-per-kernel
+regime its Cornell box figure shows. ``light_size`` is a fraction of that diagonal.
 
 **Area lights** (issue 10) are lit by samples on the light (:mod:`.direct`), seen by the eye and
 in mirrors, and their soft shadows have the light's own size (:func:`.light_gbuffer.light_radius`;
@@ -44,6 +45,8 @@ as it is.
 from __future__ import annotations
 
 import dataclasses
+import math
+from typing import ClassVar
 
 import drjit as dr
 import mitsuba as mi
@@ -53,7 +56,7 @@ from ..core.bsdf import is_null
 from ..core.errors import ParameterError, SceneError
 from ..core.film_filter import filter_image
 from ..core.memory import check_once
-from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.params import Renamed, check_choice, check_fields, check_range, updated
 from ..core.pipeline import Pipeline
 from ..core.scene_info import refuse_media, warn_unmodelled
 from ..core.settings import HIDE_CHOICES, UNBOUNDED, PathSettings, overridden
@@ -70,6 +73,7 @@ SPLATS = ("quad", "icosahedron")
 SHADOWS = (*MODES, "sampled")
 """Shadow modes: those of :mod:`.soft_shadow` and ``"sampled"`` (area lights: each light sample's
 own shadow ray, :mod:`.direct`; spot and point lights: the hard shadow)."""
+RADIUS = 0.045  # the automatic splat radius, × the scene diagonal (A17)
 MAX_BOUNCES = 8  # recorded bounces at most (a file's unbounded max_depth gets these)
 STAGES = (
     "eye G-buffer",
@@ -91,12 +95,16 @@ class ScreenParams:
     """Parameters of the screen pipeline (the ``ispm`` plugin and the CLI's ``--set`` keys).
     Defaults: spec §4.2 (thesis values where given, [REC] otherwise)."""
 
+    RENAMED: ClassVar[dict[str, Renamed]] = {
+        "light_res": Renamed("photons", int, lambda side: side * side)
+    }
+
     light: int = 0  # the light: its index among the scene's spot, point and area lights
     bounces: int = 0  # B: recorded indirect bounces per path (Tab 1: 1, 2, 3); 0 = the file's
     max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
     hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
-    light_res: int = 100  # light G-buffer W_L = H_L; photons = light_res² · bounces
-    radius: float = 0.045  # splat radius r, × scene diagonal (A17)
+    photons: int = 100**2  # light paths, one per light G-buffer texel: W_L = H_L = √photons
+    radius: float = 0.0  # splat radius r, scene units; 0 = RADIUS × the scene diagonal (A17)
     splat: str = "quad"  # quad | icosahedron (Tab 2)
     compression: float = 1.0  # icosahedron normal compression c (A18; 1 = Yao's uncompressed)
     subsample: int = 4  # s: indirect light at (W/s)×(H/s) (Tab 1: 8, 4, 2)
@@ -108,6 +116,11 @@ class ScreenParams:
     light_size: float = 0.02
     glossy: str = "yao_average"  # glossy photon bounce: yao_average (A6) | bsdf
     seed: int = 0  # seed of the fixed random map (PRM)
+
+    @property
+    def light_res(self) -> int:
+        """W_L = H_L: the side of the light G-buffer, √photons rounded."""
+        return max(1, round(math.sqrt(self.photons)))
 
     def validate(self) -> None:
         """Types (:func:`~photonmap.core.params.check_fields`: integers, finite numbers, the
@@ -129,12 +142,11 @@ class ScreenParams:
         check_choice("hide_emitters", self.hide_emitters, HIDE_CHOICES,
                      "hide emitters seen directly: the scene's setting, or true/false")  # fmt: skip
         check_range(
-            "light_res", self.light_res, 1, None,
-            "the light G-buffer's side; light_res² · bounces photons are traced (100 → 10k per "
-            "bounce)",
+            "photons", self.photons, 1, None,
+            "light paths, one per texel of the square light G-buffer (√photons rounded per side)",
         )  # fmt: skip
         check_range("subsample", self.subsample, 1, None, "indirect light at 1/subsample (2, 4, 8)")
-        check_range("radius", self.radius, 0, None, "× scene diagonal; default 0.045", lo_open=True)
+        check_range("radius", self.radius, 0, None, "scene units; 0 = automatic")
         check_range("compression", self.compression, 0, 1, "icosahedron normals", lo_open=True)
         check_range("light_size", self.light_size, 0, None, "× scene diagonal; 0 = hard shadows")
         check_choice("splat", self.splat, SPLATS)
@@ -158,9 +170,9 @@ class ScreenParams:
 
 
 def visible_diagonal(scene: mi.Scene) -> float:
-    """The bounding-box diagonal of the shapes the method sees, the unit of ``radius`` and
-    ``light_size`` (A17): ``null``-BSDF shapes (a fog box around the scene) do not count, so that
-    they change nothing in the image."""
+    """The bounding-box diagonal of the shapes the method sees, the scale of the automatic
+    ``radius`` and the unit of ``light_size`` (A17): ``null``-BSDF shapes (a fog box around the
+    scene) do not count, so that they change nothing in the image."""
     boxes = [s.bbox() for s in scene.shapes() if not _null(s)]
     if not boxes:
         return 0.0
@@ -376,6 +388,11 @@ class ScreenPipeline(Pipeline):
         depth = self.settings.max_depth
         return MAX_BOUNCES if depth == UNBOUNDED else min(max(depth - 2, 0), MAX_BOUNCES)
 
+    @property
+    def splat_radius(self) -> float:
+        """The splat radius r in scene units: ``radius``, or :data:`RADIUS` × the diagonal."""
+        return self.params.radius if self.params.radius > 0 else RADIUS * self.diagonal
+
     def shadow_radius(self) -> float:
         """The world-space radius of the soft shadows: an area light's own virtual radius
         (:func:`.light_gbuffer.light_radius`) with ``shadows="soft"``, else ``light_size`` ×
@@ -448,8 +465,8 @@ class ScreenPipeline(Pipeline):
                 zero = dr.zeros(mi.Color3f, points.width * points.height)
                 return zero, zero
             if p.splat == "quad":
-                return splat_quads(points, photons, p.radius * diag, cull)
-            return splat_icosahedra(points, photons, p.radius * diag, p.compression, cull)
+                return splat_quads(points, photons, self.splat_radius, cull)
+            return splat_icosahedra(points, photons, self.splat_radius, p.compression, cull)
 
         L_low, E_low = stage("splatting", splat_key, lambda: splat(photons, low))
         up_key = splat_key

@@ -2,11 +2,11 @@
 
 .. pluginparameters::
 
- * - iterations, photons_per_iteration, radius, alpha, seed, max_depth, rr_depth, mode, aim,
+ * - iterations, photons, radius, alpha, seed, max_depth, rr_depth, mode, aim,
      volume_radius
    - see :class:`photonmap.sppm.pipeline.SPPMParams`
    - ``iterations`` SPPM iterations per ``mi.render`` (each one eye path per pixel and
-     ``photons_per_iteration`` photon paths); ``radius`` 0 = automatic; α = 2/3;
+     ``photons`` photon paths); ``radius`` 0 = automatic; α = 2/3;
      ``mode`` ``sppm`` | ``memoryless``.
 
 .. code-block:: python

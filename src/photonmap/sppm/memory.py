@@ -6,7 +6,7 @@ Memory is one iteration's plus the per-pixel state, whatever the number of itera
 (bytes; rough upper bounds measured on the LLVM backend, peak resident memory of a fresh
 process, one iteration on the Cornell box; :func:`~photonmap.core.photon_memory.path_bytes`):
 
-- the photon pass: ``photons_per_iteration × (PATH_BYTES + CHUNK × SLOT_BYTES + n ×
+- the photon pass: ``photons × (PATH_BYTES + CHUNK × SLOT_BYTES + n ×
   RECORD_BYTES)``, ``n`` the interactions a path may record (``max_depth − 1``; 16 when
   unbounded) — per path its loop state and aiming, the ``CHUNK`` record slots of a chunk (54 B
   each) with their compaction, per record kept its copy in the hash grid; with media the volume
@@ -15,7 +15,7 @@ process, one iteration on the Cornell box; :func:`~photonmap.core.photon_memory.
 - the eye pass, visible points, per-pixel N, R, τ and the gather: ``width × height × eye paths
   per pixel ×`` :data:`~photonmap.core.memory.BYTES_PER_SAMPLE`.
 
-``photons_per_iteration × CHUNK`` record slots must stay under Dr.Jit's 2³² entries.
+``photons × CHUNK`` record slots must stay under Dr.Jit's 2³² entries.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ PATH_BYTES = 200  # per photon path: loop state, aiming
 SLOT_BYTES = 60  # per path and slot of a chunk: a record slot and its compaction
 RECORD_BYTES = 45  # per record kept: the record and the hash grid's keys
 MEDIA_BYTES = 60  # per slot and record with media: the volume slot and record
-HINT = "lower photons_per_iteration (or max_depth, spp) or the image size"
+HINT = "lower photons (or max_depth, spp) or the image size"
 
 
 def estimate(params, width: int, height: int, max_depth: int, eye_spp: int = 1,
@@ -36,13 +36,13 @@ def estimate(params, width: int, height: int, max_depth: int, eye_spp: int = 1,
     ``max_depth`` the effective one, ``eye_spp`` the eye paths per pixel and iteration."""
     slot = SLOT_BYTES + (MEDIA_BYTES if media else 0)
     record = RECORD_BYTES + (MEDIA_BYTES if media else 0)
-    paths = params.photons_per_iteration
+    paths = params.photons
     parts = {
         "photon pass": paths * path_bytes(max_depth, PATH_BYTES, slot, record),
         "eye pass and pixel state": image_bytes("sppm", width, height, eye_spp),
     }
     entries = {
-        "photons_per_iteration × CHUNK record slots": paths * CHUNK,
+        "photons × CHUNK record slots": paths * CHUNK,
         "pixels × eye paths": width * height * eye_spp,
     }
     return parts, entries

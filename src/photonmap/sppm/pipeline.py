@@ -2,7 +2,7 @@
 memoryless variant (Knaus & Zwicker 2011); spec beyond-seeds §1–2.
 
 One iteration ``i`` (1-based) is an eye pass (:mod:`.visible`: ``spp`` visible points per pixel
-and the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons_per_iteration`` paths)
+and the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons`` paths)
 and a gather at the visible points (:mod:`.gather`: a pixel's photon count and flux are the means
 over its visible points, so one iteration with ``spp`` points is one SPPM pass whose estimate
 has less variance). Its random numbers come from ``(seed, i)`` alone,
@@ -41,6 +41,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import ClassVar
 
 import drjit as dr
 import mitsuba as mi
@@ -54,7 +55,7 @@ from ..core.errors import ParameterError, SceneError
 from ..core.eye_trace import Caustics
 from ..core.media import emitter_media
 from ..core.memory import check_once
-from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.params import Renamed, check_choice, check_fields, check_range, updated
 from ..core.pipeline import Pipeline
 from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
@@ -78,8 +79,10 @@ AUTO_SPP = 16  # ... and at most when automatic
 class SPPMParams:
     """Parameters of the SPPM pipeline (the ``sppm`` plugin and ``--set`` keys)."""
 
+    RENAMED: ClassVar[dict[str, Renamed]] = {"photons_per_iteration": Renamed("photons", int)}
+
     iterations: int = 64  # iterations of render() (run() takes its own budget)
-    photons_per_iteration: int = 200_000  # photon paths traced per iteration (M)
+    photons: int = 200_000  # photon paths traced per iteration (M)
     spp: int = 0  # eye paths per pixel and iteration; 0 = automatic (1; in media up to 16)
     radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
     alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
@@ -95,9 +98,7 @@ class SPPMParams:
         """Types (:func:`~photonmap.core.params.check_fields`), then ranges and choices."""
         check_fields(self)
         check_range("iterations", self.iterations, 1, None, "SPPM iterations of render()")
-        check_range(
-            "photons_per_iteration", self.photons_per_iteration, 1, None, "photon paths each"
-        )
+        check_range("photons", self.photons, 1, None, "photon paths traced per iteration")
         check_range("spp", self.spp, 0, MAX_SPP, "eye paths per pixel and iteration; 0 = automatic")
         check_range("radius", self.radius, 0, None, "the initial gather radius; 0 = automatic")
         check_range("alpha", self.alpha, 0, 1, "SPPM's α (2/3 is usual)", True, True)
@@ -140,7 +141,7 @@ def iteration_seeds(seed: int, i: int) -> tuple[int, int]:
 class SPPMPipeline(Pipeline):
     """Progressive photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
 
-    >>> pipe = SPPMPipeline("examples/glass_sphere_plane.xml", photons_per_iteration=100_000)
+    >>> pipe = SPPMPipeline("examples/glass_sphere_plane.xml", photons=100_000)
     >>> pipe.run(seconds=30)            # or: iterations=…, or pipe.step() in a loop
     >>> image = pipe.image()            # mi.TensorXf (height, width, 3)
     """
@@ -189,7 +190,7 @@ class SPPMPipeline(Pipeline):
         w, h = size or self.size
         depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
         spp = p.spp or (  # as eye_spp, for these parameters and this size
-            int(np.clip(round(p.photons_per_iteration / (w * h)), 1, AUTO_SPP))
+            int(np.clip(round(p.photons / (w * h)), 1, AUTO_SPP))
             if self.traits.media else 1
         )
         return memory.check(p, w, h, depth, spp, self.traits.media)
@@ -227,7 +228,7 @@ class SPPMPipeline(Pipeline):
         if not self.traits.media:
             return 1
         w, h = self.size
-        return int(np.clip(round(self.params.photons_per_iteration / (w * h)), 1, AUTO_SPP))
+        return int(np.clip(round(self.params.photons / (w * h)), 1, AUTO_SPP))
 
     # ------------------------------------------------------------------------- radii
     def initial_radius(self) -> float:
@@ -270,7 +271,7 @@ class SPPMPipeline(Pipeline):
         if self.traits.media and not self.delta_lobes:
             return None
         return photon_pass(
-            self.scene, p.photons_per_iteration, iteration_seeds(p.seed, i)[1], self.settings,
+            self.scene, p.photons, iteration_seeds(p.seed, i)[1], self.settings,
             p.aim, self.traits, self.emitter_media, self.emitter_powers,
             caustics_only=self.traits.media,
         )  # fmt: skip
@@ -295,7 +296,7 @@ class SPPMPipeline(Pipeline):
         else:
             got = run("gather", lambda: gather(points, radius, photons, settings))
         if photons is not None:
-            self.stats["photons"] += p.photons_per_iteration
+            self.stats["photons"] += p.photons
             self.stats["photon_records"] += photons.count
             self.stats["aimed_photons"] += photons.aimed
             self.stats["aimed_on_specular"] += photons.caustic_fraction * photons.aimed

@@ -41,6 +41,7 @@ The scene file's ``max_depth``, ``rr_depth`` and ``hide_emitters`` are the defau
 from __future__ import annotations
 
 import dataclasses
+from typing import ClassVar
 
 import drjit as dr
 import mitsuba as mi
@@ -53,7 +54,7 @@ from ..core.errors import SceneError
 from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
 from ..core.memory import check_once
-from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.params import Renamed, check_choice, check_fields, check_range, updated
 from ..core.pipeline import Pipeline
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import SceneTraits, warn_disagreeing_media
@@ -99,10 +100,12 @@ VOLUME_RADIUS = 0.1  # automatic volume gather radius, × scene diagonal
 class SurfaceParams:
     """Parameters of the surface pipeline (the ``photon_mapper`` plugin and ``--set`` keys)."""
 
+    RENAMED: ClassVar[dict[str, Renamed]] = {"max_radius": Renamed("radius", float)}
+
     photons: int = 200_000  # light paths into the global map
     caustic_photons: int = 1_000_000  # light paths for the caustic map (most cost one ray)
     k: int = 100  # photons per gather (Steinhurst Table 7.1)
-    max_radius: float = 0.0  # maximum gather radius; 0 = automatic (spec A12)
+    radius: float = 0.0  # gather radius, scene units: k-NN searches end there; 0 = automatic
     fg_rays: int = 32  # final-gather rays per eye-ray hit (N_FG)
     structure: str = "hash"  # "hash" (hash grid) | "kdtree" (left-balanced, heap order)
     max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
@@ -139,7 +142,7 @@ class SurfaceParams:
             check_range(key, getattr(self, key), 1, None, hint)
         check_range("caustic_photons", self.caustic_photons, 0, None, "0 = no caustic map")
         check_range("emitter_spp", self.emitter_spp, 0, None, "0 = no extra light samples")
-        check_range("max_radius", self.max_radius, 0, None, "0 = automatic")
+        check_range("radius", self.radius, 0, None, "the gather radius, scene units; 0 = automatic")
         check_range("volume_radius", self.volume_radius, 0, None, "0 = automatic")
         check_range("march_step", self.march_step, 0, None, "0 = automatic")
         check_path_params(self)
@@ -207,8 +210,8 @@ class SurfacePipeline(Pipeline):
         """Maximum gather radius for the caustic and the global map: spec A12's 5% of the scene
         diagonal for caustics; for the global map 10% rather than A12's unbounded search, which
         visits the whole grid wherever fewer than k photons pass the normal test."""
-        if self.params.max_radius > 0:
-            return self.params.max_radius, self.params.max_radius
+        if self.params.radius > 0:
+            return self.params.radius, self.params.radius
         return CAUSTIC_RADIUS * self.diagonal, GLOBAL_RADIUS * self.diagonal
 
     @property
@@ -243,7 +246,7 @@ class SurfacePipeline(Pipeline):
         global_map, caustic_map, _ = self._traced_maps()
         extra = None
         if p.lookup == "irradiance":
-            key = (self._maps_key, p.k, p.irradiance_every, p.max_radius)
+            key = (self._maps_key, p.k, p.irradiance_every, p.radius)
             extra = self.cache.stage("irradiance", key, lambda: precompute_irradiance(
                 global_map, p.irradiance_every, p.k, self.radii()[1]))  # fmt: skip
         elif p.lookup == "direct":  # direct visualisation: only photons after a diffuse bounce

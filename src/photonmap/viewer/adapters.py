@@ -7,7 +7,7 @@ seed-004 §7). The adapters are in :mod:`.volume_adapter` and :mod:`.mitsuba_ada
 During a drag (``preview`` frames, :mod:`.worker`) a change that makes the pipeline trace its
 photons again (a light, a material, a parameter, the volume) is rendered with a reduced photon
 budget: each parameter of :attr:`Adapter.preview_divisors` divided (the volume method's photons
-by 16, the screen method's ``light_res`` by 4: light_res² photons), so that the preview costs
+by 16, the screen method's ``photons`` by 16), so that the preview costs
 about 1/16 of the photon tracing that dominates a light move (Sun et al. 2008 §6: the preview
 while the user drags, the converged image when they stop; issue 14 item 2). The next full-size
 frame restores the user's budget, so it is the render of the full settings; the state keeps the

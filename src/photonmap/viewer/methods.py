@@ -14,4 +14,4 @@ ADAPTERS: dict[str, type[Adapter]] = {
     "surface": SurfaceAdapter,
 }
 if "sppm" in METHODS:  # stochastic progressive photon mapping: refine, restart on any change
-    ADAPTERS["sppm"] = progressive(SurfaceAdapter, ("photons_per_iteration", "alpha"))
+    ADAPTERS["sppm"] = progressive(SurfaceAdapter, ("photons", "alpha"))

@@ -37,10 +37,10 @@ class MitsubaAdapter(Adapter):
 
 class ScreenAdapter(MitsubaAdapter):
     """The screen pipeline (Yao 2011): its one light, dielectrics' n, photon count
-    (``light_res``² × ``bounces``) and the indirect light's subsampling."""
+    (``photons`` × ``bounces``) and the indirect light's subsampling."""
 
-    params = ("light_res", "bounces", "subsample")
-    preview_divisors = {"light_res": 4}  # light_res² · bounces photons: 1/16
+    params = ("photons", "bounces", "subsample")
+    preview_divisors = {"photons": 16}  # a light G-buffer a quarter as wide: 1/16
 
     def _lights(self):
         light = self.pipe.light

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import ClassVar
 
 import drjit as dr
 import numpy as np
@@ -16,7 +17,7 @@ from ..core import sampling
 from ..core.errors import ParameterError
 from ..core.grid import voxel_count
 from ..core.memory import available_memory, human_bytes
-from ..core.params import check_choice, check_fields, check_range
+from ..core.params import Renamed, check_choice, check_fields, check_range
 from ..core.settings import HIDE_CHOICES
 from . import mipmap, pilot
 from .scatter import SCATTERING
@@ -56,6 +57,8 @@ class VolumeParams:
     """Pipeline parameters (the CLI's ``--set`` keys). Defaults: spec seed-000-002 §1 parameter
     table and §6 recommendations."""
 
+    RENAMED: ClassVar[dict[str, Renamed]] = {"max_radius": Renamed("radius", float)}
+
     grid: int = 128  # N: voxels along the longest side of the grid box (Sun §4.1: 128)
     grid_bbox: tuple | None = dataclasses.field(
         default=None, metadata={"type": object, "parse": lambda text: parse_bbox(text)}
@@ -82,7 +85,7 @@ class VolumeParams:
     fidelity: str = "physical"  # "paper": the papers' literal behaviour (spec §6)
     spp: int = 1  # camera rays per pixel
     k: int = 50  # photons per radiance estimate on opaque surfaces (Jensen; shading.py)
-    max_radius: float = 0.0  # their maximum gather radius, world units; 0 = automatic (8 voxels)
+    radius: float = 0.0  # their gather radius (k-NN searches end there), world units; 0 = 8 voxels
     light_samples: int = 4  # emitter + BSDF samples of each area / environment light per hit
     emission: str = "uniform"  # "adaptive": Pfeuti's pilot + importance photons (§3.2)
     scattering: str = "multiple"  # photons scatter in the fog (beyond-seeds §5); "single": Sun's
@@ -170,7 +173,7 @@ class VolumeParams:
         for key in ("spp", "supersample", "light_samples"):
             check_range(key, getattr(self, key), 1, None)
         check_range("k", self.k, 1, 1024, "photons per radiance estimate on surfaces")
-        check_range("max_radius", self.max_radius, 0, None, "world units; 0 = automatic")
+        check_range("radius", self.radius, 0, None, "world units; 0 = automatic")
         self._validate_adaptive()
 
     def _validate_adaptive(self) -> None:

@@ -40,7 +40,7 @@ from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.grid import filter_separable
 from ..core.memory import check_image_memory, check_once
-from ..core.params import updated
+from ..core.params import parameter_names, updated
 from ..core.pipeline import Pipeline
 from ..core.scene_info import warn_unmodelled
 from ..core.settings import UNBOUNDED, PathSettings, overridden
@@ -112,7 +112,7 @@ class VolumePipeline(Pipeline):
     def __init__(self, scene, **params):
         from ..scenes import SCENES, load_scene
 
-        valid = {f.name for f in dataclasses.fields(VolumeParams)}
+        valid = parameter_names(VolumeParams)
         scene_params = {k: v for k, v in params.items() if k not in valid}
         builtin = SCENES.get(scene) if isinstance(scene, str) else None
         if scene_params:

@@ -12,7 +12,7 @@ from .params import VolumeParams
 from .scene import SURFACE_HINT, VolumeScene
 from .shading import SurfaceShading
 
-AUTOMATIC_RADIUS = 8.0  # voxels: the surface gathers' maximum radius when max_radius is 0
+AUTOMATIC_RADIUS = 8.0  # voxels: the surface gathers' radius when ``radius`` is 0
 
 
 def surface_key(s: VolumeScene):
@@ -37,7 +37,7 @@ def surface_shading(s: VolumeScene, p: VolumeParams, photons, view_grids) -> Sur
     photon stage's output), the gather's k and radius, and the grid's κ; None without surfaces."""
     if s.surfaces is None:
         return None
-    radius = p.max_radius if p.max_radius > 0 else AUTOMATIC_RADIUS * s.box.h
+    radius = p.radius if p.radius > 0 else AUTOMATIC_RADIUS * s.box.h
     return SurfaceShading(
         s.surfaces,
         s.lights,
