@@ -47,16 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common import (
-    RESULTS,
-    fmt,
-    machine_info,
-    markdown_table,
-    median,
-    stage_medians,
-    write_json,
-    write_text,
-)
+from report import RESULTS, fmt, machine_info, markdown_table, write_json, write_text
+from timing import median, stage_medians
 
 NAME = "adaptive_vs_reference"
 SCENES = {"SPHERE": "glass_sphere_fog", "CUBE": "perlin_cube", "MESH": "mesh_in_fog"}

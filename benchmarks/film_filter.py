@@ -27,13 +27,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mitsuba as mi  # noqa: E402
 
-import common  # noqa: E402
 import photonmap  # noqa: E402,F401
+import report  # noqa: E402
+import timing  # noqa: E402
 from photonmap import METHODS  # noqa: E402
 from photonmap.core.image import compare  # noqa: E402
 from photonmap.core.reference import render_reference  # noqa: E402
 
-CACHE = common.RESULTS / "cache"
+CACHE = report.RESULTS / "cache"
 RUNS = [
     ("surface", {"spp": 4}),
     ("surface", {"spp": 16}),
@@ -73,7 +74,7 @@ def main() -> None:
         images, seconds = {}, {}
         for rfilter in ("gaussian", "box"):
             pipe = METHODS[method].pipeline(scene(rfilter, size), **params)
-            seconds[rfilter], image = common.timed(pipe.render)
+            seconds[rfilter], image = timing.timed(pipe.render)
             images[rfilter] = np.array(image, dtype=np.float64)
         honoured = compare(images["gaussian"], ref["gaussian"])
         ignored = compare(images["box"], ref["gaussian"])
@@ -92,7 +93,7 @@ def main() -> None:
         print(rows[-1], flush=True)
     headers = ["method", "settings", "ignoring the filter", "filter honoured", "box film",
                "seconds (gaussian / box)"]  # fmt: skip
-    machine = common.machine_info()
+    machine = report.machine_info()
     text = (
         f"# The film's reconstruction filter: mi.cornell_box() ({size}², gaussian) vs path\n\n"
         f"Relative RMSE per pixel / of 4×4 block means, against `path` at {spp} spp on the same "
@@ -101,15 +102,15 @@ def main() -> None:
         "film's image; *box film*: the box-film image against the box reference (the method's "
         f"own floor). The references' own noise: {floor['rel_rmse']:.3f} / "
         f"{floor['block_rel_rmse']:.3f}.\n\n"
-        + common.markdown_table(headers, rows)
+        + report.markdown_table(headers, rows)
         + f"\n\nMachine: {machine.get('cpu_model', '')}, load average "
         f"{machine.get('load_average')} (shared cores: times vary by up to ~4x).\n"
     )
-    common.write_json(common.RESULTS / "film_filter.json", {
-        "machine": machine, "git": common.git_revision(), "size": size, "reference_spp": spp,
+    report.write_json(report.RESULTS / "film_filter.json", {
+        "machine": machine, "git": report.git_revision(), "size": size, "reference_spp": spp,
         "reference_noise": floor, "runs": records,
     })  # fmt: skip
-    common.write_text(common.RESULTS / "film_filter.md", text)
+    report.write_text(report.RESULTS / "film_filter.md", text)
     print(text)
 
 

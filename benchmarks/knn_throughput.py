@@ -23,16 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common import (
-    RESULTS,
-    fmt,
-    machine_info,
-    markdown_table,
-    summarize,
-    timed,
-    write_json,
-    write_text,
-)
+from report import RESULTS, fmt, machine_info, markdown_table, write_json, write_text
+from timing import summarize, timed
 
 NAME = "knn_throughput"
 KS = (100, 50, 10)

@@ -47,15 +47,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common import (
-    RESULTS,
-    fmt,
-    machine_info,
-    markdown_table,
-    summarize,
-    write_json,
-    write_text,
-)
+from report import RESULTS, fmt, machine_info, markdown_table, write_json, write_text
+from timing import summarize
 
 NAME = "scale_out"
 BANDWIDTH = 10e9 / 8  # bytes/s of the driver's network link in the model (10 Gbit/s)

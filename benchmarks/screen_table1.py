@@ -31,8 +31,9 @@ from contextlib import contextmanager
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
 import photonmap  # noqa: E402,F401
+import report  # noqa: E402
+import timing  # noqa: E402
 from photonmap import ScreenPipeline  # noqa: E402
 from photonmap.core.timer import StageTimer  # noqa: E402
 
@@ -47,11 +48,11 @@ class CPUStageTimer(StageTimer):
 
     @contextmanager
     def __call__(self, stage: str):
-        common.sync()
+        timing.sync()
         start = time.process_time()
         with super().__call__(stage):
             yield
-        common.sync()
+        timing.sync()
         self.cpu[stage] = self.cpu.get(stage, 0.0) + 1e3 * (time.process_time() - start)
 
     def reset(self):
@@ -97,22 +98,22 @@ def time_frames(pipe: ScreenPipeline, frames: int, warmup: int, prepare) -> dict
         pipe.timer = CPUStageTimer()
     for i in range(warmup + frames):
         prepare(pipe, i)
-        common.sync()
+        timing.sync()
         start, start_cpu = time.perf_counter(), time.process_time()
         pipe.render()
-        common.sync()
+        timing.sync()
         if i >= warmup:
             totals.append(1e3 * (time.perf_counter() - start))
             cpu.append(1e3 * (time.process_time() - start_cpu))
             stages.append(dict(pipe.timer.ms))
             stages_cpu.append(dict(pipe.timer.cpu))
-    ms = common.summarize(totals)
+    ms = timing.summarize(totals)
     return {
         "frame_ms": ms,
         "fps": 1e3 / ms["median"],
-        "cpu_ms": common.summarize(cpu),
-        "stages_ms": common.stage_medians(stages),
-        "stages_cpu_ms": common.stage_medians(stages_cpu),
+        "cpu_ms": timing.summarize(cpu),
+        "stages_ms": timing.stage_medians(stages),
+        "stages_cpu_ms": timing.stage_medians(stages_cpu),
     }
 
 
@@ -129,7 +130,7 @@ def radius_change(pipe, i):
     pipe.set_params(radius=0.045 + 0.001 * (i % 2 + 1))  # never the headline's 0.045
 
 
-def write_images(folder: Path = common.REPO / "docs", width: int = 512, height: int = 384):
+def write_images(folder: Path = report.REPO / "docs", width: int = 512, height: int = 384):
     """The README figures: side-by-side comparisons on ``cornell_ispm`` (2 bounces, 40k photons
     per bounce, 4 × 4 subsampling unless varied) and the glass sphere's caustic."""
     import numpy as np
@@ -163,7 +164,7 @@ def main(argv=None) -> dict:
     ap.add_argument("--images", action="store_true", help="write the docs/ figures and stop")
     ap.add_argument("--width", type=int, default=W)
     ap.add_argument("--height", type=int, default=H)
-    ap.add_argument("--out-dir", type=Path, default=common.RESULTS)
+    ap.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = ap.parse_args(argv)
     if args.images:
         write_images()
@@ -217,12 +218,12 @@ def main(argv=None) -> dict:
         "target_fps": 4.0,
         "thesis_fps_gtx480": 27,
     }
-    data = {"machine": common.machine_info(), "resolution": [args.width, args.height],
+    data = {"machine": report.machine_info(), "resolution": [args.width, args.height],
             "headline": headline,
             "rows": results, "frames": frames, "warmup": args.warmup}  # fmt: skip
     name = "screen_table1" + ("_quick" if args.quick else "")
-    common.write_json(args.out_dir / f"{name}.json", data)
-    common.write_text(args.out_dir / f"{name}.md", markdown(data))
+    report.write_json(args.out_dir / f"{name}.json", data)
+    report.write_text(args.out_dir / f"{name}.md", markdown(data))
     print(markdown(data))
     return data
 
@@ -248,7 +249,7 @@ def markdown(data: dict) -> str:
         rows.append([r["table"], r["scene"], f"{r['triangles']:,}", f"{r['subsample']}x"
                      f"{r['subsample']}", r["bounces"], f"{r['photons'] // 1000}k", r["splat"],
                      f"{r['soft']['fps']:.1f} ({r['hard']['fps']:.1f})", thesis]
-                    + [common.fmt(r["soft"]["stages_ms"].get(s)) for s in stages])  # fmt: skip
+                    + [report.fmt(r["soft"]["stages_ms"].get(s)) for s in stages])  # fmt: skip
     m = data["machine"]
     return (
         f"# Yao 2011 Tables 1 and 2 on {m['cpu_model']} ({m['cores_usable']} cores), "
@@ -267,7 +268,7 @@ def markdown(data: dict) -> str:
         "frames. The machine is shared with other work: "
         f"load average (1, 5, 15 min) {h['load_average_before']} before the headline run, "
         f"{h['load_average_after']} after (2 cores).\n\n"
-        + common.markdown_table(head, rows, "lllrrrlrr" + "r" * len(stages))
+        + report.markdown_table(head, rows, "lllrrrlrr" + "r" * len(stages))
         + "\n"
     )
 

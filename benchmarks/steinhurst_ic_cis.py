@@ -41,8 +41,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
-import common  # noqa: E402
 import photonmap  # noqa: E402,F401
+import report  # noqa: E402
+import timing  # noqa: E402
 from photonmap.core.camera import pixel_rays  # noqa: E402
 from photonmap.scenes import cornell  # noqa: E402
 from photonmap.scenes.meshes import to_mitsuba_mesh  # noqa: E402
@@ -186,8 +187,8 @@ def table_build_times(pipe: SurfacePipeline, runs: int = 3) -> dict:
     radius = pipe.radii()[1]
     out = {}
     for method in ("jensen", "cis"):
-        seconds = common.median(
-            common.timed(sampling_table, method, gmap, si, si.is_valid(), 100, radius)[0]
+        seconds = timing.median(
+            timing.timed(sampling_table, method, gmap, si, si.is_valid(), 100, radius)[0]
             for _ in range(runs)
         )
         out[method] = {"us_per_query": 1e6 * seconds / dr.width(si.p)}
@@ -363,11 +364,11 @@ def precomputed_vs_direct(pipe: SurfacePipeline, error: float) -> dict:
 # ------------------------------------------------------------------------------------- report
 def dict_table(rows: list[dict], columns: list[tuple[str, str, int | None]]) -> str:
     """A markdown table of ``rows``: per column (header, key, digits or None for text)."""
-    return common.markdown_table(
+    return report.markdown_table(
         [c[0] for c in columns],
         [
             [
-                r[k] if d is None else (common.fmt(r[k], d) if r[k] is not None else "–")
+                r[k] if d is None else (report.fmt(r[k], d) if r[k] is not None else "–")
                 for _, k, d in columns
             ]
             for r in rows
@@ -390,13 +391,13 @@ def markdown(result: dict) -> str:
             )
             lines.append("")
             lines.append(
-                common.markdown_table(
+                report.markdown_table(
                     ["sampling", "rays needed", "× BSDF", "rel. RMSE at each N"],
                     [
                         [
                             s,
-                            common.fmt(eq["rays"][s], 1),
-                            common.fmt(eq["ratio_vs_bsdf"][s], 3),
+                            report.fmt(eq["rays"][s], 1),
+                            report.fmt(eq["ratio_vs_bsdf"][s], 3),
                             ", ".join(f"{n}: {e:.4f}" for n, e in cis["rel_rmse"][key][s]),
                         ]
                         for s in SAMPLINGS
@@ -407,7 +408,7 @@ def markdown(result: dict) -> str:
     lines += ["## Tables 6.1–6.2: storage and computation per final gather", ""]
     formulas = result["costs"]["evaluated"]
     lines.append(
-        common.markdown_table(
+        report.markdown_table(
             ["method", "storage", "bytes (ours / doc)", "FLOPs", "FLOPs (ours / doc)"],
             [
                 [m, d[0], f"{formulas[m][0]} / {d[1]}", d[2], f"{formulas[m][1]} / {d[3]}"]
@@ -460,7 +461,7 @@ def markdown(result: dict) -> str:
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="tiny images (smoke test)")
-    parser.add_argument("--out-dir", type=Path, default=common.RESULTS)
+    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
     parser.add_argument("--size", type=int, default=None, help="image side (default 128 / 256)")
     args = parser.parse_args(argv)
     if args.quick:
@@ -499,7 +500,7 @@ def main(argv=None) -> dict:
         if r["scene"] == "bare box" and r["mode"] == "tiled" and r["ic_error"] == 0.05
     )
     result = {
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "load_average": list(os.getloadavg()),
         "command": "benchmarks/steinhurst_ic_cis.py" + (" --quick" if args.quick else ""),
         "target_rays": target,
@@ -517,9 +518,9 @@ def main(argv=None) -> dict:
         "irradiance_cache": ic,
     }
     name = "steinhurst_ic_cis_quick" if args.quick else "steinhurst_ic_cis"
-    common.write_json(args.out_dir / f"{name}.json", result)
+    report.write_json(args.out_dir / f"{name}.json", result)
     text = markdown(result)
-    common.write_text(args.out_dir / f"{name}.md", text)
+    report.write_text(args.out_dir / f"{name}.md", text)
     print(text)
     return result
 

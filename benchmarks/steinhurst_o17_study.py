@@ -34,8 +34,8 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
 import photonmap  # noqa: E402,F401
+import report  # noqa: E402
 from photonmap.analysis.bandwidth import bandwidth_table  # noqa: E402
 from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
 from photonmap.surface.gather_batch import OrderParams  # noqa: E402
@@ -186,7 +186,7 @@ def markdown(result: dict) -> str:
             f"≥ {s['target_dirbin_hashed']:g}×\n"
         )
         parts.append(
-            common.markdown_table(
+            report.markdown_table(
                 [
                     "N_FG",
                     "photons",
@@ -200,9 +200,9 @@ def markdown(result: dict) -> str:
                         r["fg_rays"],
                         f"{r['photons'] // 1000}k",
                         f"{r['stored_photons']:,}",
-                        common.fmt(r["gathers_per_tile"], 0),
-                        common.fmt(r["visits_per_gather"], 0),
-                        *[common.fmt(r["reduction_vs_uncached"][o], 2) + "×" for o in ORDERS],
+                        report.fmt(r["gathers_per_tile"], 0),
+                        report.fmt(r["visits_per_gather"], 0),
+                        *[report.fmt(r["reduction_vs_uncached"][o], 2) + "×" for o in ORDERS],
                     ]
                     for r in s["settings"]
                 ],
@@ -214,9 +214,9 @@ def markdown(result: dict) -> str:
             "(tiled Hilbert does not depend on them):\n"
         )
         parts.append(
-            common.markdown_table(
+            report.markdown_table(
                 ["bins", *BINNED],
-                [[k, *[common.fmt(r[o], 2) + "×" for o in BINNED]] for k, r in s["bins"].items()],
+                [[k, *[report.fmt(r[o], 2) + "×" for o in BINNED]] for k, r in s["bins"].items()],
             )
         )
         parts.append(
@@ -267,7 +267,7 @@ N_FG = 50 imply 50 GB / 20 B / (512² · 50) ≈ 190 node visits per gather agai
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(common.RESULTS))
+    ap.add_argument("--out-dir", default=str(report.RESULTS))
     ap.add_argument(
         "--sweeps-only",
         action="store_true",
@@ -295,7 +295,7 @@ def main(argv=None) -> dict:
     result = {
         "name": NAME,
         "quick": args.quick,
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "load_average_start": load_start,
         "load_average": os.getloadavg(),
         "elapsed_s": time.perf_counter() - start,
@@ -309,8 +309,8 @@ def main(argv=None) -> dict:
         result["table_run"] = {
             k: previous.get(k) for k in ("elapsed_s", "load_average", "load_average_start")
         }
-    common.write_json(out / f"{stem}.json", result)
-    common.write_text(out / f"{stem}.md", markdown(result))
+    report.write_json(out / f"{stem}.json", result)
+    report.write_text(out / f"{stem}.md", markdown(result))
     print(markdown(result))
     return result
 

@@ -33,8 +33,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
 import photonmap  # noqa: E402,F401
+import report  # noqa: E402
 from photonmap.analysis.bandwidth import bandwidth_table  # noqa: E402
 from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
 from photonmap.scenes import SCENES as BUILT_IN  # noqa: E402
@@ -183,18 +183,18 @@ def table(scenes: dict) -> str:
                 [
                     f"{label}, {'without' if cache == 'none' else 'with'} IC",
                     *[
-                        f"{common.fmt(p[o], 1)} ({common.fmt(d, 1)})"
+                        f"{report.fmt(p[o], 1)} ({report.fmt(d, 1)})"
                         for o, d in zip(ORDERS, doc[k], strict=True)
                     ],
-                    " / ".join(common.fmt(u[o], 1) for o in ORDERS),
+                    " / ".join(report.fmt(u[o], 1) for o in ORDERS),
                 ]
             )
     parts = [
-        common.markdown_table(
+        report.markdown_table(
             ["scene / IC", *[f"{o} % (doc)" for o in ORDERS], "% of uncached naive"], rows
         ),
         "",
-        common.markdown_table(
+        report.markdown_table(
             [
                 "scene",
                 "gathers without / with IC",
@@ -207,10 +207,10 @@ def table(scenes: dict) -> str:
                 [
                     label,
                     f"{s['gathers']['none']:,} / {s['gathers']['tiled']:,}",
-                    common.fmt(100 * s["gathers_saved"], 1) + " %",
+                    report.fmt(100 * s["gathers_saved"], 1) + " %",
                     f"{s['pixels_gathering']['none']:,} / {s['pixels_gathering']['tiled']:,}",
-                    common.fmt(100 * s["R_IC_window"], 1) + " %",
-                    common.fmt(100 * s["R_IC_image"], 1) + " %" if "R_IC_image" in s else "—",
+                    report.fmt(100 * s["R_IC_window"], 1) + " %",
+                    report.fmt(100 * s["R_IC_image"], 1) + " %" if "R_IC_image" in s else "—",
                 ]
                 for label, s in scenes.items()
             ],
@@ -222,7 +222,7 @@ def table(scenes: dict) -> str:
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(common.RESULTS))
+    ap.add_argument("--out-dir", default=str(report.RESULTS))
     ap.add_argument(
         "--ic-errors",
         default=",".join(map(str, IC_ERRORS)),
@@ -243,7 +243,7 @@ def main(argv=None) -> dict:
     result = {
         "name": NAME,
         "quick": args.quick,
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "load_average": os.getloadavg(),
         "elapsed_s": time.perf_counter() - start,
         "window": window,
@@ -255,8 +255,8 @@ def main(argv=None) -> dict:
     }
     stem = NAME + ("_quick" if args.quick else "")
     out = Path(args.out_dir)
-    common.write_json(out / f"{stem}.json", result)
-    common.write_text(out / f"{stem}.md", markdown(result))
+    report.write_json(out / f"{stem}.json", result)
+    report.write_text(out / f"{stem}.md", markdown(result))
     print(markdown(result))
     return result
 

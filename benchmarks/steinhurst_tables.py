@@ -38,8 +38,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
 import photonmap  # noqa: E402,F401
+import report  # noqa: E402
+import timing  # noqa: E402
 from photonmap.analysis.bandwidth import (  # noqa: E402
     WAYS,
     cache_sweep,
@@ -220,15 +221,15 @@ def structures_markdown(s: dict) -> str:
         rows.append(
             [
                 order,
-                *[common.fmt(r[x]["fetches_per_block"], 2) for x in STRUCTURES],
-                *[common.fmt(doc[x], 1) for x in STRUCTURES],
-                common.fmt(r["kdbtree"]["fetches_per_block"] / r["kdtree"]["fetches_per_block"], 2),
-                common.fmt(doc["kdbtree"] / doc["kdtree"], 2),
-                common.fmt(r["kdbtree"]["misses"] / max(r["kdtree"]["misses"], 1), 2),
+                *[report.fmt(r[x]["fetches_per_block"], 2) for x in STRUCTURES],
+                *[report.fmt(doc[x], 1) for x in STRUCTURES],
+                report.fmt(r["kdbtree"]["fetches_per_block"] / r["kdtree"]["fetches_per_block"], 2),
+                report.fmt(doc["kdbtree"] / doc["kdtree"], 2),
+                report.fmt(r["kdbtree"]["misses"] / max(r["kdtree"]["misses"], 1), 2),
             ]
         )
     parts.append(
-        common.markdown_table(
+        report.markdown_table(
             [
                 "order",
                 "kd",
@@ -247,26 +248,26 @@ def structures_markdown(s: dict) -> str:
     gb = 128 * s["image_scale"] / 1e9  # GB per image of one miss
     parts.append("\nGB per 512 × 512 image (misses × 128 B) and distinct lines touched:\n")
     parts.append(
-        common.markdown_table(
+        report.markdown_table(
             ["order", *[f"{x} GB" for x in STRUCTURES]],
             [
-                [order, *[common.fmt(r[x]["misses"] * gb, 2) for x in STRUCTURES]]
+                [order, *[report.fmt(r[x]["misses"] * gb, 2) for x in STRUCTURES]]
                 for order, r in s["table"].items()
             ]
             + [
                 [
                     "distinct lines",
-                    *[common.fmt(s["table"]["naive"][x]["distinct_lines"]) for x in STRUCTURES],
+                    *[report.fmt(s["table"]["naive"][x]["distinct_lines"]) for x in STRUCTURES],
                 ]
             ],
         )
     )
     parts.append("\nGB/image vs line size (128 KB cache), kd-tree vs kdB-tree (Fig 4.1):\n")
     parts.append(
-        common.markdown_table(
+        report.markdown_table(
             ["structure", "order", *map(str, s["lines"])],
             [
-                [st, o, *[common.fmt(v, 2) for v in c]]
+                [st, o, *[report.fmt(v, 2) for v in c]]
                 for st, curves in s["line_sweep_GB"].items()
                 for o, c in curves.items()
             ],
@@ -279,7 +280,7 @@ def structures_markdown(s: dict) -> str:
     )
     parts.append("Block hashing's accuracy A (blocks read per gather at most), 128 B lines:\n")
     parts.append(
-        common.markdown_table(
+        report.markdown_table(
             [
                 "A",
                 "recall",
@@ -290,10 +291,10 @@ def structures_markdown(s: dict) -> str:
             [
                 [
                     a,
-                    common.fmt(r["recall"], 3),
-                    common.fmt(r["reads_per_gather"], 1),
-                    *[common.fmt(r[o]["fetches_per_block"], 2) for o in LINE_ORDERS],
-                    *[common.fmt(r[o]["misses"] * gb, 2) for o in LINE_ORDERS],
+                    report.fmt(r["recall"], 3),
+                    report.fmt(r["reads_per_gather"], 1),
+                    *[report.fmt(r[o]["fetches_per_block"], 2) for o in LINE_ORDERS],
+                    *[report.fmt(r[o]["misses"] * gb, 2) for o in LINE_ORDERS],
                 ]
                 for a, r in s["blockhash_accuracy"].items()
             ],
@@ -352,14 +353,14 @@ def sponza_markdown(s: dict) -> str:
         f"{s['bins']} direction bins, G = {s['hash_grid']}: {s['gathers']:,} final gathers, "
         f"{s['node_visits']:,} node reads (uncached naive {s['uncached_GB_per_image']:.0f} "
         f"GB/image), streamed in {s['simulate_s']:.0f} s, load {s['load_average']}\n\n"
-        + common.markdown_table(
+        + report.markdown_table(
             ["order", "GB/image", "vs uncached", "8-way/full"],
             [
                 [
                     o,
-                    common.fmt(r["GB_per_image"], 2),
-                    common.fmt(r["reduction_vs_uncached"], 1) + "×",
-                    common.fmt(r["set_associative_ratio"], 2),
+                    report.fmt(r["GB_per_image"], 2),
+                    report.fmt(r["reduction_vs_uncached"], 1) + "×",
+                    report.fmt(r["set_associative_ratio"], 2),
                 ]
                 for o, r in s["table"].items()
             ],
@@ -501,7 +502,7 @@ def cpu_times(scene, params: dict, repeats: int) -> dict:
                 pipe.set_params(gather_order=order)
                 pipe.render()
                 runs[order].append(pipe.timer.ms["final gather"])
-        out[structure] = {o: common.summarize(r) for o, r in runs.items()}
+        out[structure] = {o: timing.summarize(r) for o, r in runs.items()}
     return out
 
 
@@ -526,20 +527,20 @@ def markdown(result: dict) -> str:
             rows.append(
                 [
                     order,
-                    common.fmt(r["GB_per_image"], 2),
-                    common.fmt(r["reduction_vs_uncached"], 1) + "×",
-                    common.fmt(d, 3) if d else "—",
-                    common.fmt(doc["uncached"] / d, 1) + "×" if d else "—",
-                    common.fmt(r["fetches_per_map_line"], 2),
-                    common.fmt(r["set_associative_ratio"], 2),
+                    report.fmt(r["GB_per_image"], 2),
+                    report.fmt(r["reduction_vs_uncached"], 1) + "×",
+                    report.fmt(d, 3) if d else "—",
+                    report.fmt(doc["uncached"] / d, 1) + "×" if d else "—",
+                    report.fmt(r["fetches_per_map_line"], 2),
+                    report.fmt(r["set_associative_ratio"], 2),
                     *[
-                        common.fmt(s["cpu"][k][order]["median"], 0) if order in ORDERS else "—"
+                        report.fmt(s["cpu"][k][order]["median"], 0) if order in ORDERS else "—"
                         for k in ("kdtree", "hash")
                     ],
                 ]
             )
         parts.append(
-            common.markdown_table(
+            report.markdown_table(
                 [
                     "order",
                     "GB/image",
@@ -556,9 +557,9 @@ def markdown(result: dict) -> str:
         )
         parts.append("\nGB/image vs cache size (KB " + ", ".join(map(str, CACHE_KB)) + "):\n")
         parts.append(
-            common.markdown_table(
+            report.markdown_table(
                 ["order", *[f"{kb}K" for kb in CACHE_KB]],
-                [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["cache_sweep_GB"].items()],
+                [[o, *[report.fmt(v, 2) for v in c]] for o, c in s["cache_sweep_GB"].items()],
             )
         )
         if "window_sweeps" in s:
@@ -567,30 +568,30 @@ def markdown(result: dict) -> str:
                 f"\nGB/image vs tile edge (window {ws['window']} of the 512² image, scaled):\n"
             )
             parts.append(
-                common.markdown_table(
+                report.markdown_table(
                     ["order", *map(str, ws["tiles"])],
-                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in ws["tile_sweep_GB"].items()],
+                    [[o, *[report.fmt(v, 2) for v in c]] for o, c in ws["tile_sweep_GB"].items()],
                 )
             )
             parts.append("\nGB/image vs line size (128 KB, same window):\n")
             parts.append(
-                common.markdown_table(
+                report.markdown_table(
                     ["order", *map(str, ws["lines"])],
-                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in ws["line_sweep_GB"].items()],
+                    [[o, *[report.fmt(v, 2) for v in c]] for o, c in ws["line_sweep_GB"].items()],
                 )
             )
         hw = s["hardware"]
         parts.append("\nChip model (Ch. 7) fed with these counts, R_IC = 0:\n")
         parts.append(
-            common.markdown_table(
+            report.markdown_table(
                 ["order", "GB/image", "GFLOPs/image", "tiles/s (90 GB/s)", "tiles/s (500 GFLOPS)"],
                 [
                     [
                         o,
-                        common.fmt(h["GB_per_image"], 2),
-                        common.fmt(h["GFLOPs_per_image"], 1),
-                        common.fmt(h["tiles_per_s_memory"], 0),
-                        common.fmt(h["tiles_per_s_compute"], 0),
+                        report.fmt(h["GB_per_image"], 2),
+                        report.fmt(h["GFLOPs_per_image"], 1),
+                        report.fmt(h["tiles_per_s_memory"], 0),
+                        report.fmt(h["tiles_per_s_compute"], 0),
                     ]
                     for o, h in hw.items()
                 ],
@@ -604,9 +605,9 @@ def markdown(result: dict) -> str:
             f"{glossy['glossy_weight']}, GB/image at 128 KB against the Beckmann roughness:\n"
         )
         parts.append(
-            common.markdown_table(
+            report.markdown_table(
                 ["order", *[f"α {a}" for a in glossy["roughness"]]],
-                [[o, *[common.fmt(v, 2) for v in c]] for o, c in glossy["GB"].items()],
+                [[o, *[report.fmt(v, 2) for v in c]] for o, c in glossy["GB"].items()],
             )
         )
         parts.append("")
@@ -669,8 +670,8 @@ STUDIES = {
 def main(argv=None) -> dict:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(common.RESULTS))
-    ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
+    ap.add_argument("--out-dir", default=str(report.RESULTS))
+    ap.add_argument("--plot", default=str(report.REPO / "docs" / "steinhurst_cache_size.png"))
     ap.add_argument(
         "--scenes",
         default=",".join([*SCENES, "glossy_floor", "structures"]),
@@ -694,8 +695,8 @@ def main(argv=None) -> dict:
         result[args.only] = found
         if "scenes" in result:
             result["headline"] = headline_of(result["scenes"], result.get("sponza_setting"), out)
-            common.write_text(out / f"{stem}.md", markdown(result))
-        common.write_json(out / f"{stem}.json", result)
+            report.write_text(out / f"{stem}.md", markdown(result))
+        report.write_json(out / f"{stem}.json", result)
         print(render(found))
         return result
     scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
@@ -722,7 +723,7 @@ def main(argv=None) -> dict:
     result = {
         "name": NAME,
         "quick": args.quick,
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "load_average": os.getloadavg(),  # at the end of this run; per scene in its study
         "doc_table_3_1_GB": DOC,
         "doc_table_7_10": TABLE_7_10,
@@ -732,8 +733,8 @@ def main(argv=None) -> dict:
         "sponza_setting": sponza,
         "headline": headline,
     }
-    common.write_json(out / f"{stem}.json", result)
-    common.write_text(out / f"{stem}.md", markdown(result))
+    report.write_json(out / f"{stem}.json", result)
+    report.write_text(out / f"{stem}.md", markdown(result))
     if not args.quick:
         cornell = scenes["cornell_steinhurst"]
         plot_sweep(

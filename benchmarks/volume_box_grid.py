@@ -28,13 +28,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mitsuba as mi  # noqa: E402
 
-import common  # noqa: E402
+import report  # noqa: E402
+import timing  # noqa: E402
 from photonmap import VolumePipeline  # noqa: E402
 from photonmap.core.image import compare, read_image, write_image  # noqa: E402
 from photonmap.core.reference import render_reference  # noqa: E402
 from photonmap.volume.params import memory_estimate  # noqa: E402
 
-SCENE = common.REPO / "examples" / "glass_sphere_long_fog_box.xml"
+SCENE = report.REPO / "examples" / "glass_sphere_long_fog_box.xml"
 CUBE = ([-5.0] * 3, [5.0] * 3)  # the cube around the 10 × 5 × 4 fog box
 
 
@@ -94,7 +95,7 @@ def run(args) -> dict:
                 "ratio": float(image.mean() / ref.mean()),
                 "block_rel_rmse": errors["block_rel_rmse"],
                 "rel_rmse": errors["rel_rmse"],
-                "render_s": common.summarize(times),
+                "render_s": timing.summarize(times),
                 "loadavg": os.getloadavg(),
             }
             rows.append(row)
@@ -106,8 +107,8 @@ def run(args) -> dict:
             )
     return {
         "benchmark": "volume_box_grid",
-        "machine": common.machine_info(),
-        "git": common.git_revision(),
+        "machine": report.machine_info(),
+        "git": report.git_revision(),
         "config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
         "rows": rows,
     }
@@ -122,25 +123,25 @@ def main(argv=None) -> dict:
     parser.add_argument("--reference-spp", type=int, default=8192)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="grid 24, 48×36, 256-spp reference")
-    parser.add_argument("--out-dir", type=Path, default=common.RESULTS)
+    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = parser.parse_args(argv)
     if args.quick:
         args.grid, args.photons, args.width, args.height = 24, 2**14, 48, 36
         args.reference_spp, args.repeats = 256, 1
     result = run(args)
     headers = ["scene", "layout", "voxels", "ratio", "block rel. RMSE", "pixel rel. RMSE", "s"]
-    table = common.markdown_table(
+    table = report.markdown_table(
         headers,
         [
-            [r["scene"], r["layout"], "×".join(map(str, r["dims"])), common.fmt(r["ratio"], 4),
-             common.fmt(r["block_rel_rmse"], 4), common.fmt(r["rel_rmse"], 4),
-             common.fmt(r["render_s"]["median"], 2)]
+            [r["scene"], r["layout"], "×".join(map(str, r["dims"])), report.fmt(r["ratio"], 4),
+             report.fmt(r["block_rel_rmse"], 4), report.fmt(r["rel_rmse"], 4),
+             report.fmt(r["render_s"]["median"], 2)]
             for r in result["rows"]
         ],
     )  # fmt: skip
     name = "volume_box_grid" + ("_quick" if args.quick else "")
-    common.write_json(args.out_dir / f"{name}.json", result)
-    common.write_text(args.out_dir / f"{name}.md", table + "\n")
+    report.write_json(args.out_dir / f"{name}.json", result)
+    report.write_text(args.out_dir / f"{name}.md", table + "\n")
     print(table)
     return result
 

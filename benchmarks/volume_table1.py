@@ -45,20 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
-from common import (
-    RESULTS,
-    fmt,
-    kernel_history,
-    machine_info,
-    markdown_table,
-    median,
-    profiling_timer,
-    stage_medians,
-    summarize,
-    sync,
-    write_json,
-    write_text,
-)
+from report import RESULTS, fmt, machine_info, markdown_table, write_json, write_text
+from timing import kernel_history, median, profiling_timer, stage_medians, summarize, sync
 
 NAME = "volume_table1"
 SCENE = "mesh_in_fog"

@@ -17,7 +17,7 @@ with seeds 0, 1, 2, in rounds over all the points of a scene (a burst of load fr
 hits one sample of several points, not all of one); its time and errors are the medians of the
 3. A photonmap time covers reading
 the loaded Mitsuba scene, every stage and the image, Dr.Jit's queue drained
-(:func:`common.timed`). Errors: relative RMSE per pixel, and the relative RMSE of 4×4-block
+(:func:`timing.timed`). Errors: relative RMSE per pixel, and the relative RMSE of 4×4-block
 means (noise averages out within a block, a bias does not), over the pixels that do not see the
 light directly or through the glass (:func:`light_image_mask`); the whole image's
 (:func:`photonmap.compare`) are the ``*_full`` errors.
@@ -58,11 +58,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import mitsuba as mi  # noqa: E402
 
-import common  # noqa: E402
 import photonmap  # noqa: E402
+import report  # noqa: E402
+import timing  # noqa: E402
 from photonmap.core.image import block_means, write_image  # noqa: E402
 
-EXAMPLE = common.REPO / "examples" / "fog_box_sphere_light.xml"
+EXAMPLE = report.REPO / "examples" / "fog_box_sphere_light.xml"
 SCENES = ("ball", "fog")
 METHODS = ("volume", "surface")
 MAX_DEPTH = 32  # the file's volpath depth
@@ -125,7 +126,7 @@ def reference(name: str, scene, size, spp: int, cache: Path) -> tuple[np.ndarray
             scene, spp=spp // 2, integrator="volpath", max_depth=MAX_DEPTH, seed=100_000 * half
         )
         write_image(str(path), image)
-        common.write_json(path.with_suffix(".json"), done)
+        report.write_json(path.with_suffix(".json"), done)
         halves.append(image)
         info["halves"].append({**done, "rendered": str(path)})
         print(f"  reference half {half}: {spp // 2} spp in {done['seconds']:.1f} s", flush=True)
@@ -202,14 +203,14 @@ def measure(points, target: Target) -> dict[str, list[dict]]:
     samples = [[] for _ in points]
     for seed in range(RUNS):
         for (_, _, render), out in zip(points, samples, strict=True):
-            seconds, (image, extra) = common.timed(render, seed)
+            seconds, (image, extra) = timing.timed(render, seed)
             load = round(os.getloadavg()[0], 2)
             out.append({"seconds": seconds, **target.errors(image), **extra, "load_1min": load})
     rows = {}
     for (method, budget, _), runs in zip(points, samples, strict=True):
-        row = {**budget, "seconds": common.median(r["seconds"] for r in runs)}
+        row = {**budget, "seconds": timing.median(r["seconds"] for r in runs)}
         for key in (*KEYS, "brightness"):
-            row[key] = common.median(r[key] for r in runs)
+            row[key] = timing.median(r[key] for r in runs)
         row["samples"] = runs
         rows.setdefault(method, []).append(row)
         log(method, budget_text(method, row), row)
@@ -407,20 +408,20 @@ def markdown(result: dict) -> str:
             [
                 method,
                 budget_text(method, r),
-                common.fmt(r["seconds"], 3),
-                common.fmt(r["rel_rmse"], 4),
-                common.fmt(r["block_rel_rmse"], 4),
-                common.fmt(r["rel_rmse_vs_truth"], 4),
-                common.fmt(r["block_rel_rmse_vs_truth"], 4),
-                common.fmt(r["rel_rmse_full"], 4),
-                common.fmt(r["block_rel_rmse_full"], 4),
-                common.fmt(r["brightness"], 3),
+                report.fmt(r["seconds"], 3),
+                report.fmt(r["rel_rmse"], 4),
+                report.fmt(r["block_rel_rmse"], 4),
+                report.fmt(r["rel_rmse_vs_truth"], 4),
+                report.fmt(r["block_rel_rmse_vs_truth"], 4),
+                report.fmt(r["rel_rmse_full"], 4),
+                report.fmt(r["block_rel_rmse_full"], 4),
+                report.fmt(r["brightness"], 3),
             ]
             for method in ("volpath", *METHODS)
             for r in res[method]
         ]
         lines += [
-            common.markdown_table(
+            report.markdown_table(
                 [
                     "method",
                     "budget",
@@ -452,23 +453,23 @@ def markdown(result: dict) -> str:
                     [
                         method,
                         key,
-                        common.fmt(h["at_error"], 4),
-                        common.fmt(h["method_seconds"], 3),
-                        common.fmt(h["volpath_seconds_for_that_error"], 2)
+                        report.fmt(h["at_error"], 4),
+                        report.fmt(h["method_seconds"], 3),
+                        report.fmt(h["volpath_seconds_for_that_error"], 2)
                         + (
                             ""
                             if h["volpath_time_is"] == "interpolated"
                             else f" ({h['volpath_time_is']})"
                         ),
-                        common.fmt(h["speedup_vs_volpath_at_equal_rmse"], 1),
-                        common.fmt(h["max_speedup"], 1),
+                        report.fmt(h["speedup_vs_volpath_at_equal_rmse"], 1),
+                        report.fmt(h["max_speedup"], 1),
                         "falling" if h["error_still_falling"] else f"floor {h['bias_floor']:.4f}",
                     ]
                 )
                 if "note" in h:
                     head[-1][-1] += " — " + h["note"]
         lines += [
-            common.markdown_table(
+            report.markdown_table(
                 [
                     "method",
                     "error",
@@ -488,7 +489,7 @@ def markdown(result: dict) -> str:
         lines += [
             "**Headline** (rel. RMSE, light's images masked): "
             + ", ".join(
-                f"{method} {common.fmt(v, 1)}× faster than volpath at equal error"
+                f"{method} {report.fmt(v, 1)}× faster than volpath at equal error"
                 for method, v in h["speedup_vs_volpath_at_equal_rmse"].items()
             )
             + ".",
@@ -502,7 +503,7 @@ def markdown(result: dict) -> str:
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="48×36, few budgets (smoke test)")
-    parser.add_argument("--out-dir", type=Path, default=common.RESULTS)
+    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
     parser.add_argument(
         "--scenes", default=",".join(SCENES), help=f"comma-separated subset of {SCENES}"
     )
@@ -512,7 +513,7 @@ def main(argv=None) -> dict:
     for s in names:
         if s not in SCENES:
             raise ValueError(f"scenes must be among {', '.join(SCENES)}, got {s!r}")
-    machine = common.machine_info()
+    machine = report.machine_info()
     start = time.perf_counter()
     size = config["size"]
     descriptions = {
@@ -582,8 +583,8 @@ def main(argv=None) -> dict:
         "total_seconds": time.perf_counter() - start,
         "load_average_end": [round(x, 2) for x in os.getloadavg()],
     }
-    common.write_json(args.out_dir / f"volume_vs_volpath{suffix}.json", result)
-    common.write_text(args.out_dir / f"volume_vs_volpath{suffix}.md", markdown(result))
+    report.write_json(args.out_dir / f"volume_vs_volpath{suffix}.json", result)
+    report.write_text(args.out_dir / f"volume_vs_volpath{suffix}.md", markdown(result))
     plot(results, args.out_dir / f"volume_vs_volpath{suffix}.png")
     print(headline)
     return result
