@@ -1,10 +1,9 @@
-"""Benchmark: photon gathers per second of the hash grid and the kd-tree (issue 3, item 2).
-
-Spec seed-001 §2.4 (kNN gather, k = 100), §2.8 (data structures). 1M photons, either uniform in
-the unit cube or on the walls of a Cornell box (floor, ceiling, back and side walls, and the
-faces of two blocks; sampled by area); the gather points come from the same distribution, in
-random order (the naive order of spec §2.7.1) and sorted by grid cell (a spatially coherent
-order). For k = 100, 50 and 10: exact k-nearest gathers per second of
+"""Photon gathers per second of the hash grid and the kd-tree: the k-nearest-neighbour gathers of
+photon mapping (Jensen 1996; Steinhurst 2007 §2.4, k = 100) on the two structures. 1M photons,
+either uniform in the unit cube or on the walls of a Cornell box (floor, ceiling, back and side
+walls, and the faces of two blocks; sampled by area); the gather points come from the same
+distribution, in random order (Steinhurst's naive order) and sorted by grid cell (a spatially
+coherent order). For k = 100, 50 and 10: exact k-nearest gathers per second of
 :class:`photonmap.core.hashgrid.HashGrid` and :class:`photonmap.surface.kdtree.KDTree` (Dr.Jit
 LLVM, all cores) and of ``scipy.spatial.cKDTree.query`` (``workers=2``) on the same points, after
 one warm-up call (kernel compilation), median of ``--repeats`` timed calls.
@@ -23,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from report import RESULTS, fmt, machine_info, markdown_table, write_json, write_text
+from report import RESULTS, fmt, machine_info, markdown_table, results_stem, write_results
 from timing import summarize, timed
 
 NAME = "knn_throughput"
@@ -151,9 +150,7 @@ def main(argv=None) -> dict:
         f"{machine.get('load_average')}; median of {args.repeats} runs after a warm-up.\n"
     )
     result = {"machine": machine, "photons": photons, "queries": queries, "results": results}
-    suffix = "_quick" if args.quick else ""
-    write_json(args.out_dir / f"{NAME}{suffix}.json", result)
-    write_text(args.out_dir / f"{NAME}{suffix}.md", text)
+    write_results(results_stem(args.out_dir, NAME, args.quick), result, text)
     print(text)
     return result
 

@@ -1,4 +1,4 @@
-"""Yao 2011 Tables 1 and 2 on this CPU: the ``screen`` pipeline's frame rate (issue 4 item 6).
+"""Yao 2011 Tables 1 and 2 on this CPU: the ``screen`` pipeline's frame rate.
 
 Reproduces the rows of the thesis's Table 1 (per scene: subsampling, bounces, photons, soft and
 hard shadows) and Table 2 (quad vs icosahedron splats) that our built-in scenes cover, at the
@@ -24,18 +24,15 @@ Writes ``results/screen_table1.json`` (top-level ``headline.fps_cornell_1024x768
 from __future__ import annotations
 
 import argparse
-import os
-import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import photonmap  # noqa: E402,F401
-import report  # noqa: E402
-import timing  # noqa: E402
-from photonmap import ScreenPipeline  # noqa: E402
-from photonmap.core.timer import StageTimer  # noqa: E402
+import photonmap  # noqa: F401 - selects the Mitsuba variant
+import report
+import timing
+from photonmap import ScreenPipeline
+from photonmap.core.timer import StageTimer
 
 
 class CPUStageTimer(StageTimer):
@@ -60,6 +57,7 @@ class CPUStageTimer(StageTimer):
         self.cpu = {}
 
 
+NAME = "screen_table1"
 W, H = 1024, 768
 # (table, scene label, scene, scene params, subsample, bounces, thesis soft, thesis hard,
 #  splat); Table 2 rows come in quad/icosahedron pairs
@@ -180,7 +178,7 @@ def main(argv=None) -> dict:
         row = {"table": table, "scene": label, "builtin": scene, "triangles": _triangles(pipe),
                "subsample": s, "bounces": bounces, "photons": 100**2 * bounces, "splat": splat,
                "thesis_fps_soft": t_soft, "thesis_fps_hard": t_hard}  # fmt: skip
-        row["load_average_before"] = _load()
+        row["load_average_before"] = report.load_average()
         for shadows in ("soft", "hard"):
             pipe.set_params(subsample=s, bounces=bounces, splat=splat, shadows=shadows,
                             light_res=100, radius=0.045)  # fmt: skip
@@ -194,7 +192,7 @@ def main(argv=None) -> dict:
     pipe.set_params(subsample=8, bounces=2, splat="quad", shadows="soft", radius=0.045,
                     light_res=100)  # fmt: skip
     pipe.set_camera(origin=(0.278, 0.273, -0.8))
-    load = _load()
+    load = report.load_average()
     head_frames = HEADLINE_FRAMES if not args.quick else frames
     head = time_frames(pipe, head_frames, args.warmup, full_frame)
     more = frames if args.quick else max(frames, 5)
@@ -211,7 +209,7 @@ def main(argv=None) -> dict:
         "stages_ms": head["stages_ms"],
         "stages_cpu_ms": head["stages_cpu_ms"],
         "load_average_before": load,
-        "load_average_after": _load(),
+        "load_average_after": report.load_average(),
         "fps_camera_move": camera["fps"],
         "camera_move_stages_ms": camera["stages_ms"],
         "fps_image_space_change": image_space["fps"],
@@ -221,15 +219,9 @@ def main(argv=None) -> dict:
     data = {"machine": report.machine_info(), "resolution": [args.width, args.height],
             "headline": headline,
             "rows": results, "frames": frames, "warmup": args.warmup}  # fmt: skip
-    name = "screen_table1" + ("_quick" if args.quick else "")
-    report.write_json(args.out_dir / f"{name}.json", data)
-    report.write_text(args.out_dir / f"{name}.md", markdown(data))
+    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), data, markdown(data))
     print(markdown(data))
     return data
-
-
-def _load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
 
 
 def _triangles(pipe) -> int:

@@ -254,10 +254,9 @@ def main(argv: list[str] | None = None) -> dict:
             )
         result["scenes"][path.stem] = entry
     result["seconds"] = time.perf_counter() - start
-    result["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
-    report.write_json(args.out_dir / f"{args.name}.json", result)
+    result["load_average_end"] = report.load_average()
     text = markdown(result)
-    report.write_text(args.out_dir / f"{args.name}.md", text)
+    report.write_results(args.out_dir / args.name, result, text)
     print(text)
     return result
 

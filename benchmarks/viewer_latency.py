@@ -1,4 +1,4 @@
-"""Update latency of ``photonmap view`` (issue 14, "Done when"): from a ``POST /api/update`` to
+"""Update latency of ``photonmap view``: from a ``POST /api/update`` to
 its new frame (``GET /api/frame.png`` returning the full-size PNG of that update), for a light
 move and a camera move, on ``glass_sphere_fog`` (volume method) and ``cornell_ispm`` (screen
 method) at their default sizes and settings, and on ``glass_sphere_fog`` with 512² photons.
@@ -18,35 +18,33 @@ For scale, the same run times one frame of Mitsuba's own integrator on the same 
 
     .venv/bin/python benchmarks/viewer_latency.py [--runs 7] [--quick]
 
-Writes ``results/viewer_latency.json`` and ``.md``; the machine is shared, so the load average
-is recorded and medians are reported.
+Writes ``results/viewer_latency.json`` and ``.md`` (``_quick`` with ``--quick``); the machine is
+shared, so the load average is recorded and medians are reported.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import httpx  # noqa: E402
-from websockets.sync.client import connect  # noqa: E402
+import httpx
+from websockets.sync.client import connect
 
-import photonmap  # noqa: E402
-import report  # noqa: E402
-import timing  # noqa: E402
-from photonmap.core.reference import render_reference  # noqa: E402
-from photonmap.scenes import load_scene  # noqa: E402
-from photonmap.viewer import Background, Viewer  # noqa: E402
+import photonmap
+import report
+import timing
+from photonmap.core.reference import render_reference
+from photonmap.scenes import load_scene
+from photonmap.viewer import Background, Viewer
 
+NAME = "viewer_latency"
 SPHERE = ([0.3, 3.0, 0.5], [0.7, 3.0, 0.5]), ([1.8, 1.7, 2.2], [1.2, 1.8, 2.6])
 CASES = {  # name → (scene, method, overrides, two light positions, two camera origins)
     "glass_sphere_fog": ("glass_sphere_fog", "volume", {}, *SPHERE),
     "cornell_ispm": ("cornell_ispm", "screen", {}, ([0.2, 0.53, 0.28], [0.35, 0.53, 0.28]),
                      ([0.2, 0.3, -0.8], [0.35, 0.25, -0.8])),
-    # the issue's example state: 512² photons instead of the default 1024²
+    # a smaller photon budget: 512² photons instead of the default 1024²
     "glass_sphere_fog, 512² photons": ("glass_sphere_fog", "volume", {"photons": 512**2},
                                         *SPHERE),
 }  # fmt: skip
@@ -186,7 +184,7 @@ def main(argv=None) -> dict:
     runs = 3 if args.quick else args.runs
     results = {"machine": report.machine_info(), "runs": runs,
                "cases": {name: run_case(name, runs) for name in CASES}}  # fmt: skip
-    results["machine"]["load_average_end"] = [round(x, 2) for x in __import__("os").getloadavg()]
+    results["machine"]["load_average_end"] = report.load_average()
     rows = []
     for scene, r in results["cases"].items():
         for move in ("light", "camera"):
@@ -210,9 +208,7 @@ def main(argv=None) -> dict:
     text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"
             f"Medians of {runs} updates each; load average {load} at the start, "
             f"{results['machine']['load_average_end']} at the end.\n")  # fmt: skip
-    out = Path(args.out_dir)
-    report.write_json(out / "viewer_latency.json", results)
-    report.write_text(out / "viewer_latency.md", text)
+    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), results, text)
     print(text)
     return results
 
