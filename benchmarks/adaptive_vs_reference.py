@@ -36,15 +36,14 @@ and prints the markdown. ``python benchmarks/adaptive_vs_reference.py [--quick] 
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
+import report
 from accuracy import loglog_between
 from adaptive_sweep import (
     VARIANTS,
@@ -57,7 +56,7 @@ from adaptive_sweep import (
     sweep_row,
 )
 from adaptive_vs_reference_report import analysis, markdown, plot
-from report import RESULTS, load_average, machine_info, results_stem, write_results
+from report import load_average, machine_info, results_stem, write_results
 
 NAME = "adaptive_vs_reference"
 SCENES = {"SPHERE": "glass_sphere_fog", "CUBE": "perlin_cube", "MESH": "mesh_in_fog"}
@@ -274,13 +273,8 @@ def headline(equal: dict | None) -> dict:
     }
 
 
-def _ints(text: str) -> list[int]:
-    return [int(float(x)) for x in text.replace(" ", "").split(",") if x]
-
-
 def main(argv: Sequence[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="smoke test: tiny grid and budgets")
+    parser = report.arguments(__doc__, "smoke test: tiny grid and budgets")
     parser.add_argument("--runs", type=int, default=3, help="timed frames per sweep configuration")
     parser.add_argument(
         "--final-runs", type=int, default=9, help="timed frames per equal-RMSE configuration"
@@ -290,10 +284,12 @@ def main(argv: Sequence[str] | None = None) -> dict:
     parser.add_argument("--height", type=int, default=360)
     parser.add_argument("--nominal", type=int, default=512**2, help="reference budget N_R")
     parser.add_argument(
-        "--budgets", type=_ints, default=[2**16, 2**17, 2**18, 2**19, 2**20], help="photon sweep"
+        "--budgets",
+        type=report.integers,
+        default=[2**16, 2**17, 2**18, 2**19, 2**20],
+        help="photon sweep",
     )
     parser.add_argument("--scenes", default="SPHERE,CUBE,MESH")
-    parser.add_argument("--out-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     args.scenes = [s.strip().upper() for s in args.scenes.split(",") if s.strip()]
     if args.quick:

@@ -100,8 +100,17 @@ def markdown(result: dict, truth_factor: int) -> str:
         "## Headline",
         "",
         records_table(
-            [{**sc, "scene": label, "variant": name, "eq": sc.get(key) or {},
-              "targets": s["targets"]} for label, sc in scenes.items() for key, name in EQUAL],
+            [
+                {
+                    **sc,
+                    "scene": label,
+                    "variant": name,
+                    "eq": sc.get(key) or {},
+                    "targets": s["targets"],
+                }
+                for label, sc in scenes.items()
+                for key, name in EQUAL
+            ],
             HEADLINE_COLUMNS,
         ),  # fmt: skip
         "",
@@ -121,7 +130,10 @@ def markdown(result: dict, truth_factor: int) -> str:
     by_nominal = [
         {**r, "scene": label, "variant": name}
         for label, sc in scenes.items()
-        for key, name in (("by_nominal", "adaptive"), ("by_nominal_uniform_placement", "uniform p."))
+        for key, name in (
+            ("by_nominal", "adaptive"),
+            ("by_nominal_uniform_placement", "uniform p."),
+        )
         for r in sc.get(key, [])
     ]
     ablation = [

@@ -28,7 +28,6 @@ scene's SPPM image ``caustics_<scene>_sppm.png`` (``_quick`` with ``--quick``).
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -85,7 +84,9 @@ def reference(name, scene, size, spp, cache: Path) -> list[np.ndarray]:
     return [
         cached_image(
             cache / f"caustics_{name}_{size[0]}x{size[1]}_{spp}spp_{half}.exr",
-            lambda h=half: render_passes(scene, spp // 2, 512, 100_000 * (h + 1), path_integrator()),
+            lambda h=half: render_passes(
+                scene, spp // 2, 512, 100_000 * (h + 1), path_integrator()
+            ),
         ).astype(np.float64)
         for half in (0, 1)
     ]
@@ -242,13 +243,11 @@ def plot(results: dict, path: Path) -> None:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="tiny images and budgets (smoke)")
+    parser = report.arguments(__doc__, "tiny images and budgets (smoke)")
     parser.add_argument("--seconds", type=float, default=30.0, help="SPPM compute time")
     parser.add_argument("--photons", type=int, default=100_000, help="SPPM photons/iteration")
     parser.add_argument("--ref-spp", type=int, default=16384, help="path reference spp")
     parser.add_argument("--scenes", default=",".join(SCENES), help="comma-separated subset")
-    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = parser.parse_args(argv)
     seconds = 3.0 if args.quick else args.seconds
     ref_spp = 512 if args.quick else args.ref_spp
@@ -265,10 +264,8 @@ def main(argv=None) -> dict:
            "scenes": results, "sppm_photons_per_iteration": args.photons}  # fmt: skip
     stem = report.results_stem(args.out_dir, NAME, args.quick)
     text = markdown(out)
-    report.write_results(stem, out, text)
     plot(results, stem.with_suffix(".png"))
-    print(text)
-    return out
+    return report.publish(stem, out, text)
 
 
 if __name__ == "__main__":

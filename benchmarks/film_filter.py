@@ -18,7 +18,6 @@ Writes ``results/film_filter.json`` and ``.md`` (``_quick`` with ``--quick``).
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import mitsuba as mi
@@ -58,9 +57,7 @@ def reference(rfilter: str, size: int, spp: int, seed: int, cache: Path) -> np.n
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="64², 256 spp references, 3 runs")
-    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
+    parser = report.arguments(__doc__, "64², 256 spp references, 3 runs")
     args = parser.parse_args(argv)
     size, spp = (64, 256) if args.quick else (256, 2048)
     runs = RUNS[::2] if args.quick else RUNS
@@ -106,9 +103,7 @@ def main(argv=None) -> dict:
     )
     result = {"machine": machine, "git": report.git_revision(), "size": size,
               "reference_spp": spp, "reference_noise": floor, "runs": records}  # fmt: skip
-    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), result, text)
-    print(text)
-    return result
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -15,14 +15,13 @@ photons, 8192 gathers) and prints the markdown table.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from report import RESULTS, fmt, machine_info, markdown_table, results_stem, write_results
+import report
+from report import fmt, machine_info, markdown_table, publish, results_stem
 from timing import summarize, timed
 
 NAME = "knn_throughput"
@@ -73,12 +72,10 @@ def rate(gather, count: int, repeats: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true")
+    parser = report.arguments(__doc__, "100k photons, 8192 gathers")
     parser.add_argument("--photons", type=int)
     parser.add_argument("--queries", type=int)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     photons = args.photons or (100_000 if args.quick else 1_000_000)
     queries = args.queries or (8192 if args.quick else 65536)
@@ -150,9 +147,7 @@ def main(argv=None) -> dict:
         f"{machine.get('load_average')}; median of {args.repeats} runs after a warm-up.\n"
     )
     result = {"machine": machine, "photons": photons, "queries": queries, "results": results}
-    write_results(results_stem(args.out_dir, NAME, args.quick), result, text)
-    print(text)
-    return result
+    return publish(results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ Writes ``results/media_vs_volpath.json`` and ``.md`` (``_quick`` with ``--quick`
 
 from __future__ import annotations
 
-import argparse
 import os
 from pathlib import Path
 
@@ -117,12 +116,10 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="small budgets (a smoke run)")
+    ap = report.arguments(__doc__, "small budgets (a smoke run)")
     ap.add_argument("--seconds", type=float, default=60.0, help="SPPM compute budget")
     ap.add_argument("--ref-spp", type=int, default=32768)
     ap.add_argument("--target-spp", type=int, default=64, help="volpath budget of the headline")
-    ap.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = ap.parse_args(argv)
     if args.quick:
         args.seconds, args.ref_spp = 4.0, 2048
@@ -151,9 +148,7 @@ def main(argv=None) -> dict:
         "args": {k: v for k, v in vars(args).items() if k != "out_dir"},
     }
     text = markdown(result)
-    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), result, text)
-    print(text)
-    return result
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -7,6 +7,7 @@ its quick mode, and some a ``.png`` plot. The helpers here are deliberately plai
 
 from __future__ import annotations
 
+import argparse
 import datetime
 import json
 import math
@@ -87,6 +88,22 @@ def git_revision() -> dict | None:
     return {"commit": commit, "dirty": bool(dirty)}
 
 
+# ----------------------------------------------------------------------------------- command
+def integers(text: str) -> list[int]:
+    """An option's comma-separated whole numbers (``1e5`` allowed)."""
+    return [int(float(x)) for x in text.replace(" ", "").split(",") if x]
+
+
+def arguments(doc: str, quick: str) -> argparse.ArgumentParser:
+    """A benchmark's argument parser: described by the first paragraph of ``doc``, with
+    ``--quick`` (``quick`` says what the quick mode runs; it writes ``*_quick.*`` files) and
+    ``--out-dir`` (where the result files go; default ``benchmarks/results``)."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help=quick)
+    parser.add_argument("--out-dir", type=Path, default=RESULTS, help="folder of the results")
+    return parser
+
+
 # ------------------------------------------------------------------------------------- files
 def _jsonable(value):
     """``json.dump`` default: NumPy scalars/arrays, paths, enums; NaN stays NaN (JSON5-style)."""
@@ -127,6 +144,13 @@ def write_results(stem: Path, result: dict, text: str) -> None:
     """Write ``stem.md`` (``text``) and ``stem.json`` (``result``)."""
     write_text(stem.with_suffix(".md"), text)
     write_json(stem.with_suffix(".json"), result)
+
+
+def publish(stem: Path, result: dict, text: str) -> dict:
+    """:func:`write_results`, then print the markdown; returns ``result``."""
+    write_results(stem, result, text)
+    print(text)
+    return result
 
 
 def previous_results(path: Path) -> dict:

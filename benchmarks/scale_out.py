@@ -38,12 +38,10 @@ recorded, and the 2-worker numbers are only as good as the free cores were.
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
 from contextlib import contextmanager
-from pathlib import Path
 
 import numpy as np
 
@@ -273,8 +271,7 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="small sizes, *_quick.* outputs")
+    parser = report.arguments(__doc__, "small sizes, *_quick.* outputs")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--width", type=int, default=160)
     parser.add_argument("--height", type=int, default=120)
@@ -284,7 +281,6 @@ def main(argv=None) -> dict:
     parser.add_argument("--frames", type=int, default=8, help="timed frames per run")
     parser.add_argument("--grid", type=int, default=64)
     parser.add_argument("--volume-photons", type=int, default=65536)
-    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = parser.parse_args(argv)
     if args.quick:
         args.width, args.height, args.photons, args.blocks, args.frames = 64, 48, 10_000, 4, 4
@@ -305,12 +301,10 @@ def main(argv=None) -> dict:
     }
     text = markdown(result)
     stem = report.results_stem(args.out_dir, NAME, args.quick)
-    report.write_results(stem, result, text)
     measured = {"progressive": result["headline"]["iterations_per_s"],
                 "sequence": result["headline"]["frames_per_s"]}  # fmt: skip
     plot(stem.with_suffix(".png"), curves, measured)
-    print(text)
-    return result
+    return report.publish(stem, result, text)
 
 
 if __name__ == "__main__":

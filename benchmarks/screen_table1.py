@@ -23,7 +23,6 @@ Writes ``results/screen_table1.json`` (top-level ``headline.fps_cornell_1024x768
 
 from __future__ import annotations
 
-import argparse
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -155,14 +154,12 @@ def write_images(folder: Path = report.REPO / "docs", width: int = 512, height: 
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = report.arguments(__doc__, "headline rows only, 3 frames")
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--warmup", type=int, default=2)
-    ap.add_argument("--quick", action="store_true", help="headline rows only, 3 frames")
     ap.add_argument("--images", action="store_true", help="write the docs/ figures and stop")
     ap.add_argument("--width", type=int, default=W)
     ap.add_argument("--height", type=int, default=H)
-    ap.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = ap.parse_args(argv)
     if args.images:
         write_images()
@@ -219,9 +216,7 @@ def main(argv=None) -> dict:
     data = {"machine": report.machine_info(), "resolution": [args.width, args.height],
             "headline": headline,
             "rows": results, "frames": frames, "warmup": args.warmup}  # fmt: skip
-    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), data, markdown(data))
-    print(markdown(data))
-    return data
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), data, markdown(data))
 
 
 def _triangles(pipe) -> int:

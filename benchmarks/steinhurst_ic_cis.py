@@ -28,9 +28,7 @@ is estimated here as the ratio of photon gathers (naive traffic is proportional 
 
 from __future__ import annotations
 
-import argparse
 import os
-from pathlib import Path
 
 import drjit as dr
 import mitsuba as mi
@@ -187,8 +185,9 @@ def markdown(result: dict) -> str:
     lines += [
         "## Tables 6.1–6.2: storage and computation per final gather",
         "",
-        markdown_table(["method", "storage", "bytes (ours / doc)", "FLOPs", "FLOPs (ours / doc)"],
-                       costs),  # fmt: skip
+        markdown_table(
+            ["method", "storage", "bytes (ours / doc)", "FLOPs", "FLOPs (ours / doc)"], costs
+        ),  # fmt: skip
         "",
         "Measured table builds (k = 100 photons, this CPU): "
         f"Jensen {tb['jensen']['us_per_query']:.2f} µs/query, "
@@ -227,9 +226,7 @@ def headline(cis: dict, ic: dict) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="tiny images (smoke test)")
-    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
+    parser = report.arguments(__doc__, "tiny images (smoke test)")
     parser.add_argument("--size", type=int, default=None, help="image side (default 128 / 256)")
     args = parser.parse_args(argv)
     c = dict(QUICK if args.quick else FULL)
@@ -252,9 +249,7 @@ def main(argv=None) -> dict:
         "irradiance_cache": ic,
     }
     text = markdown(result)
-    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), result, text)
-    print(text)
-    return result
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -24,7 +24,6 @@ fully associative, 16 × 16 tiles):
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 from dataclasses import replace
@@ -261,9 +260,7 @@ N_FG = 50 imply 50 GB / 20 B / (512² · 50) ≈ 190 node visits per gather agai
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(report.RESULTS))
+    ap = report.arguments(__doc__, "tiny configuration (smoke test)")
     ap.add_argument(
         "--sweeps-only",
         action="store_true",
@@ -305,9 +302,7 @@ def main(argv=None) -> dict:
             k: previous.get(k) for k in ("elapsed_s", "load_average", "load_average_start")
         }
     text = markdown(result)
-    report.write_results(stem, result, text)
-    print(text)
-    return result
+    return report.publish(stem, result, text)
 
 
 if __name__ == "__main__":

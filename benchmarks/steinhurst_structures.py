@@ -124,7 +124,11 @@ def _table_4_1(s: dict) -> str:
     columns += [(SHORT[x], lambda r, x=x: r[x]["fetches_per_block"], 2) for x in STRUCTURES]
     columns += [(f"doc {SHORT[x]}", lambda r, x=x: r["doc"][x], 1) for x in STRUCTURES]
     columns += [
-        ("kdB/kd", lambda r: r["kdbtree"]["fetches_per_block"] / r["kdtree"]["fetches_per_block"], 2),
+        (
+            "kdB/kd",
+            lambda r: r["kdbtree"]["fetches_per_block"] / r["kdtree"]["fetches_per_block"],
+            2,
+        ),
         ("doc kdB/kd", lambda r: r["doc"]["kdbtree"] / r["doc"]["kdtree"], 2),
         ("kdB/kd bytes", lambda r: r["kdbtree"]["misses"] / max(r["kdtree"]["misses"], 1), 2),
     ]
@@ -137,7 +141,9 @@ def structures_markdown(s: dict) -> str:
     f, table = s["structures"], s["table"]
     gb = 128 * s["image_scale"] / 1e9  # GB per image of one miss
     misses = [[o, *[fmt(r[x]["misses"] * gb, 2) for x in STRUCTURES]] for o, r in table.items()]
-    misses.append(["distinct lines", *[fmt(table["naive"][x]["distinct_lines"]) for x in STRUCTURES]])
+    misses.append(
+        ["distinct lines", *[fmt(table["naive"][x]["distinct_lines"]) for x in STRUCTURES]]
+    )
     sweep = [[st, o, *[fmt(v, 2) for v in c]]
              for st, curves in s["line_sweep_GB"].items() for o, c in curves.items()]  # fmt: skip
     accuracy = [
@@ -166,8 +172,13 @@ def structures_markdown(s: dict) -> str:
         + " (dissertation: 256 B in naive order)\n",
         "Block hashing's accuracy A (blocks read per gather at most), 128 B lines:\n",
         markdown_table(
-            ["A", "recall", "lines/gather", *[f"fetches/block {o}" for o in LINE_ORDERS],
-             *[f"GB {o}" for o in LINE_ORDERS]],
+            [
+                "A",
+                "recall",
+                "lines/gather",
+                *[f"fetches/block {o}" for o in LINE_ORDERS],
+                *[f"GB {o}" for o in LINE_ORDERS],
+            ],
             accuracy,
         ),  # fmt: skip
     ]

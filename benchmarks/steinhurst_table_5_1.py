@@ -23,7 +23,6 @@ window and over the whole 512² image (the plan only: the decisions need no fina
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 
@@ -179,10 +178,7 @@ def table(scenes: dict) -> str:
             rows.append(
                 [
                     f"{label}, {'without' if cache == 'none' else 'with'} IC",
-                    *[
-                        f"{fmt(p[o], 1)} ({fmt(d, 1)})"
-                        for o, d in zip(ORDERS, doc[k], strict=True)
-                    ],
+                    *[f"{fmt(p[o], 1)} ({fmt(d, 1)})" for o, d in zip(ORDERS, doc[k], strict=True)],
                     " / ".join(fmt(u[o], 1) for o in ORDERS),
                 ]
             )
@@ -217,9 +213,7 @@ def table(scenes: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(report.RESULTS))
+    ap = report.arguments(__doc__, "tiny configuration (smoke test)")
     ap.add_argument(
         "--ic-errors",
         default=",".join(map(str, IC_ERRORS)),
@@ -251,9 +245,7 @@ def main(argv=None) -> dict:
         },
     }
     text = markdown(result)
-    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), result, text)
-    print(text)
-    return result
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,6 @@ the image. Written beside the dissertation's numbers:
 
 from __future__ import annotations
 
-import argparse
 import os
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -268,9 +267,7 @@ def only(study: str, quick: bool, out: Path) -> dict:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(report.RESULTS))
+    ap = report.arguments(__doc__, "tiny configuration (smoke test)")
     ap.add_argument("--plot", default=str(report.REPO / "docs" / "steinhurst_cache_size.png"))
     ap.add_argument(
         "--scenes",
@@ -315,7 +312,6 @@ def main(argv=None) -> dict:
         "headline": headline_of(scenes, previous.get("sponza_setting"), out),
     }
     text = markdown(result, CACHE_KB)
-    report.write_results(stem, result, text)
     if not args.quick:
         cornell = scenes["cornell_steinhurst"]
         plot_sweep(
@@ -326,8 +322,7 @@ def main(argv=None) -> dict:
             "Cornell box, whole 512×512 image, 128 B lines",
             cornell["uncached_GB_per_image"] * 1e9,
         )
-    print(text)
-    return result
+    return report.publish(stem, result, text)
 
 
 if __name__ == "__main__":

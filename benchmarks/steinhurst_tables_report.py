@@ -14,7 +14,9 @@ from steinhurst_variants import glossy_markdown, sponza_markdown
 
 def _sweep_table(label: str, points, curves: dict) -> str:
     """``order`` × ``points`` of GB per image."""
-    return markdown_table([label, *points], [[o, *[fmt(v, 2) for v in c]] for o, c in curves.items()])
+    return markdown_table(
+        [label, *points], [[o, *[fmt(v, 2) for v in c]] for o, c in curves.items()]
+    )
 
 
 def scene_markdown(name: str, s: dict, doc: dict, cache_kb) -> str:
@@ -60,9 +62,13 @@ def scene_markdown(name: str, s: dict, doc: dict, cache_kb) -> str:
         "\nChip model (Ch. 7) fed with these counts, R_IC = 0:\n",
         records_table(
             hardware,
-            [("order", "order", None), ("GB/image", "GB_per_image", 2),
-             ("GFLOPs/image", "GFLOPs_per_image", 1), ("tiles/s (90 GB/s)", "tiles_per_s_memory", 0),
-             ("tiles/s (500 GFLOPS)", "tiles_per_s_compute", 0)],
+            [
+                ("order", "order", None),
+                ("GB/image", "GB_per_image", 2),
+                ("GFLOPs/image", "GFLOPs_per_image", 1),
+                ("tiles/s (90 GB/s)", "tiles_per_s_memory", 0),
+                ("tiles/s (500 GFLOPS)", "tiles_per_s_compute", 0),
+            ],
         ),  # fmt: skip
         "",
     ]

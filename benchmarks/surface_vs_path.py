@@ -19,7 +19,6 @@ Writes ``results/surface_vs_path.json``, ``.md``, ``.png`` and ``surface_vs_path
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -160,7 +159,9 @@ def headline(path_rows, pm_rows, rates) -> dict:
 def budget_text(r: dict) -> str:
     if "photons" not in r:
         return f"{r['spp']} spp"
-    return f"{r['photons']:,} + {r['caustic_photons']:,} paths, {r['fg_rays']} FG rays, {r['spp']} spp"
+    return (
+        f"{r['photons']:,} + {r['caustic_photons']:,} paths, {r['fg_rays']} FG rays, {r['spp']} spp"
+    )
 
 
 def markdown(result: dict) -> str:
@@ -203,9 +204,7 @@ def plot(result: dict, path: Path) -> None:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="64×64, few budgets (smoke test)")
-    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
+    parser = report.arguments(__doc__, "64×64, few budgets (smoke test)")
     parser.add_argument(
         "--throughput-only",
         action="store_true",
@@ -234,11 +233,9 @@ def main(argv=None) -> dict:
     }
     stem = report.results_stem(args.out_dir, NAME, args.quick)
     text = markdown(result)
-    report.write_results(stem, result, text)
     write_image(str(stem) + "_photonmap.png", last)
     plot(result, stem.with_suffix(".png"))
-    print(text)
-    return result
+    return report.publish(stem, result, text)
 
 
 if __name__ == "__main__":

@@ -256,9 +256,7 @@ def main(argv: list[str] | None = None) -> dict:
     result["seconds"] = time.perf_counter() - start
     result["load_average_end"] = report.load_average()
     text = markdown(result)
-    report.write_results(args.out_dir / args.name, result, text)
-    print(text)
-    return result
+    return report.publish(args.out_dir / args.name, result, text)
 
 
 if __name__ == "__main__":

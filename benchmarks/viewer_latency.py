@@ -24,7 +24,6 @@ shared, so the load average is recorded and medians are reported.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 
@@ -150,8 +149,10 @@ def run_case(name: str, runs: int) -> dict:
     for name, samples in (("light", light), ("camera", camera)):
         result[name] = {
             "latency_ms": timing.summarize([s["latency_ms"] for s in samples]),
-            **{key: timing.summarize([s[key] for s in samples])
-               for key in ("stream_ms", "frame_ms", "apply_ms", "render_ms", "encode_ms")},
+            **{
+                key: timing.summarize([s[key] for s in samples])
+                for key in ("stream_ms", "frame_ms", "apply_ms", "render_ms", "encode_ms")
+            },
             "stages_ms": timing.stage_medians([s["timings"] for s in samples]),
             "recomputed": samples[-1]["recomputed"],
             "png_bytes": samples[-1]["png_bytes"],
@@ -176,10 +177,8 @@ def drag_cells(drag: dict) -> list[str]:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = report.arguments(__doc__, "3 runs")
     parser.add_argument("--runs", type=int, default=7, help="timed updates per kind of move")
-    parser.add_argument("--quick", action="store_true", help="3 runs")
-    parser.add_argument("--out-dir", default=str(report.RESULTS))
     args = parser.parse_args(argv)
     runs = 3 if args.quick else args.runs
     results = {"machine": report.machine_info(), "runs": runs,
@@ -208,9 +207,7 @@ def main(argv=None) -> dict:
     text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"
             f"Medians of {runs} updates each; load average {load} at the start, "
             f"{results['machine']['load_average_end']} at the end.\n")  # fmt: skip
-    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), results, text)
-    print(text)
-    return results
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), results, text)
 
 
 if __name__ == "__main__":

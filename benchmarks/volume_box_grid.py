@@ -17,7 +17,6 @@ of 4×4-block means and per pixel (:func:`photonmap.compare`); render times are 
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import os
 import time
@@ -116,15 +115,13 @@ def run(args) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = report.arguments(__doc__, "grid 24, 48×36, 256-spp reference")
     parser.add_argument("--grid", type=int, default=64)
     parser.add_argument("--photons", type=int, default=2**18)
     parser.add_argument("--width", type=int, default=96)
     parser.add_argument("--height", type=int, default=72)
     parser.add_argument("--reference-spp", type=int, default=8192)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--quick", action="store_true", help="grid 24, 48×36, 256-spp reference")
-    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = parser.parse_args(argv)
     if args.quick:
         args.grid, args.photons, args.width, args.height = 24, 2**14, 48, 36
@@ -142,9 +139,7 @@ def main(argv=None) -> dict:
             ("s", lambda r: r["render_s"]["median"], 2),
         ],
     )
-    report.write_results(report.results_stem(args.out_dir, NAME, args.quick), result, table + "\n")
-    print(table)
-    return result
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, table + "\n")
 
 
 if __name__ == "__main__":

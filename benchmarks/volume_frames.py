@@ -67,7 +67,9 @@ def warm_up(pipe, change: Callable[[int], Callable[[], None]] | None, minimum: i
     frames = []
     for i in range(limit):
         f = frame(pipe, None if change is None else change(i))
-        frames.append({k: f[k] for k in ("wall_ms", "kernels_compiled", "compile_ms", "recomputed")})
+        frames.append(
+            {k: f[k] for k in ("wall_ms", "kernels_compiled", "compile_ms", "recomputed")}
+        )
         if i + 1 >= minimum and f["kernels_compiled"] == 0:
             break
     return frames

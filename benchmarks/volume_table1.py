@@ -34,13 +34,13 @@ prints the markdown. ``python benchmarks/volume_table1.py [--quick] [--runs N] [
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import report
 from report import RESULTS, load_average, machine_info, results_stem, write_results
 from volume_frames import make_pipeline, measure_full, measure_interactive, warm_up_full
 from volume_profile import profile as profile_of
@@ -263,24 +263,23 @@ def secondary_of(pipe, photons, light_runs, view_runs, log=_log) -> dict:
 
 
 # -------------------------------------------------------------------------------------- CLI
-def _ints(text: str) -> list[int]:
-    return [int(x) for x in text.replace(" ", "").split(",") if x]
-
-
 def main(argv: Sequence[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="smoke test: 1 run, rows 9 and 11")
+    parser = report.arguments(__doc__, "smoke test: 1 run, rows 9 and 11")
     parser.add_argument("--runs", type=int, default=3, help="timed full renders per row")
-    parser.add_argument("--rows", type=_ints, default=None, help="rows of Table 1, e.g. 1,9,11")
+    parser.add_argument(
+        "--rows", type=report.integers, default=None, help="rows of Table 1, e.g. 1,9,11"
+    )
     parser.add_argument("--light-runs", type=int, default=3, help="headline light-change frames")
     parser.add_argument("--view-runs", type=int, default=5, help="headline view-only frames")
     parser.add_argument("--grid", type=int, default=128)
     parser.add_argument("--width", type=int, default=640)
     parser.add_argument("--height", type=int, default=480)
     parser.add_argument(
-        "--photons", type=_ints, default=None, help="counts for the paper's 256²,512²,1024²"
+        "--photons",
+        type=report.integers,
+        default=None,
+        help="counts for the paper's 256²,512²,1024²",
     )
-    parser.add_argument("--out-dir", type=Path, default=RESULTS)
     parser.add_argument("--no-secondary", action="store_true", help=f"skip {SECONDARY_SCENE}")
     parser.add_argument("--no-profile", action="store_true", help="skip the profile")
     args = parser.parse_args(argv)

@@ -44,7 +44,6 @@ the curves, every sample, the headline's working), ``.md`` and ``.png`` (``_quic
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from functools import partial
@@ -244,9 +243,7 @@ def run_scene(name: str, config: dict, cache: Path) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="48×36, few budgets (smoke test)")
-    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
+    parser = report.arguments(__doc__, "48×36, few budgets (smoke test)")
     parser.add_argument(
         "--scenes", default=",".join(SCENES), help=f"comma-separated subset of {tuple(SCENES)}"
     )

@@ -109,7 +109,9 @@ def scene_headline(res: dict) -> dict:
             m: {k: h[m][k]["speedup_vs_volpath_at_equal_rmse"] for k in KEYS} for m in METHODS
         },
         "bias_floor": {m: {k: h[m][k]["bias_floor"] for k in KEYS} for m in METHODS},
-        "notes": [f"{m} {k}: {h[m][k]['note']}" for m in METHODS for k in KEYS if "note" in h[m][k]],
+        "notes": [
+            f"{m} {k}: {h[m][k]['note']}" for m in METHODS for k in KEYS if "note" in h[m][k]
+        ],
     }
 
 
