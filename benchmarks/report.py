@@ -142,8 +142,8 @@ def results_stem(out_dir: Path | str, name: str, quick: bool = False) -> Path:
 
 def write_results(stem: Path, result: dict, text: str) -> None:
     """Write ``stem.md`` (``text``) and ``stem.json`` (``result``)."""
-    write_text(stem.with_suffix(".md"), text)
-    write_json(stem.with_suffix(".json"), result)
+    write_text(stem.with_name(stem.name + ".md"), text)
+    write_json(stem.with_name(stem.name + ".json"), result)
 
 
 def publish(stem: Path, result: dict, text: str) -> dict:

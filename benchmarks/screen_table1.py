@@ -4,8 +4,8 @@ Reproduces the rows of the thesis's Table 1 (per scene: subsampling, bounces, ph
 hard shadows) and Table 2 (quad vs icosahedron splats) that our built-in scenes cover, at the
 thesis's 1024 × 768, with the thesis's GTX 480 numbers beside ours. The Happy Buddha and Chinese
 dragon rows use ``cornell_mesh`` (a diffuse watertight torus-knot mesh) at the models' triangle
-counts; the glass sphere row uses ``cornell_glass_sphere``. Photons = 100² × bounces (spec A1);
-radius 0.045 × scene diagonal (A17); ISG samples "4+5".
+counts; the glass sphere row uses ``cornell_glass_sphere``. Photons = 100² × bounces; radius
+0.045 × scene diagonal; ISG samples "4+5".
 
 A *frame* is a full frame: every stage reruns except the fixed random map (both camera and light
 moved, as in the thesis's dynamic scenes). Each configuration runs ``--warmup`` frames (kernel

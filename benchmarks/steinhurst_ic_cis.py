@@ -46,7 +46,7 @@ from timing import median, timed
 
 NAME = "steinhurst_ic_cis"
 SAMPLINGS = ("uniform", "cosine", "bsdf", "jensen", "cis")
-# Tables 6.1, 6.2 as printed, and their formulas (spec §3.6; P photons, C_J / C_H table cells)
+# Tables 6.1, 6.2 as printed, and their formulas (P photons, C_J / C_H table cells)
 COST_DOC = {
     "jensen": ("4C_J", 128, "3P + 3C_J + 7N_FG", 1096),
     "cis": ("4C_J", 128, "3P + C_J(4 + BRDF) + 7N_FG", 1448),

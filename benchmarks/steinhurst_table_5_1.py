@@ -40,7 +40,7 @@ from report import fmt, markdown_table
 NAME = "steinhurst_table_5_1"
 ORDERS = ("naive", "tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
 # ε_max: Fig 5.5's 0.05, and 0.01, where the bare box's R_IC over the 512² image (59 %) is near
-# the 62 % the dissertation reports for its Cornell box (spec A3's calibration; 0.02: 77 %)
+# the 62 % the dissertation reports for its Cornell box (0.02: 77 %)
 IC_ERRORS = (0.05, 0.01)
 ERROR_NOTES = {0.05: " (Fig 5.5's value)", 0.01: " (A3: calibrated to R_IC ≈ 62 % on the bare box)"}
 # Table 5.1 as printed: % of the naive order without IC, (without IC, with IC) per order

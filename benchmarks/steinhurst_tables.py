@@ -162,7 +162,7 @@ def full_image_table(name: str, params: dict, grid: int, size: int) -> dict:
 
 def window_sweeps(name: str, window, params: dict, grid: int) -> dict:
     """Figs 3.5 and 4.1 on a window of the 512² image (the dissertation's pixel footprint, so
-    each tile's gathers are as coherent as at full size; spec A17): bytes scaled to the image."""
+    each tile's gathers are as coherent as at full size): bytes scaled to the image."""
     x, y, w, h = window
     trace = trace_final_gathers(cropped_scene(name, 512, (x, y), (w, h)), **params)
     scale = 512 * 512 / (w * h)
