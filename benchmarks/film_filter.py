@@ -11,29 +11,26 @@ box image against the gaussian reference; "box film" is that image against the b
 the method's own floor. Errors: relative RMSE per pixel and of 4×4-pixel block means
 (:func:`photonmap.core.image.compare`).
 
-Writes ``results/film_filter.json`` and ``.md``.
+Writes ``results/film_filter.json`` and ``.md`` (``_quick`` with ``--quick``).
 
     .venv/bin/python benchmarks/film_filter.py [--quick]
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import mitsuba as mi  # noqa: E402
+import report
+from accuracy import cached_image
+from photonmap import METHODS
+from photonmap.core.image import compare
+from photonmap.core.reference import render_reference
+from timing import timed
 
-import common  # noqa: E402
-import photonmap  # noqa: E402,F401
-from photonmap import METHODS  # noqa: E402
-from photonmap.core.image import compare  # noqa: E402
-from photonmap.core.reference import render_reference  # noqa: E402
-
-CACHE = common.RESULTS / "cache"
+NAME = "film_filter"
 RUNS = [
     ("surface", {"spp": 4}),
     ("surface", {"spp": 16}),
@@ -51,29 +48,28 @@ def scene(rfilter: str, size: int) -> mi.Scene:
     return mi.load_dict(d)
 
 
-def reference(rfilter: str, size: int, spp: int, seed: int) -> np.ndarray:
-    path = CACHE / f"film_filter_{rfilter}_{size}_{spp}_{seed}.npy"
-    if not path.exists():
-        CACHE.mkdir(parents=True, exist_ok=True)
-        image, _ = render_reference(scene(rfilter, size), spp=spp, seed=seed)
-        np.save(path, image)
-    return np.load(path)
+def reference(rfilter: str, size: int, spp: int, seed: int, cache: Path) -> np.ndarray:
+    """``path`` at ``spp`` on the ``rfilter`` film (cached)."""
+    return cached_image(
+        cache / f"film_filter_{rfilter}_{size}_{spp}_{seed}.npy",
+        lambda: render_reference(scene(rfilter, size), spp=spp, seed=seed)[0],
+    )
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--quick", action="store_true", help="64², 256 spp references, 3 runs")
-    args = parser.parse_args()
+def main(argv=None) -> dict:
+    parser = report.arguments(__doc__, "64², 256 spp references, 3 runs")
+    args = parser.parse_args(argv)
     size, spp = (64, 256) if args.quick else (256, 2048)
     runs = RUNS[::2] if args.quick else RUNS
-    ref = {f: reference(f, size, spp, 0) for f in ("gaussian", "box")}
-    floor = compare(reference("gaussian", size, spp, 1), ref["gaussian"])
+    cache = args.out_dir / "cache"
+    ref = {f: reference(f, size, spp, 0, cache) for f in ("gaussian", "box")}
+    floor = compare(reference("gaussian", size, spp, 1, cache), ref["gaussian"])
     rows, records = [], []
     for method, params in runs:
         images, seconds = {}, {}
         for rfilter in ("gaussian", "box"):
             pipe = METHODS[method].pipeline(scene(rfilter, size), **params)
-            seconds[rfilter], image = common.timed(pipe.render)
+            seconds[rfilter], image = timed(pipe.render)
             images[rfilter] = np.array(image, dtype=np.float64)
         honoured = compare(images["gaussian"], ref["gaussian"])
         ignored = compare(images["box"], ref["gaussian"])
@@ -92,7 +88,7 @@ def main() -> None:
         print(rows[-1], flush=True)
     headers = ["method", "settings", "ignoring the filter", "filter honoured", "box film",
                "seconds (gaussian / box)"]  # fmt: skip
-    machine = common.machine_info()
+    machine = report.machine_info()
     text = (
         f"# The film's reconstruction filter: mi.cornell_box() ({size}², gaussian) vs path\n\n"
         f"Relative RMSE per pixel / of 4×4 block means, against `path` at {spp} spp on the same "
@@ -101,16 +97,13 @@ def main() -> None:
         "film's image; *box film*: the box-film image against the box reference (the method's "
         f"own floor). The references' own noise: {floor['rel_rmse']:.3f} / "
         f"{floor['block_rel_rmse']:.3f}.\n\n"
-        + common.markdown_table(headers, rows)
+        + report.markdown_table(headers, rows)
         + f"\n\nMachine: {machine.get('cpu_model', '')}, load average "
         f"{machine.get('load_average')} (shared cores: times vary by up to ~4x).\n"
     )
-    common.write_json(common.RESULTS / "film_filter.json", {
-        "machine": machine, "git": common.git_revision(), "size": size, "reference_spp": spp,
-        "reference_noise": floor, "runs": records,
-    })  # fmt: skip
-    common.write_text(common.RESULTS / "film_filter.md", text)
-    print(text)
+    result = {"machine": machine, "git": report.git_revision(), "size": size,
+              "reference_spp": spp, "reference_noise": floor, "runs": records}  # fmt: skip
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,9 @@
-"""Benchmark: photon gathers per second of the hash grid and the kd-tree (issue 3, item 2).
-
-Spec seed-001 §2.4 (kNN gather, k = 100), §2.8 (data structures). 1M photons, either uniform in
-the unit cube or on the walls of a Cornell box (floor, ceiling, back and side walls, and the
-faces of two blocks; sampled by area); the gather points come from the same distribution, in
-random order (the naive order of spec §2.7.1) and sorted by grid cell (a spatially coherent
-order). For k = 100, 50 and 10: exact k-nearest gathers per second of
+"""Photon gathers per second of the hash grid and the kd-tree: the k-nearest-neighbour gathers of
+photon mapping (Jensen 1996; Steinhurst 2007 §2.4, k = 100) on the two structures. 1M photons,
+either uniform in the unit cube or on the walls of a Cornell box (floor, ceiling, back and side
+walls, and the faces of two blocks; sampled by area); the gather points come from the same
+distribution, in random order (Steinhurst's naive order) and sorted by grid cell (a spatially
+coherent order). For k = 100, 50 and 10: exact k-nearest gathers per second of
 :class:`photonmap.core.hashgrid.HashGrid` and :class:`photonmap.surface.kdtree.KDTree` (Dr.Jit
 LLVM, all cores) and of ``scipy.spatial.cKDTree.query`` (``workers=2``) on the same points, after
 one warm-up call (kernel compilation), median of ``--repeats`` timed calls.
@@ -16,23 +15,14 @@ photons, 8192 gathers) and prints the markdown table.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-from common import (
-    RESULTS,
-    fmt,
-    machine_info,
-    markdown_table,
-    summarize,
-    timed,
-    write_json,
-    write_text,
-)
+import report
+from report import fmt, machine_info, markdown_table, publish, results_stem
+from timing import summarize, timed
 
 NAME = "knn_throughput"
 KS = (100, 50, 10)
@@ -82,12 +72,10 @@ def rate(gather, count: int, repeats: int) -> dict:
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true")
+    parser = report.arguments(__doc__, "100k photons, 8192 gathers")
     parser.add_argument("--photons", type=int)
     parser.add_argument("--queries", type=int)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--out-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     photons = args.photons or (100_000 if args.quick else 1_000_000)
     queries = args.queries or (8192 if args.quick else 65536)
@@ -159,11 +147,7 @@ def main(argv=None) -> dict:
         f"{machine.get('load_average')}; median of {args.repeats} runs after a warm-up.\n"
     )
     result = {"machine": machine, "photons": photons, "queries": queries, "results": results}
-    suffix = "_quick" if args.quick else ""
-    write_json(args.out_dir / f"{NAME}{suffix}.json", result)
-    write_text(args.out_dir / f"{NAME}{suffix}.md", text)
-    print(text)
-    return result
+    return publish(results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -1,5 +1,5 @@
-"""SPPM against Mitsuba's ``volpath`` on a scene with participating media and no caustics: time to
-equal error.
+"""SPPM (Hachisuka & Jensen 2009) against Mitsuba's ``volpath`` on a scene with participating
+media and no caustics: time to equal error.
 
 Scene: ``lamp_in_fog`` (examples/lamp_in_fog.xml: a small spherical lamp inside a box of fog
 standing on a diffuse floor, a rough-plastic block in the fog; Mitsuba's default gaussian film
@@ -8,7 +8,7 @@ along each piece, free-flight collisions), its photons light the floor and the b
 ``volpath`` at ``--ref-spp`` in two halves of different seeds (cached in ``results/cache/``), the
 halves' difference estimating the reference's own error. ``volpath`` at 4 … 1024 spp (timed
 renders) and SPPM (default parameters, one run, errors at checkpoints with the clock stopped).
-Errors leave out the pixels that see the lamp (``surface_vs_path.light_image_mask``: its image is
+Errors leave out the pixels that see the lamp (:func:`accuracy.light_image_mask`: its image is
 antialiasing noise of the eye samples, the same for every method, and would swamp the rest).
 
 Headline: ``sppm_time_ratio_at_equal_block_rmse`` — the time SPPM needs for the 4×4-block error
@@ -16,115 +16,75 @@ that ``volpath`` reaches at ``--target-spp`` (the file's own sample count), divi
 ``volpath`` needs (log-log interpolation of both curves); the same at 256 and 1024 spp in
 ``time_ratios``. The goal is at most 2.
 
-Writes ``results/media_vs_volpath.json`` and ``.md``.
+Writes ``results/media_vs_volpath.json`` and ``.md`` (``_quick`` with ``--quick``).
 
     .venv/bin/python benchmarks/media_vs_volpath.py [--quick] [--seconds 60]
 """
 
 from __future__ import annotations
 
-import argparse
 import os
-import sys
-import time
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import mitsuba as mi  # noqa: E402
+import report
+from accuracy import (
+    cached_image,
+    errors,
+    light_image_mask,
+    loglog_time_for,
+    masked_errors,
+    mitsuba_curve,
+    render_passes,
+    vs_truth,
+)
+from photonmap.sppm import SPPMPipeline
+from timing import checkpoints
 
-import common  # noqa: E402
-import photonmap  # noqa: E402,F401
-from caustics_vs_path import errors, vs_truth  # noqa: E402
-from photonmap.core.image import write_image  # noqa: E402
-from photonmap.sppm import SPPMPipeline  # noqa: E402
-from surface_vs_path import light_image_mask, loglog_time_for  # noqa: E402
-
-SCENE = common.REPO / "examples" / "lamp_in_fog.xml"
+NAME = "media_vs_volpath"
+SCENE = report.REPO / "examples" / "lamp_in_fog.xml"
 CHECKPOINTS = (0.25, 0.5, 1, 2, 4, 8, 15, 30, 60, 120)
+KEY = "block_rel_rmse"
 
 
-def reference(scene, spp: int, cache: Path, tag: str):
+def reference(scene, spp: int, cache: Path, tag: str) -> list[np.ndarray]:
     """The two halves of a ``volpath`` reference at ``spp`` samples per pixel (cached)."""
-    halves = []
-    for half in (0, 1):
-        path = cache / f"media_{tag}_{spp}spp_{half}.exr"
-        if not path.exists():
-            cache.mkdir(parents=True, exist_ok=True)
-            passes = max(1, spp // 2 // 1024)
-            image = sum(
-                np.array(mi.render(scene, spp=spp // 2 // passes, seed=100_000 * (half + 1) + i))
-                for i in range(passes)
-            ) / passes
-            write_image(str(path), image)
-        halves.append(np.array(mi.Bitmap(str(path)), dtype=np.float64)[..., :3])
-    return halves
+    return [
+        cached_image(
+            cache / f"media_{tag}_{spp}spp_{half}.exr",
+            lambda h=half: render_passes(scene, spp // 2, 1024, 100_000 * (h + 1)),
+        ).astype(np.float64)
+        for half in (0, 1)
+    ]
 
 
-def run_volpath(scene, ref, mask, spps):
-    mi.render(scene, spp=1, seed=7)  # compile
-    rows = []
-    for spp in spps:
-        t, image = common.timed(lambda s=spp: np.array(mi.render(scene, spp=s, seed=7)))
-        rows.append({"spp": spp, "seconds": t, **errors(image, ref, mask)})
-        print(f"  volpath {spp} spp: {t:.2f} s, 4x4 error {rows[-1]['block_rel_rmse']:.4f}",
-              flush=True)  # fmt: skip
-    return rows
-
-
-def run_sppm(path: str, ref, mask, seconds: float):
+def run_sppm(path: str, score, seconds: float):
     """One SPPM run (default parameters) of ``seconds`` compute time; errors at checkpoints."""
     pipe = SPPMPipeline(path)
     pipe.run(iterations=2)  # compile every kernel of the run
     pipe.reset()
-    rows, spent = [], 0.0
-    marks = [c for c in CHECKPOINTS if c < seconds] + [seconds]
-    while marks:
-        common.sync()
-        start = time.perf_counter()
-        pipe.step()
-        common.sync()
-        spent += time.perf_counter() - start
-        if spent >= marks[0]:
-            while marks and spent >= marks[0]:
-                marks.pop(0)
-            rows.append({"iterations": pipe.iterations, "seconds": spent,
-                         **errors(np.array(pipe.image()), ref, mask)})  # fmt: skip
-            print(f"  sppm {pipe.iterations} it: {spent:.1f} s, "
-                  f"4x4 error {rows[-1]['block_rel_rmse']:.4f}", flush=True)  # fmt: skip
+    rows = []
+    for spent in checkpoints(pipe.step, seconds, CHECKPOINTS):
+        rows.append({"iterations": pipe.iterations, "seconds": spent,
+                     **score(np.array(pipe.image()))})  # fmt: skip
+        print(f"  sppm {pipe.iterations} it: {spent:.1f} s, "
+              f"4x4 error {rows[-1][KEY]:.4f}", flush=True)  # fmt: skip
     return rows, {"stages_ms": dict(pipe.timer.ms), "stats": dict(pipe.stats)}
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="small budgets (a smoke run)")
-    ap.add_argument("--seconds", type=float, default=60.0, help="SPPM compute budget")
-    ap.add_argument("--ref-spp", type=int, default=32768)
-    ap.add_argument("--target-spp", type=int, default=64, help="volpath budget of the headline")
-    args = ap.parse_args()
-    if args.quick:
-        args.seconds, args.ref_spp = 4.0, 2048
-    load = os.getloadavg()[0]
-    scene = mi.load_file(str(SCENE))
-    halves = reference(scene, args.ref_spp, common.RESULTS / "cache", "lamp_in_fog")
-    ref = (halves[0] + halves[1]) / 2
-    mask = light_image_mask(scene)  # the lamp's own pixels: antialiasing noise, as in caustics
-    # each half's error is √2 × the mean's, and the halves' difference √2 × one half's
-    ref_err = errors(halves[0], halves[1], mask)["block_rel_rmse"] / 2
-    spps = [4, 8, 16] if args.quick else [4, 8, 16, 32, 64, 128, 256, 512, 1024]
-    volpath = run_volpath(scene, ref, mask, spps)
-    sppm, rates = run_sppm(str(SCENE), ref, mask, args.seconds)
-    key = "block_rel_rmse"
-    target = next((r[key] for r in volpath if r["spp"] == args.target_spp), volpath[-1][key])
-    t_volpath = loglog_time_for(volpath, target, key)
-    t_sppm = loglog_time_for(sppm, target, key)
+def headline(volpath: list, sppm: list, target_spp: int, ref_err: float) -> dict:
+    """SPPM's time over volpath's for volpath's error at ``target_spp`` (and 256, 1024 spp)."""
+    target = next((r[KEY] for r in volpath if r["spp"] == target_spp), volpath[-1][KEY])
+    t_volpath = loglog_time_for(volpath, target, KEY)
+    t_sppm = loglog_time_for(sppm, target, KEY)
     ratios = {}
     for row in volpath:
-        if row["spp"] in (args.target_spp, 256, 1024):
-            t = loglog_time_for(sppm, row[key], key)
+        if row["spp"] in (target_spp, 256, 1024):
+            t = loglog_time_for(sppm, row[KEY], KEY)
             ratios[f"{row['spp']} spp"] = None if t is None else t / row["seconds"]
-    headline = {
+    return {
         "target_block_rel_rmse": target,
         "volpath_seconds": t_volpath,
         "sppm_seconds": t_sppm,
@@ -132,26 +92,63 @@ def main() -> None:
         "time_ratios": ratios,
         "goal": "<= 2",
         "reference_block_rel_rmse": ref_err,
-        "sppm_final_block_rel_rmse_vs_truth": vs_truth(sppm[-1][key], ref_err),
+        "sppm_final_block_rel_rmse_vs_truth": vs_truth(sppm[-1][KEY], ref_err),
     }
-    machine = common.machine_info()
-    load_end = os.getloadavg()[0]
-    result = {"headline": headline, "volpath": volpath, "sppm": sppm, "sppm_rates": rates,
-              "machine": machine, "load_average": [load, load_end],
-              "git": common.git_revision(), "args": vars(args)}  # fmt: skip
-    common.write_json(common.RESULTS / "media_vs_volpath.json", result)
-    rows = [[f"volpath {r['spp']} spp", common.fmt(r["seconds"], 2), common.fmt(r[key], 4),
-             common.fmt(r["brightness"], 3)] for r in volpath]  # fmt: skip
-    rows += [[f"sppm {r['iterations']} it", common.fmt(r["seconds"], 2), common.fmt(r[key], 4),
-              common.fmt(r["brightness"], 3)] for r in sppm]  # fmt: skip
-    table = common.markdown_table(["run", "seconds", "4×4 error", "brightness"], rows)
-    text = (f"# SPPM vs volpath on lamp_in_fog\n\nload average {load:.1f} → {load_end:.1f}\n\n"
-            f"{table}\n\nvolpath reaches {target:.4f} at {args.target_spp} spp in "
-            f"{t_volpath:.2f} s; sppm needs {t_sppm:.2f} s: ratio "
-            f"{t_sppm / t_volpath:.2f} (goal ≤ 2); at volpath's errors of "
-            + ", ".join(f"{k}: {v:.2f}" for k, v in ratios.items() if v is not None) + "\n")  # fmt: skip
-    common.write_text(common.RESULTS / "media_vs_volpath.md", text)
-    print(text)
+
+
+def markdown(result: dict) -> str:
+    h, (load, load_end) = result["headline"], result["load_average"]
+    records = [{**r, "run": f"volpath {r['spp']} spp"} for r in result["volpath"]]
+    records += [{**r, "run": f"sppm {r['iterations']} it"} for r in result["sppm"]]
+    table = report.records_table(
+        records,
+        [("run", "run", None), ("seconds", "seconds", 2), ("4×4 error", KEY, 4),
+         ("brightness", "brightness", 3)],
+    )  # fmt: skip
+    ratios = ", ".join(f"{k}: {v:.2f}" for k, v in h["time_ratios"].items() if v is not None)
+    return (
+        f"# SPPM vs volpath on lamp_in_fog\n\nload average {load:.1f} → {load_end:.1f}\n\n"
+        f"{table}\n\nvolpath reaches {h['target_block_rel_rmse']:.4f} at "
+        f"{result['args']['target_spp']} spp in {h['volpath_seconds']:.2f} s; sppm needs "
+        f"{h['sppm_seconds']:.2f} s: ratio {h['sppm_time_ratio_at_equal_block_rmse']:.2f} "
+        f"(goal ≤ 2); at volpath's errors of {ratios}\n"
+    )
+
+
+def main(argv=None) -> dict:
+    ap = report.arguments(__doc__, "small budgets (a smoke run)")
+    ap.add_argument("--seconds", type=float, default=60.0, help="SPPM compute budget")
+    ap.add_argument("--ref-spp", type=int, default=32768)
+    ap.add_argument("--target-spp", type=int, default=64, help="volpath budget of the headline")
+    args = ap.parse_args(argv)
+    if args.quick:
+        args.seconds, args.ref_spp = 4.0, 2048
+    load = os.getloadavg()[0]
+    scene = mi.load_file(str(SCENE))
+    a, b = reference(scene, args.ref_spp, args.out_dir / "cache", "lamp_in_fog")
+    ref = (a + b) / 2
+    mask = light_image_mask(scene)  # the lamp's own pixels: antialiasing noise, as in caustics
+    # each half's error is √2 × the mean's, and the halves' difference √2 × one half's
+    ref_err = masked_errors(a, b, mask)[KEY] / 2
+
+    def score(image):
+        return errors(image, ref, mask)
+
+    spps = [4, 8, 16] if args.quick else [4, 8, 16, 32, 64, 128, 256, 512, 1024]
+    volpath = mitsuba_curve(scene, spps, score, label="volpath")
+    sppm, rates = run_sppm(str(SCENE), score, args.seconds)
+    result = {
+        "headline": headline(volpath, sppm, args.target_spp, ref_err),
+        "volpath": volpath,
+        "sppm": sppm,
+        "sppm_rates": rates,
+        "machine": report.machine_info(),
+        "load_average": [load, os.getloadavg()[0]],
+        "git": report.git_revision(),
+        "args": {k: v for k, v in vars(args).items() if k != "out_dir"},
+    }
+    text = markdown(result)
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,10 @@
-"""Benchmark: scaling out on Ray (issue 15 item 5) — throughput with 1 and 2 workers here, the
-per-block overheads, and a model of N machines built from those measurements.
+"""Scaling out on Ray: throughput with 1 and 2 workers here, the per-block overheads, and a model
+of N machines built from those measurements.
 
 Measured on one private Ray instance (2 CPUs, loopback; :func:`photonmap.cluster.connect.
 start_local`), each worker an actor with 1 CPU and 1 Dr.Jit thread:
 
-- **progressive**: memoryless SPPM (beyond-seeds §2) of ``cornell_steinhurst``; warm workers
+- **progressive**: memoryless SPPM (Knaus & Zwicker 2011) of ``cornell_steinhurst``; warm workers
   (scene loaded, kernels compiled by one block each) run ``--blocks`` blocks of ``--block``
   iterations through the driver's task loop and in-order merge (:mod:`photonmap.cluster.schedule`,
   the same code ``render --workers`` runs); iterations/s with 1 and 2 workers, median of
@@ -17,10 +17,10 @@ start_local`), each worker an actor with 1 CPU and 1 Dr.Jit thread:
   serialisation + transfer of the H×W×3 float64 sums), the driver's merge of one block and the
   store's put/get of one block.
 
-**Model** of N machines, each like one measured worker: a worker turns out ``b`` iterations in
-``b/r + o_w`` seconds (``r`` its rate, ``o_w`` the per-block round trip overhead, hidden by the
-second queued block except for its serialisation); the driver handles one block at a time in
-``t_d = merge + get + payload / bandwidth`` seconds. So
+**Model** of N machines, each like one measured worker (:mod:`scale_out_model`): a worker turns
+out ``b`` iterations in ``b/r + o_w`` seconds (``r`` its rate, ``o_w`` the per-block round trip
+overhead, hidden by the second queued block except for its serialisation); the driver handles one
+block at a time in ``t_d = merge + get + payload / bandwidth`` seconds. So
 
     rate(N) = min(N · b / (b/r + o_w), b / t_d)
 
@@ -30,43 +30,33 @@ pessimistic bound for a film-quality render, with 1920×1080 sums (the driver's 
 network costs scaled by the pixel count, the iterations' cost kept as measured). Sequences the
 same way with frames (the driver writes each frame: ``t_d`` = get + write).
 
-The machine is shared with other agents (2 cores): the load average before and after is
+The machine may be shared (2 cores): the load average before and after is
 recorded, and the 2-worker numbers are only as good as the free cores were.
 ``python benchmarks/scale_out.py [--quick] [--repeats R]`` writes
-``benchmarks/results/scale_out.json``, ``.md`` and ``.png``.
+``benchmarks/results/scale_out.json``, ``.md`` and ``.png`` (``_quick`` with ``--quick``).
 """
 
 from __future__ import annotations
 
-import argparse
 import os
 import sys
 import time
 from contextlib import contextmanager
-from pathlib import Path
 
 import numpy as np
 
-from common import (
-    RESULTS,
-    fmt,
-    machine_info,
-    markdown_table,
-    summarize,
-    write_json,
-    write_text,
-)
+import report
+from report import fmt
+from scale_out_model import BANDWIDTH, FILM, curves_of, plot
+from timing import summarize
 
 NAME = "scale_out"
-BANDWIDTH = 10e9 / 8  # bytes/s of the driver's network link in the model (10 Gbit/s)
-MODEL_N = (1, 2, 4, 8, 16, 32, 64)
-FILM = (1920, 1080)  # the film-sized image of the model's pessimistic curves
 
 
 def progressive_job(args):
     from photonmap.cluster.job import SceneJob
 
-    params = {"photons_per_iteration": args.photons, "seed": 1, "mode": "memoryless"}
+    params = {"photons": args.photons, "seed": 1, "mode": "memoryless"}
     return SceneJob("cornell_steinhurst", "sppm", params, width=args.width, height=args.height)
 
 
@@ -201,59 +191,8 @@ def in_process_rate(args) -> float:
     return args.block * 2 / (time.perf_counter() - t0)
 
 
-def model(rate_1: float, per_unit_overhead: float, driver_s: float, unit: int, ns=MODEL_N):
-    """Throughput of N workers like the measured one (module docstring):
-    ``min(N · unit / (unit/rate_1 + overhead), unit / driver_s)``; returns the curve and the
-    knee N* where the driver saturates."""
-    work = unit / rate_1 + per_unit_overhead
-    curve = [min(n * unit / work, unit / driver_s) for n in ns]
-    return {"n": list(ns), "throughput": curve, "knee": work / driver_s, "unit": unit}
-
-
-def plot(path: Path, curves: dict, measured: dict) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, (kind, label) in zip(axes, (("progressive", "iterations/s"),
-                                        ("sequence", "frames/s")), strict=True):  # fmt: skip
-        for name, c in curves[kind].items():
-            line = ax.plot(c["n"], c["throughput"], marker=".", label=f"{name} (knee {c['knee']:.0f})")
-            if c["knee"] <= 64:
-                ax.axvline(c["knee"], color=line[0].get_color(), ls=":", lw=0.8)
-        ideal = [n * measured[kind][0] for n in MODEL_N]
-        ax.plot(MODEL_N, ideal, "k--", lw=0.8, label="ideal (N × 1 worker)")
-        ax.plot([1, 2], measured[kind], "ks", label="measured here")
-        ax.set_xlim(0.8, 80)
-        ax.set_xscale("log", base=2)
-        ax.set_yscale("log")
-        ax.set_xlabel("workers (machines like one measured worker)")
-        ax.set_ylabel(label)
-        ax.set_title(f"{kind}: model from the measured overheads")
-        ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-
-
-def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--quick", action="store_true", help="small sizes, *_quick.* outputs")
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--width", type=int, default=160)
-    parser.add_argument("--height", type=int, default=120)
-    parser.add_argument("--photons", type=int, default=50_000, help="photons per iteration")
-    parser.add_argument("--block", type=int, default=4, help="iterations per block")
-    parser.add_argument("--blocks", type=int, default=8, help="blocks per timed run")
-    parser.add_argument("--frames", type=int, default=8, help="timed frames per run")
-    parser.add_argument("--grid", type=int, default=64)
-    parser.add_argument("--volume-photons", type=int, default=65536)
-    parser.add_argument("--out-dir", type=Path, default=RESULTS)
-    args = parser.parse_args(argv)
-    if args.quick:
-        args.width, args.height, args.photons, args.blocks, args.frames = 64, 48, 10_000, 4, 4
-        args.grid, args.volume_photons, args.repeats = 32, 4096, 1
+def measure(args) -> dict:
+    """Everything measured: on a private 2-CPU Ray instance, then in this process alone."""
     import tempfile
 
     import ray
@@ -270,88 +209,102 @@ def main(argv=None) -> dict:
     finally:
         ray.shutdown()
     local = in_process_rate(args)
-    load_after = os.getloadavg()
+    return {"load_before": load_before, "progressive": progressive, "sequence": sequence,
+            "driver": driver, "local": local, "load_after": os.getloadavg()}  # fmt: skip
 
-    it = [p["iterations_per_s"]["median"] for p in progressive]
-    cores = [p["cores_obtained"]["median"] for p in progressive]
-    fr = [s["frames_per_s"]["median"] for s in sequence]
-    o_block = progressive[0]["block_round_trip_overhead_s"]["median"]
-    t_block = driver["merge_s"]["median"] + driver["store_put_get_s"]["median"]
-    t_block += driver["payload_bytes"] / BANDWIDTH
-    frame_bytes = args.width * args.height * 3 * 4
-    t_frame = sequence[0]["driver_write_s"]["median"] + frame_bytes / BANDWIDTH
-    # the same iterations with film-sized sums: every driver cost grows with the pixels
-    t_film = t_block * FILM[0] * FILM[1] / (args.width * args.height)
+
+def headline(m: dict, curves: dict, block: int) -> dict:
+    it = [p["iterations_per_s"]["median"] for p in m["progressive"]]
+    cores = [p["cores_obtained"]["median"] for p in m["progressive"]]
+    fr = [s["frames_per_s"]["median"] for s in m["sequence"]]
     film = f"{FILM[0]}x{FILM[1]} sums"
-    curves = {
-        "progressive": {
-            f"block {args.block}": model(it[0], o_block, t_block, args.block),
-            f"block {4 * args.block}": model(it[0], o_block, t_block, 4 * args.block),
-            f"{film}, block {args.block}": model(it[0], o_block, t_film, args.block),
-            f"{film}, block {4 * args.block}": model(it[0], o_block, t_film, 4 * args.block),
-        },
-        "sequence": {"1 frame/task": model(fr[0], 0.0, t_frame, 1)},
+    knee = {name: c["knee"] for name, c in curves["progressive"].items()}
+    return {
+        "scaling_2_workers": it[1] / it[0],
+        "projected_scaling_2_free_cores": (it[1] / cores[1]) / (it[0] / cores[0]) * 2,
+        "cores_obtained": cores,
+        "scaling_2_workers_frames": fr[1] / fr[0],
+        "iterations_per_s": it,
+        "frames_per_s": fr,
+        "goal": 1.7,
+        "knee_workers": knee[f"block {block}"],
+        "knee_workers_4x_block": knee[f"block {4 * block}"],
+        "knee_workers_frames": curves["sequence"]["1 frame/task"]["knee"],
+        "knee_workers_film": knee[f"{film}, block {block}"],
+        "knee_workers_film_4x_block": knee[f"{film}, block {4 * block}"],
     }
-    result = {
-        "machine": machine_info(),
-        "load_average_before": [round(x, 2) for x in load_before],
-        "load_average_after": [round(x, 2) for x in load_after],
-        "settings": {k: v for k, v in vars(args).items() if k not in ("out_dir", "tmp")},
-        "progressive": progressive,
-        "sequence": sequence,
-        "driver": driver,
-        "in_process_2_threads_iterations_per_s": local,
-        "model": {"bandwidth_bytes_per_s": BANDWIDTH, **curves},
-        "headline": {
-            "scaling_2_workers": it[1] / it[0],
-            "projected_scaling_2_free_cores": (it[1] / cores[1]) / (it[0] / cores[0]) * 2,
-            "cores_obtained": cores,
-            "scaling_2_workers_frames": fr[1] / fr[0],
-            "iterations_per_s": it,
-            "frames_per_s": fr,
-            "goal": 1.7,
-            "knee_workers": curves["progressive"][f"block {args.block}"]["knee"],
-            "knee_workers_4x_block": curves["progressive"][f"block {4 * args.block}"]["knee"],
-            "knee_workers_frames": curves["sequence"]["1 frame/task"]["knee"],
-            "knee_workers_film": curves["progressive"][f"{film}, block {args.block}"]["knee"],
-            "knee_workers_film_4x_block": curves["progressive"][
-                f"{film}, block {4 * args.block}"
-            ]["knee"],
-        },
-    }
-    suffix = "_quick" if args.quick else ""
+
+
+def markdown(result: dict) -> str:
+    h, d, block = result["headline"], result["driver"], result["settings"]["block"]
+    suffix = "_quick" if result["settings"]["quick"] else ""
+    it, fr, cores = h["iterations_per_s"], h["frames_per_s"], h["cores_obtained"]
+    first = result["progressive"][0]
+    o_block = first["block_round_trip_overhead_s"]["median"]
     rows = [
         ["progressive, iterations/s", fmt(it[0], 2), fmt(it[1], 2), fmt(it[1] / it[0], 2)],
         ["sequence, frames/s", fmt(fr[0], 2), fmt(fr[1], 2), fmt(fr[1] / fr[0], 2)],
     ]
-    h = result["headline"]
-    text = "\n".join([
-        f"# scale_out{suffix}: Ray workers on this machine (load {load_before[0]:.1f} before, "
-        f"{load_after[0]:.1f} after)",
+    before, after = result["load_average_before"][0], result["load_average_after"][0]
+    return "\n".join([
+        f"# scale_out{suffix}: Ray workers on this machine (load {before:.1f} before, "
+        f"{after:.1f} after)",
         "",
-        markdown_table(["", "1 worker", "2 workers", "scaling"], rows),
+        report.markdown_table(["", "1 worker", "2 workers", "scaling"], rows),
         "",
         f"CPU cores the workers obtained (CPU seconds / wall): 1 worker {cores[0]:.2f}, "
         f"2 workers {cores[1]:.2f}; scaling if 2 workers had had 2× the CPU of 1: "
         f"{h['projected_scaling_2_free_cores']:.2f}",
-        f"in-process, Dr.Jit 2 threads: {local:.2f} iterations/s",
-        f"worker ready (start + scene load + first block): "
-        f"{progressive[0]['ready_s']['median']:.2f} s (scene load "
-        f"{progressive[0]['scene_load_s']:.3f} s); block round-trip overhead "
-        f"{o_block * 1e3:.1f} ms; merge {driver['merge_s']['median'] * 1e3:.2f} ms; store put/get "
-        f"{driver['store_put_get_s']['median'] * 1e3:.2f} ms of {driver['payload_bytes']:,} bytes",
-        f"model knee (driver saturates): {h['knee_workers']:.0f} workers at block {args.block}, "
-        f"{h['knee_workers_4x_block']:.0f} at block {4 * args.block}; sequences "
-        f"{h['knee_workers_frames']:.0f}; with {film} (driver costs × pixels, iterations as "
-        f"measured): {h['knee_workers_film']:.1f} at block {args.block}, "
-        f"{h['knee_workers_film_4x_block']:.1f} at block {4 * args.block}",
+        f"in-process, Dr.Jit 2 threads: {result['in_process_2_threads_iterations_per_s']:.2f} "
+        "iterations/s",
+        f"worker ready (start + scene load + first block): {first['ready_s']['median']:.2f} s "
+        f"(scene load {first['scene_load_s']:.3f} s); block round-trip overhead "
+        f"{o_block * 1e3:.1f} ms; merge {d['merge_s']['median'] * 1e3:.2f} ms; store put/get "
+        f"{d['store_put_get_s']['median'] * 1e3:.2f} ms of {d['payload_bytes']:,} bytes",
+        f"model knee (driver saturates): {h['knee_workers']:.0f} workers at block {block}, "
+        f"{h['knee_workers_4x_block']:.0f} at block {4 * block}; sequences "
+        f"{h['knee_workers_frames']:.0f}; with {FILM[0]}x{FILM[1]} sums (driver costs × pixels, "
+        f"iterations as measured): {h['knee_workers_film']:.1f} at block {block}, "
+        f"{h['knee_workers_film_4x_block']:.1f} at block {4 * block}",
         "",
     ])  # fmt: skip
-    write_json(args.out_dir / f"{NAME}{suffix}.json", result)
-    write_text(args.out_dir / f"{NAME}{suffix}.md", text)
-    plot(args.out_dir / f"{NAME}{suffix}.png", curves, {"progressive": it, "sequence": fr})
-    print(text)
-    return result
+
+
+def main(argv=None) -> dict:
+    parser = report.arguments(__doc__, "small sizes, *_quick.* outputs")
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--width", type=int, default=160)
+    parser.add_argument("--height", type=int, default=120)
+    parser.add_argument("--photons", type=int, default=50_000, help="photons per iteration")
+    parser.add_argument("--block", type=int, default=4, help="iterations per block")
+    parser.add_argument("--blocks", type=int, default=8, help="blocks per timed run")
+    parser.add_argument("--frames", type=int, default=8, help="timed frames per run")
+    parser.add_argument("--grid", type=int, default=64)
+    parser.add_argument("--volume-photons", type=int, default=65536)
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.width, args.height, args.photons, args.blocks, args.frames = 64, 48, 10_000, 4, 4
+        args.grid, args.volume_photons, args.repeats = 32, 4096, 1
+    m = measure(args)
+    curves = curves_of(m, args)
+    result = {
+        "machine": report.machine_info(),
+        "load_average_before": [round(x, 2) for x in m["load_before"]],
+        "load_average_after": [round(x, 2) for x in m["load_after"]],
+        "settings": {k: v for k, v in vars(args).items() if k not in ("out_dir", "tmp")},
+        "progressive": m["progressive"],
+        "sequence": m["sequence"],
+        "driver": m["driver"],
+        "in_process_2_threads_iterations_per_s": m["local"],
+        "model": {"bandwidth_bytes_per_s": BANDWIDTH, **curves},
+        "headline": headline(m, curves, args.block),
+    }
+    text = markdown(result)
+    stem = report.results_stem(args.out_dir, NAME, args.quick)
+    measured = {"progressive": result["headline"]["iterations_per_s"],
+                "sequence": result["headline"]["frames_per_s"]}  # fmt: skip
+    plot(stem.with_suffix(".png"), curves, measured)
+    return report.publish(stem, result, text)
 
 
 if __name__ == "__main__":

@@ -1,11 +1,11 @@
-"""Yao 2011 Tables 1 and 2 on this CPU: the ``screen`` pipeline's frame rate (issue 4 item 6).
+"""Yao 2011 Tables 1 and 2 on this CPU: the ``screen`` pipeline's frame rate.
 
 Reproduces the rows of the thesis's Table 1 (per scene: subsampling, bounces, photons, soft and
 hard shadows) and Table 2 (quad vs icosahedron splats) that our built-in scenes cover, at the
 thesis's 1024 × 768, with the thesis's GTX 480 numbers beside ours. The Happy Buddha and Chinese
 dragon rows use ``cornell_mesh`` (a diffuse watertight torus-knot mesh) at the models' triangle
-counts; the glass sphere row uses ``cornell_glass_sphere``. Photons = 100² × bounces (spec A1);
-radius 0.045 × scene diagonal (A17); ISG samples "4+5".
+counts; the glass sphere row uses ``cornell_glass_sphere``. Photons = 100² × bounces; radius
+0.045 × scene diagonal; ISG samples "4+5".
 
 A *frame* is a full frame: every stage reruns except the fixed random map (both camera and light
 moved, as in the thesis's dynamic scenes). Each configuration runs ``--warmup`` frames (kernel
@@ -23,18 +23,15 @@ Writes ``results/screen_table1.json`` (top-level ``headline.fps_cornell_1024x768
 
 from __future__ import annotations
 
-import argparse
-import os
-import sys
 import time
 from contextlib import contextmanager
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
-import photonmap  # noqa: E402,F401
-from photonmap import ScreenPipeline  # noqa: E402
-from photonmap.core.timer import StageTimer  # noqa: E402
+import photonmap  # noqa: F401 - selects the Mitsuba variant
+import report
+import timing
+from photonmap import ScreenPipeline
+from photonmap.core.timer import StageTimer
 
 
 class CPUStageTimer(StageTimer):
@@ -47,11 +44,11 @@ class CPUStageTimer(StageTimer):
 
     @contextmanager
     def __call__(self, stage: str):
-        common.sync()
+        timing.sync()
         start = time.process_time()
         with super().__call__(stage):
             yield
-        common.sync()
+        timing.sync()
         self.cpu[stage] = self.cpu.get(stage, 0.0) + 1e3 * (time.process_time() - start)
 
     def reset(self):
@@ -59,6 +56,7 @@ class CPUStageTimer(StageTimer):
         self.cpu = {}
 
 
+NAME = "screen_table1"
 W, H = 1024, 768
 # (table, scene label, scene, scene params, subsample, bounces, thesis soft, thesis hard,
 #  splat); Table 2 rows come in quad/icosahedron pairs
@@ -97,22 +95,22 @@ def time_frames(pipe: ScreenPipeline, frames: int, warmup: int, prepare) -> dict
         pipe.timer = CPUStageTimer()
     for i in range(warmup + frames):
         prepare(pipe, i)
-        common.sync()
+        timing.sync()
         start, start_cpu = time.perf_counter(), time.process_time()
         pipe.render()
-        common.sync()
+        timing.sync()
         if i >= warmup:
             totals.append(1e3 * (time.perf_counter() - start))
             cpu.append(1e3 * (time.process_time() - start_cpu))
             stages.append(dict(pipe.timer.ms))
             stages_cpu.append(dict(pipe.timer.cpu))
-    ms = common.summarize(totals)
+    ms = timing.summarize(totals)
     return {
         "frame_ms": ms,
         "fps": 1e3 / ms["median"],
-        "cpu_ms": common.summarize(cpu),
-        "stages_ms": common.stage_medians(stages),
-        "stages_cpu_ms": common.stage_medians(stages_cpu),
+        "cpu_ms": timing.summarize(cpu),
+        "stages_ms": timing.stage_medians(stages),
+        "stages_cpu_ms": timing.stage_medians(stages_cpu),
     }
 
 
@@ -126,17 +124,17 @@ def camera_move(pipe, i):
 
 
 def radius_change(pipe, i):
-    pipe.set_params(radius=0.045 + 0.001 * (i % 2 + 1))  # never the headline's 0.045
+    pipe.set_params(radius=(0.045 + 0.001 * (i % 2 + 1)) * pipe.diagonal)  # never the headline's
 
 
-def write_images(folder: Path = common.REPO / "docs", width: int = 512, height: int = 384):
+def write_images(folder: Path = report.REPO / "docs", width: int = 512, height: int = 384):
     """The README figures: side-by-side comparisons on ``cornell_ispm`` (2 bounces, 40k photons
     per bounce, 4 × 4 subsampling unless varied) and the glass sphere's caustic."""
     import numpy as np
 
     from photonmap.core.image import write_image
 
-    base = {"width": width, "height": height, "light_res": 200, "subsample": 4}
+    base = {"width": width, "height": height, "photons": 200**2, "subsample": 4}
     pipe = ScreenPipeline("cornell_ispm", **base)
 
     def shot(**params):
@@ -156,14 +154,12 @@ def write_images(folder: Path = common.REPO / "docs", width: int = 512, height: 
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap = report.arguments(__doc__, "headline rows only, 3 frames")
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--warmup", type=int, default=2)
-    ap.add_argument("--quick", action="store_true", help="headline rows only, 3 frames")
     ap.add_argument("--images", action="store_true", help="write the docs/ figures and stop")
     ap.add_argument("--width", type=int, default=W)
     ap.add_argument("--height", type=int, default=H)
-    ap.add_argument("--out-dir", type=Path, default=common.RESULTS)
     args = ap.parse_args(argv)
     if args.images:
         write_images()
@@ -179,10 +175,10 @@ def main(argv=None) -> dict:
         row = {"table": table, "scene": label, "builtin": scene, "triangles": _triangles(pipe),
                "subsample": s, "bounces": bounces, "photons": 100**2 * bounces, "splat": splat,
                "thesis_fps_soft": t_soft, "thesis_fps_hard": t_hard}  # fmt: skip
-        row["load_average_before"] = _load()
+        row["load_average_before"] = report.load_average()
         for shadows in ("soft", "hard"):
             pipe.set_params(subsample=s, bounces=bounces, splat=splat, shadows=shadows,
-                            light_res=100, radius=0.045)  # fmt: skip
+                            photons=100**2, radius=0)  # fmt: skip
             row[shadows] = time_frames(pipe, frames, args.warmup, full_frame)
             print(f"{label:30s} s={s} B={bounces} {splat:11s} {shadows}: "
                   f"{row[shadows]['fps']:.2f} fps", flush=True)  # fmt: skip
@@ -190,10 +186,10 @@ def main(argv=None) -> dict:
     # the headline: a dedicated run with more frames (the machine may be shared: the load
     # average is recorded beside every measurement)
     pipe = pipes[("cornell_ispm", ())]
-    pipe.set_params(subsample=8, bounces=2, splat="quad", shadows="soft", radius=0.045,
-                    light_res=100)  # fmt: skip
+    pipe.set_params(subsample=8, bounces=2, splat="quad", shadows="soft", radius=0,
+                    photons=100**2)  # fmt: skip
     pipe.set_camera(origin=(0.278, 0.273, -0.8))
-    load = _load()
+    load = report.load_average()
     head_frames = HEADLINE_FRAMES if not args.quick else frames
     head = time_frames(pipe, head_frames, args.warmup, full_frame)
     more = frames if args.quick else max(frames, 5)
@@ -210,25 +206,17 @@ def main(argv=None) -> dict:
         "stages_ms": head["stages_ms"],
         "stages_cpu_ms": head["stages_cpu_ms"],
         "load_average_before": load,
-        "load_average_after": _load(),
+        "load_average_after": report.load_average(),
         "fps_camera_move": camera["fps"],
         "camera_move_stages_ms": camera["stages_ms"],
         "fps_image_space_change": image_space["fps"],
         "target_fps": 4.0,
         "thesis_fps_gtx480": 27,
     }
-    data = {"machine": common.machine_info(), "resolution": [args.width, args.height],
+    data = {"machine": report.machine_info(), "resolution": [args.width, args.height],
             "headline": headline,
             "rows": results, "frames": frames, "warmup": args.warmup}  # fmt: skip
-    name = "screen_table1" + ("_quick" if args.quick else "")
-    common.write_json(args.out_dir / f"{name}.json", data)
-    common.write_text(args.out_dir / f"{name}.md", markdown(data))
-    print(markdown(data))
-    return data
-
-
-def _load() -> list[float]:
-    return [round(x, 2) for x in os.getloadavg()]
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), data, markdown(data))
 
 
 def _triangles(pipe) -> int:
@@ -248,7 +236,7 @@ def markdown(data: dict) -> str:
         rows.append([r["table"], r["scene"], f"{r['triangles']:,}", f"{r['subsample']}x"
                      f"{r['subsample']}", r["bounces"], f"{r['photons'] // 1000}k", r["splat"],
                      f"{r['soft']['fps']:.1f} ({r['hard']['fps']:.1f})", thesis]
-                    + [common.fmt(r["soft"]["stages_ms"].get(s)) for s in stages])  # fmt: skip
+                    + [report.fmt(r["soft"]["stages_ms"].get(s)) for s in stages])  # fmt: skip
     m = data["machine"]
     return (
         f"# Yao 2011 Tables 1 and 2 on {m['cpu_model']} ({m['cores_usable']} cores), "
@@ -267,7 +255,7 @@ def markdown(data: dict) -> str:
         "frames. The machine is shared with other work: "
         f"load average (1, 5, 15 min) {h['load_average_before']} before the headline run, "
         f"{h['load_average_after']} after (2 cores).\n\n"
-        + common.markdown_table(head, rows, "lllrrrlrr" + "r" * len(stages))
+        + report.markdown_table(head, rows, "lllrrrlrr" + "r" * len(stages))
         + "\n"
     )
 

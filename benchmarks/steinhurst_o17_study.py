@@ -1,14 +1,13 @@
-"""What the O17 reductions depend on: a parameter study of the photon-map traffic of Steinhurst's
-reorderings against the uncached naive figure (issue 13 item 3; spec seed-001 §2.7, §3.3, oracle
-O17, ambiguities A1, A6, A12, A17).
+"""What the O17 reductions depend on: a parameter study of the photon-map traffic of Steinhurst
+2007's reorderings (§3.3–3.5) against the uncached naive figure.
 
 O17's hard targets: tiled direction-binning + hashed moves ≥ 4× less than the uncached naive
 figure (20 B per visited kd-tree node, §3.5) on the Cornell box and ≥ 10× on the bushy box
 (Sponza's role). The ratio depends on settings the dissertation leaves open or gives only in
-passing: the final-gather rays N_FG (Cornell's 50 GB is N = 50, A6; Fig 3.9 uses 100), the global
-photon count (never given; A12 recommends 500 k for Cornell), the number of direction bins (A1:
-"the correct tradeoff is found experimentally"), and the hash grid G. For each scene a window of
-the 512 × 512 image (the dissertation's pixel footprint, A17) is rendered with exact k = 100
+passing: the final-gather rays N_FG (Cornell's 50 GB is N = 50; Fig 3.9 uses 100), the global
+photon count (never given), the number of direction bins ("the correct tradeoff is found
+experimentally"), and the hash grid G. For each scene a window of the 512 × 512 image (the
+dissertation's pixel footprint) is rendered with exact k = 100
 k-NN final gathers on the heap-order kd-tree and traced once per (N_FG, photons); every order and
 bin count is a permutation of that one trace, fed to the LRU simulator (128 KB, 128-byte lines,
 fully associative, 16 × 16 tiles):
@@ -25,20 +24,16 @@ fully associative, 16 × 16 tiles):
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import sys
 import time
 from dataclasses import replace
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
-import photonmap  # noqa: E402,F401
-from photonmap.analysis.bandwidth import bandwidth_table  # noqa: E402
-from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
-from photonmap.surface.gather_batch import OrderParams  # noqa: E402
+import photonmap  # noqa: F401 - selects the Mitsuba variant
+import report
+from photonmap.analysis.bandwidth import bandwidth_table
+from photonmap.analysis.stream import cropped_scene, trace_final_gathers
+from photonmap.surface.gather_batch import OrderParams
+from report import fmt, markdown_table
 
 NAME = "steinhurst_o17_study"
 ORDERS = ("tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
@@ -186,7 +181,7 @@ def markdown(result: dict) -> str:
             f"≥ {s['target_dirbin_hashed']:g}×\n"
         )
         parts.append(
-            common.markdown_table(
+            markdown_table(
                 [
                     "N_FG",
                     "photons",
@@ -200,9 +195,9 @@ def markdown(result: dict) -> str:
                         r["fg_rays"],
                         f"{r['photons'] // 1000}k",
                         f"{r['stored_photons']:,}",
-                        common.fmt(r["gathers_per_tile"], 0),
-                        common.fmt(r["visits_per_gather"], 0),
-                        *[common.fmt(r["reduction_vs_uncached"][o], 2) + "×" for o in ORDERS],
+                        fmt(r["gathers_per_tile"], 0),
+                        fmt(r["visits_per_gather"], 0),
+                        *[fmt(r["reduction_vs_uncached"][o], 2) + "×" for o in ORDERS],
                     ]
                     for r in s["settings"]
                 ],
@@ -214,9 +209,9 @@ def markdown(result: dict) -> str:
             "(tiled Hilbert does not depend on them):\n"
         )
         parts.append(
-            common.markdown_table(
+            markdown_table(
                 ["bins", *BINNED],
-                [[k, *[common.fmt(r[o], 2) + "×" for o in BINNED]] for k, r in s["bins"].items()],
+                [[k, *[fmt(r[o], 2) + "×" for o in BINNED]] for k, r in s["bins"].items()],
             )
         )
         parts.append(
@@ -265,9 +260,7 @@ N_FG = 50 imply 50 GB / 20 B / (512² · 50) ≈ 190 node visits per gather agai
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(common.RESULTS))
+    ap = report.arguments(__doc__, "tiny configuration (smoke test)")
     ap.add_argument(
         "--sweeps-only",
         action="store_true",
@@ -277,8 +270,8 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
     start = time.perf_counter()
     load_start = os.getloadavg()
-    stem = NAME + ("_quick" if args.quick else "")
-    out = Path(args.out_dir)
+    stem = report.results_stem(args.out_dir, NAME, args.quick)
+    previous = report.previous_results(stem.with_suffix(".json")) if args.sweeps_only else {}
     scenes = {}
     for name, (window, surface, grid) in SCENES.items():
         config = (window, FG_RAYS, PHOTONS, BINS, GRIDS)
@@ -286,7 +279,6 @@ def main(argv=None) -> dict:
             config = QUICK
         window, fg, photons, bins, grids = config
         if args.sweeps_only:
-            previous = json.loads((out / f"{stem}.json").read_text())
             s = previous["scenes"][name]
             best = trace(name, window, surface, s["best"]["photons"], s["best"]["fg_rays"])
             scenes[name] = {**s, **sweeps(best, OrderParams(grid=grid), bins, grids)}
@@ -295,7 +287,7 @@ def main(argv=None) -> dict:
     result = {
         "name": NAME,
         "quick": args.quick,
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "load_average_start": load_start,
         "load_average": os.getloadavg(),
         "elapsed_s": time.perf_counter() - start,
@@ -309,10 +301,8 @@ def main(argv=None) -> dict:
         result["table_run"] = {
             k: previous.get(k) for k in ("elapsed_s", "load_average", "load_average_start")
         }
-    common.write_json(out / f"{stem}.json", result)
-    common.write_text(out / f"{stem}.md", markdown(result))
-    print(markdown(result))
-    return result
+    text = markdown(result)
+    return report.publish(stem, result, text)
 
 
 if __name__ == "__main__":

@@ -1,19 +1,18 @@
 """Steinhurst 2007 Table 5.1 reproduced: photon-map bandwidth per gather order with and without
-the tiled irradiance cache (issue 13 item 5; spec seed-001 §2.9, §3.5, oracles O22, O23,
-ambiguities A3, A17, A20).
+the tiled irradiance cache (§5.4; oracles O22, O23).
 
 Three scenes as in the dissertation's rows: the bare box, the box with two and with six bushes
 (``cornell_bushes`` with ``bushes`` = 0, 2, 6: the same walls and ceiling light, Fig 5.5's
 scenes; ``cornell_steinhurst``'s mirror sphere fills this window, so it is not the bare row).
-Each renders the same window of the 512 × 512 image (A17) with exact k = 100 k-NN final gathers on
+Each renders the same window of the 512 × 512 image with exact k = 100 k-NN final gathers on
 the heap-order kd-tree, once without an irradiance cache and once with the tiled cache
-(``irradiance_cache=tiled``; ε_max = 0.05, Fig 5.5's value, and 0.01, calibrated as A3
-recommends; R_avg precomputed at photons, §2.9.3), and every gather of both renders is traced
+(``irradiance_cache=tiled``; ε_max = 0.05, Fig 5.5's value, and 0.01, where the bare box's
+hit rate matches the dissertation's; R_avg precomputed at photons), and every gather of both renders is traced
 (with the cache only the planned record and non-Lambertian pixels gather). Each trace goes
 through the LRU simulator (128 KB, 128-byte lines, fully associative, 16 × 16 tiles) in the
 orders naive, tiled direction-binning, + hashed, tiled Hilbert. Bytes are % of the naive order
 without the cache (the cached naive simulation; also given: % of the uncached naive figure, 20 B
-per visited node). Only the final gathers' global-map reads are counted (A20); the cache's one
+per visited node). Only the final gathers' global-map reads are counted; the cache's one
 R_avg lookup per pixel reads a separate point set and is left out.
 
 R_IC (O23) is the fraction of the cache's (purely Lambertian) pixels that interpolate, in the
@@ -24,27 +23,24 @@ window and over the whole 512² image (the plan only: the decisions need no fina
 
 from __future__ import annotations
 
-import argparse
 import os
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
-import photonmap  # noqa: E402,F401
-from photonmap.analysis.bandwidth import bandwidth_table  # noqa: E402
-from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
-from photonmap.scenes import SCENES as BUILT_IN  # noqa: E402
-from photonmap.surface.gather_batch import OrderParams  # noqa: E402
-from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
+import photonmap  # noqa: F401 - selects the Mitsuba variant
+import report
+from photonmap.analysis.bandwidth import bandwidth_table
+from photonmap.analysis.stream import cropped_scene, trace_final_gathers
+from photonmap.scenes import SCENES as BUILT_IN
+from photonmap.surface.gather_batch import OrderParams
+from photonmap.surface.pipeline import SurfacePipeline
+from report import fmt, markdown_table
 
 NAME = "steinhurst_table_5_1"
 ORDERS = ("naive", "tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert")
 # ε_max: Fig 5.5's 0.05, and 0.01, where the bare box's R_IC over the 512² image (59 %) is near
-# the 62 % the dissertation reports for its Cornell box (spec A3's calibration; 0.02: 77 %)
+# the 62 % the dissertation reports for its Cornell box (0.02: 77 %)
 IC_ERRORS = (0.05, 0.01)
 ERROR_NOTES = {0.05: " (Fig 5.5's value)", 0.01: " (A3: calibrated to R_IC ≈ 62 % on the bare box)"}
 # Table 5.1 as printed: % of the naive order without IC, (without IC, with IC) per order
@@ -182,19 +178,16 @@ def table(scenes: dict) -> str:
             rows.append(
                 [
                     f"{label}, {'without' if cache == 'none' else 'with'} IC",
-                    *[
-                        f"{common.fmt(p[o], 1)} ({common.fmt(d, 1)})"
-                        for o, d in zip(ORDERS, doc[k], strict=True)
-                    ],
-                    " / ".join(common.fmt(u[o], 1) for o in ORDERS),
+                    *[f"{fmt(p[o], 1)} ({fmt(d, 1)})" for o, d in zip(ORDERS, doc[k], strict=True)],
+                    " / ".join(fmt(u[o], 1) for o in ORDERS),
                 ]
             )
     parts = [
-        common.markdown_table(
+        markdown_table(
             ["scene / IC", *[f"{o} % (doc)" for o in ORDERS], "% of uncached naive"], rows
         ),
         "",
-        common.markdown_table(
+        markdown_table(
             [
                 "scene",
                 "gathers without / with IC",
@@ -207,10 +200,10 @@ def table(scenes: dict) -> str:
                 [
                     label,
                     f"{s['gathers']['none']:,} / {s['gathers']['tiled']:,}",
-                    common.fmt(100 * s["gathers_saved"], 1) + " %",
+                    fmt(100 * s["gathers_saved"], 1) + " %",
                     f"{s['pixels_gathering']['none']:,} / {s['pixels_gathering']['tiled']:,}",
-                    common.fmt(100 * s["R_IC_window"], 1) + " %",
-                    common.fmt(100 * s["R_IC_image"], 1) + " %" if "R_IC_image" in s else "—",
+                    fmt(100 * s["R_IC_window"], 1) + " %",
+                    fmt(100 * s["R_IC_image"], 1) + " %" if "R_IC_image" in s else "—",
                 ]
                 for label, s in scenes.items()
             ],
@@ -220,9 +213,7 @@ def table(scenes: dict) -> str:
 
 
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(common.RESULTS))
+    ap = report.arguments(__doc__, "tiny configuration (smoke test)")
     ap.add_argument(
         "--ic-errors",
         default=",".join(map(str, IC_ERRORS)),
@@ -243,7 +234,7 @@ def main(argv=None) -> dict:
     result = {
         "name": NAME,
         "quick": args.quick,
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "load_average": os.getloadavg(),
         "elapsed_s": time.perf_counter() - start,
         "window": window,
@@ -253,12 +244,8 @@ def main(argv=None) -> dict:
             str(e): {"scenes": scenes, "claims": claims(scenes)} for e, scenes in by_error.items()
         },
     }
-    stem = NAME + ("_quick" if args.quick else "")
-    out = Path(args.out_dir)
-    common.write_json(out / f"{stem}.json", result)
-    common.write_text(out / f"{stem}.md", markdown(result))
-    print(markdown(result))
-    return result
+    text = markdown(result)
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, text)
 
 
 if __name__ == "__main__":

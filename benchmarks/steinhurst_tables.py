@@ -1,5 +1,5 @@
-"""Steinhurst 2007's reordering results reproduced on our scenes (issue 13 items 3, 4, 7, 8; spec
-seed-001 §3.3, §3.7, oracles O16–O21, O27).
+"""Steinhurst 2007's reordering results (Ch. 3, 4 and 7: photon-map bandwidth per gather order)
+reproduced on our scenes.
 
 For the Cornell box (``cornell_steinhurst``, the dissertation's Fig 1.2) and the bushy box
 (``cornell_bushes``, many small occluders in Sponza's role) the surface method renders the whole
@@ -7,8 +7,8 @@ For the Cornell box (``cornell_steinhurst``, the dissertation's Fig 1.2) and the
 exact stream of 20-byte photon-record reads (about 2 G reads per order) is streamed through the
 cache simulator (fully associative LRU at 8 KB–1 MB, 128-byte lines; 8-way set-associative at
 128 KB beside it) — Table 3.1 at the dissertation's full scale. The tile and line-size sweeps and
-the CPU timings use a window of the 512² image (the dissertation's pixel footprint; spec A17),
-scaled to the image. Written beside the dissertation's numbers:
+the CPU timings use a window of the 512² image (the dissertation's pixel footprint), scaled to
+the image. Written beside the dissertation's numbers:
 
 - Table 3.1 (bytes per image by gather order) and the reduction of each order against the
   uncached naive figure (20 B per visited node, §3.5) — O16, O17;
@@ -17,9 +17,11 @@ scaled to the image. Written beside the dissertation's numbers:
 - 8-way set-associative vs fully associative misses — O20;
 - the chip model of Ch. 7 fed with these counts: tiles/s at 90 GB/s per order — O27;
 - CPU wall time of the final gathers (Dr.Jit k-NN on this machine) per order, medians of runs;
-- Table 4.1 and Fig 4.1 (``structures``): the Cornell window's gathers on the kd-tree, the
-  kdB-tree and block hashing (:mod:`photonmap.analysis.structures`), fetches per distinct block
-  (spec A7) per order, and bytes vs line size for kd vs kdB — O21.
+- Table 4.1 and Fig 4.1 (``structures``, :mod:`steinhurst_structures`): the Cornell window's
+  gathers on the kd-tree, the kdB-tree and block hashing, fetches per distinct block per order,
+  and bytes vs line size for kd vs kdB — O21;
+- the glossy floor (Fig 6.17) and the bushy box at the Sponza setting (``--only sponza_setting``),
+  :mod:`steinhurst_variants`.
 
     PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_tables.py [--quick]
     PYTHONPATH=src .venv/bin/python benchmarks/steinhurst_tables.py --only structures
@@ -27,36 +29,24 @@ scaled to the image. Written beside the dissertation's numbers:
 
 from __future__ import annotations
 
-import argparse
-import json
 import os
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import common  # noqa: E402
-import photonmap  # noqa: E402,F401
-from photonmap.analysis.bandwidth import (  # noqa: E402
-    WAYS,
-    cache_sweep,
-    line_sweep,
-    plot_sweep,
-    tile_sweep,
-)
-from photonmap.analysis.hardware import TABLE_7_10, from_trace  # noqa: E402
-from photonmap.analysis.stream import cropped_scene, trace_final_gathers  # noqa: E402
-from photonmap.analysis.structures import (  # noqa: E402
-    STRUCTURES,
-    fetches_per_block,
-    recall,
-    structure_trace,
-)
-from photonmap.surface.gather_batch import ORDERS, OrderParams  # noqa: E402
-from photonmap.surface.pipeline import SurfacePipeline  # noqa: E402
+import photonmap  # noqa: F401 - selects the Mitsuba variant
+import report
+import timing
+from photonmap.analysis.bandwidth import WAYS, line_sweep, plot_sweep, tile_sweep
+from photonmap.analysis.hardware import TABLE_7_10, from_trace
+from photonmap.analysis.stream import cropped_scene, trace_final_gathers
+from photonmap.surface.gather_batch import ORDERS, OrderParams
+from photonmap.surface.pipeline import SurfacePipeline
+from steinhurst_structures import structures_markdown, structures_study
+from steinhurst_tables_report import markdown
+from steinhurst_variants import MANY_BINS, glossy_sweep, sponza_markdown, sponza_setting
 
 NAME = "steinhurst_tables"
 CACHE_KB = [8, 16, 32, 64, 128, 256, 512, 1024]
@@ -84,9 +74,7 @@ DOC = {
     },
 }
 READS_BUDGET = 9 << 30  # the full image's line reads held in memory (about 2 B per read)
-MANY_BINS = 128  # the direction-binned orders again with 128 bins (A1's sweep: the best here)
 BINNED = ("tiled_dirbin", "tiled_dirbin_hashed")
-SPONZA = dict(photons=100_000, fg_rays=200, max_radius=0.02)  # bushes at Sponza's N_FG (§2.6.2.1)
 # window of the 512² image (x, y, w, h) for the sweeps and CPU timings, surface parameters
 # (N_FG 50: the dissertation's Cornell figure, §2.6.2.1), hash grid G (Cornell 5, Sponza 8)
 SCENES = {
@@ -94,299 +82,17 @@ SCENES = {
     "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=50, max_radius=0.02), 8),
 }
 QUICK = ((240, 288, 16, 16), dict(photons=5000, fg_rays=4), None)
-# Fig 6.17 / O26: the glossy floor's lobe narrowed (Beckmann α; Phong n ≈ 2/α² − 2), window on it
-GLOSSY = ((224, 432, 64, 32), dict(photons=100_000, fg_rays=32), (0.3, 0.1, 0.03), 0.8)
-GLOSSY_ORDERS = ("naive", "tiled_dirbin_hashed", "tiled_hilbert")
-# Table 4.1: "average number of memory-block fetches" (read as fetches per distinct block, A7);
-# Cornell box, 16×16 tiles, 128 KB cache, 128 B lines
-STRUCTURE_ORDERS = ("naive", "tiled_dirbin", "tiled_dirbin_hashed", "tiled_hilbert", "hilbert")
-DOC_TABLE_4_1 = {
-    "naive": {"kdtree": 23_045, "kdbtree": 11_755, "blockhash": 73_523},
-    "tiled_dirbin": {"kdtree": 3_927, "kdbtree": 4_397, "blockhash": 20_316},
-    "tiled_dirbin_hashed": {"kdtree": 2_590, "kdbtree": 2_870, "blockhash": 9_912},
-    "tiled_hilbert": {"kdtree": 1_215, "kdbtree": 1_134, "blockhash": 2_350},
-    "hilbert": {"kdtree": 1.6, "kdbtree": 1.8, "blockhash": 3.1},
-}
-LINE_ORDERS = ("naive", "tiled_hilbert")  # Fig 4.1 (a) and (b)
-BH_ACCURACY = (20, 40, 80)  # block hashing's A: the dissertation's 20, then more blocks read
 
 
-def structures_study(quick: bool) -> dict:
-    """Table 4.1 and Fig 4.1 on the Cornell window: the same final gathers on the kd-tree, the
-    kdB-tree and block hashing (O21)."""
+def structures(quick: bool) -> dict:
+    """Table 4.1 and Fig 4.1 on the Cornell window (:mod:`steinhurst_structures`)."""
     window, surface, grid = QUICK if quick else SCENES["cornell_steinhurst"]
-    x, y, w, h = window
-    scene = cropped_scene("cornell_steinhurst", 512, (x, y), (w, h))
-    params = dict(surface, caustic_photons=0, emitter_spp=0, k=100)
-    start = time.perf_counter()
-    trace = trace_final_gathers(scene, **params)
-    scale = 512 * 512 / (w * h)
-    order_params = OrderParams(grid=grid or 5)
-    traces = {s: structure_trace(trace, s) for s in STRUCTURES}
-    table = {
-        o: {s: fetches_per_block(t, o, 128 * 1024, 128, order_params) for s, t in traces.items()}
-        for o in STRUCTURE_ORDERS
-    }
-    kdb, found_kdb = traces["kdbtree"].build(128)[:2]
-    bh, found_bh, reads_bh = traces["blockhash"].build(128)[:3]
-    sample = slice(None, None, 8)
-    exact = found_kdb[sample]
-    facts = {
-        "kdtree": {
-            "reads_per_gather": trace.visits / len(trace.batch),
-            "structure_lines": trace.footprint_lines(128),
-        },
-        "kdbtree": {
-            "reads_per_gather": traces["kdbtree"].build(128)[2].mean(),
-            "structure_lines": kdb.lines,
-            "leaves": int(np.count_nonzero(kdb.kind == 1)),
-            "fan_out": kdb.fan_out,
-            "leaf_photons": kdb.leaf_capacity,
-        },
-        "blockhash": {
-            "reads_per_gather": reads_bh.mean(),
-            "structure_lines": bh.lines,
-            "blocks": bh.blocks,
-            "orphaned_blocks": bh.orphaned,
-            "dropped_bucket_entries": bh.dropped,
-            "recall": recall(found_bh[sample], exact),
-        },
-    }
-    lines = LINES[:2] if quick else LINES
-    line_sweep_gb = {
-        s: {
-            o: [v * scale / 1e9 for v in c]
-            for o, c in line_sweep(traces[s], LINE_ORDERS, lines, params=order_params).items()
-        }
-        for s in ("kdtree", "kdbtree")
-    }
-    crossover = {
-        o: next(
-            (
-                line
-                for line, kd, kdb_gb in zip(
-                    lines, line_sweep_gb["kdtree"][o], line_sweep_gb["kdbtree"][o], strict=True
-                )
-                if kdb_gb < kd
-            ),
-            None,
-        )
-        for o in LINE_ORDERS
-    }
-    accuracy = {}
-    for a in BH_ACCURACY[:1] if quick else BH_ACCURACY:
-        t = structure_trace(trace, "blockhash", accuracy=a)
-        found, reads = t.build(128)[1:3]
-        accuracy[a] = {
-            "recall": recall(found[sample], exact),
-            "reads_per_gather": reads.mean(),
-            **{o: fetches_per_block(t, o, 128 * 1024, 128, order_params) for o in LINE_ORDERS},
-        }
-    return {
-        "window": window,
-        "params": params,
-        "gathers": len(trace.batch),
-        "photons": trace.photons,
-        "image_scale": scale,  # bytes of the window → bytes of a 512 × 512 image
-        "table": table,
-        "doc_table_4_1": DOC_TABLE_4_1,
-        "structures": facts,
-        "lines": lines,
-        "line_sweep_GB": line_sweep_gb,
-        "kdb_beats_kd_from_line": crossover,
-        "blockhash_accuracy": accuracy,
-        "seconds": time.perf_counter() - start,
-        "load_average": os.getloadavg(),
-    }
+    return structures_study(window, surface, grid or 5, quick, LINES[:2] if quick else LINES)
 
 
-def structures_markdown(s: dict) -> str:
-    """Table 4.1 (measured beside the dissertation's) and the Fig 4.1 line sweep."""
-    f = s["structures"]
-    parts = [
-        "## Data structures (Table 4.1, Fig 4.1, O21)\n",
-        f"Cornell window {s['window']} of 512×512, {s['gathers']:,} final gathers (k 100), "
-        f"{s['photons']:,} photons; 128 KB fully associative LRU, 128 B lines. Fetches per "
-        "distinct block = misses / distinct lines of the structure the gathers touch (spec A7). "
-        f"Lines read per gather: kd-tree {f['kdtree']['reads_per_gather']:.0f} (20-byte "
-        f"records), kdB-tree {f['kdbtree']['reads_per_gather']:.1f}, block hashing "
-        f"{f['blockhash']['reads_per_gather']:.1f} (recall of the exact k nearest "
-        f"{f['blockhash']['recall']:.2f}, {f['blockhash']['orphaned_blocks']:,} of "
-        f"{f['blockhash']['blocks']:,} blocks orphaned); load average {s['load_average']}\n",
-    ]
-    rows = []
-    for order, r in s["table"].items():
-        doc = s["doc_table_4_1"][order]
-        rows.append(
-            [
-                order,
-                *[common.fmt(r[x]["fetches_per_block"], 2) for x in STRUCTURES],
-                *[common.fmt(doc[x], 1) for x in STRUCTURES],
-                common.fmt(r["kdbtree"]["fetches_per_block"] / r["kdtree"]["fetches_per_block"], 2),
-                common.fmt(doc["kdbtree"] / doc["kdtree"], 2),
-                common.fmt(r["kdbtree"]["misses"] / max(r["kdtree"]["misses"], 1), 2),
-            ]
-        )
-    parts.append(
-        common.markdown_table(
-            [
-                "order",
-                "kd",
-                "kdB",
-                "BH",
-                "doc kd",
-                "doc kdB",
-                "doc BH",
-                "kdB/kd",
-                "doc kdB/kd",
-                "kdB/kd bytes",
-            ],
-            rows,
-        )
-    )
-    gb = 128 * s["image_scale"] / 1e9  # GB per image of one miss
-    parts.append("\nGB per 512 × 512 image (misses × 128 B) and distinct lines touched:\n")
-    parts.append(
-        common.markdown_table(
-            ["order", *[f"{x} GB" for x in STRUCTURES]],
-            [
-                [order, *[common.fmt(r[x]["misses"] * gb, 2) for x in STRUCTURES]]
-                for order, r in s["table"].items()
-            ]
-            + [
-                [
-                    "distinct lines",
-                    *[common.fmt(s["table"]["naive"][x]["distinct_lines"]) for x in STRUCTURES],
-                ]
-            ],
-        )
-    )
-    parts.append("\nGB/image vs line size (128 KB cache), kd-tree vs kdB-tree (Fig 4.1):\n")
-    parts.append(
-        common.markdown_table(
-            ["structure", "order", *map(str, s["lines"])],
-            [
-                [st, o, *[common.fmt(v, 2) for v in c]]
-                for st, curves in s["line_sweep_GB"].items()
-                for o, c in curves.items()
-            ],
-        )
-    )
-    parts.append(
-        "\nkdB-tree below the kd-tree from line size (bytes): "
-        + ", ".join(f"{o} {v}" for o, v in s["kdb_beats_kd_from_line"].items())
-        + " (dissertation: 256 B in naive order)\n"
-    )
-    parts.append("Block hashing's accuracy A (blocks read per gather at most), 128 B lines:\n")
-    parts.append(
-        common.markdown_table(
-            [
-                "A",
-                "recall",
-                "lines/gather",
-                *[f"fetches/block {o}" for o in LINE_ORDERS],
-                *[f"GB {o}" for o in LINE_ORDERS],
-            ],
-            [
-                [
-                    a,
-                    common.fmt(r["recall"], 3),
-                    common.fmt(r["reads_per_gather"], 1),
-                    *[common.fmt(r[o]["fetches_per_block"], 2) for o in LINE_ORDERS],
-                    *[common.fmt(r[o]["misses"] * gb, 2) for o in LINE_ORDERS],
-                ]
-                for a, r in s["blockhash_accuracy"].items()
-            ],
-        )
-    )
-    return "\n".join(parts) + "\n"
-
-
-def sponza_setting(quick: bool) -> dict:
-    """O17's bushy target at the dissertation's Sponza setting: N_FG = 200 (§2.6.2.1, Fig 1.3),
-    128 direction bins, G = 8, on the whole 512² image. Its line reads do not fit in memory
-    (about 12 G), so both orders walk the tree while they stream (one per core)."""
-    size = 64 if quick else 512
-    params = dict(SPONZA, caustic_photons=0, emitter_spp=0, k=100)
-    if quick:
-        params.update(photons=5000, fg_rays=8)
-    trace = trace_final_gathers(
-        cropped_scene("cornell_bushes", size, (0, 0), (size, size)), **params
-    )
-    runs = [
-        ("tiled_dirbin_hashed", OrderParams(grid=8, bins=MANY_BINS)),
-        ("tiled_hilbert", OrderParams(grid=8)),
-    ]
-    start = time.perf_counter()
-    with ThreadPoolExecutor(2) as pool:
-        counts = list(
-            pool.map(lambda r: trace.simulate(r[0], [128], [128 * 1024], WAYS, r[1]), runs)
-        )
-    uncached = trace.uncached_bytes()
-    scale = 512 * 512 / (size * size)
-    return {
-        "image": size,
-        "params": params,
-        "bins": MANY_BINS,
-        "hash_grid": 8,
-        "gathers": len(trace.batch),
-        "node_visits": trace.visits,
-        "uncached_GB_per_image": uncached * scale / 1e9,
-        "simulate_s": time.perf_counter() - start,
-        "load_average": os.getloadavg(),
-        "table": {
-            o: {
-                "GB_per_image": int(c.misses[0, 0]) * 128 * scale / 1e9,
-                "reduction_vs_uncached": uncached / max(int(c.misses[0, 0]) * 128, 1),
-                "set_associative_ratio": int(c.set_associative[0]) / max(int(c.misses[0, 0]), 1),
-            }
-            for (o, _), c in zip(runs, counts, strict=True)
-        },
-    }
-
-
-def sponza_markdown(s: dict) -> str:
-    return (
-        "## Bushy box at the Sponza setting (O17)\n\n"
-        f"cornell_bushes, the whole {s['image']}² image, N_FG {s['params']['fg_rays']}, "
-        f"{s['bins']} direction bins, G = {s['hash_grid']}: {s['gathers']:,} final gathers, "
-        f"{s['node_visits']:,} node reads (uncached naive {s['uncached_GB_per_image']:.0f} "
-        f"GB/image), streamed in {s['simulate_s']:.0f} s, load {s['load_average']}\n\n"
-        + common.markdown_table(
-            ["order", "GB/image", "vs uncached", "8-way/full"],
-            [
-                [
-                    o,
-                    common.fmt(r["GB_per_image"], 2),
-                    common.fmt(r["reduction_vs_uncached"], 1) + "×",
-                    common.fmt(r["set_associative_ratio"], 2),
-                ]
-                for o, r in s["table"].items()
-            ],
-        )
-        + "\n"
-    )
-
-
-def glossy_sweep(quick: bool) -> dict:
-    """GB per image of three orders as the floor's glossy lobe narrows (Fig 6.17, O26: naive
-    order falls, the coherent orders stay about constant)."""
-    window, surface, roughness, weight = GLOSSY
-    if quick:
-        window, surface, _ = QUICK
-        roughness = roughness[:1]
-    x, y, w, h = window
-    out = {"window": window, "glossy_weight": weight, "roughness": list(roughness), "GB": {}}
-    for alpha in roughness:
-        scene = cropped_scene(
-            "cornell_glossy_floor", 512, (x, y), (w, h), roughness=alpha, glossy=weight
-        )
-        trace = trace_final_gathers(scene, **surface, caustic_photons=0, emitter_spp=0, k=100)
-        curves = cache_sweep(trace, GLOSSY_ORDERS, [128 * 1024], 128, OrderParams(grid=5))
-        for order, c in curves.items():
-            out["GB"].setdefault(order, []).append(c[0] * 512 * 512 / (w * h) / 1e9)
-    out["load_average"] = os.getloadavg()
-    return out
+def glossy(quick: bool) -> dict:
+    """Fig 6.17 (:mod:`steinhurst_variants`)."""
+    return glossy_sweep(quick, QUICK)
 
 
 def full_image_table(name: str, params: dict, grid: int, size: int) -> dict:
@@ -456,7 +162,7 @@ def full_image_table(name: str, params: dict, grid: int, size: int) -> dict:
 
 def window_sweeps(name: str, window, params: dict, grid: int) -> dict:
     """Figs 3.5 and 4.1 on a window of the 512² image (the dissertation's pixel footprint, so
-    each tile's gathers are as coherent as at full size; spec A17): bytes scaled to the image."""
+    each tile's gathers are as coherent as at full size): bytes scaled to the image."""
     x, y, w, h = window
     trace = trace_final_gathers(cropped_scene(name, 512, (x, y), (w, h)), **params)
     scale = 512 * 512 / (w * h)
@@ -501,176 +207,68 @@ def cpu_times(scene, params: dict, repeats: int) -> dict:
                 pipe.set_params(gather_order=order)
                 pipe.render()
                 runs[order].append(pipe.timer.ms["final gather"])
-        out[structure] = {o: common.summarize(r) for o, r in runs.items()}
+        out[structure] = {o: timing.summarize(r) for o, r in runs.items()}
     return out
 
 
-def markdown(result: dict) -> str:
-    parts = ["# Steinhurst 2007 tables reproduced\n"]
-    for name, s in result["scenes"].items():
-        doc = DOC[name]
-        parts.append(
-            f"## {name}\n\nthe whole {s['image']}×{s['image']} image, {s['gathers']:,} final "
-            f"gathers (N_FG {s['params']['fg_rays']}, k 100, {s['params']['photons']:,} photon "
-            f"paths), {s['node_visits']:,} kd-tree node reads ({s['visits_per_gather']:.0f} per "
-            f"gather; walked once in {s['store_s']:.0f} s, then {s['simulate_s']:.0f} s for the "
-            f"{len(s['table'])} orders on two cores), {s['photons']:,} photons "
-            f"({s['map_lines_128B']:,} lines of 128 B); "
-            f"uncached naive {s['uncached_GB_per_image']:.1f} GB/image (dissertation "
-            f"{doc['uncached']:g} GB{'' if name == 'cornell_steinhurst' else ', Sponza'}); "
-            f"load average {s.get('load_average', 'not recorded')}\n"
-        )
-        rows = []
-        for order, r in s["table"].items():
-            d = doc.get(order)
-            rows.append(
-                [
-                    order,
-                    common.fmt(r["GB_per_image"], 2),
-                    common.fmt(r["reduction_vs_uncached"], 1) + "×",
-                    common.fmt(d, 3) if d else "—",
-                    common.fmt(doc["uncached"] / d, 1) + "×" if d else "—",
-                    common.fmt(r["fetches_per_map_line"], 2),
-                    common.fmt(r["set_associative_ratio"], 2),
-                    *[
-                        common.fmt(s["cpu"][k][order]["median"], 0) if order in ORDERS else "—"
-                        for k in ("kdtree", "hash")
-                    ],
-                ]
-            )
-        parts.append(
-            common.markdown_table(
-                [
-                    "order",
-                    "GB/image",
-                    "vs uncached",
-                    "doc GB",
-                    "doc vs uncached",
-                    "fetches/line",
-                    "8-way/full",
-                    "CPU ms kd",
-                    "CPU ms hash",
-                ],
-                rows,
-            )
-        )
-        parts.append("\nGB/image vs cache size (KB " + ", ".join(map(str, CACHE_KB)) + "):\n")
-        parts.append(
-            common.markdown_table(
-                ["order", *[f"{kb}K" for kb in CACHE_KB]],
-                [[o, *[common.fmt(v, 2) for v in c]] for o, c in s["cache_sweep_GB"].items()],
-            )
-        )
-        if "window_sweeps" in s:
-            ws = s["window_sweeps"]
-            parts.append(
-                f"\nGB/image vs tile edge (window {ws['window']} of the 512² image, scaled):\n"
-            )
-            parts.append(
-                common.markdown_table(
-                    ["order", *map(str, ws["tiles"])],
-                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in ws["tile_sweep_GB"].items()],
-                )
-            )
-            parts.append("\nGB/image vs line size (128 KB, same window):\n")
-            parts.append(
-                common.markdown_table(
-                    ["order", *map(str, ws["lines"])],
-                    [[o, *[common.fmt(v, 2) for v in c]] for o, c in ws["line_sweep_GB"].items()],
-                )
-            )
-        hw = s["hardware"]
-        parts.append("\nChip model (Ch. 7) fed with these counts, R_IC = 0:\n")
-        parts.append(
-            common.markdown_table(
-                ["order", "GB/image", "GFLOPs/image", "tiles/s (90 GB/s)", "tiles/s (500 GFLOPS)"],
-                [
-                    [
-                        o,
-                        common.fmt(h["GB_per_image"], 2),
-                        common.fmt(h["GFLOPs_per_image"], 1),
-                        common.fmt(h["tiles_per_s_memory"], 0),
-                        common.fmt(h["tiles_per_s_compute"], 0),
-                    ]
-                    for o, h in hw.items()
-                ],
-            )
-        )
-        parts.append("")
-    glossy = result.get("glossy")
-    if glossy:
-        parts.append(
-            f"## glossy floor (Fig 6.17, O26)\n\nwindow {glossy['window']}, glossy weight "
-            f"{glossy['glossy_weight']}, GB/image at 128 KB against the Beckmann roughness:\n"
-        )
-        parts.append(
-            common.markdown_table(
-                ["order", *[f"α {a}" for a in glossy["roughness"]]],
-                [[o, *[common.fmt(v, 2) for v in c]] for o, c in glossy["GB"].items()],
-            )
-        )
-        parts.append("")
-    if result.get("structures"):
-        parts.append(structures_markdown(result["structures"]))
-    if result.get("sponza_setting"):
-        parts.append(sponza_markdown(result["sponza_setting"]))
-    parts.append("## headline\n")
-    parts.append("\n".join(f"- {k}: {v}" for k, v in result["headline"].items()))
-    return "\n".join(parts) + "\n"
-
-
 def headline_of(scenes: dict, sponza: dict | None, out: Path) -> dict:
-    """The issue's headline numbers from the per-scene results (and the Sponza-setting run),
-    with the irradiance-cache and CIS figures of ``steinhurst_ic_cis.py``'s results in ``out``."""
+    """The headline numbers from the per-scene results (and the Sponza-setting run), with the
+    irradiance-cache and CIS figures of ``steinhurst_ic_cis.py``'s results in ``out``."""
+
+    def reduction(order: str) -> dict:  # uncached naive bytes / the order's bytes, per scene
+        return {n: s["table"][order]["reduction_vs_uncached"] for n, s in scenes.items()}
+
+    def cpu(name: str, order: str) -> float:  # kd-tree final gathers, median ms
+        return scenes[name]["cpu"]["kdtree"][order]["median"]
+
+    best = {n: min(PRACTICAL, key=lambda o, n=n: cpu(n, o)) for n in scenes}
+
     headline = {
-        "traffic_reduction_dirbin_hashed": {},  # uncached naive bytes / order's bytes, per scene
-        "traffic_reduction_tiled_hilbert": {},
-        "traffic_reduction_dirbin_hashed_128_bins": {},
-        "set_associative_ratio": {},  # 8-way / fully associative misses, dir-binning + hashed
-        "cpu_speedup_best_order_per_scene": {},  # naive / best practical order, kd-tree gathers
-        "cpu_best_order": {},
+        "traffic_reduction_dirbin_hashed": reduction("tiled_dirbin_hashed"),
+        "traffic_reduction_tiled_hilbert": reduction("tiled_hilbert"),
+        "traffic_reduction_dirbin_hashed_128_bins": reduction(f"tiled_dirbin_hashed@{MANY_BINS}"),
+        # 8-way / fully associative misses, dir-binning + hashed
+        "set_associative_ratio": {
+            n: s["table"]["tiled_dirbin_hashed"]["set_associative_ratio"] for n, s in scenes.items()
+        },
+        # naive / best practical order, kd-tree gathers
+        "cpu_speedup_best_order_per_scene": {n: cpu(n, "naive") / cpu(n, best[n]) for n in scenes},
+        "cpu_best_order": best,
     }
-    for name, s in scenes.items():
-        t = s["table"]
-        headline["traffic_reduction_dirbin_hashed"][name] = t["tiled_dirbin_hashed"][
-            "reduction_vs_uncached"
-        ]
-        headline["traffic_reduction_tiled_hilbert"][name] = t["tiled_hilbert"][
-            "reduction_vs_uncached"
-        ]
-        headline["traffic_reduction_dirbin_hashed_128_bins"][name] = t[
-            f"tiled_dirbin_hashed@{MANY_BINS}"
-        ]["reduction_vs_uncached"]
-        headline["set_associative_ratio"][name] = t["tiled_dirbin_hashed"]["set_associative_ratio"]
-        cpu = s["cpu"]["kdtree"]
-        best = min(PRACTICAL, key=lambda o: cpu[o]["median"])
-        speedup = cpu["naive"]["median"] / cpu[best]["median"]
-        headline["cpu_speedup_best_order_per_scene"][name] = speedup
-        headline["cpu_best_order"][name] = best
     headline["cpu_speedup_best_order"] = min(headline["cpu_speedup_best_order_per_scene"].values())
     if sponza:
-        headline["traffic_reduction_dirbin_hashed_sponza_setting"] = sponza["table"][
-            "tiled_dirbin_hashed"
-        ]["reduction_vs_uncached"]
-    ic_cis = out / "steinhurst_ic_cis.json"
-    if ic_cis.is_file():  # written by benchmarks/steinhurst_ic_cis.py
-        other = json.loads(ic_cis.read_text())["headline"]
-        for key in ("ic_gathers_saved", "cis_rays_ratio_vs_brdf"):
+        table = sponza["table"]["tiled_dirbin_hashed"]
+        headline["traffic_reduction_dirbin_hashed_sponza_setting"] = table["reduction_vs_uncached"]
+    other = report.previous_results(out / "steinhurst_ic_cis.json").get("headline", {})
+    for key in ("ic_gathers_saved", "cis_rays_ratio_vs_brdf"):
+        if key in other:  # written by benchmarks/steinhurst_ic_cis.py
             headline[key] = other[key]
     return headline
 
 
 STUDIES = {
-    "structures": (structures_study, structures_markdown),
+    "structures": (structures, structures_markdown),
     "sponza_setting": (sponza_setting, sponza_markdown),
 }
 
 
+def only(study: str, quick: bool, out: Path) -> dict:
+    """Run one study of :data:`STUDIES` and write it into the previous run's results."""
+    run, render = STUDIES[study]
+    found = run(quick)
+    stem = report.results_stem(out, NAME, quick)
+    result = {**report.previous_results(stem.with_suffix(".json")), study: found}
+    if "scenes" in result:
+        result["headline"] = headline_of(result["scenes"], result.get("sponza_setting"), out)
+        report.write_text(stem.with_suffix(".md"), markdown(result, CACHE_KB))
+    report.write_json(stem.with_suffix(".json"), result)
+    print(render(found))
+    return result
+
+
 def main(argv=None) -> dict:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--quick", action="store_true", help="tiny configuration (smoke test)")
-    ap.add_argument("--out-dir", default=str(common.RESULTS))
-    ap.add_argument("--plot", default=str(common.REPO / "docs" / "steinhurst_cache_size.png"))
+    ap = report.arguments(__doc__, "tiny configuration (smoke test)")
+    ap.add_argument("--plot", default=str(report.REPO / "docs" / "steinhurst_cache_size.png"))
     ap.add_argument(
         "--scenes",
         default=",".join([*SCENES, "glossy_floor", "structures"]),
@@ -685,55 +283,35 @@ def main(argv=None) -> dict:
     )
     args = ap.parse_args(argv)
     out = Path(args.out_dir)
-    stem = NAME + ("_quick" if args.quick else "")
-    previous = out / f"{stem}.json"
-    if args.only:  # this study alone, written into the previous run's results
-        study_fn, render = STUDIES[args.only]
-        found = study_fn(args.quick)
-        result = json.loads(previous.read_text()) if previous.is_file() else {}
-        result[args.only] = found
-        if "scenes" in result:
-            result["headline"] = headline_of(result["scenes"], result.get("sponza_setting"), out)
-            common.write_text(out / f"{stem}.md", markdown(result))
-        common.write_json(out / f"{stem}.json", result)
-        print(render(found))
-        return result
-    scenes = json.loads(previous.read_text())["scenes"] if previous.is_file() else {}
+    if args.only:
+        return only(args.only, args.quick, out)
+    stem = report.results_stem(out, NAME, args.quick)
+    previous = report.previous_results(stem.with_suffix(".json"))
+    wanted = args.scenes.split(",")
+    scenes = previous.get("scenes", {})
     for name, (window, surface, grid) in SCENES.items():
-        if name not in args.scenes.split(","):
-            continue
-        if args.quick:
-            window, surface, _ = QUICK
-        sweeps = not args.quick and name == "cornell_steinhurst"
-        scenes[name] = study(name, window, surface, grid or 5, args.quick, sweeps)
-        print(f"{name}: done", flush=True)
-    previous_glossy = json.loads(previous.read_text()).get("glossy") if previous.is_file() else None
-    glossy = glossy_sweep(args.quick) if "glossy_floor" in args.scenes.split(",") else None
-    glossy = glossy or previous_glossy
-    structures = (
-        structures_study(args.quick)
-        if "structures" in args.scenes.split(",")
-        else json.loads(previous.read_text()).get("structures")
-        if previous.is_file()
-        else None
-    )
-    sponza = json.loads(previous.read_text()).get("sponza_setting") if previous.is_file() else None
-    headline = headline_of(scenes, sponza, out)
+        if name in wanted:
+            if args.quick:
+                window, surface, _ = QUICK
+            sweeps = not args.quick and name == "cornell_steinhurst"
+            scenes[name] = study(name, window, surface, grid or 5, args.quick, sweeps)
+            print(f"{name}: done", flush=True)
+    floor = (glossy(args.quick) if "glossy_floor" in wanted else None) or previous.get("glossy")
+    tables_4_1 = structures(args.quick) if "structures" in wanted else previous.get("structures")
     result = {
         "name": NAME,
         "quick": args.quick,
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "load_average": os.getloadavg(),  # at the end of this run; per scene in its study
         "doc_table_3_1_GB": DOC,
         "doc_table_7_10": TABLE_7_10,
         "scenes": scenes,
-        "glossy": glossy,
-        "structures": structures,
-        "sponza_setting": sponza,
-        "headline": headline,
+        "glossy": floor,
+        "structures": tables_4_1,
+        "sponza_setting": previous.get("sponza_setting"),
+        "headline": headline_of(scenes, previous.get("sponza_setting"), out),
     }
-    common.write_json(out / f"{stem}.json", result)
-    common.write_text(out / f"{stem}.md", markdown(result))
+    text = markdown(result, CACHE_KB)
     if not args.quick:
         cornell = scenes["cornell_steinhurst"]
         plot_sweep(
@@ -744,8 +322,7 @@ def main(argv=None) -> dict:
             "Cornell box, whole 512×512 image, 128 B lines",
             cornell["uncached_GB_per_image"] * 1e9,
         )
-    print(markdown(result))
-    return result
+    return report.publish(stem, result, text)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,8 @@ import importlib.util  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-import common  # noqa: E402
+import report  # noqa: E402
+import timing  # noqa: E402
 
 
 def _helpers():
@@ -96,7 +97,7 @@ def mitsuba_row(path: Path, ref: np.ndarray, spp: int) -> dict:
     scene = us.load(path)
     integrator = scene.integrator() or mi.load_dict({"type": "path"})
     mi.render(scene, integrator=integrator, spp=1, seed=10_000)  # compile
-    seconds, image = common.timed(
+    seconds, image = timing.timed(
         lambda: np.array(mi.render(scene, integrator=integrator, spp=spp, seed=10_001))
     )
     return {
@@ -178,7 +179,7 @@ def markdown(result: dict) -> str:
         f"{result['sets'] or 'the defaults'}; seed {result['seed']}. `mitsuba`: the file's "
         "own integrator at a low sample count, its block error and render time.",
         "",
-        common.markdown_table(headers, rows, "l" + "l" * (len(headers) - 1)),
+        report.markdown_table(headers, rows, "l" + "l" * (len(headers) - 1)),
         "",
     ]
     lines += [f"[{i + 1}] {text}" for i, text in enumerate(notes)]
@@ -208,7 +209,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--timeout", type=float, default=300, help="seconds per render")
     parser.add_argument("--name", default="user_scenes")
-    parser.add_argument("--out-dir", type=Path, default=common.RESULTS)
+    parser.add_argument("--out-dir", type=Path, default=report.RESULTS)
     args = parser.parse_args(argv)
 
     methods = args.methods.split(",")
@@ -222,7 +223,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     result = {
         "name": args.name,
-        "machine": common.machine_info(),
+        "machine": report.machine_info(),
         "cli_startup_s": cli_startup(),
         "methods": methods,
         "sets": sets,
@@ -253,12 +254,9 @@ def main(argv: list[str] | None = None) -> dict:
             )
         result["scenes"][path.stem] = entry
     result["seconds"] = time.perf_counter() - start
-    result["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
-    common.write_json(args.out_dir / f"{args.name}.json", result)
+    result["load_average_end"] = report.load_average()
     text = markdown(result)
-    common.write_text(args.out_dir / f"{args.name}.md", text)
-    print(text)
-    return result
+    return report.publish(args.out_dir / args.name, result, text)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""Update latency of ``photonmap view`` (issue 14, "Done when"): from a ``POST /api/update`` to
+"""Update latency of ``photonmap view``: from a ``POST /api/update`` to
 its new frame (``GET /api/frame.png`` returning the full-size PNG of that update), for a light
 move and a camera move, on ``glass_sphere_fog`` (volume method) and ``cornell_ispm`` (screen
 method) at their default sizes and settings, and on ``glass_sphere_fog`` with 512² photons.
@@ -18,34 +18,32 @@ For scale, the same run times one frame of Mitsuba's own integrator on the same 
 
     .venv/bin/python benchmarks/viewer_latency.py [--runs 7] [--quick]
 
-Writes ``results/viewer_latency.json`` and ``.md``; the machine is shared, so the load average
-is recorded and medians are reported.
+Writes ``results/viewer_latency.json`` and ``.md`` (``_quick`` with ``--quick``); the machine is
+shared, so the load average is recorded and medians are reported.
 """
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 import time
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import httpx  # noqa: E402
-from websockets.sync.client import connect  # noqa: E402
+import httpx
+from websockets.sync.client import connect
 
-import common  # noqa: E402
-import photonmap  # noqa: E402
-from photonmap.core.reference import render_reference  # noqa: E402
-from photonmap.scenes import load_scene  # noqa: E402
-from photonmap.viewer import Background, Viewer  # noqa: E402
+import photonmap
+import report
+import timing
+from photonmap.core.reference import render_reference
+from photonmap.scenes import load_scene
+from photonmap.viewer import Background, Viewer
 
+NAME = "viewer_latency"
 SPHERE = ([0.3, 3.0, 0.5], [0.7, 3.0, 0.5]), ([1.8, 1.7, 2.2], [1.2, 1.8, 2.6])
 CASES = {  # name → (scene, method, overrides, two light positions, two camera origins)
     "glass_sphere_fog": ("glass_sphere_fog", "volume", {}, *SPHERE),
     "cornell_ispm": ("cornell_ispm", "screen", {}, ([0.2, 0.53, 0.28], [0.35, 0.53, 0.28]),
                      ([0.2, 0.3, -0.8], [0.35, 0.25, -0.8])),
-    # the issue's example state: 512² photons instead of the default 1024²
+    # a smaller photon budget: 512² photons instead of the default 1024²
     "glass_sphere_fog, 512² photons": ("glass_sphere_fog", "volume", {"photons": 512**2},
                                         *SPHERE),
 }  # fmt: skip
@@ -116,7 +114,7 @@ def mitsuba_frame_ms(scene: str, runs: int) -> dict:
         start = time.perf_counter()
         render_reference(mi_scene, spp=1, seed=i)
         samples.append(1e3 * (time.perf_counter() - start))
-    return common.summarize(samples[1:])
+    return timing.summarize(samples[1:])
 
 
 def run_case(name: str, runs: int) -> dict:
@@ -150,20 +148,22 @@ def run_case(name: str, runs: int) -> dict:
               "mitsuba_1spp_frame_ms": mitsuba}  # fmt: skip
     for name, samples in (("light", light), ("camera", camera)):
         result[name] = {
-            "latency_ms": common.summarize([s["latency_ms"] for s in samples]),
-            **{key: common.summarize([s[key] for s in samples])
-               for key in ("stream_ms", "frame_ms", "apply_ms", "render_ms", "encode_ms")},
-            "stages_ms": common.stage_medians([s["timings"] for s in samples]),
+            "latency_ms": timing.summarize([s["latency_ms"] for s in samples]),
+            **{
+                key: timing.summarize([s[key] for s in samples])
+                for key in ("stream_ms", "frame_ms", "apply_ms", "render_ms", "encode_ms")
+            },
+            "stages_ms": timing.stage_medians([s["timings"] for s in samples]),
             "recomputed": samples[-1]["recomputed"],
             "png_bytes": samples[-1]["png_bytes"],
-            "latency_over_mitsuba_1spp": common.median(s["latency_ms"] for s in samples)
+            "latency_over_mitsuba_1spp": timing.median(s["latency_ms"] for s in samples)
             / mitsuba["median"],
         }
     result["light_drag"] = {
-        **{key: common.summarize([s[key] for s in drag])
+        **{key: timing.summarize([s[key] for s in drag])
            for key in ("preview_ms", "full_ms", "preview_frame_ms", "full_frame_ms")},
         "preview_size": drag[-1]["size"], "reduced": drag[-1]["reduced"],
-        "preview_stages_ms": common.stage_medians([s["timings"] for s in drag]),
+        "preview_stages_ms": timing.stage_medians([s["timings"] for s in drag]),
         "preview_recomputed": drag[-1]["recomputed"],
     }  # fmt: skip
     return result
@@ -172,34 +172,32 @@ def run_case(name: str, runs: int) -> dict:
 def drag_cells(drag: dict) -> list[str]:
     """The light drag's table cells: to the preview frame, to the full frame, the budget."""
     budget = ", ".join(f"{k} {v:,}" for k, v in drag["reduced"].items()) or "full"
-    return [common.fmt(drag["preview_ms"]["median"]), common.fmt(drag["full_ms"]["median"]),
+    return [report.fmt(drag["preview_ms"]["median"]), report.fmt(drag["full_ms"]["median"]),
             f"{budget} at {drag['preview_size'][0]}×{drag['preview_size'][1]}"]  # fmt: skip
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = report.arguments(__doc__, "3 runs")
     parser.add_argument("--runs", type=int, default=7, help="timed updates per kind of move")
-    parser.add_argument("--quick", action="store_true", help="3 runs")
-    parser.add_argument("--out-dir", default=str(common.RESULTS))
     args = parser.parse_args(argv)
     runs = 3 if args.quick else args.runs
-    results = {"machine": common.machine_info(), "runs": runs,
+    results = {"machine": report.machine_info(), "runs": runs,
                "cases": {name: run_case(name, runs) for name in CASES}}  # fmt: skip
-    results["machine"]["load_average_end"] = [round(x, 2) for x in __import__("os").getloadavg()]
+    results["machine"]["load_average_end"] = report.load_average()
     rows = []
     for scene, r in results["cases"].items():
         for move in ("light", "camera"):
             m = r[move]
             rows.append([
                 scene, r["method"], f"{r['size'][0]}×{r['size'][1]}", move,
-                common.fmt(m["latency_ms"]["median"]), common.fmt(m["stream_ms"]["median"]),
+                report.fmt(m["latency_ms"]["median"]), report.fmt(m["stream_ms"]["median"]),
                 *(drag_cells(r["light_drag"]) if move == "light" else ["–"] * 3),
-                common.fmt(m["apply_ms"]["median"]),
-                common.fmt(m["render_ms"]["median"]), common.fmt(m["encode_ms"]["median"]),
-                common.fmt(r["mitsuba_1spp_frame_ms"]["median"]),
-                common.fmt(m["latency_over_mitsuba_1spp"], 2), ", ".join(m["recomputed"]),
+                report.fmt(m["apply_ms"]["median"]),
+                report.fmt(m["render_ms"]["median"]), report.fmt(m["encode_ms"]["median"]),
+                report.fmt(r["mitsuba_1spp_frame_ms"]["median"]),
+                report.fmt(m["latency_over_mitsuba_1spp"], 2), ", ".join(m["recomputed"]),
             ])  # fmt: skip
-    table = common.markdown_table(
+    table = report.markdown_table(
         ["scene", "method", "size", "move", "latency ms (PNG)", "stream ms",
          "drag: preview ms", "drag: full ms", "preview budget", "apply ms",
          "render ms", "encode ms", "Mitsuba 1 spp ms", "latency / Mitsuba frame",
@@ -209,11 +207,7 @@ def main(argv=None) -> dict:
     text = (f"# photonmap view: update latency (POST /api/update → new frame)\n\n{table}\n\n"
             f"Medians of {runs} updates each; load average {load} at the start, "
             f"{results['machine']['load_average_end']} at the end.\n")  # fmt: skip
-    out = Path(args.out_dir)
-    common.write_json(out / "viewer_latency.json", results)
-    common.write_text(out / "viewer_latency.md", text)
-    print(text)
-    return results
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), results, text)
 
 
 if __name__ == "__main__":

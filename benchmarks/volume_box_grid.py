@@ -1,4 +1,4 @@
-"""Box grids against the cube grid (issue 11 item 2) on the issue's first scene.
+"""The volume method (Sun et al. 2008) on box grids fitted to the fog against the cube grid.
 
 ``examples/glass_sphere_long_fog_box.xml``: a glass sphere in a 10 × 5 × 4 box of fog under a
 sphere light outside the box, and the same box without the sphere. The volume method renders it
@@ -7,8 +7,9 @@ fog in a fifth of the voxels) and on the box grid fitted to the fog box, at the 
 (``grid`` N for both) and at equal memory (the box grid's N chosen so that N_x·N_y·N_z ≈ N³).
 Errors against ``volpath`` (the file's own integrator, ``--reference-spp``, cached in
 ``results/cache/``, not in git): the brightness ratio mean(ours)/mean(volpath), the relative RMSE
-of 4×4-block means and per pixel; render times are medians of ``--repeats`` full renders (every
-stage), with the load average (the machine is shared).
+of 4×4-block means and per pixel (:func:`photonmap.compare`); render times are medians of
+``--repeats`` full renders (every stage), with the load average (the machine is shared). Writes
+``results/volume_box_grid.json`` and ``.md`` (``_quick`` with ``--quick``).
 
     PYTHONPATH=src .venv/bin/python benchmarks/volume_box_grid.py            # ~10 min
     PYTHONPATH=src .venv/bin/python benchmarks/volume_box_grid.py --quick    # ~1 min
@@ -16,25 +17,24 @@ stage), with the load average (the machine is shared).
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import os
-import sys
 import time
 from pathlib import Path
 
+import mitsuba as mi
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import mitsuba as mi  # noqa: E402
+import report
+from accuracy import cached_image
+from photonmap import VolumePipeline
+from photonmap.core.image import compare
+from photonmap.core.reference import render_reference
+from photonmap.volume.params import memory_estimate
+from timing import summarize
 
-import common  # noqa: E402
-from photonmap import VolumePipeline  # noqa: E402
-from photonmap.core.image import compare, read_image, write_image  # noqa: E402
-from photonmap.core.reference import render_reference  # noqa: E402
-from photonmap.volume.params import memory_estimate  # noqa: E402
-
-SCENE = common.REPO / "examples" / "glass_sphere_long_fog_box.xml"
+NAME = "volume_box_grid"
+SCENE = report.REPO / "examples" / "glass_sphere_long_fog_box.xml"
 CUBE = ([-5.0] * 3, [5.0] * 3)  # the cube around the 10 × 5 × 4 fog box
 
 
@@ -49,14 +49,15 @@ def scene_text(ball: bool, width: int, height: int) -> str:
 
 
 def reference(name: str, text: str, spp: int, cache: Path) -> np.ndarray:
+    """The file's own integrator at ``spp`` (cached, keyed by the scene text)."""
     digest = hashlib.sha1(text.encode()).hexdigest()[:10]
-    path = cache / f"volume_box_grid_{name}_{spp}spp_{digest}.exr"
-    if not path.exists():
-        cache.mkdir(parents=True, exist_ok=True)
+
+    def render():
         image, info = render_reference(mi.load_string(text), spp=spp, seed=7)
-        write_image(str(path), image)
         print(f"reference {name}: {info['seconds']:.1f} s", flush=True)
-    return read_image(str(path))
+        return image
+
+    return cached_image(cache / f"{NAME}_{name}_{spp}spp_{digest}.exr", render)
 
 
 def equal_memory_grid(n: int, extent=(10.0, 5.0, 4.0)) -> int:
@@ -94,7 +95,7 @@ def run(args) -> dict:
                 "ratio": float(image.mean() / ref.mean()),
                 "block_rel_rmse": errors["block_rel_rmse"],
                 "rel_rmse": errors["rel_rmse"],
-                "render_s": common.summarize(times),
+                "render_s": summarize(times),
                 "loadavg": os.getloadavg(),
             }
             rows.append(row)
@@ -105,44 +106,40 @@ def run(args) -> dict:
                 flush=True,
             )
     return {
-        "benchmark": "volume_box_grid",
-        "machine": common.machine_info(),
-        "git": common.git_revision(),
+        "benchmark": NAME,
+        "machine": report.machine_info(),
+        "git": report.git_revision(),
         "config": {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()},
         "rows": rows,
     }
 
 
 def main(argv=None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser = report.arguments(__doc__, "grid 24, 48×36, 256-spp reference")
     parser.add_argument("--grid", type=int, default=64)
     parser.add_argument("--photons", type=int, default=2**18)
     parser.add_argument("--width", type=int, default=96)
     parser.add_argument("--height", type=int, default=72)
     parser.add_argument("--reference-spp", type=int, default=8192)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--quick", action="store_true", help="grid 24, 48×36, 256-spp reference")
-    parser.add_argument("--out-dir", type=Path, default=common.RESULTS)
     args = parser.parse_args(argv)
     if args.quick:
         args.grid, args.photons, args.width, args.height = 24, 2**14, 48, 36
         args.reference_spp, args.repeats = 256, 1
     result = run(args)
-    headers = ["scene", "layout", "voxels", "ratio", "block rel. RMSE", "pixel rel. RMSE", "s"]
-    table = common.markdown_table(
-        headers,
+    table = report.records_table(
+        result["rows"],
         [
-            [r["scene"], r["layout"], "×".join(map(str, r["dims"])), common.fmt(r["ratio"], 4),
-             common.fmt(r["block_rel_rmse"], 4), common.fmt(r["rel_rmse"], 4),
-             common.fmt(r["render_s"]["median"], 2)]
-            for r in result["rows"]
+            ("scene", "scene", None),
+            ("layout", "layout", None),
+            ("voxels", lambda r: "×".join(map(str, r["dims"])), None),
+            ("ratio", "ratio", 4),
+            ("block rel. RMSE", "block_rel_rmse", 4),
+            ("pixel rel. RMSE", "rel_rmse", 4),
+            ("s", lambda r: r["render_s"]["median"], 2),
         ],
-    )  # fmt: skip
-    name = "volume_box_grid" + ("_quick" if args.quick else "")
-    common.write_json(args.out_dir / f"{name}.json", result)
-    common.write_text(args.out_dir / f"{name}.md", table + "\n")
-    print(table)
-    return result
+    )
+    return report.publish(report.results_stem(args.out_dir, NAME, args.quick), result, table + "\n")
 
 
 if __name__ == "__main__":

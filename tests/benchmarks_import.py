@@ -1,5 +1,5 @@
-"""Import a script of ``benchmarks/`` in a test (the scripts import their ``common`` module from
-their own folder)."""
+"""Import a script of ``benchmarks/`` in a test (the scripts import their shared modules,
+``report``, ``timing`` and ``accuracy``, from their own folder)."""
 
 import importlib
 import sys

@@ -1,6 +1,6 @@
-"""Smoke test of ``benchmarks/volume_table1.py`` (issue item 8): the script runs end to end in
-quick mode on a tiny configuration and writes a JSON whose schema the lead's tooling reads.
-Correctness only; speed is measured by the benchmark itself (DESIGN.md)."""
+"""Smoke test of ``benchmarks/volume_table1.py``: the script runs end to end in quick mode on a
+tiny configuration and writes a JSON whose schema the lead's tooling reads. Correctness only;
+speed is measured by the benchmark itself (DESIGN.md)."""
 
 import json
 import math

@@ -1,5 +1,5 @@
-"""``benchmarks/volume_vs_volpath.py`` (issue 11 item 6): the quick run writes the JSON schema the
-lead's tooling reads, its curves behave (volpath's error falls with its budget) and its headline
+"""``benchmarks/volume_vs_volpath.py``: the quick run writes the JSON schema the lead's tooling
+reads, its curves behave (volpath's error falls with its budget) and its headline
 is what the docstring defines, recomputed here from the curves; the error, noise and curve
 helpers against synthetic cases with known answers. Speed is measured by the benchmark itself."""
 
@@ -17,6 +17,12 @@ METHODS = ("volpath", "volume", "surface")
 @pytest.fixture(scope="module")
 def bench():
     return benchmark("volume_vs_volpath")
+
+
+@pytest.fixture(scope="module")
+def headlines():
+    """The speedup analysis of ``volume_vs_volpath_report.py``."""
+    return benchmark("volume_vs_volpath_report")
 
 
 @pytest.fixture(scope="module")
@@ -123,26 +129,26 @@ def test_headline_is_computed_from_the_curves(quick, name):
             assert h["max_speedup"] == (max(speedups) if speedups else None)
 
 
-def test_volpath_time_on_an_inverse_square_root_curve(bench):
+def test_volpath_time_on_an_inverse_square_root_curve(headlines):
     """On e = t^−½ the time for e is e^−2: between points, past the last, refused above the
     first."""
     rows = [{"seconds": t, "e": t**-0.5} for t in (0.01, 0.1, 1.0, 10.0)]
-    assert bench.volpath_time_for(rows, 0.5, "e") == (pytest.approx(4.0), "interpolated")
-    assert bench.volpath_time_for(rows, 0.1, "e") == (pytest.approx(100.0), "extrapolated")
-    assert bench.volpath_time_for(rows, 20.0, "e") == (None, "volpath_1spp_lower")
-    assert bench.volpath_time_for(rows, 0.0, "e") == (None, "below_reference_noise")
+    assert headlines.volpath_time_for(rows, 0.5, "e") == (pytest.approx(4.0), "interpolated")
+    assert headlines.volpath_time_for(rows, 0.1, "e") == (pytest.approx(100.0), "extrapolated")
+    assert headlines.volpath_time_for(rows, 20.0, "e") == (None, "volpath_1spp_lower")
+    assert headlines.volpath_time_for(rows, 0.0, "e") == (None, "below_reference_noise")
 
 
-def test_a_flattening_curve_reports_its_bias_floor(bench):
+def test_a_flattening_curve_reports_its_bias_floor(headlines):
     volpath = [{"seconds": t, "e": t**-0.5} for t in (0.01, 0.1, 1.0, 10.0)]
     biased = [{"seconds": t, "e": e} for t, e in ((0.1, 0.6), (0.4, 0.5), (1.6, 0.48))]
-    h = bench.headline_for(biased, volpath, "e")
+    h = headlines.headline_for(biased, volpath, "e")
     assert not h["error_still_falling"] and h["bias_floor"] == 0.48
     assert not h["reaches_volpath_lowest_error"] and "cannot reach" in h["note"]
     # the lowest-error point: volpath needs 0.48^−2 s, the method 1.6 s
     assert h["speedup_vs_volpath_at_equal_rmse"] == pytest.approx(0.48**-2 / 1.6)
     falling = [{"seconds": t, "e": 0.1 * t**-0.5} for t in (0.1, 0.4, 1.6)]
-    h = bench.headline_for(falling, volpath, "e")
+    h = headlines.headline_for(falling, volpath, "e")
     assert h["error_still_falling"] and h["bias_floor"] is None and "note" not in h
     assert h["max_speedup"] == pytest.approx(100.0)  # 100× less time at every point
 

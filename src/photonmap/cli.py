@@ -438,7 +438,7 @@ def _distribute(job, outputs, seconds, preview_every, workers, address, run):
 def render_sequence(
     scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
     frames: Annotated[str, typer.Option(help="frame spec (JSON): a camera or light path, or a "
-                                              "list of parameter sets (README)")],
+                                              "list of parameter sets (docs/cluster.md)")],
     output: Annotated[
         list[str], typer.Option("-o", "--output", help="out/%04d.png or .exr (repeatable)")
     ],
@@ -684,8 +684,8 @@ def view(
     max_memory: MaxMemory = None,
 ):
     """Interactive relighting in the browser: drag the light, orbit the camera, change the
-    glass and the fog, paint the volume; per-stage timings of each change. README "Interactive
-    viewer" documents the page and its HTTP API. The page's URL carries a token the server
+    glass and the fog, paint the volume; per-stage timings of each change. docs/viewer.md
+    documents the page and its HTTP API. The page's URL carries a token the server
     requires (only that page drives the viewer)."""
     from . import METHODS, PhotonmapError
     from .core import interrupt

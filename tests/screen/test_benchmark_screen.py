@@ -1,6 +1,6 @@
-"""Smoke test of ``benchmarks/screen_table1.py`` (issue 4 item 6): quick mode at a tiny size
-writes the JSON with the ``headline`` the lead's tooling reads, and what it reports is what the
-pipeline did. Speed is not asserted."""
+"""Smoke test of ``benchmarks/screen_table1.py``: quick mode at a tiny size writes the JSON with
+the ``headline`` the lead's tooling reads, and what it reports is what the pipeline did. Speed is
+not asserted."""
 
 import json
 

@@ -1,6 +1,6 @@
-"""Smoke test of ``benchmarks/adaptive_vs_reference.py`` (issue 5 item 6): the quick mode runs end
-to end and writes the JSON (with the ``headline`` object), the markdown and the plot; and the
-equal-RMSE interpolation. Correctness only; speed is measured by the benchmark itself."""
+"""Smoke test of ``benchmarks/adaptive_vs_reference.py``: the quick mode runs end to end and
+writes the JSON (with the ``headline`` object), the markdown and the plot; and the equal-RMSE
+interpolation. Correctness only; speed is measured by the benchmark itself."""
 
 import json
 import math

@@ -5,7 +5,7 @@ frame alone, not on the frames that worker rendered before (issue 15 item 2).
 
 A scene file is read by path on every worker: on a multi-machine cluster it (and the meshes and
 textures it names) must lie at the same path on each node (a shared file system, or Ray's
-``runtime_env={"working_dir": ...}``; README "Rendering on a cluster").
+``runtime_env={"working_dir": ...}``; docs/cluster.md).
 """
 
 from __future__ import annotations

@@ -147,16 +147,16 @@ def _slots(records, slots: int, n: int, first_density: mi.Float) -> ScreenPhoton
     """The records in their fixed slots ``(k − 1)·n + texel`` (hit k + 1 has depth k + 1), with the
     path density ρ_path = h₁ · 4^(delta bounces) · 2^(glossy bounces) and the normal turned
     towards the side the photon arrived from."""
-    slot = (records.depth - 2) * n + records.path
-    density = dr.gather(mi.Float, first_density, records.path)
-    density *= dr.power(4.0, mi.Float(records.delta)) * dr.power(2.0, mi.Float(records.glossy))
-    n_s = mi.Normal3f(records.normal)
-    nrm = dr.select(dr.dot(n_s, records.direction) > 0, -n_s, n_s)
     photons = ScreenPhotons(
         dr.zeros(mi.Point3f, slots), dr.zeros(mi.Normal3f, slots), dr.zeros(mi.Color3f, slots),
         dr.zeros(mi.Float, slots), dr.zeros(mi.Bool, slots),
     )  # fmt: skip
-    if records.count:
+    if records.count:  # (Dr.Jit refuses arithmetic between an empty array and a literal)
+        slot = (records.depth - 2) * n + records.path
+        density = dr.gather(mi.Float, first_density, records.path)
+        density *= dr.power(4.0, mi.Float(records.delta)) * dr.power(2.0, mi.Float(records.glossy))
+        n_s = mi.Normal3f(records.normal)
+        nrm = dr.select(dr.dot(n_s, records.direction) > 0, -n_s, n_s)
         dr.scatter(photons.pos, records.position, slot)
         dr.scatter(photons.nrm, nrm, slot)
         dr.scatter(photons.power, records.power, slot)

@@ -1,4 +1,4 @@
-"""Who may drive the viewer: its own page only (README "Interactive viewer", Security).
+"""Who may drive the viewer: its own page only (docs/viewer.md, Security).
 
 An ASGI middleware in front of the application (:func:`guarded`) answers every request and
 WebSocket handshake before the application sees it:
