@@ -28,7 +28,7 @@ command                   appended
                           else the built-in scene's own, else ``sppm``): volume ``grid`` ≤ 32,
                           ``photons`` ≤ 4096, ``pilot_photons`` ≤ 256; surface ``photons``,
                           ``caustic_photons`` ≤ 2000; sppm ``iterations`` ≤ 2,
-                          ``photons_per_iteration`` ≤ 2000; screen ``light_res`` ≤ 32
+                          ``photons`` ≤ 2000; screen ``photons`` ≤ 1024 (a 32 × 32 light G-buffer)
 ``reference``             ``--width 32 --height 24``, ``--spp`` ≤ 16
 ``analyze bandwidth``     ``--size 64`` (a ``--crop`` window scaled by 64 / the line's size),
                           ``photons``, ``caustic_photons`` ≤ 2000, ``fg_rays`` ≤ 4
@@ -66,8 +66,8 @@ WIDTH, HEIGHT = 32, 24
 RENDER_CAPS = {
     "volume": {"grid": 32, "photons": 4096, "pilot_photons": 256},
     "surface": {"photons": 2000, "caustic_photons": 2000},
-    "sppm": {"iterations": 2, "photons_per_iteration": 2000},
-    "screen": {"light_res": 32},
+    "sppm": {"iterations": 2, "photons": 2000},
+    "screen": {"photons": 1024},
 }
 ANALYZE_CAPS = {"photons": 2000, "caustic_photons": 2000, "fg_rays": 4}
 ANALYZE_SIZE = 64
@@ -208,7 +208,7 @@ def test_reduction_appends_caps_and_keeps_lower_values():
     assert _last(out, "--width") == "32" and _last(out, "--height") == "24"
     assert method_of("render examples/cornell_box.xml -o x.png".split()) == "sppm"
     assert method_of("render cornell_ispm -o x.png".split()) == "screen"
-    assert "light_res=32" in reduced("render x.xml -o y.png --method=screen".split())
+    assert "photons=1024" in reduced("render x.xml -o y.png --method=screen".split())
     crop = reduced("analyze bandwidth cornell_steinhurst --crop 192,288,64,32".split())
     assert _last(crop, "--crop") == "24,36,8,4" and _last(crop, "--size") == "64"
     assert reduced(["compare", "a.exr", "b.exr"]) == ["compare", "a.exr", "b.exr"]
