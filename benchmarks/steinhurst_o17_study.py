@@ -43,7 +43,7 @@ TARGET = {"cornell_steinhurst": 4.0, "cornell_bushes": 10.0}  # O17, dir-binning
 # surface parameters, hash grid G (Cornell 5, Sponza 8: §3.4.3)
 SCENES = {
     "cornell_steinhurst": ((192, 288, 32, 16), {}, 5),
-    "cornell_bushes": ((192, 256, 32, 16), dict(max_radius=0.02), 8),
+    "cornell_bushes": ((192, 256, 32, 16), dict(radius=0.02), 8),
 }
 FG_RAYS = (32, 50, 100)
 PHOTONS = (100_000, 500_000)

@@ -51,9 +51,9 @@ DOC = {
 }
 # row label: (built-in scene, scene parameters, surface parameters, hash grid G)
 SCENES = {
-    "bare box": ("cornell_bushes", dict(bushes=0), dict(max_radius=0.02), 5),
-    "two bushes": ("cornell_bushes", dict(bushes=2), dict(max_radius=0.02), 8),
-    "many bushes": ("cornell_bushes", dict(bushes=6), dict(max_radius=0.02), 8),
+    "bare box": ("cornell_bushes", dict(bushes=0), dict(radius=0.02), 5),
+    "two bushes": ("cornell_bushes", dict(bushes=2), dict(radius=0.02), 8),
+    "many bushes": ("cornell_bushes", dict(bushes=6), dict(radius=0.02), 8),
 }
 # one window of the 512² image for every scene: a strip across the bushes, the floor and a wall
 WINDOW = (128, 336, 128, 16)

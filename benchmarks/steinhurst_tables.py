@@ -79,7 +79,7 @@ BINNED = ("tiled_dirbin", "tiled_dirbin_hashed")
 # (N_FG 50: the dissertation's Cornell figure, §2.6.2.1), hash grid G (Cornell 5, Sponza 8)
 SCENES = {
     "cornell_steinhurst": ((192, 288, 64, 32), dict(photons=100_000, fg_rays=50), 5),
-    "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=50, max_radius=0.02), 8),
+    "cornell_bushes": ((192, 256, 64, 32), dict(photons=100_000, fg_rays=50, radius=0.02), 8),
 }
 QUICK = ((240, 288, 16, 16), dict(photons=5000, fg_rays=4), None)
 

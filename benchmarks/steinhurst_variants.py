@@ -16,7 +16,7 @@ from photonmap.surface.gather_batch import OrderParams
 from report import fmt, markdown_table, records_table
 
 MANY_BINS = 128  # the direction-binned orders again with 128 bins (A1's sweep: the best here)
-SPONZA = dict(photons=100_000, fg_rays=200, max_radius=0.02)  # bushes at Sponza's N_FG (§2.6.2.1)
+SPONZA = dict(photons=100_000, fg_rays=200, radius=0.02)  # bushes at Sponza's N_FG (§2.6.2.1)
 # Fig 6.17 / O26: the glossy floor's lobe narrowed (Beckmann α; Phong n ≈ 2/α² − 2), window on it
 GLOSSY = ((224, 432, 64, 32), dict(photons=100_000, fg_rays=32), (0.3, 0.1, 0.03), 0.8)
 GLOSSY_ORDERS = ("naive", "tiled_dirbin_hashed", "tiled_hilbert")

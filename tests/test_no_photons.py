@@ -64,9 +64,9 @@ def test_the_screen_method_with_no_photon_recorded_renders_the_direct_light():
         "light": {"type": "spot", "intensity": 10.0, "to_world": mi.ScalarTransform4f().look_at(
             origin=[0, 1, 0], target=[0, 0, 0], up=[0, 0, 1])},
     }  # fmt: skip
-    pipe = ScreenPipeline(scene, bounces=2, light_res=16)
+    pipe = ScreenPipeline(scene, bounces=2, photons=16**2)
     image = np.array(pipe.render())
     assert pipe.stats["photons"] == 0
-    direct = np.array(ScreenPipeline(scene, max_depth=2, light_res=16).render())
+    direct = np.array(ScreenPipeline(scene, max_depth=2, photons=16**2).render())
     assert np.all(np.isfinite(image)) and image.max() > 0
     assert np.array_equal(image, direct)
