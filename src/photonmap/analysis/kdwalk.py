@@ -26,7 +26,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .cache import _feed, bank
+from .cache import bank, feed_bank
 
 INDEX_MASK = np.uint32((1 << 30) - 1)
 STACK_SIZE = 32  # as the renderer's traversal stack (surface/kdtree.py)
@@ -200,7 +200,7 @@ def simulate(
         )
         visits += v
         for b in range(L):
-            _feed(out, 0, v, 1, per_line[b], *banks[b])
+            feed_bank(out, 0, v, 1, per_line[b], *banks[b])
     misses = np.empty((L, segcap.shape[1]), np.int64)
     state = np.empty((L, 3), np.int64)
     for b in range(L):

@@ -139,13 +139,30 @@ class Scattering:
     seed: int = 0
 
 
-def _advance(
+@dataclass
+class Step:
+    """One curved-ray step of a photon (:func:`curved_step`), from ``x`` to :attr:`x`."""
+
+    x: mi.Point3f  # x_{i+1}, eq (4)
+    v: mi.Vector3f  # v_{i+1} = n dx/ds there, eq (5)
+    L: mi.Color3f  # L̃_{i+1}, eq (6)
+    direction: mi.Vector3f  # v̂_i, the unit direction at the start
+    new_direction: mi.Vector3f  # v̂_{i+1}
+    kappa: mi.Color3f  # κ(x_i), constant over the step
+    length: mi.Float  # t = ‖x_{i+1} − x_i‖ in voxels
+    leaving: mi.Bool  # the step ends on the grid's exit face
+    ior: mi.Float  # n(x_i)
+
+
+def curved_step(
     medium: MarchGrids, x, v, L, ds_min, size: mi.Point3f, pfeuti_update: bool, surface=None
-):
+) -> Step:
     """S6: one curved-ray step (eqs 4–6) from ``x`` with ``v = n dx/ds`` and energy ``L``, to the
     face of the octree node holding ``x`` (+δ), clamped to ``[Δs_min, Δs_max]`` and clipped at the
     grid's exit face and at ``surface`` (the distance in voxels to an opaque surface,
-    ``surface_march.py``). Returns ``(x', v', L', v̂, v̂', κ(x), t, leaving, n(x))``."""
+    ``surface_march.py``). ``Δs = t · n(x)/‖v‖`` for the target displacement ``t``, and ``v``
+    is not renormalised, so eqs (4)–(5) apply literally; ``pfeuti_update`` uses Pfeuti's
+    ``v += Δs·n·∇n`` (Pfeuti 2009 Listing A.4) for eq (5)."""
     n_x, grad, kappa = sample_medium(medium, x)
     vox = voxel_index(x, medium.dims)
     oct_idx = mi.UInt32(flat_index(vox.x, vox.y, vox.z, medium.dims))
@@ -165,11 +182,124 @@ def _advance(
     if surface is not None:
         t = dr.minimum(t, dr.maximum(surface, 0.0))
 
-    ds = t * n_x / dr.norm(v)  # A12: Δs for the target displacement t
+    ds = t * n_x / dr.norm(v)  # Δs for the target displacement t
     x_new = mi.Point3f(x + (ds / n_x) * v)  # (4)
-    v_new = v + dr.select(pfeuti_update, ds * n_x, ds) * grad  # (5); A13 Pfeuti variant
+    v_new = v + dr.select(pfeuti_update, ds * n_x, ds) * grad  # (5); Pfeuti's variant
     L_new = L * dr.exp(-kappa * t)  # (6), ‖x_{i+1} − x_i‖ = t
-    return x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving, n_x
+    return Step(x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving, n_x)
+
+
+def deposit_step(acc, n, x, step: Step, L, scale, paper, tally, shift: int = 0, expand=True):
+    """S7: rasterise the segment ``x → step.x`` of a photon that carried ``L`` at ``x``
+    (:func:`.deposit.deposit_segment`)."""
+    deposit_segment(
+        acc,
+        n,
+        x,
+        step.x,
+        L,
+        step.kappa * step.length,
+        step.direction,
+        step.new_direction,
+        scale,
+        paper,
+        tally=tally,
+        shift=shift,
+        expand=expand,
+    )
+
+
+@dataclass
+class Collision:
+    """The collision of each photon in one scattering order: where the optical depth of colour
+    ``channel`` since the order's start reaches the sampled ``target`` (κ constant over a step, as
+    in eq (6)). Updated step by step inside a marching loop (:meth:`search`)."""
+
+    found: mi.Bool
+    x: mi.Point3f  # the collision point
+    start: mi.Point3f  # the start of the step it lies in (where σ_s is read, like κ)
+    direction: mi.Vector3f  # the photon's direction there
+    ratio: mi.Color3f  # T/p̄ there (:func:`.scatter.collision_weight` without σ_s)
+    depth: mi.Color3f  # optical depth since the order's start (RGB)
+
+    @staticmethod
+    def none(count: int) -> Collision:
+        """No collision yet, at optical depth 0."""
+        return Collision(
+            dr.zeros(mi.Bool, count),
+            dr.zeros(mi.Point3f, count),
+            dr.zeros(mi.Point3f, count),
+            dr.zeros(mi.Vector3f, count),
+            dr.zeros(mi.Color3f, count),
+            dr.zeros(mi.Color3f, count),
+        )
+
+    def search(self, x: mi.Point3f, step: Step, target: mi.Float, channel: mi.UInt32) -> None:
+        """Record the collision of the photons whose ``target`` lies within ``step`` from ``x``
+        and add the step's optical depth."""
+        depth_new = self.depth + step.kappa * step.length
+        before = scatter.channel_of(self.depth, channel)
+        after = scatter.channel_of(depth_new, channel)
+        hit = ~self.found & (after >= target) & (after > before)
+        f = (target - before) / dr.maximum(after - before, 1e-30)  # where in the step
+        self.x = dr.select(hit, dr.lerp(x, step.x, f), self.x)
+        self.start = dr.select(hit, x, self.start)
+        turned = dr.normalize(dr.lerp(step.direction, step.new_direction, f))
+        self.direction = dr.select(hit, turned, self.direction)
+        depth_f = self.depth + step.kappa * (f * step.length)
+        self.ratio = dr.select(hit, scatter.collision_weight(1.0, step.kappa, depth_f), self.ratio)
+        self.found |= hit
+        self.depth = depth_new
+
+    def sigma_s(self, medium: MarchGrids) -> mi.Color3f:
+        """σ_s at the collisions (read where κ was, at the start of the step)."""
+        packed = trilinear_packed(medium.scatter, medium.dims, 1, self.start, active=self.found)
+        return mi.Color3f(packed[0].xyz)
+
+
+@dataclass
+class Wavefront:
+    """The photons of multiple scattering, marched one order (or leg) at a time: the live ones
+    are compacted after each order, so SIMD lanes do not wait for a neighbour's further orders.
+    Photon ``i`` draws from PCG32 stream ``i`` of the seed."""
+
+    ids: mi.UInt32  # each live photon's index among the emitted ones
+    start: mi.Float  # its emitted power (max over RGB), Russian roulette's reference
+    rng: mi.PCG32
+    tally: object  # the deposit tally; a weighted one follows its photons (weight_tally)
+    final: list  # per emitted photon: x, v (or d), L̃ where it stopped, its last order
+    steps: int = 0  # marching steps of all orders
+
+    @staticmethod
+    def emitted(x, v, L, seed: int, tally) -> Wavefront:
+        """The emitted photons at ``x`` with ``v`` (or ``d``) and power ``L``."""
+        count = dr.width(L)
+        rng = mi.PCG32(count, dr.opaque(mi.UInt64, seed), dr.arange(mi.UInt64, count))
+        final = [mi.Point3f(x), mi.Vector3f(v), mi.Color3f(L), dr.zeros(mi.UInt32, count)]
+        return Wavefront(dr.arange(mi.UInt32, count), dr.max(L), rng, tally, final)
+
+    def record(self, order: int, steps: mi.UInt32, x, v, L) -> None:
+        """Where the live photons stopped in ``order`` (evaluated), and its steps."""
+        values = (x, v, L, dr.opaque(mi.UInt32, order))
+        for array, value in zip(self.final, values, strict=True):
+            dr.scatter(array, value, self.ids)
+        self.steps += int(dr.sum(Float64(steps))[0])
+
+    def compact(self, alive: mi.UInt32, x, omega, W, n: int):
+        """Keep the photons ``alive`` (indices), reordered for coherence
+        (:func:`.scatter.coherent_order`): their ``(x, ω, W)`` and their bookkeeping."""
+        alive = dr.gather(mi.UInt32, alive, scatter.coherent_order(x, omega, alive, n))
+        x = dr.gather(mi.Point3f, x, alive)
+        omega = dr.gather(mi.Vector3f, omega, alive)
+        W = dr.gather(mi.Color3f, W, alive)
+        self.ids = dr.gather(mi.UInt32, self.ids, alive)
+        self.start = dr.gather(mi.Float, self.start, alive)
+        self.rng.state = dr.gather(mi.UInt64, self.rng.state, alive)
+        self.rng.inc = dr.gather(mi.UInt64, self.rng.inc, alive)
+        weights = getattr(self.tally, "weights", None)
+        if weights is not None:
+            self.tally = weight_tally(dr.gather(mi.Float, weights, alive))
+        return x, omega, W
 
 
 @dr.syntax
@@ -197,17 +327,11 @@ def _march(
     size = grid_extent(n)
 
     while active:
-        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving, _ = _advance(
-            medium, x, v, L, ds_min, size, pfeuti_update
-        )
-        # ---- S7: rasterise the segment x → x_new ------------------------------------------
-        deposit_segment(
-            acc, n, x, x_new, L, kappa * t, dir_, dir_new, scale, paper, tally=tally, shift=shift
-        )
-
-        x, v, L = x_new, v_new, L_new
+        step = curved_step(medium, x, v, L, ds_min, size, pfeuti_update)
+        deposit_step(acc, n, x, step, L, scale, paper, tally, shift)
+        x, v, L = step.x, step.v, step.L
         steps += 1
-        active = ~leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
+        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
     return steps, x, v, L
 
 
@@ -230,54 +354,25 @@ def _march_order(
     expand: bool = True,
 ):
     """One scattering order of every photon (beyond-seeds §5): :func:`_march`'s loop from
-    ``(x, v = n dx/ds, L)``, which also finds the collision where the optical depth of colour
-    ``channel`` reaches ``target`` (κ constant over a step, as in eq (6)). Returns the steps, the
-    final ``(x, v, L̃)`` and, per photon, whether it collided, the collision point, its
-    direction there, ``T/p̄`` there (:func:`.scatter.collision_weight` without σ_s) and the start
-    of the step it lies in (where σ_s is read, like κ)."""
+    ``(x, v = n dx/ds, L)``, which also finds the :class:`Collision` where the optical depth of
+    colour ``channel`` reaches ``target``. Returns the steps, the final ``(x, v, L̃)`` and the
+    collision."""
     n = medium.dims
     count = dr.width(L)
     size = grid_extent(n)
     L_kill = dr.max(L) * KILL_FRACTION
     steps = dr.zeros(mi.UInt32, count)
     active = dr.max(L) > 0
-    depth = dr.zeros(mi.Color3f, count)  # optical depth since the order's start (RGB)
-    found = dr.zeros(mi.Bool, count)
-    x_c, x_s = dr.zeros(mi.Point3f, count), dr.zeros(mi.Point3f, count)
-    d_c, ratio = dr.zeros(mi.Vector3f, count), dr.zeros(mi.Color3f, count)
+    collision = Collision.none(count)
 
     while active:
-        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving, _ = _advance(
-            medium, x, v, L, ds_min, size, pfeuti_update
-        )
-        depth_new = depth + kappa * t
-        before, after = scatter.channel_of(depth, channel), scatter.channel_of(depth_new, channel)
-        hit = ~found & (after >= target) & (after > before)
-        f = (target - before) / dr.maximum(after - before, 1e-30)  # where in the step
-        x_c = dr.select(hit, dr.lerp(x, x_new, f), x_c)
-        x_s = dr.select(hit, x, x_s)
-        d_c = dr.select(hit, dr.normalize(dr.lerp(dir_, dir_new, f)), d_c)
-        ratio = dr.select(hit, scatter.collision_weight(1.0, kappa, depth + kappa * (f * t)), ratio)
-        found |= hit
-        deposit_segment(
-            acc,
-            n,
-            x,
-            x_new,
-            L,
-            kappa * t,
-            dir_,
-            dir_new,
-            scale,
-            paper,
-            tally=tally,
-            shift=shift,
-            expand=expand,
-        )
-        x, v, L, depth = x_new, v_new, L_new, depth_new
+        step = curved_step(medium, x, v, L, ds_min, size, pfeuti_update)
+        collision.search(x, step, target, channel)
+        deposit_step(acc, n, x, step, L, scale, paper, tally, shift, expand)
+        x, v, L = step.x, step.v, step.L
         steps += 1
-        active = ~leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
-    return steps, x, v, L, found, x_c, d_c, ratio, x_s
+        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
+    return steps, x, v, L, collision
 
 
 def _march_multiple(
@@ -297,28 +392,22 @@ def _march_multiple(
     atomic: Int64 | None = None,
 ):
     """:func:`_march` with multiple scattering (``scatter.py``, beyond-seeds §5), one order at a
-    time over the photons still alive (a wavefront: the scattered photons are compacted, so SIMD
-    lanes do not wait for a neighbour's further orders). The collision of each order starts the
-    next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian
-    roulette (:func:`.scatter.roulette`). Photon ``i`` draws from PCG32 stream ``i`` of the seed.
-    The first order deposits into ``acc`` as :func:`_march` does; the scattered orders deposit
-    with atomics into ``atomic`` (same layout, summed with ``acc`` by the caller): one
-    reduction mode per array, one ``Expand`` launch (see :func:`reduce_mode`).
-    Returns the total steps and, per photon, the final ``(x, v, L̃)`` and its scattering events.
+    time over the photons still alive (a :class:`Wavefront`). The collision of each order starts
+    the next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian
+    roulette (:func:`.scatter.roulette`). The first order deposits into ``acc`` as
+    :func:`_march` does; the scattered orders deposit with atomics into ``atomic`` (same layout,
+    summed with ``acc`` by the caller): one reduction mode per array, one ``Expand`` launch (see
+    :func:`reduce_mode`). Returns the total steps and, per photon, the final ``(x, v, L̃)`` and
+    its scattering events.
     """
-    count = dr.width(L)
-    rng = mi.PCG32(count, dr.opaque(mi.UInt64, scattering.seed), dr.arange(mi.UInt64, count))
     k = dr.opaque(mi.Float, scattering.phase_k)
-    ids = dr.arange(mi.UInt32, count)
-    start = dr.max(L)  # the photon's emitted power, Russian roulette's reference
     v = sample_medium(medium, x)[0] * d  # v₀ = n(x₀)·d₀
-    final = [mi.Point3f(x), mi.Vector3f(v), mi.Color3f(L), dr.zeros(mi.UInt32, count)]
-    weights = getattr(tally, "weights", None)
-    steps = 0
+    photons = Wavefront.emitted(x, v, L, scattering.seed, tally)
+    rng = photons.rng
     for order in range(scatter.MAX_ORDERS + 1):
         target, channel = scatter.free_flight(rng)
         into = acc if order == 0 else atomic
-        n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s = _march_order(
+        n_steps, x, v, L_end, collision = _march_order(
             into,
             medium,
             x,
@@ -331,38 +420,26 @@ def _march_multiple(
             pfeuti_update,
             target,
             channel,
-            tally,
+            photons.tally,
             shift,
             order == 0,
         )
-        dr.eval(into, n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s)  # one launch per order
-        for array, value in zip(final, (x, v, L_end, dr.opaque(mi.UInt32, order)), strict=True):
-            dr.scatter(array, value, ids)
-        steps += int(dr.sum(Float64(n_steps))[0])
+        dr.eval(into, n_steps, x, v, L_end, collision)  # one launch per order
+        photons.record(order, n_steps, x, v, L_end)
         if order == scatter.MAX_ORDERS:
             break
-        # the next order starts at the collisions (σ_s read where κ was, at the step's start)
-        sigma_s = mi.Color3f(
-            trilinear_packed(medium.scatter, medium.dims, 1, x_s, active=found)[0].xyz
-        )
-        survives, W = scatter.roulette(L * sigma_s * ratio, start, order, rng.next_float32())
+        # the next order starts at the collisions
+        W = L * collision.sigma_s(medium) * collision.ratio
+        survives, W = scatter.roulette(W, photons.start, order, rng.next_float32())
         omega = scatter.schlick_direction(
-            k, d_c, mi.Point2f(rng.next_float32(), rng.next_float32())
+            k, collision.direction, mi.Point2f(rng.next_float32(), rng.next_float32())
         )
-        alive = dr.compress(found & survives & (dr.max(W) > 0))  # not absorbed, not rouletted
+        alive = dr.compress(collision.found & survives & (dr.max(W) > 0))  # not absorbed
         if dr.width(alive) == 0:
             break
-        alive = dr.gather(mi.UInt32, alive, scatter.coherent_order(x_c, omega, alive, medium.n))
-        x = dr.gather(mi.Point3f, x_c, alive)
-        v = sample_medium(medium, x)[0] * dr.gather(mi.Vector3f, omega, alive)
-        L = dr.gather(mi.Color3f, W, alive)
-        ids, start = dr.gather(mi.UInt32, ids, alive), dr.gather(mi.Float, start, alive)
-        rng.state = dr.gather(mi.UInt64, rng.state, alive)
-        rng.inc = dr.gather(mi.UInt64, rng.inc, alive)
-        if weights is not None:
-            weights = dr.gather(mi.Float, weights, alive)
-            tally = weight_tally(weights)
-    return steps, *final
+        x, omega, L = photons.compact(alive, collision.x, omega, W, medium.n)
+        v = sample_medium(medium, x)[0] * omega
+    return photons.steps, *photons.final
 
 
 def accumulate(
