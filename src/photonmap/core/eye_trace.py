@@ -173,7 +173,9 @@ def trace_eye_paths(
     dr.eval(*(v for v in vars(vertices).values() if v is not None), buffers, stored)
     if marching:
         index = dr.compress(stored)
-        vertices.segments = Segments(*(dr.gather(type(f), f, index) for f in vars(buffers).values()))
+        vertices.segments = Segments(
+            *(dr.gather(type(f), f, index) for f in vars(buffers).values())
+        )
     return vertices
 
 
@@ -308,9 +310,15 @@ def _fly(scene, walk: _Walk, gen, ch, max_depth, rules: _Rules, null_shapes, rec
         length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
         recorded = in_medium & (walk.pieces < rules.max_pieces)
         slot = walk.pieces * stride + lane
-        for field, value in (("origin", ray.o), ("direction", ray.d), ("length", length),
-                             ("medium", medium), ("weight", walk.beta), ("lane", lane)):
-            dr.scatter(getattr(buffers, field), value, slot, recorded)  # fmt: skip
+        for field, value in (
+            ("origin", ray.o),
+            ("direction", ray.d),
+            ("length", length),
+            ("medium", medium),
+            ("weight", walk.beta),
+            ("lane", lane),
+        ):
+            dr.scatter(getattr(buffers, field), value, slot, recorded)
         dr.scatter(stored, True, slot, recorded)
         walk.pieces[recorded] += 1
         walk.beta[in_medium] *= segment_transmittance(ray, length, medium, gen, ch, in_medium)
