@@ -11,13 +11,9 @@ import numpy as np
 import pytest
 
 from photonmap.analysis.bandwidth import bandwidth_table
-from photonmap.analysis.structures import (
-    BlockHash,
-    KDBTree,
-    fetches_per_block,
-    recall,
-    structure_trace,
-)
+from photonmap.analysis.blockhash import BlockHash
+from photonmap.analysis.kdbtree import KDBTree
+from photonmap.analysis.structures import fetches_per_block, recall, structure_trace
 from photonmap.core.errors import ParameterError
 from photonmap.core.knn import COS_NORMAL
 from photonmap.surface.gather_batch import ORDERS, GatherBatch, gather_order
