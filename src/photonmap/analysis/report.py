@@ -47,10 +47,6 @@ def bandwidth_report(
     target, surface = _target(scene, builtin, params, size, _crop(crop, size))
     trace = trace_final_gathers(target, **surface)
     interrupt.check()
-    if sweep_kind is None:
-        rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
-    else:
-        xs, curves = sweep(trace, sweep_kind, orders, cache_bytes, line_bytes, order_params)
     head = (
         f"{scene}: {len(trace.batch):,} final gathers, {trace.visits:,} kd-tree node visits "
         f"({trace.visits / max(len(trace.batch), 1):.0f} per gather), {trace.photons:,} photons; "
@@ -64,7 +60,9 @@ def bandwidth_report(
             f"{trace.uncached_bytes() / 1e6:,.1f} MB"
         )
     if sweep_kind is None:
+        rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
         return _table_text(head, rows, cache_bytes, line_bytes, tile)
+    xs, curves = sweep(trace, sweep_kind, orders, cache_bytes, line_bytes, order_params)
     xlabel, _ = SWEEPS[sweep_kind]
     lines = [
         head,
