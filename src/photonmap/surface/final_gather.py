@@ -72,7 +72,6 @@ def final_gather(
     ``layout`` (k-NN lookups, ``fused=False``): issue each batch's gathers in ``layout.order``."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
-    ctx = mi.BSDFContext()  # the smooth lobes only: delta and Null samples count nothing
     total = dr.zeros(mi.Spectrum, count)
     shifts = rng(count, seed, FG_STREAM - 1)
     shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
@@ -86,21 +85,7 @@ def final_gather(
         gen = rng(count * m, seed, FG_STREAM + first)
         i = first + dr.arange(mi.UInt32, count * m) % m
         u = rotated_hammersley(rays, i, dr.gather(mi.Point2f, shift, query))
-        if sampling == "bsdf":
-            bs, weight = bsdf.sample(ctx, x, gen.next_float32(), u, ok)
-            smooth = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
-            wo, pdf, ok = bs.wo, bs.pdf, ok & (bs.pdf > 0) & smooth
-        else:
-            if sampling == "cosine":
-                wo = mi.warp.square_to_cosine_hemisphere(u)
-                pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
-            elif sampling == "uniform":
-                wo = mi.warp.square_to_uniform_hemisphere(u)
-                pdf = mi.warp.square_to_uniform_hemisphere_pdf(wo)
-            else:
-                wo, pdf = sample_table(table, query, u)
-            weight = bsdf.eval(ctx, x, wo, ok) / dr.maximum(pdf, 1e-12)
-            ok &= pdf > 0
+        wo, pdf, weight, ok = _sample_direction(sampling, x, bsdf, gen, u, ok, table, query)
         if irradiance is not None:
             cos_pdf = mi.Spectrum(dr.maximum(wo.z, 0.0) / dr.maximum(pdf, 1e-12))
             weight = dr.select(dr.gather(mi.Bool, irradiance, query), cos_pdf, weight)
@@ -128,6 +113,28 @@ def final_gather(
         total += mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, m) for c in L])
         dr.eval(total)
     return total / rays
+
+
+def _sample_direction(sampling: str, x, bsdf, gen, u: mi.Point2f, ok, table, query):
+    """A final-gather direction at ``x`` from the 2D sample ``u``: ``(wo, pdf, weight, ok)``,
+    ``weight = f cos / pdf`` of the smooth lobes (delta and ``Null`` samples count nothing), by
+    BSDF sampling, cosine or uniform hemisphere sampling, or from the per-query tabular pdf
+    ``table`` (:func:`~.cis.sample_table`: ``jensen``, ``cis``)."""
+    ctx = mi.BSDFContext()
+    if sampling == "bsdf":
+        bs, weight = bsdf.sample(ctx, x, gen.next_float32(), u, ok)
+        smooth = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
+        return bs.wo, bs.pdf, weight, ok & (bs.pdf > 0) & smooth
+    if sampling == "cosine":
+        wo = mi.warp.square_to_cosine_hemisphere(u)
+        pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+    elif sampling == "uniform":
+        wo = mi.warp.square_to_uniform_hemisphere(u)
+        pdf = mi.warp.square_to_uniform_hemisphere_pdf(wo)
+    else:
+        wo, pdf = sample_table(table, query, u)
+    weight = bsdf.eval(ctx, x, wo, ok) / dr.maximum(pdf, 1e-12)
+    return wo, pdf, weight, ok & (pdf > 0)
 
 
 def _ordered_lookup(lookup, layout: RequestLayout, si_y, found, query, i, direction) -> mi.Spectrum:

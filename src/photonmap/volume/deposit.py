@@ -86,24 +86,7 @@ def deposit_segment(
     """
     count = dr.width(s)
     L_e = L_s * dr.exp(-optical_depth)
-    delta = e - s
-    ad = dr.abs(delta)
-    along_x = (ad.x >= ad.y) & (ad.x >= ad.z)
-    along_y = ~along_x & (ad.y >= ad.z)
-    da = dr.select(along_x, delta.x, dr.select(along_y, delta.y, delta.z))
-    sa = dr.select(along_x, s.x, dr.select(along_y, s.y, s.z))
-    ea = dr.select(along_x, e.x, dr.select(along_y, e.y, e.z))
-    len_a = dr.maximum(dr.abs(da), 1e-20)
-    step = delta / len_a  # δ: one voxel along the major axis
-    sgn = dr.sign(da)
-    t_s = (dr.floor(sa) + 0.5 - sa) * sgn  # signed move of the start to its voxel's centre plane
-    t_e = (dr.floor(ea) + 0.5 - ea) * sgn
-    skip_first = t_s < 0  # the start moved backward: its voxel is not rasterised
-    p0 = s + dr.select(skip_first, t_s + 1.0, t_s) * step
-    u0 = dr.select(skip_first, t_s + 1.0, t_s) / len_a
-    total = mi.Int32(dr.abs(dr.floor(ea) - dr.floor(sa)))
-    total += dr.select(t_e < 0, 1, 0) - dr.select(skip_first, 1, 0)
-    total = dr.select(active & (dr.abs(da) > 0), total, 0)
+    step, p0, u0, total, len_a = _centre_planes(s, e, active)
     # energy at u0 and its change per deposit, in fixed-point units, length weight included
     weight = scale * (1.0 if paper else dr.norm(step))
     du = 1.0 / len_a
@@ -138,6 +121,33 @@ def deposit_segment(
             energy *= growth
         direction += turn
         j += 1
+
+
+def _centre_planes(s: mi.Point3f, e: mi.Point3f, active):
+    """The crossings of the segment ``s → e`` with the major axis's voxel-centre planes in the
+    half-open range ``[s_a, e_a)``: ``(δ, p₀, u₀, count, |e_a − s_a|)`` — the step ``δ`` from one
+    crossing to the next (one voxel along the major axis), the first crossing ``p₀`` at segment
+    parameter ``u₀``, how many there are (0 where not ``active`` or the segment has no length
+    along the axis) and the segment's length along the axis."""
+    delta = e - s
+    ad = dr.abs(delta)
+    along_x = (ad.x >= ad.y) & (ad.x >= ad.z)
+    along_y = ~along_x & (ad.y >= ad.z)
+    da = dr.select(along_x, delta.x, dr.select(along_y, delta.y, delta.z))
+    sa = dr.select(along_x, s.x, dr.select(along_y, s.y, s.z))
+    ea = dr.select(along_x, e.x, dr.select(along_y, e.y, e.z))
+    len_a = dr.maximum(dr.abs(da), 1e-20)
+    step = delta / len_a  # δ: one voxel along the major axis
+    sgn = dr.sign(da)
+    t_s = (dr.floor(sa) + 0.5 - sa) * sgn  # signed move of the start to its voxel's centre plane
+    t_e = (dr.floor(ea) + 0.5 - ea) * sgn
+    skip_first = t_s < 0  # the start moved backward: its voxel is not rasterised
+    p0 = s + dr.select(skip_first, t_s + 1.0, t_s) * step
+    u0 = dr.select(skip_first, t_s + 1.0, t_s) / len_a
+    total = mi.Int32(dr.abs(dr.floor(ea) - dr.floor(sa)))
+    total += dr.select(t_e < 0, 1, 0) - dr.select(skip_first, 1, 0)
+    total = dr.select(active & (dr.abs(da) > 0), total, 0)
+    return step, p0, u0, total, len_a
 
 
 def coarse_size(n, shift: int) -> tuple[int, int, int]:

@@ -216,25 +216,7 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     """
     sensor = _camera(scene)
     media = _Media(scene.bbox())
-    objects, fog_volumes, exteriors = [], [], []
-    for number, shape in enumerate(scene.shapes()):
-        bsdf = shape.bsdf()
-        kind = bsdf.class_name() if bsdf is not None else "none"
-        if kind == "SmoothDielectric":
-            objects.append(_refractive_object(shape, bsdf, media))
-            if shape.exterior_medium() is not None:
-                exteriors.append((shape.id(), shape.exterior_medium()))
-        elif kind == "RoughDielectric":
-            raise SceneError(
-                f"{_shape_name(shape, number)} has a {kind} BSDF; the volume pipeline refracts "
-                "only through smooth 'dielectric' objects: change its BSDF type to 'dielectric', "
-                "or render the scene with --method sppm (or surface)"
-            )
-        elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
-            name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
-            check_closed(shape, name)
-            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape.bbox())
-            fog_volumes.append(FogVolume(name, shape, medium))
+    objects, fog_volumes, exteriors = _medium_shapes(scene, media)
     if not objects and not fog_volumes:
         raise SceneError(
             "the scene has no refractive or medium-bearing shape, which the volume method's grid "
@@ -258,11 +240,38 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     )
 
 
+def _medium_shapes(scene: mi.Scene, media: _Media) -> tuple[list, list, list]:
+    """The scene's refractive objects, its fog volumes and the ``(id, medium)`` outside each
+    refractive object that has an exterior medium (:func:`from_mitsuba`)."""
+    objects, fog_volumes, exteriors = [], [], []
+    for number, shape in enumerate(scene.shapes()):
+        bsdf = shape.bsdf()
+        kind = bsdf.class_name() if bsdf is not None else "none"
+        if kind == "SmoothDielectric":
+            objects.append(_refractive_object(shape, bsdf, media))
+            if shape.exterior_medium() is not None:
+                exteriors.append((shape.id(), shape.exterior_medium()))
+        elif kind == "RoughDielectric":
+            raise SceneError(
+                f"{_shape_name(shape, number)} has a {kind} BSDF; the volume pipeline refracts "
+                "only through smooth 'dielectric' objects: change its BSDF type to 'dielectric', "
+                "or render the scene with --method sppm (or surface)"
+            )
+        elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
+            name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
+            check_closed(shape, name)
+            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape.bbox())
+            fog_volumes.append(FogVolume(name, shape, medium))
+    return objects, fog_volumes, exteriors
+
+
 SURFACE_HINT = "--method sppm renders every BSDF (Python: photonmap.SPPMPipeline)"
 
 
 def _shape_name(shape, number: int) -> str:
-    return f"shape '{shape.id()}'" if shape.id() else f"shape number {number} ({shape.class_name()})"
+    return (
+        f"shape '{shape.id()}'" if shape.id() else f"shape number {number} ({shape.class_name()})"
+    )
 
 
 def _rgb(value) -> np.ndarray:
@@ -332,7 +341,7 @@ def _medium(medium, what: str, bbox) -> Medium:
     heterogeneous = not medium.is_homogeneous()
     lo, hi = _np3(bbox.min), _np3(bbox.max)
     side = 8 if heterogeneous else 1
-    u = (np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5)
+    u = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5
     points = lo + (hi - lo) * u / side
     sigma_s, sigma_t = coefficients_at(medium, mi.Point3f(*points.T.astype(np.float32)))
     sigma_s = np.asarray(sigma_s, dtype=np.float64).reshape(-1, 3).mean(0)

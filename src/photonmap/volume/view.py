@@ -164,23 +164,47 @@ def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: floa
     return t, -dr.normalize(_sample(grids, dr.lerp(x_old, x, t))[0])
 
 
+def _entry(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, surf):
+    """Where camera rays (voxel origin ``o``, unit ``d``) enter the grid: ``(x, inside,
+    (t_surf, cast_x, cast_d, hit, reached))``; with opaque surfaces ``surf`` the cast from the
+    camera (``hit``: a surface before the grid; ``t_surf`` from ``x``), else Nones."""
+    far = grid_extent(grids.dims)
+    enters, t_near, _ = box_entry(o, d, grids.dims)
+    x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
+    inside = enters & dr.all((x >= 0.0) & (x < far))
+    if surf is None:
+        return x, inside, (None, None, None, None, None)
+    reached = dr.zeros(mi.Bool, dr.width(o))
+    t_surf = surf.distance(o, d, True)  # one cast from the camera
+    cast_x, cast_d = mi.Point3f(o), mi.Vector3f(d)
+    hit = dr.isfinite(t_surf) & (~inside | (t_surf <= t_near + ENTRY_NUDGE))
+    inside &= ~hit  # a surface before the grid
+    t_surf = t_surf - (t_near + ENTRY_NUDGE)
+    return x, inside, (t_surf, cast_x, cast_d, hit, reached)
+
+
+def _appearance(s: ViewSettings):
+    """The table's colour (``/π`` but with ``paper``) and whether there is one, the isosurface's
+    index and whether it reflects, its reflectance, the phase function's k: ``(table, table_on,
+    iso, iso_on, r_iso, k)``. The values enter the kernel as opaque arrays, so changing them
+    does not recompile it."""
+    table_rgb = [float(c) * (1.0 if s.paper else 1.0 / math.pi) for c in s.table]
+    table = mi.Color3f(*[dr.opaque(mi.Float, c) for c in table_rgb])
+    table_on = bool(np.any(np.asarray(s.table) > 0))
+    iso_on = s.iso_ior is not None and s.iso_reflect > 0
+    iso = dr.opaque(mi.Float, float(s.iso_ior) if iso_on else 0.0)
+    r_iso = dr.opaque(mi.Float, s.iso_reflect)
+    k = dr.opaque(mi.Float, s.phase_k)
+    return table, table_on, iso, iso_on, r_iso, k
+
+
 @dr.syntax
 def _march_loop(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings, surf):
     """The march through the grid (:func:`_march_rays`): ``(L, colScale·T, final direction,
     final x, inside, (t_surf, cast_x, cast_d, hit))``, the last four None without ``surf``."""
     far = grid_extent(grids.dims)
     count = dr.width(o)
-    enters, t_near, _ = box_entry(o, d, grids.dims)
-    x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
-    inside = enters & dr.all((x >= 0.0) & (x < far))
-    t_surf, cast_x, cast_d, hit, reached = None, None, None, None, None
-    if surf is not None:
-        reached = dr.zeros(mi.Bool, count)
-        t_surf = surf.distance(o, d, True)  # one cast from the camera
-        cast_x, cast_d = mi.Point3f(o), mi.Vector3f(d)
-        hit = dr.isfinite(t_surf) & (~inside | (t_surf <= t_near + ENTRY_NUDGE))
-        inside &= ~hit  # a surface before the grid
-        t_surf = t_surf - (t_near + ENTRY_NUDGE)
+    x, inside, (t_surf, cast_x, cast_d, hit, reached) = _entry(grids, o, d, surf)
     n_x = _sample_aux(grids, x)[0]
     n_eye = mi.Float(n_x)  # the index where the ray enters: the camera's medium
     v = mi.Vector3f(n_x * d)
@@ -191,14 +215,7 @@ def _march_loop(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
     reflected = dr.zeros(mi.Bool, count)
     steps = dr.zeros(mi.UInt32, count)
     max_steps = 4 * max(grids.dims)
-    # appearance parameters enter the kernel as opaque values: changing them does not recompile
-    table_rgb = [float(c) * (1.0 if s.paper else 1.0 / math.pi) for c in s.table]
-    table = mi.Color3f(*[dr.opaque(mi.Float, c) for c in table_rgb])
-    table_on = bool(np.any(np.asarray(s.table) > 0))
-    iso_on = s.iso_ior is not None and s.iso_reflect > 0
-    iso = dr.opaque(mi.Float, float(s.iso_ior) if iso_on else 0.0)
-    r_iso = dr.opaque(mi.Float, s.iso_reflect)
-    k = dr.opaque(mi.Float, s.phase_k)
+    table, table_on, iso, iso_on, r_iso, k = _appearance(s)
     need_n = iso_on or s.paper
 
     active = mi.Bool(inside)
