@@ -1,5 +1,4 @@
-"""Cache simulator for photon-map memory traffic (Steinhurst 2007 §3.2, §3.5; spec seed-001 §2.6,
-ambiguity A17; oracles O4, O19, O20).
+"""Cache simulator for photon-map memory traffic (Steinhurst 2007 §3.2, §3.5).
 
 A stream of cache-line reads goes through a bank of caches at once, compiled with Numba:
 
@@ -13,7 +12,7 @@ A stream of cache-line reads goes through a bank of caches at once, compiled wit
 - the **compulsory** misses (first reads of a line: the distinct lines read).
 
 A read of the line read just before hits in every cache and changes nothing (the fast path of
-runs of reads within one line). Bandwidth is misses × line size [DOC §3.5]. The full-scale kd-tree
+runs of reads within one line). Bandwidth is misses × line size (Steinhurst 2007 §3.5). The full-scale kd-tree
 streams feed these banks straight from the gathers (:mod:`.kdwalk`); :func:`simulate_lines` takes
 an explicit stream.
 """

@@ -1,7 +1,7 @@
 """BSDF and visibility helpers shared by the pipelines.
 
 - :func:`is_specular` — a BSDF with only delta lobes (mirror, glass): eye and gather rays follow
-  it, photon maps store nothing on it (Steinhurst 2007 §7.3.2; spec seed-001 §2.1); with
+  it, photon maps store nothing on it (Steinhurst 2007 §7.3.2); with
   ``rough_glass``, also a BSDF that transmits through glossy lobes and has no diffuse one
   (:func:`is_rough_glass`).
 - :func:`diffuse_albedo` — the reflectance of a BSDF's diffuse lobes, for Lambertian lookups.

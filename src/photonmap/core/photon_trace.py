@@ -1,7 +1,7 @@
-"""The photon-path loop of the transport core: light paths through Mitsuba's BSDFs and media
-(Jensen 1996; Jensen & Christensen 1998; Steinhurst 2007 §2.6.1, Algorithm 2.4; spec seed-001
-§2.2, A5). Every method that traces photons uses it: the surface method's maps, SPPM's photon
-passes and the screen method's photon bounces.
+"""The photon-path loop of the transport core: light paths through Mitsuba's BSDFs and media (Jensen
+1996; Jensen & Christensen 1998; Steinhurst 2007 §2.6.1, Algorithm 2.4). Every method that traces
+photons uses it: the surface method's maps, SPPM's photon passes and the screen method's photon
+bounces.
 
 A photon of power ``Φ`` leaves its emitter in its emitter's medium (:mod:`.emission`) and flies:
 through media by free-flight sampling (:func:`~photonmap.core.media.free_flight`; the
@@ -23,8 +23,8 @@ without one, as in Mitsuba's ``volpath``:
 surface interaction each add one; ``null`` crossings none), as Mitsuba's ``max_depth`` counts
 segments: a record of depth ``d`` can end a path of at least ``d + 1`` segments, so only records
 with ``d ≤ max_depth − 1`` are kept and paths stop there. ``caustic``: the history is a pure
-specular chain — at least one delta bounce, no smooth bounce and no medium event (spec A5:
-Jensen's caustic map; the volume caustics); where rough glass is followed
+specular chain — at least one delta bounce, no smooth bounce and no medium event (the L S+ D
+paths of Jensen's caustic map, Jensen 1996; the volume caustics); where rough glass is followed
 (:func:`~photonmap.core.bsdf.is_rough_glass`, the surface method) its bounces count as delta
 ones and nothing is recorded on it. From ``rr_depth`` on a photon survives a surface
 interaction with probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its power is divided
@@ -72,7 +72,7 @@ class PhotonRecords:
     direction: mi.Vector3f  # unit travel direction ω_p at the hit (pointing into the surface)
     normal: mi.Vector3f  # shading normal at the hit as Mitsuba gives it (not flipped towards ω_p)
     depth: mi.UInt32  # path segments from the light to this hit, included (1 = first hit)
-    caustic: mi.Bool  # the hit ends an L S+ D path (spec A5)
+    caustic: mi.Bool  # the hit ends an L S+ D path (Jensen's caustic map)
     path: mi.UInt32  # the light path (lane of the traced wavefront)
     delta: mi.UInt32  # delta (specular) bounces before the hit
     glossy: mi.UInt32  # glossy bounces before the hit

@@ -1,9 +1,10 @@
 """Low-discrepancy and stratified 2D point sets on the unit square (Dr.Jit arrays).
 
 Pfeuti §4.1 (Table 4.1, Fig 4.1) compares random, grid, jittered, Halton and Hammersley photon
-distributions on the photon plane and finds Hammersley best in quality and speed. Spec A15: the
-Hammersley point ``i`` of ``N`` is ``((i + ½)/N, Φ₂(i) + ½/N)`` with ``Φ₂`` the base-2 radical inverse;
-the ½ offsets keep photons off voxel faces and preserve the (0, m, 2)-net property (oracle 14).
+distributions on the photon plane and finds Hammersley best in quality and speed. Here the
+Hammersley point ``i`` of ``N`` is ``((i + ½)/N, Φ₂(i) + ½/N)`` with ``Φ₂`` the base-2 radical
+inverse (Wong, Luk & Heng 1997 use ``(i/N, Φ₂(i))``; Pfeuti's listing is unclear): the ½ offsets
+keep photons off voxel faces and preserve the (0, m, 2)-net property (tested).
 Every random choice takes a seed.
 """
 
@@ -44,7 +45,8 @@ def rotated_hammersley(count: int, i: mi.UInt32, shift: mi.Point2f) -> mi.Point2
 
 
 def hammersley(count: int, offset: bool = True) -> tuple[mi.Float, mi.Float]:
-    """The 2D Hammersley set of ``count`` points; with ``offset`` the ½-cell offsets of spec A15."""
+    """The 2D Hammersley set of ``count`` points; with ``offset`` the ½-cell offsets (module
+    docstring)."""
     i = dr.arange(mi.UInt32, count)
     u = mi.Float(i) / count
     w = radical_inverse_2(i)
