@@ -1,4 +1,4 @@
-"""The volume photon map (Jensen & Christensen 1998 §3–4): photons stored where
+"""The volume photon map (Jensen & Christensen 1998): photons stored where
 they scattered in a medium, and their radiance estimates.
 
 A volume photon holds its position, its travel direction ω_p before the event, the power it

@@ -5,7 +5,7 @@ a Monte Carlo integral over the hemisphere::
 
 Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``),
 cosine-weighted (``"cosine"``) or uniform (``"uniform"``, the naive algorithm's "visible
-hemisphere uniformly", spec §3.1) hemisphere sampling, or from a per-point tabular pdf — Jensen's
+hemisphere uniformly", Steinhurst §3.1) hemisphere sampling, or from a per-point tabular pdf — Jensen's
 photon-map pdf or Steinhurst's combined importance sampling (``"jensen"``, ``"cis"``: Ch. 6,
 :mod:`.cis`) — the N_FG directions of a point warped from a randomly shifted Hammersley set
 (:func:`~photonmap.core.sampling.rotated_hammersley`) — passes
@@ -24,7 +24,7 @@ query point at a time as fit in ``BATCH_RAYS`` (2²¹) rays per batch — the un
 reordering works on. With a ``layout`` (:class:`~.gather_batch.RequestLayout`) the k-NN lookups of
 a batch run as a :class:`~.gather_batch.GatherBatch` of the hits, in one of Steinhurst's gather
 orders (Ch. 3); each ray's result goes back to its lane before the per-pixel sums, so the image is
-bit-identical in every order (spec oracle O1).
+bit-identical in every order (tested).
 """
 
 from __future__ import annotations
