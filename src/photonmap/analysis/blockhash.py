@@ -4,16 +4,16 @@ approximate k-NN gathers over a line-organised photon map (:mod:`.structures`).
 **Block hashing** (:class:`BlockHash`, Ma & McCool 2002, approximate k-NN). Photons sorted along a
 3D Hilbert curve (10 bits per axis over their bounding box) are cut into blocks of ``m`` photons,
 one line each (block ``b`` in line ``b``). ``tables`` (4) locality-sensitive hash functions, each a
-random rotation and a random shift of a cubic grid of cell edge ``w`` (random projections
-quantised; ``w`` = twice the median distance of a photon to its k-th nearest photon, measured on a
-sample of 256 photons), map a point to a bucket of its table; a bucket is one line of
-``⌊L/4⌋`` 4-byte block pointers (buckets after the blocks, table by table). Every block goes into
-the bucket of each cell its photons fall in; a full bucket keeps the blocks with the most photons
-in that cell (ties: lower block id) and drops the others; a block in no bucket is *orphaned* (the
-dissertation's remark on small lines). A query reads its bucket in every table, ranks the blocks
-found by votes (tables listing the block; ties by first appearance) and reads at most ``A`` of
-them (the accuracy parameter, A = 20 as in Steinhurst 2007 §4.4; Ma & McCool suggest 10–16), keeping the
-k nearest accepted photons among them. The stream is the bucket lines and block lines read.
+random rotation and a random shift of a cubic grid of cell edge ``w`` (random projections quantised;
+``w`` = twice the median distance of a photon to its k-th nearest photon, measured on a sample of
+256 photons), map a point to a bucket of its table; a bucket is one line of ``⌊L/4⌋`` 4-byte block
+pointers (buckets after the blocks, table by table). Every block goes into the bucket of each cell
+its photons fall in; a full bucket keeps the blocks with the most photons in that cell (ties: lower
+block id) and drops the others; a block in no bucket is *orphaned* (the dissertation's remark on
+small lines). A query reads its bucket in every table, ranks the blocks found by votes (tables
+listing the block; ties by first appearance) and reads at most ``A`` of them (the accuracy
+parameter, A = 20 as in Steinhurst 2007 §4.4; Ma & McCool suggest 10–16), keeping the k nearest
+accepted photons among them. The stream is the bucket lines and block lines read.
 
 Ma & McCool's paper was not at hand: their hash functions use per-axis thresholds adapted to the
 photon distribution and their own bucket sizes; the choices above (rotated shifted grids, one-line

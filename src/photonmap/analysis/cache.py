@@ -11,10 +11,10 @@ A stream of cache-line reads goes through a bank of caches at once, compiled wit
 - a ``ways``-way **set-associative** LRU cache (set = line mod sets, MRU-first tag rows);
 - the **compulsory** misses (first reads of a line: the distinct lines read).
 
-A read of the line read just before hits in every cache and changes nothing (the fast path of
-runs of reads within one line). Bandwidth is misses × line size (Steinhurst 2007 §3.5). The full-scale kd-tree
-streams feed these banks straight from the gathers (:mod:`.kdwalk`); :func:`simulate_lines` takes
-an explicit stream.
+A read of the line read just before hits in every cache and changes nothing (the fast path of runs
+of reads within one line). Bandwidth is misses × line size (Steinhurst 2007 §3.5). The full-scale
+kd-tree streams feed these banks straight from the gathers (:mod:`.kdwalk`); :func:`simulate_lines`
+takes an explicit stream.
 """
 
 from __future__ import annotations

@@ -87,7 +87,8 @@ def heap_bound2(heap, found, k, radius2, scratch):
 
 @numba.njit(cache=True)
 def candidate(p, nrm, drc, i, q, qn, radius2, cos_normal, scratch):
-    """``(key, ok)`` of stored photon ``i`` for query ``q`` — :func:`photonmap.core.knn.accept`'s rule."""
+    """``(key, ok)`` of stored photon ``i`` for query ``q`` — :func:`photonmap.core.knn.accept`'s
+    rule."""
     dx = p[i, 0] - q[0]
     dy = p[i, 1] - q[1]
     dz = p[i, 2] - q[2]

@@ -12,10 +12,10 @@ Conventions (docs/DESIGN.md "Conventions"):
 - Grid arrays (NumPy or ``mi.TensorXf``) have shape ``(n_z, n_y, n_x)`` or ``(n_z, n_y, n_x, c)``
   and are indexed ``[z, y, x]`` (``[k, j, i]``), the order of ``dr.Texture3f``; the flat index of
   voxel ``(i, j, k)`` is ``(k·n_y + j)·n_x + i`` (:func:`flat_index`, :func:`voxel_of`).
-- "Whenever we read data from a voxel grid we apply trilinear interpolation" (Pfeuti 2009 §3.1.1), with
-  samples at voxel centres and clamp-to-edge addressing: :func:`trilinear_packed` (the semantics of
-  ``dr.Texture3f`` with linear filtering and ``WrapMode.Clamp``, reading several channels with one
-  index computation).
+- "Whenever we read data from a voxel grid we apply trilinear interpolation" (Pfeuti 2009 §3.1.1),
+  with samples at voxel centres and clamp-to-edge addressing: :func:`trilinear_packed` (the
+  semantics of ``dr.Texture3f`` with linear filtering and ``WrapMode.Clamp``, reading several
+  channels with one index computation).
 """
 
 from __future__ import annotations

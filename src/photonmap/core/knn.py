@@ -5,17 +5,18 @@ radius and normal test), the k-best heap and the 16-byte photon records. The str
 :class:`photonmap.core.hashgrid.HashGrid` (the default) and :class:`photonmap.surface.kdtree.KDTree`
 (the dissertation's kd-tree) — implement only their search and give the same results.
 
-**Gathers are explicit batches.** A query is a batch of ``Q`` points; lane ``q`` of the result
-holds the photons gathered for point ``q``. The batch order is the execution order, so a caller
-may reorder gathers (tiles, Hilbert curve, hashed queues: Steinhurst 2007 Ch. 3) without touching this module.
+**Gathers are explicit batches.** A query is a batch of ``Q`` points; lane ``q`` of the result holds
+the photons gathered for point ``q``. The batch order is the execution order, so a caller may
+reorder gathers (tiles, Hilbert curve, hashed queues: Steinhurst 2007 Ch. 3) without touching this
+module.
 
 **Result** (:class:`Neighbours`): among the photons with ``d² ≤ max_radius²`` that pass the normal
-test, the ``k`` smallest by the key ``(d², index)`` — ties broken by the lower original photon
-index — nearest first. ``d²`` is evaluated in float32 as ``(p−q)ₓ² + (p−q)ᵧ² + (p−q)_z²`` (no fused
+test, the ``k`` smallest by the key ``(d², index)`` — ties broken by the lower original photon index
+— nearest first. ``d²`` is evaluated in float32 as ``(p−q)ₓ² + (p−q)ᵧ² + (p−q)_z²`` (no fused
 multiply-add) and the radius as ``float32(max_radius)²``: a NumPy float32 brute force computes the
-same numbers, so results are exact (tested against one). ``radius2`` is the ``d²`` of the farthest accepted
-photon (Jensen's ``ΔA = π r²``) or, for fixed-radius gathers, the query radius². A query point
-with a non-finite coordinate finds nothing.
+same numbers, so results are exact (tested against one). ``radius2`` is the ``d²`` of the farthest
+accepted photon (Jensen's ``ΔA = π r²``) or, for fixed-radius gathers, the query radius². A query
+point with a non-finite coordinate finds nothing.
 
 **Normal test** (Steinhurst 2007 §7.3.4.1 checks "radius and normal"; its 20-byte photon has
 no normal, so this is our choice), applied when ``query_normal`` is given: a photon is
@@ -190,9 +191,9 @@ def normal_test(query_normal, normals, directions, i: mi.UInt32, cos_normal, act
 
 
 def accept(d2, radius2, query_normal, normals, directions, i: mi.UInt32, cos_normal, active=True):
-    """The candidate test of a gather (Steinhurst 2007 §7.3.4.1): stored photon ``i`` at squared distance
-    ``d2`` is within the radius (``d2 ≤ radius2``: a photon exactly at the radius is in) and, when
-    ``query_normal`` is given, passes :func:`normal_test`; ``active``: the structure's own
+    """The candidate test of a gather (Steinhurst 2007 §7.3.4.1): stored photon ``i`` at squared
+    distance ``d2`` is within the radius (``d2 ≤ radius2``: a photon exactly at the radius is in)
+    and, when ``query_normal`` is given, passes :func:`normal_test`; ``active``: the structure's own
     conditions (e.g. the hash grid's cell check)."""
     ok = (d2 <= radius2) & active
     if query_normal is not None:

@@ -3,16 +3,16 @@ a Monte Carlo integral over the hemisphere::
 
     L_indirect(x, ω_o) = (1/N) Σ_i f_r(x, ω_i, ω_o) · L(y_i → x) · (ω_i · n) / p(ω_i)
 
-Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``),
-cosine-weighted (``"cosine"``) or uniform (``"uniform"``, the naive algorithm's "visible
-hemisphere uniformly", Steinhurst §3.1) hemisphere sampling, or from a per-point tabular pdf — Jensen's
-photon-map pdf or Steinhurst's combined importance sampling (``"jensen"``, ``"cis"``: Ch. 6,
-:mod:`.cis`) — the N_FG directions of a point warped from a randomly shifted Hammersley set
-(:func:`~photonmap.core.sampling.rotated_hammersley`) — passes
-through purely specular surfaces and reads the photon map at the first non-specular hit y_i —
-emitters met on the way add nothing (direct light and caustics at x are computed separately).
-``L(y_i → x)`` comes from irradiance precomputed at photon positions (default) or from an exact
-k-NN radiance estimate at y_i (the dissertation's naive algorithm, ``lookup="knn"``).
+Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``), cosine-weighted
+(``"cosine"``) or uniform (``"uniform"``, the naive algorithm's "visible hemisphere uniformly",
+Steinhurst §3.1) hemisphere sampling, or from a per-point tabular pdf — Jensen's photon-map pdf or
+Steinhurst's combined importance sampling (``"jensen"``, ``"cis"``: Ch. 6, :mod:`.cis`) — the N_FG
+directions of a point warped from a randomly shifted Hammersley set
+(:func:`~photonmap.core.sampling.rotated_hammersley`) — passes through purely specular surfaces and
+reads the photon map at the first non-specular hit y_i — emitters met on the way add nothing (direct
+light and caustics at x are computed separately). ``L(y_i → x)`` comes from irradiance precomputed
+at photon positions (default) or from an exact k-NN radiance estimate at y_i (the dissertation's
+naive algorithm, ``lookup="knn"``).
 
 With the precomputed irradiance the whole batch — BSDF sampling, the eye-path loop and the
 nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is one fused kernel; no

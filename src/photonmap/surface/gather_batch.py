@@ -1,23 +1,25 @@
 """Final-gather request batches and their orders (Steinhurst 2007 Ch. 3).
 
-The eye pass emits its final-gather photon gathers as an explicit batch
-(:class:`GatherBatch`, the deferred request record of Steinhurst 2007 §3.4: gather position ``y`` with its
-normal, destination pixel, ray index and the world direction ``ω_i`` of the final-gather ray).
-Directions come from a counter-based generator keyed by (pixel, ray index), so every order below
-is a *permutation* of one fixed batch and the image does not depend on it (tested): the gathers are
-independent and each pixel sums its rays in ray-index order after the gathers.
+The eye pass emits its final-gather photon gathers as an explicit batch (:class:`GatherBatch`, the
+deferred request record of Steinhurst 2007 §3.4: gather position ``y`` with its normal, destination
+pixel, ray index and the world direction ``ω_i`` of the final-gather ray). Directions come from a
+counter-based generator keyed by (pixel, ray index), so every order below is a *permutation* of one
+fixed batch and the image does not depend on it (tested): the gathers are independent and each pixel
+sums its rays in ray-index order after the gathers.
 
 Orders (:data:`ORDERS`; ``tile`` × ``tile`` screen tiles, row-major over the image):
 
 - ``naive`` — pixels in scanline order, each pixel's rays in index order (§3.1);
-- ``tiled`` — tiles in row-major order, scanline order inside a tile (§3.3.1; the tiles' order is not given);
+- ``tiled`` — tiles in row-major order, scanline order inside a tile (§3.3.1; the tiles' order is
+  not given);
 - ``tiled_dirbin`` — per tile, rays sorted by world-space direction bin (§3.3.2 gives no
   bin count or frame: ``bins`` = 32 world-space equal-solid-angle bins by default, 4 bands uniform
   in ``ω·up`` × 8 azimuth sectors), then pixel, then ray; pixels whose eye ray met a specular
   surface go last;
 - ``hashed`` — the naive stream through ``queues`` (17) hashed queues of ``slots`` (128) over a
   ``grid``³ world grid, one stream for the whole image (§3.4.3);
-- ``tiled_dirbin_hashed`` — ``tiled_dirbin`` through the hashed queues, flushed per tile (§3.4.4, §7.3.4);
+- ``tiled_dirbin_hashed`` — ``tiled_dirbin`` through the hashed queues, flushed per tile (§3.4.4,
+  §7.3.4);
 - ``tiled_hilbert`` — per tile, stable sort by the 3D Hilbert index of ``y`` (§3.4.2);
 - ``hilbert`` — the whole batch along the 3D Hilbert curve (§3.4.1).
 
@@ -128,8 +130,8 @@ def gather_order(batch: GatherBatch, order: str, params: OrderParams | None = No
 
 
 def direction_bin(direction: np.ndarray, bins: int = DIR_BANDS * DIR_SECTORS) -> np.ndarray:
-    """World-space direction bin (0 … bins − 1) of unit vectors (N, 3): bands of equal solid
-    angle in ``d_y`` (+y is up) × azimuth sectors (module docstring); ``bins`` = 2^b splits into 2^⌊b/2⌋
+    """World-space direction bin (0 … bins − 1) of unit vectors (N, 3): bands of equal solid angle
+    in ``d_y`` (+y is up) × azimuth sectors (module docstring); ``bins`` = 2^b splits into 2^⌊b/2⌋
     bands × 2^⌈b/2⌉ sectors (32 → 4 × 8, the default; 8 → 2 × 4; 128 → 8 × 16)."""
     bands = 1 << (int(bins).bit_length() - 1) // 2
     sectors = int(bins) // bands

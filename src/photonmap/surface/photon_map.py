@@ -47,8 +47,9 @@ class PhotonMap:
         return self.photons.count
 
     def knn(self, query: mi.Point3f, normal: mi.Vector3f, k: int, max_radius: float):
-        """The ``k`` nearest photons to each query that pass the normal test (:mod:`photonmap.core.knn`):
-        arrived from the query's front side and stored on a surface facing the same way."""
+        """The ``k`` nearest photons to each query that pass the normal test
+        (:mod:`photonmap.core.knn`): arrived from the query's front side and stored on a surface
+        facing the same way."""
         return self.structure.knn(
             query,
             k=k,
