@@ -47,8 +47,8 @@ class Chip:
 
 
 def flops_per_tile(n_fg: float, r_ic: float, chip: Chip = Chip()) -> dict:
-    """Table 7.7: FLOPs per tile by task (the irradiance links in the Table's form, ``4 P R_IC
-    L_IC N_FG``, not §7.3.3.1's: it reproduces Table 7.10; they differ by < 0.4 %)."""
+    """Table 7.7: FLOPs per tile by task (the irradiance links in the Table's form,
+    ``4 P R_IC L_IC N_FG``, not §7.3.3.1's: it reproduces Table 7.10; they differ by < 0.4 %)."""
     P, k, c = chip.P, chip.k, chip
     r_fg = 1 - r_ic
     rays = P * r_fg * n_fg

@@ -1,23 +1,25 @@
-"""S5 — photon generation (Pfeuti 2009 §3.1.4, Listing A.3; Sun et al. 2008 §4.3; issue 11 item 3).
+"""S5 — photon generation for lights anywhere (Pfeuti 2009 §3.1.4, Listing A.3; Sun et al. 2008
+§4.3).
 
 How a light's photons are made depends on the light (:func:`emission_mode`):
 
 - ``"plane"`` — a point or spot light with the whole grid in front of it, and every directional
-  light: the **photon plane**. A square between the light and the grid covers the whole grid as
-  seen from the light; photon ``i`` starts at plane point ``Q_i`` of a 2D point set (Hammersley
-  by default, Pfeuti §4.1 Table 4.1), travels along ``d₀ = normalize(Q_i − P_L)`` (point/spot) or
-  the light direction (directional) and enters the grid at the slab-test entry point ``x₀``.
-  Energy (spec S5, A14, physically normalised — the default): ``Φ_i = I(d₀)·(A/N)·cos³θ_i/d²``
-  for point/spot lights — the solid angle of the photon's plane cell, so ``Σ Φ_i → I·Ω_plane``
-  (oracle 16) — and ``Φ_i = E·A/N`` for a directional light (``A`` in world units);
-  ``fidelity="paper"``: Pfeuti's constant ``Φ_i = I·(A/N)/d²`` (no cosine, a vignetted image).
+  light: the **photon plane**. A square between the light and the grid covers the whole grid as seen
+  from the light; photon ``i`` starts at plane point ``Q_i`` of a 2D point set (Hammersley by
+  default, Pfeuti §4.1 Table 4.1), travels along ``d₀ = normalize(Q_i − P_L)`` (point/spot) or the
+  light direction (directional) and enters the grid at the slab-test entry point ``x₀``. Energy
+  (physically normalised — the default; Pfeuti's text and listing disagree):
+  ``Φ_i = I(d₀)·(A/N)·cos³θ_i/d²`` for point/spot lights — the solid angle of the photon's plane
+  cell, so ``Σ Φ_i → I·Ω_plane`` (tested) — and ``Φ_i = E·A/N`` for a directional light (``A`` in
+  world units); ``fidelity="paper"``: Pfeuti's constant ``Φ_i = I·(A/N)/d²`` (no cosine, a
+  vignetted image).
 - ``"cone"`` (ours) — a point or spot light **inside the grid**, or beside it where no plane in
-  front of the light covers the grid (spec A49): photons start at the light with stratified
-  directions in a cone (axis ``c``, half-angle ``θ_max``): the whole sphere for a point light,
-  the cutoff cone for a spot light. The 2D point ``(u, w)`` maps to
-  ``cos θ = 1 − u(1 − cos θ_max)``, ``φ = 2πw``, an area-preserving map, so every photon
-  carries the same solid angle ``Ω/N`` with ``Ω = 2π(1 − cos θ_max)`` and
-  ``Φ_i = I(d_i)·Ω/N`` (``Σ Φ_i → 4πI`` for a point light).
+  front of the light covers the grid (the photon plane assumes a light outside it): photons start at
+  the light with stratified directions in a cone (axis ``c``, half-angle ``θ_max``): the whole
+  sphere for a point light, the cutoff cone for a spot light. The 2D point ``(u, w)`` maps to
+  ``cos θ = 1 − u(1 − cos θ_max)``, ``φ = 2πw``, an area-preserving map, so every photon carries
+  the same solid angle ``Ω/N`` with ``Ω = 2π(1 − cos θ_max)`` and ``Φ_i = I(d_i)·Ω/N``
+  (``Σ Φ_i → 4πI`` for a point light).
 - ``"area"`` (ours) — an area emitter (sphere, rectangle, mesh) is sampled on its surface:
   ``p`` from the shape's ``sample_position`` (density ``p_A``), and the direction by cosine
   about the normal (density ``cos θ_e/π``, what Mitsuba's ``AreaLight.sample_ray`` does) where
@@ -34,13 +36,13 @@ How a light's photons are made depends on the light (:func:`emission_mode`):
   ``Φ = L(ω)·A_⊥(ω)/(p(ω)·N)``. (For a constant ``L``: ``Σ Φ → L·4π·A_total/4 = πL·A_total``.)
 
 Photons that start outside the grid move to where they enter it (slab test); photons that miss
-it carry no power (spec S5, oracle 17), and the marcher never activates them. Photons from 2D
+it carry no power, and the marcher never activates them. Photons from 2D
 point sets are listed in Morton order of the point so that neighbouring SIMD lanes deposit into
 neighbouring voxels (the deposited sums are exact and do not depend on the order); area and
 environment photons use the Hammersley set of 4 and 5 dimensions (``(i+½)/N, Φ₂(i), Φ₃(i), …``,
 Cranley–Patterson-shifted by the seed). A spot light's intensity falls off as Mitsuba's ``spot``
-plugin's (:func:`spot_falloff`; spec A16 proposed a smoothstep). All positions here are in
-**voxel units** of the grid (spec §0.2); powers in watts.
+plugin's (:func:`spot_falloff`; neither paper has spot lights). All positions here are in
+**voxel units** of the grid (:mod:`photonmap.core.grid`); powers in watts.
 """
 
 from __future__ import annotations
@@ -131,7 +133,7 @@ def emission_mode(light: Light, box: GridBox) -> str:
 
 
 def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
-    """The square photon plane that covers the grid as seen from ``light`` (spec S5).
+    """The square photon plane that covers the grid as seen from ``light`` (Pfeuti 2009 §3.1.4).
 
     Raises :class:`SceneError` for a light that has none (the plane-based ``emission="adaptive"``
     cannot use it; ``emission="uniform"`` emits such lights from the light itself)."""
@@ -157,7 +159,7 @@ def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
         raise SceneError(
             f"the {light.kind} light at {np.round(light.position, 4).tolist()} lies inside or beside "
             "the volume grid; the photon plane of emission='adaptive' needs the whole grid in front "
-            "of the light (spec A49). Use emission='uniform' (it emits such a light's photons from "
+            "of the light. Use emission='uniform' (it emits such a light's photons from "
             "its position), or move the light outside the grid box (grid_bbox)"
         )
     p = box.to_voxel(light.position)
@@ -412,7 +414,7 @@ def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight
     grid.
 
     ``weight`` (per photon, optional) multiplies the power: ``1/p(u, w)`` for points drawn from a
-    density ``p`` on the plane (Pfeuti §3.2.3, spec A4), so that the estimator stays unbiased.
+    density ``p`` on the plane (Pfeuti §3.2.3), so that the estimator stays unbiased.
     """
     o, d, power = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
     if weight is not None:

@@ -1,6 +1,6 @@
 """S6 + S7 — adaptive photon marching along curved rays with exact 3D line rasterisation.
 
-Photon marching [Sun et al. 2008 §4.4 eqs 4–6; Pfeuti 2009 §3.1.5]. With ``v = n dx/ds`` the ray
+Photon marching (Sun et al. 2008 §4.4 eqs 4–6; Pfeuti 2009 §3.1.5). With ``v = n dx/ds`` the ray
 equation ``d/ds (n dx/ds) = ∇n`` is integrated by forward differences::
 
     x_{i+1} = x_i + (Δs / n(x_i)) · v_i                     (4)
@@ -8,33 +8,35 @@ equation ``d/ds (n dx/ds) = ∇n`` is integrated by forward differences::
     L̃_{i+1} = L̃_i · exp(−κ(x_i) · ‖x_{i+1} − x_i‖)            (6)
 
 The step is the distance ``t`` to the face of the octree node holding ``x_i`` plus δ = 10⁻³ voxel,
-clamped to ``[Δs_min, Δs_max(x_i)]`` (Sun §4.4, §5.3); spec A12 turns that target displacement into
-``Δs = t · n(x_i)/‖v_i‖``. A photon stops when it leaves the grid (after depositing the clipped
-segment), when ``max L̃ < 10⁻³ · max L̃₀`` (A18) or after ``max_steps`` steps (total internal
-reflection can trap photons).
+clamped to ``[Δs_min, Δs_max(x_i)]`` (Sun §4.4, §5.3, "a little bit further"); that target
+displacement gives ``Δs = t · n(x_i)/‖v_i‖`` and eqs 4–5 apply literally (``v`` is not
+renormalised). A photon stops when it leaves the grid (after depositing the clipped segment), when
+``max L̃ < 10⁻³ · max L̃₀`` (the papers' "low threshold", relative so that relighting by a colour
+scale stays exact) or after ``max_steps`` steps (total internal reflection can trap photons).
 
 Deposition (S7, Pfeuti §3.1.5 Fig 3.14, "similar to the Bresenham algorithm"): every step's segment
 deposits into the voxels that contain its intersections with the major-axis voxel-centre planes in
-the half-open range ``[s_a, e_a)`` (spec oracle 18), adding per voxel (spec S8)::
+the half-open range ``[s_a, e_a)``, adding per voxel (S8's grids)::
 
     C[v] += w · L̃(u)                 (RGB energy)
     D[v] += w · (L̃_r + L̃_g + L̃_b)(u) · v̂(u)   (Sun §4.4: direction weighted by R+G+B)
 
-Defaults follow spec §6: ``w = 1/|v̂_a|`` (length-weighted deposits, A19) and geometric energy
-interpolation ``L̃(u) = L̃_s · exp(−κ ‖Δx‖ u)`` (exact for constant κ, A20); ``fidelity="paper"``
+By default ``w = 1/|v̂_a|`` (length-weighted deposits) and the energy is interpolated geometrically,
+``L̃(u) = L̃_s · exp(−κ ‖Δx‖ u)`` (exact for constant κ; :mod:`.deposit`); ``fidelity="paper"``
 deposits ``w = 1`` with linear interpolation, as both papers do. Directions are interpolated
-linearly. Accumulation is in 64-bit fixed point (``2³²`` units per ``Φ_max``), so sums are exact
-and independent of thread scheduling (spec A54: deterministic accumulation).
+linearly. Accumulation is in 64-bit fixed point (``2³²`` units per ``Φ_max``), so sums are exact and
+independent of thread scheduling.
 
 The deposits (S7), the fixed-point accumulator's packets and the tallies are in ``deposit.py``.
 Each deposit writes two packets of four 64-bit channels per voxel; a *tally* chooses what goes in
 them. :func:`radiance_tally` (C rgb, D xyz, two spare channels) is S6/S7. Pfeuti's phase-2 marcher
-[§3.2.3, spec A5] also counts photons and sums their weights per voxel; here those two numbers fill
+(§3.2.3, stage A5) also counts photons and sums their weights per voxel; here those two numbers fill
 the spare channels of the same packets (:func:`weight_tally`), so the adaptive march costs no
-second atomic per deposit — the cost Pfeuti measured in Fig 4.14. The pilot marcher [§3.2.2, A2]
-deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``).
+second atomic per deposit — the cost Pfeuti measured in Fig 4.14. The pilot marcher (§3.2.2,
+stage A2) deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``).
 
-Multiple scattering (``scattering``, beyond-seeds §5; sampling in ``scatter.py``): each order is
+Multiple scattering (``scattering``, our extension of Sun et al. 2008; sampling in
+``scatter.py``): each order is
 this march (:func:`_march_order`, which also samples the order's collision); the photons that
 scatter are compacted, sorted (:func:`.scatter.coherent_order`) and marched as the next order
 (:func:`_march_multiple`), into the same accumulator, so C and D hold the fluence of all orders
@@ -75,8 +77,8 @@ from .deposit import (
 )
 from .emit import Photons
 
-OVERSHOOT = 1e-3  # δ, voxels (A10)
-KILL_FRACTION = 1e-3  # τ_rel (A18)
+OVERSHOOT = 1e-3  # δ, voxels: Sun's "a little bit further" past the node's face
+KILL_FRACTION = 1e-3  # τ_rel: a photon below τ_rel × its initial power stops
 
 
 @dataclass
@@ -85,7 +87,7 @@ class MarchGrids:
     ``medium`` = (n, ∂n/∂x, ∂n/∂y, ∂n/∂z, κ_r, κ_g, κ_b, 0) per voxel (trilinear), ``octree`` =
     (level, Δs_max, 0, 0) per voxel (nearest); for multiple scattering ``scatter`` =
     (σ_s,r, σ_s,g, σ_s,b, 0) per voxel (trilinear). ``dims = (n_x, n_y, n_z)``: the grid's
-    extent (a box grid, issue 11 item 2)."""
+    extent (a box grid)."""
 
     dims: tuple
     medium: mi.Float
@@ -353,7 +355,7 @@ def _march_order(
     shift: int = 0,
     expand: bool = True,
 ):
-    """One scattering order of every photon (beyond-seeds §5): :func:`_march`'s loop from
+    """One scattering order of every photon (module docstring): :func:`_march`'s loop from
     ``(x, v = n dx/ds, L)``, which also finds the :class:`Collision` where the optical depth of
     colour ``channel`` reaches ``target``. Returns the steps, the final ``(x, v, L̃)`` and the
     collision."""
@@ -391,7 +393,7 @@ def _march_multiple(
     shift: int = 0,
     atomic: Int64 | None = None,
 ):
-    """:func:`_march` with multiple scattering (``scatter.py``, beyond-seeds §5), one order at a
+    """:func:`_march` with multiple scattering (``scatter.py``), one order at a
     time over the photons still alive (a :class:`Wavefront`). The collision of each order starts
     the next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian
     roulette (:func:`.scatter.roulette`). The first order deposits into ``acc`` as
@@ -520,13 +522,13 @@ def march(
     surfaces=None,
     iso: float = float("inf"),
 ) -> MarchResult:
-    """March ``photons`` through ``medium`` and return the deposited C, D grids (spec S6/S7).
+    """March ``photons`` through ``medium`` and return the deposited C, D grids (S6/S7).
 
     ``C`` is returned divided by ``voxel_size²`` (the voxel edge h in world units), i.e. as fluence
-    in world units (spec §2.6: ``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
+    in world units (``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
     per-photon ``weights`` (``1/p`` of importance sampling, Pfeuti §3.2.3) the result also holds
     the deposit count and average weight per voxel. With ``scattering`` (needs ``medium.scatter``)
-    the photons scatter (beyond-seeds §5), and C, D hold the fluence of all orders. With opaque
+    the photons scatter (module docstring), and C, D hold the fluence of all orders. With opaque
     ``surfaces`` (:class:`~.surfaces.Surfaces`) photons stop at them and, scattering, bounce off
     them (``surface_march.py``); ``result.surface`` holds the photons recorded there.
     """

@@ -1,4 +1,4 @@
-"""Multiple scattering in the voxel radiance grid (spec beyond-seeds §5, our extension of Sun et
+"""Multiple scattering in the voxel radiance grid (our extension of Sun et
 al. 2008): the sampling pieces the marcher (``march.py``) uses between its curved-ray steps.
 
 Each photon order is marched as Sun marches it (S6/S7: deposits of the attenuated energy

@@ -18,7 +18,7 @@ What a leg leaves behind (:func:`march_with_surfaces`):
   in the fog, a bounce — is recorded there with its power ``L̃ = W·T`` (the expected arrival, as
   the deposits are). Light that arrives straight from an emitter is not: the viewing pass
   computes it with shadow rays (``shading.py``);
-- with multiple scattering, the **next leg** (beyond-seeds §5, ``scatter.py``): a free-flight
+- with multiple scattering, the **next leg** (``scatter.py``): a free-flight
   collision sampled before the surface restarts in a phase-sampled direction with weight
   ``W σ_s T/p̄``; a photon that got to the surface (probability ``P = ⅓ Σ_c T_c``, the spectral
   free-flight sampling's survival) bounces off it with the BSDF's importance sample
