@@ -1,5 +1,5 @@
 """The "bushes" variant of the Cornell box (Steinhurst 2007 §5.4, Fig 5.5, Table 5.1: "geometrically
-modeled bushes with simple diffuse material properties"; spec seed-001 §3.1 (d)): many small
+modeled bushes with simple diffuse material properties"): many small
 occluders, the role the Sponza atrium plays in Chapter 3 — final-gather rays of neighbouring
 pixels scatter over many leaves, so their photon gathers are far less coherent than in the bare
 box. The 3DPlants.com models are not available; each bush here is ``leaves`` small two-sided

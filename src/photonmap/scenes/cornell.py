@@ -1,6 +1,6 @@
-"""Cornell-box scenes of Steinhurst (2007) §1.4 as Mitsuba 3 scene dicts (spec seed-001 §3.1, A12).
+"""Cornell-box scenes of Steinhurst (2007) §1.4 as Mitsuba 3 scene dicts.
 
-The dissertation gives no geometry, camera or light power, so these follow spec A12: the box of the
+The dissertation gives no geometry, camera or light power, so these are ours: the box of the
 Cornell University Program of Computer Graphics measurements ("Cornell Box Data"), idealised to a
 rectangular box of 556.0 × 548.8 × 559.2 mm (width x, height y, depth z) open at the front
 (z = 0), with the 130 × 105 mm light at the centre of the ceiling, 0.5 mm below it. World units

@@ -1,4 +1,4 @@
-"""Cornell-box scenes of Yao (2011) Ch. 5 for the ``screen`` pipeline (spec seed-004 §3.5).
+"""Cornell-box scenes of Yao (2011) Ch. 5 for the ``screen`` pipeline (Figs 5.1–5.7).
 
 All three reuse the Cornell box of :mod:`.cornell` (metres, the published 556 × 548.8 × 559.2 mm
 box and camera), at the thesis's 1024 × 768, lit by a spot light 10 mm under the ceiling centre

@@ -1,5 +1,5 @@
-"""The viewer's web server: one static page and a small HTTP API (issue 14 items 1 and 3;
-README "Interactive viewer" documents it).
+"""The viewer's web server: one static page and a small HTTP API (the README's
+"Interactive viewer" documents it).
 
 =========================  ===============================================================
 ``GET /``                  the page (``static/index.html``)
