@@ -132,6 +132,20 @@ class MarchResult:
     surface: object | None = None  # SurfacePhotons: photons recorded on opaque surfaces
 
 
+@dataclass
+class MarchSettings:
+    """The constants of one march (not frozen: Dr.Jit loops read it; ``exclude``d from their
+    state): Δs_min in voxels and the deposits' fixed-point scale (opaque arrays, so a new value
+    does not recompile), the step cap, the papers' literal deposits (``paper``: one per voxel,
+    linear energy) and Pfeuti's direction update (``pfeuti_update``)."""
+
+    ds_min: mi.Float
+    max_steps: int
+    scale: mi.Float
+    paper: bool
+    pfeuti_update: bool
+
+
 @dataclass(frozen=True)
 class Scattering:
     """Multiple scattering's settings (``scatter.py``): Schlick's ``k`` of the phase function and
@@ -157,13 +171,13 @@ class Step:
 
 
 def curved_step(
-    medium: MarchGrids, x, v, L, ds_min, size: mi.Point3f, pfeuti_update: bool, surface=None
+    medium: MarchGrids, x, v, L, march: MarchSettings, size: mi.Point3f, surface=None
 ) -> Step:
     """S6: one curved-ray step (eqs 4–6) from ``x`` with ``v = n dx/ds`` and energy ``L``, to the
     face of the octree node holding ``x`` (+δ), clamped to ``[Δs_min, Δs_max]`` and clipped at the
     grid's exit face and at ``surface`` (the distance in voxels to an opaque surface,
     ``surface_march.py``). ``Δs = t · n(x)/‖v‖`` for the target displacement ``t``, and ``v``
-    is not renormalised, so eqs (4)–(5) apply literally; ``pfeuti_update`` uses Pfeuti's
+    is not renormalised, so eqs (4)–(5) apply literally; ``march.pfeuti_update`` uses Pfeuti's
     ``v += Δs·n·∇n`` (Pfeuti 2009 Listing A.4) for eq (5)."""
     n_x, grad, kappa = sample_medium(medium, x)
     vox = voxel_index(x, medium.dims)
@@ -175,7 +189,7 @@ def curved_step(
     dir_ = dr.normalize(v)
     t_face = dr.select(dir_ > 0, (lo + node - x) / dir_, (lo - x) / dir_)
     t_face = dr.select(dir_ == 0, dr.inf, t_face)
-    t = dr.clip(dr.min(t_face) + OVERSHOOT, ds_min, limit)
+    t = dr.clip(dr.min(t_face) + OVERSHOOT, march.ds_min, limit)
 
     # the step leaves the grid: clip it at the exit face and finish after depositing
     t_exit = dr.min(dr.select(dir_ > 0, (size - x) / dir_, dr.select(dir_ < 0, -x / dir_, dr.inf)))
@@ -186,12 +200,12 @@ def curved_step(
 
     ds = t * n_x / dr.norm(v)  # Δs for the target displacement t
     x_new = mi.Point3f(x + (ds / n_x) * v)  # (4)
-    v_new = v + dr.select(pfeuti_update, ds * n_x, ds) * grad  # (5); Pfeuti's variant
+    v_new = v + dr.select(march.pfeuti_update, ds * n_x, ds) * grad  # (5); Pfeuti's variant
     L_new = L * dr.exp(-kappa * t)  # (6), ‖x_{i+1} − x_i‖ = t
     return Step(x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving, n_x)
 
 
-def deposit_step(acc, n, x, step: Step, L, scale, paper, tally, shift: int = 0, expand=True):
+def deposit_step(acc, n, x, step: Step, L, march: MarchSettings, tally, shift=0, expand=True):
     """S7: rasterise the segment ``x → step.x`` of a photon that carried ``L`` at ``x``
     (:func:`.deposit.deposit_segment`)."""
     deposit_segment(
@@ -203,8 +217,8 @@ def deposit_step(acc, n, x, step: Step, L, scale, paper, tally, shift: int = 0, 
         step.kappa * step.length,
         step.direction,
         step.new_direction,
-        scale,
-        paper,
+        march.scale,
+        march.paper,
         tally=tally,
         shift=shift,
         expand=expand,
@@ -311,11 +325,7 @@ def _march(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     tally=radiance_tally,
     shift: int = 0,
 ):
@@ -328,12 +338,12 @@ def _march(
     active = dr.max(L) > 0  # photons that miss the grid carry no power
     size = grid_extent(n)
 
-    while active:
-        step = curved_step(medium, x, v, L, ds_min, size, pfeuti_update)
-        deposit_step(acc, n, x, step, L, scale, paper, tally, shift)
+    while dr.hint(active, exclude=[march]):
+        step = curved_step(medium, x, v, L, march, size)
+        deposit_step(acc, n, x, step, L, march, tally, shift)
         x, v, L = step.x, step.v, step.L
         steps += 1
-        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
+        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < march.max_steps)
     return steps, x, v, L
 
 
@@ -344,11 +354,7 @@ def _march_order(
     x: mi.Point3f,
     v: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     target: mi.Float,
     channel: mi.UInt32,
     tally=radiance_tally,
@@ -367,13 +373,13 @@ def _march_order(
     active = dr.max(L) > 0
     collision = Collision.none(count)
 
-    while active:
-        step = curved_step(medium, x, v, L, ds_min, size, pfeuti_update)
+    while dr.hint(active, exclude=[march]):
+        step = curved_step(medium, x, v, L, march, size)
         collision.search(x, step, target, channel)
-        deposit_step(acc, n, x, step, L, scale, paper, tally, shift, expand)
+        deposit_step(acc, n, x, step, L, march, tally, shift, expand)
         x, v, L = step.x, step.v, step.L
         steps += 1
-        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
+        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < march.max_steps)
     return steps, x, v, L, collision
 
 
@@ -383,11 +389,7 @@ def _march_multiple(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     scattering: Scattering,
     tally=radiance_tally,
     shift: int = 0,
@@ -415,11 +417,7 @@ def _march_multiple(
             x,
             v,
             L,
-            ds_min,
-            max_steps,
-            scale,
-            paper,
-            pfeuti_update,
+            march,
             target,
             channel,
             photons.tally,
@@ -471,33 +469,35 @@ def accumulate(
     steps, final, atomic, on_surfaces = 0, (), None, None
     if phi_max > 0:
         scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
-        args = (
-            acc,
-            medium,
-            mi.Point3f(photons.origin),
-            mi.Vector3f(photons.direction),
-            mi.Color3f(photons.power),
+        settings = MarchSettings(
             dr.opaque(mi.Float, ds_min),
             max_steps or 8 * n,
             scale,
             fidelity == "paper",
             pfeuti_update,
         )
+        rays = (
+            mi.Point3f(photons.origin),
+            mi.Vector3f(photons.direction),
+            mi.Color3f(photons.power),
+        )
         if surfaces is not None:
             from .surface_march import march_with_surfaces  # it builds on this module
 
             atomic = dr.zeros(Int64, cells * CHANNELS)
             steps, final, on_surfaces = march_with_surfaces(
-                *args[:1], atomic, *args[1:], scattering, surfaces, iso, tally
+                acc, atomic, medium, *rays, settings, scattering, surfaces, iso, tally
             )
             dr.eval(acc, *final)
         elif scattering is None:
-            steps, *final = _march(*args, tally, shift)
+            steps, *final = _march(acc, medium, *rays, settings, tally, shift)
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
         else:
             atomic = dr.zeros(Int64, cells * CHANNELS)  # no memory until an order writes to it
-            steps, *final = _march_multiple(*args, scattering, tally, shift, atomic)
+            steps, *final = _march_multiple(
+                acc, medium, *rays, settings, scattering, tally, shift, atomic
+            )
             dr.eval(acc, *final)
         final = tuple(final)
     voxel = dr.arange(mi.UInt32, cells) * 2

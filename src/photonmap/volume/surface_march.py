@@ -43,6 +43,7 @@ from .march import (
     KILL_FRACTION,
     Collision,
     MarchGrids,
+    MarchSettings,
     Scattering,
     Wavefront,
     curved_step,
@@ -78,11 +79,7 @@ def _leg(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     target: mi.Float,
     channel: mi.UInt32,
     iso: mi.Float,
@@ -114,24 +111,24 @@ def _leg(
     bent = dr.zeros(mi.Bool, count)
     collision = Collision.none(count)
 
-    while active:
+    while dr.hint(active, exclude=[march]):
         cast = active & recast  # the direction has turned since the last cast
         t_new = surfaces.distance(x, dr.normalize(v), cast)
         t_surf = dr.select(cast, t_new, t_surf)
         cast_x = dr.select(cast, x, cast_x)
         cast_d = dr.select(cast, dr.normalize(v), cast_d)
-        step = curved_step(medium, x, v, L, ds_min, size, pfeuti_update, surface=t_surf)
+        step = curved_step(medium, x, v, L, march, size, surface=t_surf)
         hits = t_surf <= step.length
         bent |= step.ior >= iso
         collision.search(x, step, target, channel)
-        deposit_step(acc, n, x, step, L, scale, paper, tally, shift, expand)
+        deposit_step(acc, n, x, step, L, march, tally, shift, expand)
         x, v, L = step.x, step.v, step.L
         t_surf -= step.length
         steps += 1
         recast = dr.norm(step.new_direction - cast_d) > RECAST_TURN
         surface |= hits
         exited = step.leaving & ~hits
-        active = ~step.leaving & ~hits & (dr.max(L) >= L_kill) & (steps < max_steps)
+        active = ~step.leaving & ~hits & (dr.max(L) >= L_kill) & (steps < march.max_steps)
 
     # after the grid: straight on to a surface, or away
     again = exited & recast
@@ -150,11 +147,7 @@ def march_with_surfaces(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     scattering: Scattering | None,
     surfaces: Surfaces,
     iso: float,
@@ -178,8 +171,8 @@ def march_with_surfaces(
             target, channel = dr.full(mi.Float, dr.inf, dr.width(L)), dr.zeros(mi.UInt32, 1)
         into = acc if order == 0 else atomic
         leg = _leg(
-            into, medium, surfaces, x, d, L, ds_min, max_steps, scale, paper, pfeuti_update,
-            target, channel, iso, photons.tally, 0, order == 0,
+            into, medium, surfaces, x, d, L, march, target, channel, iso, photons.tally, 0,
+            order == 0,
         )  # fmt: skip
         dr.eval(into, leg)  # one launch per leg
         photons.record(order, leg.steps, leg.x, leg.v, leg.L)
