@@ -73,6 +73,25 @@ class Neighbours:
         return self.index.numpy().reshape(-1, self.k), self.count.numpy(), self.radius2.numpy()
 
 
+@dr.syntax
+def neighbour_sum(nb: Neighbours, power, direction, weight, active) -> mi.Spectrum:
+    """``Σ_p weight(−ω_p, active) ⊙ Φ_p`` over each query's neighbours ``nb`` (one lane per
+    query): the sum of a photon radiance estimate (Jensen 1996), ``power`` and ``direction`` the
+    photons' Φ_p and travel direction ω_p in the original order, ``weight`` the BSDF or phase
+    function at the query for light arriving from ``−ω_p``."""
+    count = dr.width(nb.count)
+    base = dr.arange(mi.UInt32, count) * nb.k
+    L = dr.zeros(mi.Spectrum, count)
+    j = dr.zeros(mi.UInt32, count)
+    while active & (j < nb.count):
+        idx = dr.gather(mi.UInt32, nb.index, base + j)
+        power_j = dr.gather(mi.Color3f, power, idx, active)
+        arriving = -dr.gather(mi.Vector3f, direction, idx, active)
+        L += weight(arriving, active) * power_j
+        j += 1
+    return L
+
+
 # ------------------------------------------------------------------------------ the k-best heap
 def photon_key(d2: mi.Float, index: mi.UInt32) -> mi.UInt64:
     """The 64-bit sort key ``(d², index)`` of a photon (``d² ≥ 0``)."""
