@@ -14,6 +14,7 @@ import math
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .errors import ParameterError
 from .order import morton_cells, morton_order
@@ -34,6 +35,36 @@ def rng(count: int, seed: int, stream: int) -> mi.PCG32:
 def radical_inverse_2(i: mi.UInt32) -> mi.Float:
     """Base-2 radical inverse Φ₂(i): the bits of ``i`` mirrored about the binary point."""
     return mi.radical_inverse_2(i, mi.UInt32(0))
+
+
+PRIMES = (2, 3, 5, 7)
+
+
+def radical_inverse(base: int, i: mi.UInt32, count: int) -> mi.Float:
+    """Φ_b(i) for ``i < count``: the base-``b`` digits of ``i`` mirrored about the point (one
+    fused kernel, ``⌈log_b count⌉`` digits)."""
+    if base == 2:
+        return radical_inverse_2(i)
+    out, x, scale = dr.zeros(mi.Float, dr.width(i)), mi.UInt32(i), 1.0 / base
+    for _ in range(max(1, math.ceil(math.log(max(count, 2)) / math.log(base)))):
+        digit = x % base
+        x = x // base
+        out += mi.Float(digit) * scale
+        scale /= base
+    return out
+
+
+def hammersley_nd(count: int, dims: int, seed: int) -> list[mi.Float]:
+    """The ``dims``-dimensional Hammersley set ``((i+½)/N, Φ₂(i), Φ₃(i), Φ₅(i), …)``, every
+    dimension but the first shifted modulo 1 by a random offset drawn from ``seed``
+    (Cranley–Patterson rotation: each point uniform, the set stratified)."""
+    i = dr.arange(mi.UInt32, count)
+    shift = np.random.default_rng(seed).random(dims)
+    out = [(mi.Float(i) + 0.5) / count]
+    for k in range(dims - 1):
+        x = radical_inverse(PRIMES[k], i, count) + dr.opaque(mi.Float, float(shift[k]))
+        out.append(x - dr.floor(x))
+    return out
 
 
 def rotated_hammersley(count: int, i: mi.UInt32, shift: mi.Point2f) -> mi.Point2f:

@@ -259,36 +259,6 @@ def cone_photons(light: Light, box: GridBox, u, w):
     return p, d, mi.Color3f(_v(light.intensity)) * scale
 
 
-PRIMES = (2, 3, 5, 7)
-
-
-def radical_inverse(base: int, i: mi.UInt32, count: int) -> mi.Float:
-    """Φ_b(i) for ``i < count``: the base-``b`` digits of ``i`` mirrored about the point (one
-    fused kernel, ``⌈log_b count⌉`` digits)."""
-    if base == 2:
-        return sampling.radical_inverse_2(i)
-    out, x, scale = dr.zeros(mi.Float, dr.width(i)), mi.UInt32(i), 1.0 / base
-    for _ in range(max(1, math.ceil(math.log(max(count, 2)) / math.log(base)))):
-        digit = x % base
-        x = x // base
-        out += mi.Float(digit) * scale
-        scale /= base
-    return out
-
-
-def hammersley_nd(count: int, dims: int, seed: int) -> list[mi.Float]:
-    """The ``dims``-dimensional Hammersley set ``((i+½)/N, Φ₂(i), Φ₃(i), Φ₅(i), …)``, every
-    dimension but the first shifted modulo 1 by a random offset drawn from ``seed``
-    (Cranley–Patterson rotation: each point uniform, the set stratified)."""
-    i = dr.arange(mi.UInt32, count)
-    shift = np.random.default_rng(seed).random(dims)
-    out = [(mi.Float(i) + 0.5) / count]
-    for k in range(dims - 1):
-        x = radical_inverse(PRIMES[k], i, count) + _s(shift[k])
-        out.append(x - dr.floor(x))
-    return out
-
-
 def area_photons(
     light: Light, box: GridBox, count: int, seed: int = 0, aim: bool = True, offset: bool = False
 ):
@@ -297,7 +267,7 @@ def area_photons(
     everywhere (:func:`emit_everywhere`); ``offset``: start off the surface by Mitsuba's spawn
     offset, where a cast from there must not find the emitter itself (opaque surfaces)."""
     emitter = light.emitter
-    u = hammersley_nd(count, 4, seed)
+    u = sampling.hammersley_nd(count, 4, seed)
     ps = light.shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
     si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
     radius = _s(0.5 * float(np.linalg.norm(box.extent)))  # the grid's bounding sphere (opaque)
@@ -325,7 +295,7 @@ def area_photons(
 def environment_photons(light: Light, box: GridBox, count: int, seed: int = 0):
     """Start point on the grid's faces (voxel units), direction and power of an environment's
     photons (mode ``"environment"``, module docstring)."""
-    u = hammersley_nd(count, 5, seed)
+    u = sampling.hammersley_nd(count, 5, seed)
     it = dr.zeros(mi.Interaction3f, count)
     it.p = _v(box.center) + dr.zeros(mi.Point3f, count)
     ds, weight = light.emitter.sample_direction(it, mi.Point2f(u[0], u[1]))  # L(ω)/p(ω)
@@ -466,7 +436,7 @@ def emit_everywhere(
             d = _v(axis / np.linalg.norm(axis)) + dr.zeros(mi.Vector3f, count)
             weight = mi.Color3f(_v(light.intensity))
         else:  # environment: the emitter's own direction sampling (L(ω)/p(ω))
-            xi = hammersley_nd(count, 4, seed)
+            xi = sampling.hammersley_nd(count, 4, seed)
             u, w = xi[2], xi[3]
             it = dr.zeros(mi.Interaction3f, count)
             it.p = _v(box.to_world(centre)) + dr.zeros(mi.Point3f, count)

@@ -41,15 +41,14 @@ from .deposit import Int64, radiance_tally
 from .emit import box_entry
 from .march import (
     KILL_FRACTION,
-    Collision,
     MarchGrids,
     MarchSettings,
     Scattering,
-    Wavefront,
     curved_step,
     deposit_step,
     sample_medium,
 )
+from .scatter import Collision, Wavefront
 from .surfaces import RECAST_TURN, SurfacePhotons, Surfaces, record
 
 IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
@@ -89,7 +88,7 @@ def _leg(
 ):
     """One leg of every photon from ``x`` (voxel coordinates, inside the grid or not) along unit
     ``d`` with energy ``L`` (module docstring), which also finds its
-    :class:`~.march.Collision` as ``march._march_order`` does."""
+    :class:`~.scatter.Collision` as ``march._march_order`` does."""
     n = medium.dims
     count = dr.width(L)
     size = grid_extent(n)
