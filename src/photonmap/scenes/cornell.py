@@ -141,11 +141,11 @@ def empty_box(width: int, height: int) -> dict:
         "type": "scene",
         "integrator": {"type": "path"},
         "sensor": _camera(width, height),
-        "floor": _wall((w / 2, 0, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, 1, 0), WHITE),
-        "ceiling": _wall((w / 2, h, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, -1, 0), WHITE),
-        "back": _wall((w / 2, h / 2, d), (w / 2, 0, 0), (0, h / 2, 0), (0, 0, -1), WHITE),
-        "red_wall": _wall((w, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (-1, 0, 0), RED),
-        "green_wall": _wall((0, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (1, 0, 0), GREEN),
+        "floor": wall((w / 2, 0, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, 1, 0), WHITE),
+        "ceiling": wall((w / 2, h, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, -1, 0), WHITE),
+        "back": wall((w / 2, h / 2, d), (w / 2, 0, 0), (0, h / 2, 0), (0, 0, -1), WHITE),
+        "red_wall": wall((w, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (-1, 0, 0), RED),
+        "green_wall": wall((0, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (1, 0, 0), GREEN),
     }
 
 
@@ -161,7 +161,8 @@ def ceiling_light() -> dict:
     }
 
 
-def _wall(centre, half_u, half_v, normal, reflectance) -> dict:
+def wall(centre, half_u, half_v, normal, reflectance) -> dict:
+    """A diffuse quad (:func:`frame`) of the given RGB ``reflectance``."""
     return {
         "type": "rectangle",
         "to_world": frame(centre, half_u, half_v, normal),
