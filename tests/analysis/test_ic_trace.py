@@ -29,7 +29,7 @@ def closed_box() -> dict:
     """The bare box with the ceiling light, closed by a white front wall, seen from inside."""
     scene = cornell_bushes(W, H, bushes=0)
     w, h = cornell.WIDTH, cornell.HEIGHT
-    scene["front"] = cornell._wall(
+    scene["front"] = cornell.wall(
         (w / 2, h / 2, 0.0), (w / 2, 0, 0), (0, h / 2, 0), (0, 0, 1), cornell.WHITE
     )
     scene["sensor"]["to_world"] = cornell.mi.ScalarTransform4f().look_at(

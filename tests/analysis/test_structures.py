@@ -11,13 +11,9 @@ import numpy as np
 import pytest
 
 from photonmap.analysis.bandwidth import bandwidth_table
-from photonmap.analysis.structures import (
-    BlockHash,
-    KDBTree,
-    fetches_per_block,
-    recall,
-    structure_trace,
-)
+from photonmap.analysis.blockhash import BlockHash
+from photonmap.analysis.kdbtree import KDBTree
+from photonmap.analysis.structures import fetches_per_block, recall, structure_trace
 from photonmap.core.errors import ParameterError
 from photonmap.core.knn import COS_NORMAL
 from photonmap.surface.gather_batch import ORDERS, GatherBatch, gather_order
@@ -215,5 +211,11 @@ def test_analyze_bandwidth_structure_cli():
     result = runner.invoke(app, [*args, *sets, "--structure", "kdbtree", "--order", "hilbert"])
     assert result.exit_code == 0, result.output
     assert "on the kdbtree" in result.output and "hilbert" in result.output
+    # the rows are the kdB-tree's misses, not the kd-tree's
+    kd = runner.invoke(app, [*args, *sets, "--structure", "kdtree", "--order", "hilbert"])
+    assert kd.exit_code == 0, kd.output
+    row = [line for line in result.output.splitlines() if line.startswith("hilbert")]
+    kd_row = [line for line in kd.output.splitlines() if line.startswith("hilbert")]
+    assert len(row) == len(kd_row) == 1 and row != kd_row
     bad = runner.invoke(app, [*args, "--structure", "octree"])
     assert bad.exit_code == 2 and "kdbtree" in bad.output

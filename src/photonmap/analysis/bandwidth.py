@@ -1,10 +1,10 @@
 """Photon-map bandwidth per gather order, cache size, line size and tile size (Steinhurst 2007
-Table 3.1, Figs 3.5, 3.9, 4.1; spec seed-001 §2.6, §3.3, oracles O16–O21).
+Table 3.1, Figs 3.5, 3.9, 4.1).
 
 Every figure is bytes moved from memory for the final gathers of one render: line misses of the
 simulated cache (:mod:`.cache`) × line size, beside the dissertation's uncached naive figure of 20
 bytes per visited kd-tree node (§3.5). Reductions are reported against that uncached figure, as the
-dissertation does (spec A6), and against the cached naive order.
+dissertation does (its naive figures are uncached reads), and against the cached naive order.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from ..surface.gather_batch import ORDERS, OrderParams
 from .cache import simulate_lines
 from .stream import CacheCounts
 
-WAYS = 8  # the set-associative option (spec §2.6: 8-way ≈ +39 % fetches)
+WAYS = 8  # the set-associative option (Steinhurst 2007 §3.2: 8-way ≈ +39 % fetches)
 
 
 def counts(trace, order, lines_bytes, capacities_bytes, ways=0, params=None) -> CacheCounts:
@@ -82,7 +82,7 @@ def bandwidth_table(
 ) -> list[dict]:
     """One row per order: line misses, bytes, reduction vs the uncached naive figure and vs the
     cached naive order; with ``ways``, also the misses of a ``ways``-way set-associative cache of
-    the same size and their ratio to the fully associative misses (O20)."""
+    the same size and their ratio to the fully associative misses."""
     orders = list(orders)
     results = _each(
         trace,

@@ -1,5 +1,4 @@
-"""Cache simulator for photon-map memory traffic (Steinhurst 2007 §3.2, §3.5; spec seed-001 §2.6,
-ambiguity A17; oracles O4, O19, O20).
+"""Cache simulator for photon-map memory traffic (Steinhurst 2007 §3.2, §3.5).
 
 A stream of cache-line reads goes through a bank of caches at once, compiled with Numba:
 
@@ -12,10 +11,10 @@ A stream of cache-line reads goes through a bank of caches at once, compiled wit
 - a ``ways``-way **set-associative** LRU cache (set = line mod sets, MRU-first tag rows);
 - the **compulsory** misses (first reads of a line: the distinct lines read).
 
-A read of the line read just before hits in every cache and changes nothing (the fast path of
-runs of reads within one line). Bandwidth is misses × line size [DOC §3.5]. The full-scale kd-tree
-streams feed these banks straight from the gathers (:mod:`.kdwalk`); :func:`simulate_lines` takes
-an explicit stream.
+A read of the line read just before hits in every cache and changes nothing (the fast path of runs
+of reads within one line). Bandwidth is misses × line size (Steinhurst 2007 §3.5). The full-scale
+kd-tree streams feed these banks straight from the gathers (:mod:`.kdwalk`); :func:`simulate_lines`
+takes an explicit stream.
 """
 
 from __future__ import annotations
@@ -27,7 +26,9 @@ from ..core.errors import ParameterError
 
 
 @numba.njit(cache=True, nogil=True)
-def _feed(lines, start, count, base, div, seg, prv, nxt, tail, size, segcap, tags, misses, state):
+def feed_bank(
+    lines, start, count, base, div, seg, prv, nxt, tail, size, segcap, tags, misses, state
+):
     """Reads of lines ``(lines[start : start + count] − base) // div`` through one bank (see the
     module docstring): ``seg``/``prv``/``nxt`` (lines,): each line's segment (K: evicted, K + 1:
     never read) and neighbours in the recency list; ``tail``/``size``/``segcap`` (K,): each
@@ -96,7 +97,7 @@ def _feed(lines, start, count, base, div, seg, prv, nxt, tail, size, segcap, tag
 
 @numba.njit(cache=True, nogil=True)
 def bank(lines, segcap, sets, ways):
-    """Empty caches for :func:`_feed` over ``lines`` line ids, with segment capacities
+    """Empty caches for :func:`feed_bank` over ``lines`` line ids, with segment capacities
     ``segcap`` (K,) and a ``ways``-way cache of ``sets`` sets (0: none)."""
     K = segcap.shape[0]
     return (
@@ -118,7 +119,7 @@ def simulate_reads(order, offset, count, lines, segcap, sets, ways):
     count[g]]`` taken in ``order`` (each gather's stored reads, in a gather order)."""
     b = bank(lines.max() + 1 if len(lines) else 1, segcap, sets, ways)
     for g in order:
-        _feed(lines, offset[g], count[g], 0, 1, *b)
+        feed_bank(lines, offset[g], count[g], 0, 1, *b)
     return b[7], b[8][2], b[8][1]
 
 
@@ -128,7 +129,7 @@ def simulate_lines(lines, segcap, sets, ways):
     compulsory)`` for the capacities with segment sizes ``segcap`` (K,) and a ``ways``-way cache
     of ``sets`` sets (0: none)."""
     b = bank(lines.max() + 1 if len(lines) else 1, segcap, sets, ways)
-    _feed(lines, 0, len(lines), 0, 1, *b)
+    feed_bank(lines, 0, len(lines), 0, 1, *b)
     return b[7], b[8][2], b[8][1]
 
 

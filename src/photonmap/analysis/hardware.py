@@ -1,5 +1,7 @@
 """Steinhurst's photon-mapping chip as a functional cost model (Steinhurst 2007 Ch. 7, Tables 7.1,
-7.7, 7.8, 7.10, 7.11; spec seed-001 §2.11, §3.7, oracles O14, O27, ambiguities A11, A14, A19).
+7.7, 7.8, 7.10, 7.11). Where the chapter's numbers disagree (garbled figure captions, Table 7.11
+against 7.10), the model takes Table 7.10's GB and GFLOP columns as its targets and recomputes
+the derived ones.
 
 One chip (ray caster, controller, photon gatherer; 90 GB/s, 500 GFLOPS) renders 16 × 16 tiles.
 Per tile it spends the FLOPs of Table 7.7 and moves the inter-unit packets of Table 7.8; the
@@ -20,7 +22,7 @@ from dataclasses import dataclass, replace
 
 @dataclass(frozen=True)
 class Chip:
-    """Table 7.1's parameters (nominal values reconstructed in spec §3.7) and the chip's limits."""
+    """Table 7.1's parameters (its nominal values) and the chip's limits."""
 
     P: int = 256  # pixels per tile
     T: int = 1024  # tiles per 512 × 512 image
@@ -45,7 +47,8 @@ class Chip:
 
 
 def flops_per_tile(n_fg: float, r_ic: float, chip: Chip = Chip()) -> dict:
-    """Table 7.7: FLOPs per tile by task (irradiance links in the Table's form, spec A14)."""
+    """Table 7.7: FLOPs per tile by task (the irradiance links in the Table's form,
+    ``4 P R_IC L_IC N_FG``, not §7.3.3.1's: it reproduces Table 7.10; they differ by < 0.4 %)."""
     P, k, c = chip.P, chip.k, chip
     r_fg = 1 - r_ic
     rays = P * r_fg * n_fg
@@ -64,7 +67,8 @@ def flops_per_tile(n_fg: float, r_ic: float, chip: Chip = Chip()) -> dict:
 
 
 def unit_traffic_per_tile(n_fg: float, r_ic: float, chip: Chip = Chip()) -> dict:
-    """Table 7.8: bytes per tile on each on-chip link (Tab 7.6 packet sizes as stated, A19)."""
+    """Table 7.8: bytes per tile on each on-chip link (Table 7.6's packet sizes as stated, not
+    its field lists, which sum to 2 bytes less)."""
     P, S_B = chip.P, chip.S_B
     rays = P * (1 - r_ic) * n_fg
     return {
@@ -97,7 +101,7 @@ def performance(bytes_per_image: float, n_fg: float, r_ic: float, chip: Chip = C
     }
 
 
-# Table 7.10 (DOC) with the N_FG and R_IC that reproduce its GFLOPs column (spec §3.7)
+# Table 7.10 (Steinhurst 2007) with the N_FG and R_IC that reproduce its GFLOPs column
 TABLE_7_10 = {
     "Cornell direct": (33, 0.0, 50.0, 37),
     "Cornell direct, optimized": (33, 0.62, 7.8, 16),

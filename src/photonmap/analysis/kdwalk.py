@@ -1,5 +1,5 @@
 """Compiled kd-tree gathers and a streaming LRU cache bank: the full-scale (512 × 512) cache
-simulation of Steinhurst 2007 §3.2, §3.5 (spec seed-001 §2.3, §2.4, §2.6, ambiguity A17).
+simulation of Steinhurst 2007 §3.2, §3.5.
 
 **The gather** (:func:`walk`) is Jensen's locate on the heap-order kd-tree exactly as the renderer
 runs it (:meth:`photonmap.surface.kdtree.KDTree._search`): the same float32 arithmetic without
@@ -8,11 +8,11 @@ fused multiply-adds, the same k-best bound ``min(max_radius², d²_k)``, the sam
 in the same order (tested against the Dr.Jit traversal). It is compiled with Numba, one gather at a
 time, which is what lets the simulator run without storing the stream.
 
-**Streaming** (:func:`simulate`). Gathers are issued in a given order; every node a gather visits
-is a read of line ``(slot − 1) div ⌊line / 20⌋`` (spec §2.3), fed at once to the cache banks of
-:mod:`.cache` (every capacity, every line size, the set-associative cache) — no trace is stored, so
-the full image's 2–8 G reads need no memory. The node visits (the uncached naive figure, 20 B per
-visit, §3.5) are counted on the way.
+**Streaming** (:func:`simulate`). Gathers are issued in a given order; every node a gather visits is
+a read of line ``(slot − 1) div ⌊line / 20⌋`` (:mod:`.stream`'s address model), fed at once to the
+cache banks of :mod:`.cache` (every capacity, every line size, the set-associative cache) — no trace
+is stored, so the full image's 2–8 G reads need no memory. The node visits (the uncached naive
+figure, 20 B per visit, §3.5) are counted on the way.
 
 **Walk once, replay per order** (:func:`read_lines`). The walk costs most (a random 16-byte read
 per node, 40–150 ns on this machine against 15–30 ns for a cache-bank read), and every order
@@ -26,7 +26,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from .cache import _feed, bank
+from .cache import bank, feed_bank
 
 INDEX_MASK = np.uint32((1 << 30) - 1)
 STACK_SIZE = 32  # as the renderer's traversal stack (surface/kdtree.py)
@@ -200,7 +200,7 @@ def simulate(
         )
         visits += v
         for b in range(L):
-            _feed(out, 0, v, 1, per_line[b], *banks[b])
+            feed_bank(out, 0, v, 1, per_line[b], *banks[b])
     misses = np.empty((L, segcap.shape[1]), np.int64)
     state = np.empty((L, 3), np.int64)
     for b in range(L):

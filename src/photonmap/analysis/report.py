@@ -41,6 +41,45 @@ def bandwidth_report(
     """The report text; ``params``: typed surface-method and scene parameters; ``structure``:
     the photon map's layout (:data:`.structures.STRUCTURES`, Ch. 4)."""
     cache_bytes, line_bytes = parse_size(cache), parse_size(line)
+    orders = _checked(orders, cache_bytes, line_bytes, structure, sweep_kind, plot)
+    order_params = OrderParams(tile=tile)
+    order_params.validate()
+    target, surface = _target(scene, builtin, params, size, _crop(crop, size))
+    trace = trace_final_gathers(target, **surface)
+    interrupt.check()
+    head = (
+        f"{scene}: {len(trace.batch):,} final gathers, {trace.visits:,} kd-tree node visits "
+        f"({trace.visits / max(len(trace.batch), 1):.0f} per gather), {trace.photons:,} photons; "
+        f"uncached naive (20 B per node): {trace.uncached_bytes() / 1e6:,.1f} MB"
+    )
+    if structure != "kdtree":  # the same gathers on a line-organised structure (Ch. 4)
+        trace = structure_trace(trace, structure)
+        head += (
+            f"\non the {structure}: {trace.footprint_lines(line_bytes):,} lines of "
+            f"{line_bytes} B; uncached (records read at 128 B lines): "
+            f"{trace.uncached_bytes() / 1e6:,.1f} MB"
+        )
+    if sweep_kind is None:
+        rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
+        return _table_text(head, rows, cache_bytes, line_bytes, tile)
+    xs, curves = sweep(trace, sweep_kind, orders, cache_bytes, line_bytes, order_params)
+    xlabel, _ = SWEEPS[sweep_kind]
+    lines = [
+        head,
+        f"MB per image against {xlabel}",
+        f"{'order':<22}" + "".join(f"{x:>9}" for x in xs),
+    ]
+    for o, ys in curves.items():
+        lines.append(f"{o:<22}" + "".join(f"{y / 1e6:>9.2f}" for y in ys))
+    if plot:
+        plot_sweep(curves, xs, xlabel, plot, f"{scene}: photon-map traffic", trace.uncached_bytes())
+        lines.append(f"wrote {plot}")
+    return "\n".join(lines)
+
+
+def _checked(orders, cache_bytes: int, line_bytes: int, structure, sweep_kind, plot) -> list:
+    """The gather orders to report (all, or the sweep's, when none are given), after checking
+    the options; a bad one raises a :class:`ParameterError` that names it."""
     photons_per_line(line_bytes)
     if structure not in STRUCTURES:
         raise ParameterError(f"--structure must be one of {', '.join(STRUCTURES)}")
@@ -56,58 +95,33 @@ def bandwidth_report(
         raise ParameterError("--plot needs --sweep and a .png path")
     if plot is not None:
         check_output(plot, (".png",))
-    order_params = OrderParams(tile=tile)
-    order_params.validate()
-    window = _crop(crop, size)
+    return orders
+
+
+def _target(scene, builtin, params: dict, size: int, window) -> tuple:
+    """``(scene, surface-method parameters)`` to trace: a built-in at ``size``² (cropped to
+    ``window``) with its own parameters taken out of ``params``, or the given scene."""
     scene_params = {k: v for k, v in params.items() if builtin and k in builtin.params}
     surface = {k: v for k, v in params.items() if k not in scene_params}
     if builtin is not None:
         offset, extent = window or ((0, 0), (size, size))
-        target = cropped_scene(builtin.name, size, offset, extent, **scene_params)
-    elif window is not None:
+        return cropped_scene(builtin.name, size, offset, extent, **scene_params), surface
+    if window is not None:
         raise ParameterError("--crop applies to built-in scenes only")
-    else:
-        target = scene
-    trace = trace_final_gathers(target, **surface)
-    interrupt.check()
-    if sweep_kind is None:
-        rows = bandwidth_table(trace, orders, cache_bytes, line_bytes, order_params, WAYS)
-    else:
-        xlabel, _ = SWEEPS[sweep_kind]
-        xs, curves = sweep(trace, sweep_kind, orders, cache_bytes, line_bytes, order_params)
-    head = (
-        f"{scene}: {len(trace.batch):,} final gathers, {trace.visits:,} kd-tree node visits "
-        f"({trace.visits / max(len(trace.batch), 1):.0f} per gather), {trace.photons:,} photons; "
-        f"uncached naive (20 B per node): {trace.uncached_bytes() / 1e6:,.1f} MB"
-    )
-    if structure != "kdtree":  # the same gathers on a line-organised structure (Ch. 4)
-        trace = structure_trace(trace, structure)
-        head += (
-            f"\non the {structure}: {trace.footprint_lines(line_bytes):,} lines of "
-            f"{line_bytes} B; uncached (records read at 128 B lines): "
-            f"{trace.uncached_bytes() / 1e6:,.1f} MB"
-        )
-    if sweep_kind is None:
-        lines = [
-            head,
-            f"cache {cache_bytes // 1024} KB fully associative LRU, {line_bytes} B lines, "
-            f"{tile}x{tile} tiles",
-            f"{'order':<22}{'misses':>12}{'MB':>10}{'vs uncached':>13}{'8-way/full':>12}",
-        ]
-        for r in rows:
-            lines.append(
-                f"{r['order']:<22}{r['misses']:>12,}{r['bytes'] / 1e6:>10.2f}"
-                f"{r['reduction_vs_uncached']:>12.1f}x{r['set_associative_ratio']:>12.2f}"
-            )
-        return "\n".join(lines)
+    return scene, surface
+
+
+def _table_text(head: str, rows: list, cache_bytes: int, line_bytes: int, tile: int) -> str:
+    """The report of one cache: a row per gather order."""
     lines = [
         head,
-        f"MB per image against {xlabel}",
-        f"{'order':<22}" + "".join(f"{x:>9}" for x in xs),
+        f"cache {cache_bytes // 1024} KB fully associative LRU, {line_bytes} B lines, "
+        f"{tile}x{tile} tiles",
+        f"{'order':<22}{'misses':>12}{'MB':>10}{'vs uncached':>13}{'8-way/full':>12}",
     ]
-    for o, ys in curves.items():
-        lines.append(f"{o:<22}" + "".join(f"{y / 1e6:>9.2f}" for y in ys))
-    if plot:
-        plot_sweep(curves, xs, xlabel, plot, f"{scene}: photon-map traffic", trace.uncached_bytes())
-        lines.append(f"wrote {plot}")
+    for r in rows:
+        lines.append(
+            f"{r['order']:<22}{r['misses']:>12,}{r['bytes'] / 1e6:>10.2f}"
+            f"{r['reduction_vs_uncached']:>12.1f}x{r['set_associative_ratio']:>12.2f}"
+        )
     return "\n".join(lines)

@@ -1,5 +1,4 @@
-"""The photon-map address stream of a render's final gathers (Steinhurst 2007 §3.2, §3.5, §4.2;
-spec seed-001 §2.3, §2.6, ambiguities A6, A17, A20).
+"""The photon-map address stream of a render's final gathers (Steinhurst 2007 §3.2, §3.5, §4.2).
 
 A render of the surface method with exact k-NN final gathers on the heap-order kd-tree
 (``lookup="knn"``, ``structure="kdtree"``) keeps its request batches
@@ -11,13 +10,14 @@ stream of an order is the concatenation of the requests' visit lists in that ord
 materialised (small traces: :meth:`GatherTrace.lines`) or streamed straight into the caches
 (:meth:`GatherTrace.simulate`, the full 512 × 512 image).
 
-**Address model** (spec §2.3): Jensen's 20-byte photon records in heap order, node ``i`` (1-based)
-in line ``(i − 1) div ⌊line_bytes / 20⌋`` (no record straddles two lines; the rest of a line is the
-"bookkeeping" slack, 6 photons per 128-byte line). The **uncached naive** bandwidth of the
-dissertation ("20 bytes reads of single photons scattered across memory", §3.5) is 20 bytes per
-visited node. The stream holds the indirect (final-gather) gathers only, the ones the
-dissertation's reorderings act on (A20: caustic gathers, one per pixel at ``x``, read their own map
-in a disjoint address range and are the same in every order).
+**Address model** (Steinhurst 2007 §3.5, §4.2): Jensen's 20-byte photon records in heap order, node
+``i`` (1-based) in line ``(i − 1) div ⌊line_bytes / 20⌋`` (no record straddles two lines; the rest
+of a line is the "bookkeeping" slack, 6 photons per 128-byte line). The **uncached naive** bandwidth
+of the dissertation ("20 bytes reads of single photons scattered across memory", §3.5) is 20 bytes
+per visited node. The stream holds the indirect (final-gather) gathers only, the ones the
+dissertation's reorderings act on (whether its figures count the caustic gathers is explicit only in
+Ch. 7; they are left out here: one per pixel at ``x``, they read their own map in a disjoint address
+range and are the same in every order).
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from ..surface.pipeline import SurfacePipeline
 from . import kdwalk
 from .cache import simulate_reads
 
-RECORD_BYTES = 20  # Jensen's compact photon (spec §2.3)
+RECORD_BYTES = 20  # Jensen's compact photon (Steinhurst 2007 §3.5)
 MAX_SLOTS = 200_000_000  # node visits :attr:`GatherTrace.slots` may hold (8 bytes each)
 READS_BUDGET = 4 << 30  # bytes :meth:`GatherTrace.store_reads` may keep
 
@@ -232,7 +232,7 @@ def permuted_stream(count, offset, data, perm) -> np.ndarray:
 
 
 def photons_per_line(line_bytes: int) -> int:
-    """``⌊line_bytes / 20⌋`` photon records per cache line (spec §2.3: 64 → 3, 128 → 6)."""
+    """``⌊line_bytes / 20⌋`` photon records per cache line (64 → 3, 128 → 6)."""
     per_line = int(line_bytes) // RECORD_BYTES
     if per_line < 1:
         raise ParameterError(
@@ -271,8 +271,8 @@ _ARRAYS = ("position", "normal", "direction", "pixel", "ray", "specular")
 def cropped_scene(name: str, size: int, offset: tuple[int, int], crop: tuple[int, int], **params):
     """The built-in scene ``name`` rendered at ``size`` × ``size`` but only in the film crop at
     ``offset`` (x, y) of ``crop`` (w, h) pixels — a window of the dissertation's 512 × 512 image
-    with its pixel footprint, so that each tile's gathers are as coherent as at full size (spec
-    A17: down-scaled runs keep the photon map and the cache)."""
+    with its pixel footprint, so that each tile's gathers are as coherent as at full size (a
+    down-scaled run keeps the photon map and the cache; only such runs compare with each other)."""
     from ..scenes import SCENES
 
     if name not in SCENES:

@@ -1,4 +1,4 @@
-"""Rendering on a Ray cluster (issue 15): memoryless progressive passes split into blocks of
+"""Rendering on a Ray cluster: memoryless progressive passes split into blocks of
 iterations across worker actors (:mod:`.progressive`), and frame sequences with one task per frame
 (:mod:`.sequence`). Ray is an optional dependency (``pip install 'photonmap[cluster]'``); it is
 imported only when a cluster is started or joined.

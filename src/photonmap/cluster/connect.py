@@ -1,4 +1,4 @@
-"""Starting or joining a Ray cluster and placing the worker actors on it (issue 15).
+"""Starting or joining a Ray cluster and placing the worker actors on it.
 
 ``--workers N`` starts a private local Ray instance on the loopback address with N CPUs, one
 worker actor per CPU. ``--ray ADDRESS`` joins a running cluster (``ray start --head`` prints its

@@ -1,6 +1,5 @@
 """Frame specs of ``photonmap render-sequence``: a camera path, a light path or a list of
-parameter sets, read from a JSON file and expanded to one complete state per frame (issue 15
-item 2).
+parameter sets, read from a JSON file and expanded to one complete state per frame.
 
 Two forms, both JSON objects::
 

@@ -1,7 +1,7 @@
 """What a worker needs to rebuild the driver's pipeline: a picklable :class:`SceneJob` (scene name
 or path, method, parameters, image size), :func:`build_pipeline`, and :class:`FrameState`, which
 applies a frame's camera, light and parameters to a pipeline so that the result depends on the
-frame alone, not on the frames that worker rendered before (issue 15 item 2).
+frame alone, not on the frames that worker rendered before.
 
 A scene file is read by path on every worker: on a multi-machine cluster it (and the meshes and
 textures it names) must lie at the same path on each node (a shared file system, or Ray's

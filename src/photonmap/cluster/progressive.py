@@ -1,5 +1,4 @@
-"""Distributed memoryless progressive photon mapping (issue 15 item 1; spec beyond-seeds §2,
-Knaus & Zwicker 2011).
+"""Distributed memoryless progressive photon mapping (Knaus & Zwicker 2011).
 
 In the memoryless form every iteration ``i`` gathers with the global radius
 ``r_i = r_1 · i^((α−1)/2)`` and draws its random numbers from ``(seed, i)`` alone

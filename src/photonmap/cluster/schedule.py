@@ -1,5 +1,5 @@
 """Handing tasks to worker actors and getting the results back as they finish, surviving workers
-that die (issue 15 item 3).
+that die.
 
 Each worker holds at most ``depth`` tasks (one running, the next queued, so it never waits for
 the driver). A task whose worker crashed is retried by Ray on the restarted actor

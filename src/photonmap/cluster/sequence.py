@@ -1,4 +1,4 @@
-"""Distributed sequences: one task per frame, frames written as they finish (issue 15 item 2).
+"""Distributed sequences: one task per frame, frames written as they finish.
 
 >>> spec = load_frames("orbit.json")
 >>> job = SceneJob("glass_sphere_fog", "volume", {"grid": 64}, width=160, height=120)

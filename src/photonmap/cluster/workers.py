@@ -3,7 +3,7 @@
 Each actor is one long-lived process that imports photonmap once, selects the driver's device
 (``llvm`` with as many Dr.Jit threads as the CPUs it reserved, or ``cuda``), loads the scene once
 and keeps its pipeline between tasks, so later tasks pay neither the import, the scene load nor
-the stages whose inputs did not change (issue 15 items 1–2).
+the stages whose inputs did not change.
 """
 
 from __future__ import annotations
@@ -67,7 +67,7 @@ class FrameWorker(_Worker):
 
 
 class BlockWorker(_Worker):
-    """Runs blocks of memoryless progressive iterations (beyond-seeds §2, Knaus & Zwicker 2011) of
+    """Runs blocks of memoryless progressive iterations (Knaus & Zwicker 2011) of
     one SPPM pipeline, built from ``job`` by the first block (so a scene that fails to load is
     that task's error, not a dead actor) and kept; returns their per-pixel sums."""
 

@@ -1,7 +1,7 @@
-"""Photons aimed at specular objects — Jensen's projection maps (1996), generalised to area
-lights (spec beyond-seeds §3): the geometry of aiming. Used by the emission of every method's
-photon paths (:func:`photonmap.core.emission.emit`), which partitions each aimed emitter's paths
-so that every light path is counted once.
+"""Photons aimed at specular objects — Jensen's projection maps (1996), generalised to area lights
+(ours: a mixture of cones over the specular shapes, below): the geometry of aiming. Used by the
+emission of every method's photon paths (:func:`photonmap.core.emission.emit`), which partitions
+each aimed emitter's paths so that every light path is counted once.
 
 **Aimed emission.** For an area emitter: sample a point ``y`` on it (``sample_position``, area
 pdf ``p_A``), choose a specular shape ``S`` with probability ∝ the solid angle ``Ω_S`` its

@@ -1,7 +1,7 @@
 """BSDF and visibility helpers shared by the pipelines.
 
 - :func:`is_specular` — a BSDF with only delta lobes (mirror, glass): eye and gather rays follow
-  it, photon maps store nothing on it (Steinhurst 2007 §7.3.2; spec seed-001 §2.1); with
+  it, photon maps store nothing on it (Steinhurst 2007 §7.3.2); with
   ``rough_glass``, also a BSDF that transmits through glossy lobes and has no diffuse one
   (:func:`is_rough_glass`).
 - :func:`diffuse_albedo` — the reflectance of a BSDF's diffuse lobes, for Lambertian lookups.
@@ -9,8 +9,8 @@
   that light crosses unchanged. Every method treats such a shape as invisible: photons, eye rays
   and shadow rays pass straight through it (the shape only bounds a medium).
 - :func:`intersect_visible` and :func:`occluded` — closest hit and shadow test that skip ``null``
-  surfaces. They cost one extra ray per crossed null surface, and nothing when the scene has none
-  (:func:`has_null_shapes`).
+  surfaces (:func:`pass_through`, :func:`beyond`). They cost one extra ray per crossed null surface,
+  and nothing when the scene has none (:func:`has_null_shapes`).
 """
 
 from __future__ import annotations
@@ -102,6 +102,11 @@ def has_glossy_shapes(scene: mi.Scene) -> bool:
     )
 
 
+def _crosses_null(scene: mi.Scene, null_shapes: bool | None) -> bool:
+    """Whether rays may meet ``null`` surfaces: ``null_shapes``, or :func:`has_null_shapes`."""
+    return has_null_shapes(scene) if null_shapes is None else null_shapes
+
+
 def _passes(scene: mi.Scene, si: mi.SurfaceInteraction3f, ray: mi.Ray3f, active) -> mi.Bool:
     """Lanes whose hit is a ``null``-BSDF surface that emits nothing: the ray goes on."""
     hit = active & si.is_valid()
@@ -116,13 +121,19 @@ def intersect_visible(
     ``ray.o``. ``null_shapes`` (default: :func:`has_null_shapes`) skips the loop when False."""
     active = mi.Bool(active)
     si = scene.ray_intersect(ray, active)
-    if null_shapes is None:
-        null_shapes = has_null_shapes(scene)
-    if not null_shapes:
+    if not _crosses_null(scene, null_shapes):
         return si
     return pass_through(
         scene, ray, si, active, lambda si, ray, going: _passes(scene, si, ray, going)
     )
+
+
+def beyond(si: mi.SurfaceInteraction3f, ray: mi.Ray3f) -> mi.Ray3f:
+    """The rest of ``ray`` after the surface ``si`` it passes straight through (a ``null``
+    boundary): the same direction, the length left."""
+    crossed = si.spawn_ray(ray.d)
+    crossed.maxt = ray.maxt - si.t
+    return crossed
 
 
 @dr.syntax
@@ -136,9 +147,7 @@ def pass_through(scene, ray, si, active, passes, limit: int = MAX_NULL_CROSSINGS
     crossings = dr.zeros(mi.UInt32, dr.width(si.t))
     while going & (crossings < limit):
         travelled = dr.select(going, travelled + si.t, travelled)
-        nxt = si.spawn_ray(ray.d)
-        nxt.maxt = ray.maxt - si.t
-        ray = dr.select(going, nxt, ray)
+        ray = dr.select(going, beyond(si, ray), ray)
         si_next = scene.ray_intersect(ray, going)
         si = dr.select(going, si_next, si)
         going = passes(si, ray, going)
@@ -155,9 +164,7 @@ def occluded(
     blocked are traced again through the null surfaces (:func:`intersect_visible`)."""
     active = mi.Bool(active)
     blocked = scene.ray_test(ray, active)
-    if null_shapes is None:
-        null_shapes = has_null_shapes(scene)
-    if not null_shapes:
+    if not _crosses_null(scene, null_shapes):
         return blocked
     si = intersect_visible(scene, ray, blocked, null_shapes=True)
     return blocked & si.is_valid()

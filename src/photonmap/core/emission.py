@@ -1,5 +1,5 @@
 """Photon emission: where the light paths of every method start (Jensen 1996; Steinhurst 2007
-§2.6.1; spec seed-001 §2.2).
+§2.6.1, Algorithm 2.4).
 
 The path budget ``N`` is split among the emitters in proportion to their emitted power ``Φ_e``
 (:func:`emitter_powers`, :func:`split_paths`). Emitter ``e`` gets ``N_e`` paths; path ``i``
@@ -71,7 +71,8 @@ def emitter_powers(scene: mi.Scene, samples: int = 2**16, seed: int = 0) -> np.n
 
 def split_paths(powers: np.ndarray, paths: int) -> np.ndarray:
     """Split ``paths`` among emitters in proportion to the mean of their RGB ``powers`` by
-    largest-remainder rounding, with at least one path per emitter (spec §2.2)."""
+    largest-remainder rounding, with at least one path per emitter (Steinhurst 2007 §2.6.1:
+the budget split in proportion to the emitted flux)."""
     weight = np.asarray(powers, dtype=np.float64).reshape(len(powers), -1).mean(axis=1)
     if paths < len(weight):
         raise ParameterError(

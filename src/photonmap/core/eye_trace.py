@@ -164,196 +164,290 @@ def trace_eye_paths(
     stored = dr.zeros(mi.Bool, slots)
     vertices = _follow(
         scene, ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), gen,
-        settings, traits, emission, media_mode, surfaces, caustics or Caustics(),
-        caustics is not None, start_depth, active & dr.full(mi.Bool, True, n), buffers, stored,
-        segments, rough_glass,
+        settings=settings, traits=traits, emission=emission, media_mode=media_mode,
+        surfaces=surfaces, caustics=caustics, start_depth=start_depth,
+        active=active & dr.full(mi.Bool, True, n), buffers=buffers, stored=stored,
+        max_pieces=segments, rough_glass=rough_glass,
     )  # fmt: skip
     # every output at once: evaluating one output of a symbolic loop runs the whole loop again
     dr.eval(*(v for v in vars(vertices).values() if v is not None), buffers, stored)
     if marching:
         index = dr.compress(stored)
-        vertices.segments = Segments(*(dr.gather(type(f), f, index) for f in vars(buffers).values()))
+        vertices.segments = Segments(
+            *(dr.gather(type(f), f, index) for f in vars(buffers).values())
+        )
     return vertices
 
 
+@dataclass
+class _Walk:
+    """The loop state of the eye paths (one lane a path) and the vertices where they ended."""
+
+    ray: mi.Ray3f
+    beta: mi.Spectrum  # throughput so far
+    medium: mi.MediumPtr  # the medium the ray travels in
+    depth: mi.UInt32  # segments so far
+    radiance: mi.Spectrum  # light collected so far
+    eta: mi.Float  # product of the relative IORs crossed (Russian roulette's η²)
+    bounces: mi.UInt32  # followed (delta) bounces
+    origin: mi.UInt32  # where the last scattering was: FROM_CAMERA, FROM_MEDIUM, ...
+    prev_it: mi.Interaction3f  # the last smooth surface vertex, for MIS
+    prev_pdf: mi.Float  # its BSDF sample's pdf
+    pieces: mi.UInt32  # pieces recorded in media ("march" mode)
+    active: mi.Bool
+    events: mi.UInt32  # loop iterations so far
+    # ---- where the paths ended
+    si_end: mi.SurfaceInteraction3f
+    mei_end: mi.MediumInteraction3f
+    beta_end: mi.Spectrum
+    medium_end: mi.MediumPtr
+    found: mi.Bool  # on a smooth surface
+    in_medium: mi.Bool  # at a medium collision ("end" mode)
+
+    @staticmethod
+    def start(ray, beta, medium, start_depth, active) -> _Walk:
+        """Paths at the start of ``ray``, none ended yet (every variable at full width)."""
+        n = dr.width(beta)
+        return _Walk(
+            ray, beta, medium,
+            mi.UInt32(start_depth) + dr.zeros(mi.UInt32, n), dr.zeros(mi.Spectrum, n),
+            dr.ones(mi.Float, n), dr.zeros(mi.UInt32, n), dr.full(mi.UInt32, FROM_CAMERA, n),
+            dr.zeros(mi.Interaction3f, n), dr.zeros(mi.Float, n), dr.zeros(mi.UInt32, n),
+            active, dr.zeros(mi.UInt32, n),
+            dr.zeros(mi.SurfaceInteraction3f, n), dr.zeros(mi.MediumInteraction3f, n),
+            dr.zeros(mi.Spectrum, n), dr.zeros(mi.MediumPtr, n), dr.zeros(mi.Bool, n),
+            dr.zeros(mi.Bool, n),
+        )  # fmt: skip
+
+    def vertices(self) -> EyeVertices:
+        return EyeVertices(
+            self.si_end, self.mei_end, self.beta_end, self.radiance, self.found, self.in_medium,
+            self.depth, self.medium_end, self.bounces,
+        )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Rules:
+    """What :func:`_follow` does at each kind of vertex (see :func:`trace_eye_paths`); Python
+    values only, read while the loop is traced."""
+
+    media: bool  # the scene has media (else the flight is through vacuum)
+    media_mode: str
+    continuing: bool  # surfaces="continue"
+    emission: bool
+    hide: bool  # hide emitters on the first segment
+    photons_carry: bool  # caustics are given: photons carry the light after a delta chain
+    rough_glass: bool
+    max_pieces: int
+
+
 @dr.syntax
-def _follow(scene, ray, beta, medium, gen, settings, traits, emission, media_mode, surfaces,
-            caustics, photons_carry, start_depth, active, buffers, stored,
-            max_pieces, rough_glass):  # fmt: skip
+def _follow(scene, ray, beta, medium, gen, *, settings, traits, emission, media_mode, surfaces,
+            caustics, start_depth, active, buffers, stored, max_pieces, rough_glass):  # fmt: skip
+    """The loop of :func:`trace_eye_paths` (module docstring): one iteration flies to the next
+    vertex (:func:`_fly`), adds the emission met there (:func:`_emission_met`), handles a medium
+    collision (:func:`_medium_vertex`) or a surface (:func:`_surface_vertex`) and plays Russian
+    roulette. Returns the :class:`EyeVertices` (lazy)."""
     n = dr.width(beta)
     max_depth = settings.max_depth if settings.max_depth != UNBOUNDED else 2**31 - 1
     max_depth = dr.opaque(mi.UInt32, max_depth)
     rr_depth = dr.opaque(mi.UInt32, settings.rr_depth)
-    hide = settings.hide_emitters and isinstance(start_depth, int) and start_depth == 0
-    ctx = mi.BSDFContext()
-    phase_ctx = mi.PhaseFunctionContext(None)
-    depth = mi.UInt32(start_depth) + dr.zeros(mi.UInt32, n)  # segments so far
-    radiance = dr.zeros(mi.Spectrum, n)
-    eta = dr.ones(mi.Float, n)
-    bounces = dr.zeros(mi.UInt32, n)
-    found = dr.zeros(mi.Bool, n)
-    in_medium_end = dr.zeros(mi.Bool, n)
-    si_end = dr.zeros(mi.SurfaceInteraction3f, n)
-    mei_end = dr.zeros(mi.MediumInteraction3f, n)
-    beta_end = dr.zeros(mi.Spectrum, n)
-    medium_end = dr.zeros(mi.MediumPtr, n)
-    origin = dr.full(mi.UInt32, FROM_CAMERA, n)  # whether an emitter hit counts
-    prev_it = dr.zeros(mi.Interaction3f, n)  # the last smooth surface vertex, for MIS
-    prev_pdf = dr.zeros(mi.Float, n)
+    rules = _Rules(
+        media=traits.media,
+        media_mode=media_mode if traits.media else "transmit",  # vacuum: nothing to collide with
+        continuing=surfaces == "continue",
+        emission=emission,
+        hide=settings.hide_emitters and isinstance(start_depth, int) and start_depth == 0,
+        photons_carry=caustics is not None,
+        rough_glass=rough_glass,
+        max_pieces=max_pieces,
+    )
+    caustics = caustics or Caustics()
     medium_light, surface_light = caustics.medium, caustics.surface
-    continuing = surfaces == "continue"
-    media, null_shapes = traits.media, traits.null_shapes  # frozen dataclasses stay out of loops
-    media_mode = media_mode if media else "transmit"  # vacuum: nothing to collide with
+    null_shapes = traits.null_shapes
+    walk = _Walk.start(ray, beta, medium, start_depth, active)
     ch = channel(gen)
     lane = dr.arange(mi.UInt32, n)
     stride = dr.opaque(mi.UInt32, n)  # not a literal: one kernel for every size
-    pieces = dr.zeros(mi.UInt32, n)
-    events = dr.zeros(mi.UInt32, n)
-    while active & (events < MAX_EVENTS):
-        # ---- fly: a medium collision (free flight) or the next surface
-        scattered = dr.zeros(mi.Bool, n)
-        if dr.hint(not media, mode="scalar"):
-            si = intersect_visible(scene, ray, active, null_shapes)
-        elif dr.hint(media_mode == "march", mode="scalar"):
-            # one piece at a time (null boundaries are passed as surfaces below), recorded
-            si = scene.ray_intersect(ray, active)
-            in_medium = active & (medium != None)  # noqa: E711
-            length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
-            record = in_medium & (pieces < max_pieces)
-            slot = pieces * stride + lane
-            for field, value in (("origin", ray.o), ("direction", ray.d), ("length", length),
-                                 ("medium", medium), ("weight", beta), ("lane", lane)):
-                dr.scatter(getattr(buffers, field), value, slot, record)  # fmt: skip
-            dr.scatter(stored, True, slot, record)
-            pieces[record] += 1
-            beta[in_medium] *= segment_transmittance(ray, length, medium, gen, ch, in_medium)
-        elif dr.hint(media_mode == "continue", mode="scalar"):
-            # one piece at a time: its direct in-scattering by an equiangular point, then a
-            # collision in it (null boundaries are passed as surfaces below)
-            si = scene.ray_intersect(ray, active)
-            in_medium = active & (medium != None)  # noqa: E711
-            length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
-            lit = in_medium & (depth + 2 <= max_depth)
-            radiance[lit] += beta * piece_direct(scene, ray, length, medium, gen, ch, lit)
-            scattered, mei, weight = collide(ray, length, medium, gen, ch, in_medium)
-            beta[in_medium] *= weight
-        else:
-            collisions = media_mode == "end"
-            flight = free_flight(scene, ray, medium, gen, ch, active, collisions)
-            si, mei = flight.si, flight.mei
-            beta[active] *= flight.weight
-            scattered = active & flight.scattered
-            medium = dr.select(active, flight.medium, medium)
-        surface = active & ~scattered & si.is_valid()
-        escaped = active & ~scattered & ~si.is_valid()
-        arrived = depth + 1  # segments to this vertex
-
-        # ---- emission met: an emitter's surface or the environment
-        emitter = si.emitter(scene, active & ~scattered)
-        shown = (active & ~scattered) & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
-        if dr.hint(hide, mode="scalar"):
-            shown &= arrived > 1
-        if dr.hint(not emission, mode="scalar"):
-            shown &= origin != FROM_CAMERA
-        shown &= origin != FROM_MEDIUM  # the pieces' direct in-scattering holds that light
-        if dr.hint(photons_carry, mode="scalar"):
-            shown &= origin != THROUGH_DELTA
-        w_em = dr.ones(mi.Float, n)
-        if dr.hint(continuing, mode="scalar"):
-            after = shown & (origin == FROM_SURFACE)
-            ds = mi.DirectionSample3f(scene, si, prev_it)
-            w_em[after] = power_heuristic(prev_pdf, scene.pdf_emitter_direction(prev_it, ds, after))
-        radiance[shown] += beta * w_em * emitter.eval(si, shown)
-        active &= ~escaped
-
-        # ---- a medium collision
-        if dr.hint(media_mode == "end", mode="scalar"):
-            mei_end[scattered] = mei
-            beta_end[scattered] = beta
-            medium_end[scattered] = medium
-            in_medium_end |= scattered
-            depth[scattered] = arrived
-            active &= ~scattered
-        elif dr.hint(media_mode == "continue", mode="scalar"):
-            depth[scattered] = arrived
-            room = scattered & (arrived < max_depth)  # a next segment fits
-            if dr.hint(medium_light is not None, mode="scalar"):
-                sigma_s = mi.Spectrum(mei.sigma_s)
-                L_s = medium_light(mei, max_depth - arrived, room)
-                radiance[room] += beta * dr.select(sigma_s > 0, L_s / sigma_s, 0.0)
-            wo, phase_weight, phase_pdf = mei.medium.phase_function().sample(
-                phase_ctx, mei, gen.next_float32(),
-                mi.Point2f(gen.next_float32(), gen.next_float32()), room,
-            )  # fmt: skip
-            beta[scattered] *= phase_weight
-            origin[scattered] = FROM_MEDIUM
-            ray[scattered] = mei.spawn_ray(wo)
-            active &= ~scattered | (room & (phase_pdf > 0))
-
-        # ---- a surface: end on its smooth lobes, or follow its delta / null lobes
-        bsdf = si.bsdf(ray)
-        flags = bsdf.flags()
-        smooth = mi.has_flag(flags, mi.BSDFFlags.Smooth)
-        skip = dr.zeros(mi.Bool, n)  # hidden area emitters seen directly are passed
-        if dr.hint(hide, mode="scalar"):
-            skip = surface & (emitter != None) & (arrived == 1)  # noqa: E711
-        bs, w_follow = bsdf.sample(
-            ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
-            surface & ~skip,
+    record = (buffers, stored, lane, stride)
+    while dr.hint(walk.active & (walk.events < MAX_EVENTS), exclude=[rules]):
+        si, mei, scattered = _fly(scene, walk, gen, ch, max_depth, rules, null_shapes, record)
+        surface = walk.active & ~scattered & si.is_valid()
+        escaped = walk.active & ~scattered & ~si.is_valid()
+        arrived = walk.depth + 1  # segments to this vertex
+        emitter = _emission_met(scene, walk, si, scattered, arrived, rules)
+        walk.active &= ~escaped
+        _medium_vertex(walk, mei, scattered, arrived, max_depth, gen, rules, medium_light)
+        bounced = _surface_vertex(
+            scene, walk, si, surface, emitter, arrived, max_depth, gen, rules, traits,
+            surface_light,
         )  # fmt: skip
-        whole = dr.zeros(mi.Bool, n)  # rough glass, followed whatever lobe it samples
-        if dr.hint(rough_glass and not continuing, mode="scalar"):
-            whole = is_rough_glass(bsdf, surface)
-            smooth &= ~whole
-        followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
-        if dr.hint(continuing, mode="scalar"):
-            # next-event estimation and the caustic photons at the smooth lobes, then go on
-            # with the BSDF sample, whatever lobe it picked
-            here = surface & ~skip & smooth & (arrived < max_depth)
-            u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
-            radiance[here] += beta * emitter_sampled(scene, si, u_light, gen, here, traits, medium)
-            if dr.hint(surface_light is not None, mode="scalar"):
-                radiance[here] += beta * surface_light(si, max_depth - arrived, here)
-            go_on = skip | (surface & (bs.pdf > 0))
-            q = dr.ones(mi.Float, n)
-            picked_smooth = go_on & ~skip & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
-            prev_it[picked_smooth] = mi.Interaction3f(si)
-            prev_pdf[picked_smooth] = bsdf.pdf(ctx, si, bs.wo, picked_smooth)
-            origin[picked_smooth] = FROM_SURFACE
-        else:
-            # end on the smooth lobes or follow a delta / Null lobe (module docstring)
-            w_follow = dr.select(followed, w_follow, 0.0)  # the followed lobes' share
-            w_max = dr.max(w_follow)
-            q = dr.select(
-                smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0
-            )
-            go_on = skip | (surface & (gen.next_float32() < q) & followed)
-            stop = surface & ~go_on & smooth
-            si_end[stop] = si
-            beta_end[stop] = beta / (1.0 - q)
-            medium_end[stop] = medium
-            depth[stop] = arrived
-            found |= stop
-        passed = skip | (go_on & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null))
-        bounced = go_on & ~passed
-        d = dr.select(skip, ray.d, si.to_world(bs.wo))
-        beta[go_on & ~skip] *= w_follow / q
-        eta[bounced] *= bs.eta
-        delta = bounced & followed
-        bounces[delta] += 1
-        depth[bounced] = arrived
-        origin[delta & (origin != FROM_CAMERA)] = THROUGH_DELTA
-        medium = enter(si, d, medium, go_on)
-        ray[go_on] = si.spawn_ray(d)
-        active &= ~surface | (go_on & ((arrived < max_depth) | passed))
-
         # ---- Russian roulette (Mitsuba's path tracers)
-        rolled = active & (bounced | scattered) & (depth >= rr_depth)
-        survive = dr.minimum(dr.max(beta) * dr.square(eta), 0.95)
-        beta[rolled] /= survive
-        active &= ~rolled | (gen.next_float32() < survive)
-        active &= dr.any(beta != 0.0)
-        events += 1
+        rolled = walk.active & (bounced | scattered) & (walk.depth >= rr_depth)
+        survive = dr.minimum(dr.max(walk.beta) * dr.square(walk.eta), 0.95)
+        walk.beta[rolled] /= survive
+        walk.active &= ~rolled | (gen.next_float32() < survive)
+        walk.active &= dr.any(walk.beta != 0.0)
+        walk.events += 1
+    return walk.vertices()
 
-    return EyeVertices(si_end, mei_end, beta_end, radiance, found, in_medium_end, depth,
-                       medium_end, bounces)  # fmt: skip
+
+def _fly(scene, walk: _Walk, gen, ch, max_depth, rules: _Rules, null_shapes, record):
+    """To the next vertex: a medium collision or the next surface. In media one piece at a time
+    (``null`` boundaries are passed as surfaces) in ``"march"`` mode, recorded for the caller,
+    and in ``"continue"`` mode, whose pieces add their direct in-scattering by an equiangular
+    point before a collision in them is sampled; a free flight otherwise. Returns ``(si, mei,
+    scattered)`` (``mei`` None where no collision can happen)."""
+    ray, medium, active = walk.ray, walk.medium, walk.active
+    scattered = dr.zeros(mi.Bool, dr.width(active))
+    mei = None
+    if not rules.media:
+        si = intersect_visible(scene, ray, active, null_shapes)
+    elif rules.media_mode == "march":
+        buffers, stored, lane, stride = record
+        si = scene.ray_intersect(ray, active)
+        in_medium = active & (medium != None)  # noqa: E711
+        length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
+        recorded = in_medium & (walk.pieces < rules.max_pieces)
+        slot = walk.pieces * stride + lane
+        for field, value in (
+            ("origin", ray.o),
+            ("direction", ray.d),
+            ("length", length),
+            ("medium", medium),
+            ("weight", walk.beta),
+            ("lane", lane),
+        ):
+            dr.scatter(getattr(buffers, field), value, slot, recorded)
+        dr.scatter(stored, True, slot, recorded)
+        walk.pieces[recorded] += 1
+        walk.beta[in_medium] *= segment_transmittance(ray, length, medium, gen, ch, in_medium)
+    elif rules.media_mode == "continue":
+        si = scene.ray_intersect(ray, active)
+        in_medium = active & (medium != None)  # noqa: E711
+        length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
+        lit = in_medium & (walk.depth + 2 <= max_depth)
+        walk.radiance[lit] += walk.beta * piece_direct(scene, ray, length, medium, gen, ch, lit)
+        scattered, mei, weight = collide(ray, length, medium, gen, ch, in_medium)
+        walk.beta[in_medium] *= weight
+    else:
+        flight = free_flight(scene, ray, medium, gen, ch, active, rules.media_mode == "end")
+        si, mei = flight.si, flight.mei
+        walk.beta[active] *= flight.weight
+        scattered = active & flight.scattered
+        walk.medium = dr.select(active, flight.medium, medium)
+    return si, mei, scattered
+
+
+def _emission_met(scene, walk: _Walk, si, scattered, arrived, rules: _Rules):
+    """Add ``β L_e`` of an emitter's surface or the environment met where it counts (module
+    docstring); returns the emitter met."""
+    active = walk.active & ~scattered
+    emitter = si.emitter(scene, active)
+    shown = active & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
+    if rules.hide:
+        shown &= arrived > 1
+    if not rules.emission:
+        shown &= walk.origin != FROM_CAMERA
+    shown &= walk.origin != FROM_MEDIUM  # the pieces' direct in-scattering holds that light
+    if rules.photons_carry:
+        shown &= walk.origin != THROUGH_DELTA
+    w_em = dr.ones(mi.Float, dr.width(active))
+    if rules.continuing:
+        after = shown & (walk.origin == FROM_SURFACE)
+        ds = mi.DirectionSample3f(scene, si, walk.prev_it)
+        pdf_em = scene.pdf_emitter_direction(walk.prev_it, ds, after)
+        w_em[after] = power_heuristic(walk.prev_pdf, pdf_em)
+    walk.radiance[shown] += walk.beta * w_em * emitter.eval(si, shown)
+    return emitter
+
+
+def _medium_vertex(walk: _Walk, mei, scattered, arrived, max_depth, gen, rules, medium_light):
+    """A medium collision: the path ends there (``"end"``) or, in ``"continue"`` mode, adds the
+    photons' in-scattered light (``medium_light``: volume caustics) and goes on in a direction
+    sampled from the phase function."""
+    if rules.media_mode == "end":
+        walk.mei_end[scattered] = mei
+        walk.beta_end[scattered] = walk.beta
+        walk.medium_end[scattered] = walk.medium
+        walk.in_medium |= scattered
+        walk.depth[scattered] = arrived
+        walk.active &= ~scattered
+    elif rules.media_mode == "continue":
+        walk.depth[scattered] = arrived
+        room = scattered & (arrived < max_depth)  # a next segment fits
+        if medium_light is not None:
+            sigma_s = mi.Spectrum(mei.sigma_s)
+            L_s = medium_light(mei, max_depth - arrived, room)
+            walk.radiance[room] += walk.beta * dr.select(sigma_s > 0, L_s / sigma_s, 0.0)
+        wo, phase_weight, phase_pdf = mei.medium.phase_function().sample(
+            mi.PhaseFunctionContext(None), mei, gen.next_float32(),
+            mi.Point2f(gen.next_float32(), gen.next_float32()), room,
+        )  # fmt: skip
+        walk.beta[scattered] *= phase_weight
+        walk.origin[scattered] = FROM_MEDIUM
+        walk.ray[scattered] = mei.spawn_ray(wo)
+        walk.active &= ~scattered | (room & (phase_pdf > 0))
+
+
+def _surface_vertex(scene, walk: _Walk, si, surface, emitter, arrived, max_depth, gen,
+                    rules: _Rules, traits, surface_light):  # fmt: skip
+    """A surface: end on its smooth lobes or follow its delta / ``Null`` lobes
+    (``surfaces="stop"``, :func:`_end_or_follow`), or shade the smooth lobes and go on with the
+    BSDF sample (``"continue"``, :func:`_shade_and_go_on`). Returns where a bounce (not a
+    ``Null`` pass) continued the path."""
+    n = dr.width(surface)
+    ctx = mi.BSDFContext()
+    bsdf = si.bsdf(walk.ray)
+    smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    skip = dr.zeros(mi.Bool, n)  # hidden area emitters seen directly are passed
+    if rules.hide:
+        skip = surface & (emitter != None) & (arrived == 1)  # noqa: E711
+    bs, w_follow = bsdf.sample(
+        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
+        surface & ~skip,
+    )  # fmt: skip
+    whole = dr.zeros(mi.Bool, n)  # rough glass, followed whatever lobe it samples
+    if rules.rough_glass and not rules.continuing:
+        whole = is_rough_glass(bsdf, surface)
+        smooth &= ~whole
+    followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
+    if rules.continuing:
+        here = surface & ~skip & smooth & (arrived < max_depth)
+        u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
+        walk.radiance[here] += walk.beta * emitter_sampled(
+            scene, si, u_light, gen, here, traits, walk.medium
+        )
+        if surface_light is not None:
+            walk.radiance[here] += walk.beta * surface_light(si, max_depth - arrived, here)
+        go_on = skip | (surface & (bs.pdf > 0))
+        q = dr.ones(mi.Float, n)
+        picked_smooth = go_on & ~skip & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
+        walk.prev_it[picked_smooth] = mi.Interaction3f(si)
+        walk.prev_pdf[picked_smooth] = bsdf.pdf(ctx, si, bs.wo, picked_smooth)
+        walk.origin[picked_smooth] = FROM_SURFACE
+    else:
+        # end on the smooth lobes or follow a delta / Null lobe (module docstring)
+        w_follow = dr.select(followed, w_follow, 0.0)  # the followed lobes' share
+        w_max = dr.max(w_follow)
+        q = dr.select(smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0)
+        go_on = skip | (surface & (gen.next_float32() < q) & followed)
+        stop = surface & ~go_on & smooth
+        walk.si_end[stop] = si
+        walk.beta_end[stop] = walk.beta / (1.0 - q)
+        walk.medium_end[stop] = walk.medium
+        walk.depth[stop] = arrived
+        walk.found |= stop
+    passed = skip | (go_on & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null))
+    bounced = go_on & ~passed
+    d = dr.select(skip, walk.ray.d, si.to_world(bs.wo))
+    walk.beta[go_on & ~skip] *= w_follow / q
+    walk.eta[bounced] *= bs.eta
+    delta = bounced & followed
+    walk.bounces[delta] += 1
+    walk.depth[bounced] = arrived
+    walk.origin[delta & (walk.origin != FROM_CAMERA)] = THROUGH_DELTA
+    walk.medium = enter(si, d, walk.medium, go_on)
+    walk.ray[go_on] = si.spawn_ray(d)
+    walk.active &= ~surface | (go_on & ((arrived < max_depth) | passed))
+    return bounced

@@ -1,8 +1,8 @@
 """Voxel grids: the world box, texture sampling and separable filters (Dr.Jit).
 
-Conventions (DESIGN.md, spec seed-000-002 §0.2):
+Conventions (docs/DESIGN.md "Conventions"):
 
-- The grid is a box of ``n_x × n_y × n_z`` cubic voxels of edge ``h`` (issue 11 item 2: a *box
+- The grid is a box of ``n_x × n_y × n_z`` cubic voxels of edge ``h`` (a *box
   grid*; ``n = max(n_x, n_y, n_z)`` voxels along its longest side of length ``size = n·h``), over
   the world box ``[lo, lo + h·dims]``; ``dims = (n_x, n_y, n_z)``. A cubic grid has
   ``dims = (n, n, n)``. Kernels work in **voxel units**: ``p = (x_world − lo) / h ∈ [0, dims)``;
@@ -12,10 +12,10 @@ Conventions (DESIGN.md, spec seed-000-002 §0.2):
 - Grid arrays (NumPy or ``mi.TensorXf``) have shape ``(n_z, n_y, n_x)`` or ``(n_z, n_y, n_x, c)``
   and are indexed ``[z, y, x]`` (``[k, j, i]``), the order of ``dr.Texture3f``; the flat index of
   voxel ``(i, j, k)`` is ``(k·n_y + j)·n_x + i`` (:func:`flat_index`, :func:`voxel_of`).
-- "Whenever we read data from a voxel grid we apply trilinear interpolation" [Pf §3.1.1], with
-  samples at voxel centres and clamp-to-edge addressing: :func:`trilinear_packed` (the semantics of
-  ``dr.Texture3f`` with linear filtering and ``WrapMode.Clamp``, reading several channels with one
-  index computation).
+- "Whenever we read data from a voxel grid we apply trilinear interpolation" (Pfeuti 2009 §3.1.1),
+  with samples at voxel centres and clamp-to-edge addressing: :func:`trilinear_packed` (the
+  semantics of ``dr.Texture3f`` with linear filtering and ``WrapMode.Clamp``, reading several
+  channels with one index computation).
 """
 
 from __future__ import annotations
@@ -137,7 +137,8 @@ class GridBox:
     def around(bbox_min, bbox_max, n: int, margin: float = 6.0) -> GridBox:
         """The cube centred on a bounding box that holds it with ``margin`` voxels on every side.
 
-        Spec A4: the 9³ blur needs ≥ 5 voxels of margin around objects.
+        The 9³ blur of the materials (Pfeuti 2009 §3.1.2) needs ≥ 5 voxels of margin around
+        objects.
         """
         bmin = np.asarray(bbox_min, dtype=np.float64)
         bmax = np.asarray(bbox_max, dtype=np.float64)
@@ -150,7 +151,7 @@ class GridBox:
 
     @staticmethod
     def fitted(bbox_min, bbox_max, n: int, margin: float = 6.0) -> GridBox:
-        """The box grid (issue 11 item 2) centred on a bounding box that holds it with ``margin``
+        """The box grid centred on a bounding box that holds it with ``margin``
         voxels on every side: ``n`` voxels along the longest side (voxel edge
         ``h = extent/(n − 2·margin)``, as :meth:`around`), and along each other axis the fewest
         voxels that hold its extent and margins (at least 4). A cubic bounding box gives
@@ -187,7 +188,8 @@ def gaussian_taps(radius: int, sigma: float) -> np.ndarray:
 
 def filter_axis(t: mi.TensorXf, taps, axis: int) -> mi.TensorXf:
     """Convolve a grid tensor (nz, ny, nx, c) along ``axis`` (0 = z, 1 = y, 2 = x) with ``taps``
-    centred on the middle tap, clamping indices at the edges (spec A4)."""
+    centred on the middle tap, clamping indices at the edges (neither paper states the boundary
+    rule: clamp-to-edge, as the trilinear lookups)."""
     shape = tuple(t.shape)
     taps = np.asarray(taps, dtype=np.float64)
     r = (len(taps) - 1) // 2

@@ -1,7 +1,7 @@
 """Hash grid photon map: exact k-nearest and fixed-radius photon gathers (Dr.Jit).
 
-Steinhurst 2007 §2.6.2 and Ch. 4 (spec seed-001 §2.4 kNN gather, §2.8 "uniform grid: kNN expands to
-neighbouring cells in distance order", oracle O5, ambiguity A13). The default search structure of
+Steinhurst 2007 §2.6.2 (the k-NN gather) and Ch. 4 (the uniform grid, whose k-NN "expands to
+neighbouring cells in distance order"). The default search structure of
 the photon maps; :class:`photonmap.surface.kdtree.KDTree` is the dissertation's kd-tree with the
 same interface (:class:`~photonmap.core.knn.PhotonSearch`) and the same results.
 

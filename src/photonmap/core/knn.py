@@ -1,23 +1,25 @@
-"""The generic k-nearest-neighbour kit of the photon search structures (Steinhurst 2007 §2.6.2;
-spec seed-001 §2.4 kNN gather, oracle O5, ambiguity A13): the gather interface
+"""The generic k-nearest-neighbour kit of the photon search structures (Steinhurst 2007 §2.6.2,
+§7.3.4.1: the k-NN gather with a maximum radius and a normal test): the gather interface
 (:class:`PhotonSearch`) and its result (:class:`Neighbours`), the candidate test (:func:`accept`:
 radius and normal test), the k-best heap and the 16-byte photon records. The structures —
 :class:`photonmap.core.hashgrid.HashGrid` (the default) and :class:`photonmap.surface.kdtree.KDTree`
 (the dissertation's kd-tree) — implement only their search and give the same results.
 
-**Gathers are explicit batches.** A query is a batch of ``Q`` points; lane ``q`` of the result
-holds the photons gathered for point ``q``. The batch order is the execution order, so a caller
-may reorder gathers (tiles, Hilbert curve, hashed queues: spec §2.7) without touching this module.
+**Gathers are explicit batches.** A query is a batch of ``Q`` points; lane ``q`` of the result holds
+the photons gathered for point ``q``. The batch order is the execution order, so a caller may
+reorder gathers (tiles, Hilbert curve, hashed queues: Steinhurst 2007 Ch. 3) without touching this
+module.
 
 **Result** (:class:`Neighbours`): among the photons with ``d² ≤ max_radius²`` that pass the normal
-test, the ``k`` smallest by the key ``(d², index)`` — ties broken by the lower original photon
-index — nearest first. ``d²`` is evaluated in float32 as ``(p−q)ₓ² + (p−q)ᵧ² + (p−q)_z²`` (no fused
+test, the ``k`` smallest by the key ``(d², index)`` — ties broken by the lower original photon index
+— nearest first. ``d²`` is evaluated in float32 as ``(p−q)ₓ² + (p−q)ᵧ² + (p−q)_z²`` (no fused
 multiply-add) and the radius as ``float32(max_radius)²``: a NumPy float32 brute force computes the
-same numbers, so results are exact (oracle O5). ``radius2`` is the ``d²`` of the farthest accepted
-photon (Jensen's ``ΔA = π r²``) or, for fixed-radius gathers, the query radius². A query point
-with a non-finite coordinate finds nothing.
+same numbers, so results are exact (tested against one). ``radius2`` is the ``d²`` of the farthest
+accepted photon (Jensen's ``ΔA = π r²``) or, for fixed-radius gathers, the query radius². A query
+point with a non-finite coordinate finds nothing.
 
-**Normal test** (spec §2.4 step 2, A13), applied when ``query_normal`` is given: a photon is
+**Normal test** (Steinhurst 2007 §7.3.4.1 checks "radius and normal"; its 20-byte photon has
+no normal, so this is our choice), applied when ``query_normal`` is given: a photon is
 accepted only if ``dot(direction, n_q) < 0`` — it travelled towards the query's front side — when
 photon ``directions`` are given, and ``dot(normal, n_q) ≥ cos_normal`` — it was stored on a surface
 facing the same way — when photon ``normals`` are given. The default ``cos_normal = cos 30°`` keeps
@@ -69,6 +71,25 @@ class Neighbours:
     def numpy(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(index (Q, k), count (Q,), radius2 (Q,))`` as NumPy arrays."""
         return self.index.numpy().reshape(-1, self.k), self.count.numpy(), self.radius2.numpy()
+
+
+@dr.syntax
+def neighbour_sum(nb: Neighbours, power, direction, weight, active) -> mi.Spectrum:
+    """``Σ_p weight(−ω_p, active) ⊙ Φ_p`` over each query's neighbours ``nb`` (one lane per
+    query): the sum of a photon radiance estimate (Jensen 1996), ``power`` and ``direction`` the
+    photons' Φ_p and travel direction ω_p in the original order, ``weight`` the BSDF or phase
+    function at the query for light arriving from ``−ω_p``."""
+    count = dr.width(nb.count)
+    base = dr.arange(mi.UInt32, count) * nb.k
+    L = dr.zeros(mi.Spectrum, count)
+    j = dr.zeros(mi.UInt32, count)
+    while active & (j < nb.count):
+        idx = dr.gather(mi.UInt32, nb.index, base + j)
+        power_j = dr.gather(mi.Color3f, power, idx, active)
+        arriving = -dr.gather(mi.Vector3f, direction, idx, active)
+        L += weight(arriving, active) * power_j
+        j += 1
+    return L
 
 
 # ------------------------------------------------------------------------------ the k-best heap
@@ -178,7 +199,8 @@ def squared_distance(p: mi.Point3f, q: mi.Point3f) -> mi.Float:
 
 
 def normal_test(query_normal, normals, directions, i: mi.UInt32, cos_normal, active) -> mi.Bool:
-    """Spec §2.4 / A13 for stored photon ``i`` (``normals``/``directions``: records or None)."""
+    """The normal test (module docstring) for stored photon ``i`` (``normals``/``directions``:
+    records or None)."""
     ok = mi.Bool(active)
     if directions is not None:
         ok &= dot(read_record(directions, i, ok)[0], query_normal) < 0
@@ -188,9 +210,9 @@ def normal_test(query_normal, normals, directions, i: mi.UInt32, cos_normal, act
 
 
 def accept(d2, radius2, query_normal, normals, directions, i: mi.UInt32, cos_normal, active=True):
-    """The candidate test of a gather (spec §2.4 step 2): stored photon ``i`` at squared distance
-    ``d2`` is within the radius (``d2 ≤ radius2``: a photon exactly at the radius is in) and, when
-    ``query_normal`` is given, passes :func:`normal_test`; ``active``: the structure's own
+    """The candidate test of a gather (Steinhurst 2007 §7.3.4.1): stored photon ``i`` at squared
+    distance ``d2`` is within the radius (``d2 ≤ radius2``: a photon exactly at the radius is in)
+    and, when ``query_normal`` is given, passes :func:`normal_test`; ``active``: the structure's own
     conditions (e.g. the hash grid's cell check)."""
     ok = (d2 <= radius2) & active
     if query_normal is not None:

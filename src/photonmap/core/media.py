@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from .bsdf import is_null
+from .bsdf import beyond, is_null
 from .sampling import rng
 
 MAX_EVENTS = 256  # null collisions + boundary crossings in one free flight or transmittance ray
@@ -118,8 +118,8 @@ def escape_length(
     _, _, sigma_t = medium.get_scattering_coefficients(
         interaction(ray.o, ray.d, 0.0, medium), active
     )
-    beyond = ESCAPE_FREE_PATHS / dr.maximum(dr.mean(sigma_t, axis=0), 1e-6)
-    return dr.select(dr.isfinite(medium_exit), medium_exit, scene_exit + beyond)
+    further = ESCAPE_FREE_PATHS / dr.maximum(dr.mean(sigma_t, axis=0), 1e-6)
+    return dr.select(dr.isfinite(medium_exit), medium_exit, scene_exit + further)
 
 
 @dataclass
@@ -311,9 +311,7 @@ def free_flight(
         surface = going & ~real & si.is_valid()
         cross = surface & is_null(si.bsdf(ray), surface) & (si.emitter(scene) == None)  # noqa: E711
         medium = enter(si, ray.d, medium, cross)
-        crossed = si.spawn_ray(ray.d)
-        crossed.maxt = ray.maxt - si.t
-        ray[cross] = crossed
+        ray[cross] = beyond(si, ray)
         going = cross & dr.any(weight != 0.0)
         crossings += 1
     return Flight(si, mei, weight, scattered, medium)
@@ -395,9 +393,7 @@ def walk(scene, ray, medium, gen, ch, active, to_emitter: bool):
             through &= si.emitter(scene) == None  # noqa: E711
         T[through] *= mi.Spectrum(si.bsdf(ray).eval_null_transmission(si, through))
         medium = enter(si, ray.d, medium, through)
-        crossed = si.spawn_ray(ray.d)
-        crossed.maxt = ray.maxt - si.t
-        ray[through] = crossed
+        ray[through] = beyond(si, ray)
         going = through & dr.any(T != 0.0)
         crossings += 1
     return si, T

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import re
+import weakref
 
 from .errors import ParameterError
 
@@ -39,7 +40,9 @@ def set_memory_limit(limit: int | str | None) -> None:
     """Use ``limit`` bytes (or a size text, :func:`parse_size`) as the memory available to
     renders instead of what the system reports; None: the system's again."""
     global _limit
-    _limit = None if limit is None else (parse_size(limit) if isinstance(limit, str) else int(limit))
+    _limit = (
+        None if limit is None else (parse_size(limit) if isinstance(limit, str) else int(limit))
+    )
 
 
 def available_memory() -> int | None:
@@ -116,8 +119,9 @@ def human_bytes(n: float) -> str:
     return f"{n:.1f} PB"  # pragma: no cover
 
 
-def check_memory(method: str, parts: dict[str, float], hint: str, entries=None,
-                 available: int | None = None) -> int:
+def check_memory(
+    method: str, parts: dict[str, float], hint: str, entries=None, available: int | None = None
+) -> int:
     """Raise a :class:`ParameterError` (one line) when the ``parts`` of a render (name → bytes)
     add up to more than ``available`` bytes (default :func:`available_memory`), or when one of
     ``entries`` (an array's description → its number of entries) reaches Dr.Jit's 2³² entries;
@@ -140,15 +144,19 @@ def check_memory(method: str, parts: dict[str, float], hint: str, entries=None,
     return need
 
 
+_PASSED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""Per pipeline: the (parameters, image size) that last passed its memory check."""
+
+
 def check_once(pipe, params, size, check) -> None:
     """``check(params, size)`` unless ``pipe`` last passed it with equal parameters and image
     size: a render's check runs before its first frame and after each change, not again for an
     unchanged frame (the memory the pipeline keeps between frames would count twice)."""
     size = tuple(int(c) for c in size)
     key = (params, size)
-    if getattr(pipe, "_memory_checked", None) != key:
+    if _PASSED.get(pipe) != key:
         check(params, size)
-        pipe._memory_checked = key
+        _PASSED[pipe] = key
 
 
 def check_side(name: str, value: int | None) -> None:
@@ -162,8 +170,9 @@ def image_bytes(method: str, width: int, height: int, spp: int = 1) -> int:
     return BYTES_PER_SAMPLE[method] * int(width) * int(height) * max(int(spp), 1)
 
 
-def check_image_memory(method: str, width: int, height: int, spp: int = 1,
-                       available: int | None = None) -> int:
+def check_image_memory(
+    method: str, width: int, height: int, spp: int = 1, available: int | None = None
+) -> int:
     """Raise a :class:`ParameterError` when a ``width × height`` image at ``spp`` samples per
     pixel would need more memory than is available; return the estimate in bytes."""
     need = image_bytes(method, width, height, spp)

@@ -1,7 +1,7 @@
 """Seeded 3D gradient noise: Perlin's improved noise (Perlin 2002, "Improving Noise") in Dr.Jit.
 
-Used to perturb materials, as in the CUBE scene of spec seed-000-002 §3.3:
-``n = 1.5 + 0.02·Perlin(x/16)``, with σ_s perturbed likewise [Pf Fig 4.9].
+Used to perturb materials, as in Pfeuti 2009's cube scene (Fig 4.9):
+``n = 1.5 + 0.02·Perlin(x/16)``, with σ_s perturbed likewise.
 
 The lattice hash is a seeded permutation of 0..255 (period 256 along each axis). The noise is zero
 at integer lattice points, C² (quintic fade ``6t⁵ − 15t⁴ + 10t³``) and roughly in [−1, 1].

@@ -47,8 +47,8 @@ def hilbert3_index(cells: np.ndarray, bits: int) -> np.ndarray:
     """3D Hilbert-curve index (``3·bits`` bits, uint64) of integer cells ``(N, 3)`` in
     ``[0, 2^bits)³`` — Skilling's transpose algorithm ("Programming the Hilbert curve", AIP Conf.
     Proc. 707, 2004), vectorised over the cells with NumPy. Steinhurst (2007) §3.4.1 sorts photon
-    gathers along this curve (spec seed-001 §2.7.4; oracle O8: a bijection whose consecutive
-    indices are face-adjacent cells)."""
+    gathers along this curve. The map is a bijection whose consecutive indices are face-adjacent
+    cells (tested)."""
     x = [np.asarray(cells[:, a], np.uint64).copy() for a in range(3)]
     top = np.uint64(1 << (bits - 1))
     q = top

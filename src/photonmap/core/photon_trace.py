@@ -1,7 +1,7 @@
-"""The photon-path loop of the transport core: light paths through Mitsuba's BSDFs and media
-(Jensen 1996; Jensen & Christensen 1998; Steinhurst 2007 §2.6.1, Algorithm 2.4; spec seed-001
-§2.2, A5). Every method that traces photons uses it: the surface method's maps, SPPM's photon
-passes and the screen method's photon bounces.
+"""The photon-path loop of the transport core: light paths through Mitsuba's BSDFs and media (Jensen
+1996; Jensen & Christensen 1998; Steinhurst 2007 §2.6.1, Algorithm 2.4). Every method that traces
+photons uses it: the surface method's maps, SPPM's photon passes and the screen method's photon
+bounces.
 
 A photon of power ``Φ`` leaves its emitter in its emitter's medium (:mod:`.emission`) and flies:
 through media by free-flight sampling (:func:`~photonmap.core.media.free_flight`; the
@@ -23,8 +23,8 @@ without one, as in Mitsuba's ``volpath``:
 surface interaction each add one; ``null`` crossings none), as Mitsuba's ``max_depth`` counts
 segments: a record of depth ``d`` can end a path of at least ``d + 1`` segments, so only records
 with ``d ≤ max_depth − 1`` are kept and paths stop there. ``caustic``: the history is a pure
-specular chain — at least one delta bounce, no smooth bounce and no medium event (spec A5:
-Jensen's caustic map; the volume caustics); where rough glass is followed
+specular chain — at least one delta bounce, no smooth bounce and no medium event (the L S+ D
+paths of Jensen's caustic map, Jensen 1996; the volume caustics); where rough glass is followed
 (:func:`~photonmap.core.bsdf.is_rough_glass`, the surface method) its bounces count as delta
 ones and nothing is recorded on it. From ``rr_depth`` on a photon survives a surface
 interaction with probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its power is divided
@@ -72,7 +72,7 @@ class PhotonRecords:
     direction: mi.Vector3f  # unit travel direction ω_p at the hit (pointing into the surface)
     normal: mi.Vector3f  # shading normal at the hit as Mitsuba gives it (not flipped towards ω_p)
     depth: mi.UInt32  # path segments from the light to this hit, included (1 = first hit)
-    caustic: mi.Bool  # the hit ends an L S+ D path (spec A5)
+    caustic: mi.Bool  # the hit ends an L S+ D path (Jensen's caustic map)
     path: mi.UInt32  # the light path (lane of the traced wavefront)
     delta: mi.UInt32  # delta (specular) bounces before the hit
     glossy: mi.UInt32  # glossy bounces before the hit
@@ -294,122 +294,131 @@ def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redir
 def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, caustics_only,
           roulette, redirect, rough_glass):  # fmt: skip
     """The symbolic loop of one chunk; updates ``state`` in place, fills the record slots and
-    returns which paths are still alive."""
+    returns which paths are still alive. One iteration flies to the next interaction
+    (:func:`_fly`), applies the partition of aimed emission (:mod:`.emission`) at the first one,
+    stores a volume photon or a surface record, samples the BSDF or the phase function
+    (:func:`_scatter`) and plays Russian roulette (:func:`_survival`)."""
     lanes = state.count
-    ctx = mi.BSDFContext(mi.TransportMode.Importance)
-    phase_ctx = mi.PhaseFunctionContext(None, mi.TransportMode.Importance)
     limit = dr.opaque(mi.UInt32, limit)
     rr_depth = dr.opaque(mi.UInt32, rr_depth)
     lane = dr.arange(mi.UInt32, lanes)
     stride = dr.opaque(mi.UInt32, lanes)  # not a literal: the survivors' count varies
-    ray, power, medium, depth = state.ray, state.power, state.medium, state.depth
-    specular, smooth, fresh, gen = state.specular, state.smooth, state.fresh, state.gen
-    delta, glossy = state.delta, state.glossy
-    path, aimed, partitioned, power0 = state.path, state.aimed, state.partitioned, state.power0
     media, null_shapes = traits.media, traits.null_shapes  # frozen dataclasses stay out of loops
-    ch = channel(gen)
+    ch = channel(state.gen)
     step = dr.zeros(mi.UInt32, lanes)
-    active = dr.max(power) > 0
+    active = dr.max(state.power) > 0
     while active & (step < CHUNK):
-        # ---- fly to the next interaction: a medium collision or a surface (not null)
-        if dr.hint(media, mode="scalar"):
-            flight = free_flight(scene, ray, medium, gen, ch, active)
-            si, mei = flight.si, flight.mei
-            in_medium = active & flight.scattered
-            on_surface = active & ~flight.scattered & si.is_valid()
-            power[active] *= flight.weight
-            albedo = dr.minimum(dr.max(flight.weight), 1.0)  # σ_s/σ_t where it scattered
-            medium = dr.select(active, flight.medium, medium)
-        else:
-            si = intersect_visible(scene, ray, active, null_shapes)
-            in_medium = dr.zeros(mi.Bool, lanes)
-            on_surface = active & si.is_valid()
-        bsdf = si.bsdf(ray)
+        si, mei, in_medium, on_surface, albedo = _fly(scene, state, ch, active, media, null_shapes)
+        bsdf = si.bsdf(state.ray)
         # the partition of aimed emission (core.emission), at the first interaction
         first_specular = on_surface & is_specular(bsdf, on_surface, rough_glass)
-        keep = ~fresh | ~partitioned | (aimed == first_specular)
+        keep = ~state.fresh | ~state.partitioned | (state.aimed == first_specular)
         in_medium &= keep
         on_surface &= keep
-        fresh &= ~(in_medium | on_surface)
-        caustic = specular & ~smooth
+        state.fresh &= ~(in_medium | on_surface)
+        caustic = state.specular & ~state.smooth
+        slot = step * stride + lane
 
         # ---- a medium collision: a volume photon
-        depth[in_medium] += 1
+        state.depth[in_medium] += 1
         if dr.hint(media, mode="scalar"):
-            vslot = step * stride + lane
-            vstore = in_medium & (depth <= limit)
+            vstore = in_medium & (state.depth <= limit)
             if dr.hint(caustics_only, mode="scalar"):
                 vstore &= caustic
-            for name, value in (("position", mei.p), ("direction", ray.d),
-                                ("power", power), ("depth", depth), ("caustic", caustic)):
-                dr.scatter(vrec[name], value, vslot, vstore)  # fmt: skip
-            dr.scatter(vstored, True, vslot, vstore)
+            values = (mei.p, state.ray.d, state.power, state.depth, caustic)
+            for name, value in zip(VOLUME_FIELDS, values, strict=True):
+                dr.scatter(vrec[name], value, slot, vstore)
+            dr.scatter(vstored, True, slot, vstore)
 
         # ---- a surface: a record where the BSDF has a smooth lobe
-        slot = step * stride + lane
         followed = dr.zeros(mi.Bool, lanes)  # rough glass followed whatever lobe it samples
         if dr.hint(rough_glass, mode="scalar"):
             followed = is_rough_glass(bsdf, on_surface)
         store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & ~followed
-        store &= depth + 1 <= limit
+        store &= state.depth + 1 <= limit
         if dr.hint(caustics_only, mode="scalar"):
             store &= caustic
-        values = (si.p, power, ray.d, mi.Vector3f(si.sh_frame.n), depth + 1, caustic,
-                  path, delta, glossy)  # fmt: skip
+        values = (si.p, state.power, state.ray.d, mi.Vector3f(si.sh_frame.n), state.depth + 1,
+                  caustic, state.path, state.delta, state.glossy)  # fmt: skip
         for name, value in zip(SURFACE_FIELDS, values, strict=True):
             dr.scatter(rec[name], value, slot, store)
         dr.scatter(stored, True, slot, store)
 
-        # ---- scatter at the surface: the BSDF in importance mode
-        bs, weight = bsdf.sample(
-            ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
-            on_surface,
-        )  # fmt: skip
-        lobe = bs.sampled_type
-        passed = on_surface & mi.has_flag(lobe, mi.BSDFFlags.Null)  # straight on, no interaction
-        bounced = on_surface & ~passed
-        depth[bounced] += 1
-        power[on_surface] *= weight
-        is_delta = bounced & (mi.has_flag(lobe, mi.BSDFFlags.Delta) | followed)
-        specular |= is_delta
-        smooth |= in_medium | (bounced & ~followed & mi.has_flag(lobe, mi.BSDFFlags.Smooth))
-        delta[is_delta] += 1
-        glossy[bounced & mi.has_flag(lobe, mi.BSDFFlags.Glossy)] += 1
-        wo_surface = bs.wo
-        if dr.hint(redirect is not None, mode="scalar"):
-            wo_surface = redirect(si, bs, gen)
-        d_surface = si.to_world(wo_surface)
-        ray[on_surface] = si.spawn_ray(d_surface)
-        # ---- and in a medium: the phase function
-        if dr.hint(media, mode="scalar"):
-            medium = enter(si, d_surface, medium, on_surface)
-            wo, phase_weight, _ = mei.medium.phase_function().sample(
-                phase_ctx, mei, gen.next_float32(),
-                mi.Point2f(gen.next_float32(), gen.next_float32()), in_medium,
-            )  # fmt: skip
-            power[in_medium] *= phase_weight
-            ray[in_medium] = mei.spawn_ray(wo)
+        bounced = _scatter(state, si, bsdf, mei, on_surface, in_medium, followed, redirect, media)
         active = in_medium | on_surface
         if dr.hint(caustics_only, mode="scalar"):
-            active &= ~smooth
-
-        # ---- Russian roulette: a medium event survives with the albedo (Jensen & Christensen),
-        # a surface interaction from rr_depth on with q = min(0.95, max Φ/Φ₀)
+            active &= ~state.smooth
         if dr.hint(roulette, mode="scalar"):
-            relative = dr.max(power / dr.maximum(power0, 1e-30))
-            survival = dr.minimum(relative, 0.95)
-            if dr.hint(media, mode="scalar"):
-                survival = dr.select(in_medium, albedo, survival)
-            rolled = in_medium | (bounced & (depth >= rr_depth))
-            power[rolled] /= dr.maximum(survival, 1e-30)
-            active &= ~rolled | (gen.next_float32() < survival)
-        active &= (dr.max(power) > 0) & (depth < limit)
+            survival = _survival(state, in_medium, albedo, media)
+            rolled = in_medium | (bounced & (state.depth >= rr_depth))
+            state.power[rolled] /= dr.maximum(survival, 1e-30)
+            active &= ~rolled | (state.gen.next_float32() < survival)
+        active &= (dr.max(state.power) > 0) & (state.depth < limit)
         step += 1
-
-    state.ray, state.power, state.medium, state.depth = ray, power, medium, depth
-    state.specular, state.smooth, state.fresh, state.gen = specular, smooth, fresh, gen
-    state.delta, state.glossy = delta, glossy
     return active
+
+
+def _fly(scene, state: _PathState, ch, active, media: bool, null_shapes):
+    """To the next interaction: a medium collision (free flight, whose weight the power takes)
+    or a surface that is not a ``null`` boundary. Returns ``(si, mei, in_medium, on_surface,
+    albedo)``; ``albedo`` is ``σ_s/σ_t`` where the photon scattered (``mei`` and ``albedo``
+    are None in vacuum)."""
+    if not media:
+        si = intersect_visible(scene, state.ray, active, null_shapes)
+        return si, None, dr.zeros(mi.Bool, state.count), active & si.is_valid(), None
+    flight = free_flight(scene, state.ray, state.medium, state.gen, ch, active)
+    si = flight.si
+    in_medium = active & flight.scattered
+    on_surface = active & ~flight.scattered & si.is_valid()
+    state.power[active] *= flight.weight
+    albedo = dr.minimum(dr.max(flight.weight), 1.0)  # σ_s/σ_t where it scattered
+    state.medium = dr.select(active, flight.medium, state.medium)
+    return si, flight.mei, in_medium, on_surface, albedo
+
+
+def _scatter(state: _PathState, si, bsdf, mei, on_surface, in_medium, followed, redirect, media):
+    """Go on from the interaction: at a surface by the BSDF in importance mode (``redirect``:
+    the direction instead of the sample's), in a medium by the phase function; the path's
+    history (specular, smooth, bounce counts) follows. Returns where a surface bounce (not a
+    ``Null`` pass) happened."""
+    gen = state.gen
+    bs, weight = bsdf.sample(
+        mi.BSDFContext(mi.TransportMode.Importance), si, gen.next_float32(),
+        mi.Point2f(gen.next_float32(), gen.next_float32()), on_surface,
+    )  # fmt: skip
+    lobe = bs.sampled_type
+    passed = on_surface & mi.has_flag(lobe, mi.BSDFFlags.Null)  # straight on, no interaction
+    bounced = on_surface & ~passed
+    state.depth[bounced] += 1
+    state.power[on_surface] *= weight
+    is_delta = bounced & (mi.has_flag(lobe, mi.BSDFFlags.Delta) | followed)
+    state.specular |= is_delta
+    smooth_bounce = bounced & ~followed & mi.has_flag(lobe, mi.BSDFFlags.Smooth)
+    state.smooth |= in_medium | smooth_bounce
+    state.delta[is_delta] += 1
+    state.glossy[bounced & mi.has_flag(lobe, mi.BSDFFlags.Glossy)] += 1
+    wo_surface = bs.wo if redirect is None else redirect(si, bs, gen)
+    d_surface = si.to_world(wo_surface)
+    state.ray[on_surface] = si.spawn_ray(d_surface)
+    if media:
+        state.medium = enter(si, d_surface, state.medium, on_surface)
+        wo, phase_weight, _ = mei.medium.phase_function().sample(
+            mi.PhaseFunctionContext(None, mi.TransportMode.Importance), mei, gen.next_float32(),
+            mi.Point2f(gen.next_float32(), gen.next_float32()), in_medium,
+        )  # fmt: skip
+        state.power[in_medium] *= phase_weight
+        state.ray[in_medium] = mei.spawn_ray(wo)
+    return bounced
+
+
+def _survival(state: _PathState, in_medium, albedo, media: bool) -> mi.Float:
+    """Russian roulette's survival probability: a medium event survives with the albedo (Jensen
+    & Christensen 1998), a surface interaction with ``q = min(0.95, max Φ/Φ₀)`` (Mitsuba)."""
+    relative = dr.max(state.power / dr.maximum(state.power0, 1e-30))
+    survival = dr.minimum(relative, 0.95)
+    if media:
+        survival = dr.select(in_medium, albedo, survival)
+    return survival
 
 
 def _check_power(records: PhotonRecords) -> None:

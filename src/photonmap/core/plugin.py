@@ -1,5 +1,5 @@
-"""The one Mitsuba plugin shell of the three pipelines (``volume_photon``, ``photon_mapper``,
-``ispm``): read and validate the plugin's properties, keep one pipeline per scene, notice edits
+"""The one Mitsuba plugin shell of the four methods (``volume_photon``, ``photon_mapper``,
+``ispm``, ``sppm``): read and validate the plugin's properties, keep one pipeline per scene, notice edits
 made to the scene through ``mi.traverse`` and render from the sensor Mitsuba asks for.
 
 A subclass names its pipeline, its parameter dataclass and its plugin name::

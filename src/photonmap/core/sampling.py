@@ -1,9 +1,10 @@
 """Low-discrepancy and stratified 2D point sets on the unit square (Dr.Jit arrays).
 
 Pfeuti §4.1 (Table 4.1, Fig 4.1) compares random, grid, jittered, Halton and Hammersley photon
-distributions on the photon plane and finds Hammersley best in quality and speed. Spec A15: the
-Hammersley point ``i`` of ``N`` is ``((i + ½)/N, Φ₂(i) + ½/N)`` with ``Φ₂`` the base-2 radical inverse;
-the ½ offsets keep photons off voxel faces and preserve the (0, m, 2)-net property (oracle 14).
+distributions on the photon plane and finds Hammersley best in quality and speed. Here the
+Hammersley point ``i`` of ``N`` is ``((i + ½)/N, Φ₂(i) + ½/N)`` with ``Φ₂`` the base-2 radical
+inverse (Wong, Luk & Heng 1997 use ``(i/N, Φ₂(i))``; Pfeuti's listing is unclear): the ½ offsets
+keep photons off voxel faces and preserve the (0, m, 2)-net property (tested).
 Every random choice takes a seed.
 """
 
@@ -13,6 +14,7 @@ import math
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from .errors import ParameterError
 from .order import morton_cells, morton_order
@@ -35,6 +37,36 @@ def radical_inverse_2(i: mi.UInt32) -> mi.Float:
     return mi.radical_inverse_2(i, mi.UInt32(0))
 
 
+PRIMES = (2, 3, 5, 7)
+
+
+def radical_inverse(base: int, i: mi.UInt32, count: int) -> mi.Float:
+    """Φ_b(i) for ``i < count``: the base-``b`` digits of ``i`` mirrored about the point (one
+    fused kernel, ``⌈log_b count⌉`` digits)."""
+    if base == 2:
+        return radical_inverse_2(i)
+    out, x, scale = dr.zeros(mi.Float, dr.width(i)), mi.UInt32(i), 1.0 / base
+    for _ in range(max(1, math.ceil(math.log(max(count, 2)) / math.log(base)))):
+        digit = x % base
+        x = x // base
+        out += mi.Float(digit) * scale
+        scale /= base
+    return out
+
+
+def hammersley_nd(count: int, dims: int, seed: int) -> list[mi.Float]:
+    """The ``dims``-dimensional Hammersley set ``((i+½)/N, Φ₂(i), Φ₃(i), Φ₅(i), …)``, every
+    dimension but the first shifted modulo 1 by a random offset drawn from ``seed``
+    (Cranley–Patterson rotation: each point uniform, the set stratified)."""
+    i = dr.arange(mi.UInt32, count)
+    shift = np.random.default_rng(seed).random(dims)
+    out = [(mi.Float(i) + 0.5) / count]
+    for k in range(dims - 1):
+        x = radical_inverse(PRIMES[k], i, count) + dr.opaque(mi.Float, float(shift[k]))
+        out.append(x - dr.floor(x))
+    return out
+
+
 def rotated_hammersley(count: int, i: mi.UInt32, shift: mi.Point2f) -> mi.Point2f:
     """Point ``i`` of the ``count``-point Hammersley set ``(i/N, Φ₂(i))`` shifted by ``shift``
     modulo 1 (a Cranley–Patterson rotation). With a uniform random shift per pixel or query point,
@@ -44,7 +76,8 @@ def rotated_hammersley(count: int, i: mi.UInt32, shift: mi.Point2f) -> mi.Point2
 
 
 def hammersley(count: int, offset: bool = True) -> tuple[mi.Float, mi.Float]:
-    """The 2D Hammersley set of ``count`` points; with ``offset`` the ½-cell offsets of spec A15."""
+    """The 2D Hammersley set of ``count`` points; with ``offset`` the ½-cell offsets (module
+    docstring)."""
     i = dr.arange(mi.UInt32, count)
     u = mi.Float(i) / count
     w = radical_inverse_2(i)

@@ -3,7 +3,8 @@
 A stage's output is stored under its name with a key made of exactly the inputs it depends on;
 asking again with an equal key returns the stored output, any other key recomputes it. So a
 camera move reruns only the stages whose keys hold the camera, and so on, without a dirty flag
-per input (spec seed-000-002 §4.1, seed-004 §7).
+per input (the rerun rules of Sun et al. 2008 §6 and Yao 2011 Ch. 3: a camera move keeps the
+photons, a light move keeps the geometry).
 
 >>> cache = StageCache(StageTimer())
 >>> grids = cache.stage("march", key=(light_key, photons), compute=lambda: march(...))

@@ -1,4 +1,4 @@
-"""The volume photon map (Jensen & Christensen 1998; spec beyond-seeds §4): photons stored where
+"""The volume photon map (Jensen & Christensen 1998): photons stored where
 they scattered in a medium, and their radiance estimates.
 
 A volume photon holds its position, its travel direction ω_p before the event, the power it
@@ -24,7 +24,7 @@ import mitsuba as mi
 import numpy as np
 
 from .hashgrid import HashGrid
-from .knn import NO_PHOTON
+from .knn import NO_PHOTON, neighbour_sum
 
 CHUNK = 1 << 18  # k-NN estimates evaluated at a time (k indices each)
 
@@ -138,22 +138,16 @@ def inscattered(
     return out
 
 
-@dr.syntax
 def _phase_sum(vmap, mei, nb, k, max_radius, active):
     """The sum of :func:`inscattered` over the neighbours ``nb``, divided by the sphere."""
-    count = dr.width(mei.p)
     phase = mei.medium.phase_function()
     ctx = mi.PhaseFunctionContext(None)
-    base = dr.arange(mi.UInt32, count) * k
-    L = dr.zeros(mi.Spectrum, count)
-    j = dr.zeros(mi.UInt32, count)
-    while active & (j < nb.count):
-        idx = dr.gather(mi.UInt32, nb.index, base + j)
-        power = dr.gather(mi.Color3f, vmap.photons.power, idx, active)
-        wo = -dr.gather(mi.Vector3f, vmap.photons.direction, idx, active)
-        f, _ = phase.eval_pdf(ctx, mei, wo, active)
-        L += f * power
-        j += 1
+
+    def phase_value(arriving, active):
+        return phase.eval_pdf(ctx, mei, arriving, active)[0]
+
+    photons = vmap.photons
+    L = neighbour_sum(nb, photons.power, photons.direction, phase_value, active)
     return dr.select(active & (nb.count > 0), L / _sphere(nb, k, max_radius), 0.0)
 
 

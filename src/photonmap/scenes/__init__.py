@@ -1,4 +1,4 @@
-"""Built-in scenes and scene loading (issue item 2; DESIGN.md "Scenes").
+"""Built-in scenes and scene loading (docs/DESIGN.md "Scenes").
 
 A scene is a Mitsuba 3 scene: a built-in name from :data:`SCENES`, an XML file, a scene dict or a
 loaded ``mi.Scene``. Built-ins also carry the photonmap pipeline they are made for
@@ -42,19 +42,19 @@ SCENES: dict[str, Builtin] = {
     for b in (
         Builtin(
             "glass_sphere_fog",
-            "SPHERE of spec §3.3: glass ball (n 1.5, r 32 voxels) in grey fog, point light above",
+            "SPHERE: glass ball (n 1.5, r 32 voxels) in grey fog, point light above (Sun Fig 6)",
             volume_scenes.glass_sphere_fog,
             volume_scenes.SPHERE_DEFAULTS,
         ),
         Builtin(
             "perlin_cube",
-            "CUBE of spec §3.3: turned 60-voxel glass cube, n and σ_s perturbed by Perlin noise",
+            "CUBE: turned 60-voxel glass cube, n and σ_s perturbed by Perlin noise (Pfeuti Fig 4.9)",
             volume_scenes.perlin_cube,
             volume_scenes.CUBE_DEFAULTS,
         ),
         Builtin(
             "mesh_in_fog",
-            "MESH of spec §3.3: glass trefoil-knot mesh in fog (params: triangles, extent)",
+            "MESH: glass trefoil-knot mesh in fog (params: triangles, extent; Sun Table 1)",
             volume_scenes.mesh_in_fog,
             volume_scenes.MESH_DEFAULTS,
         ),

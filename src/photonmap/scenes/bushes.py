@@ -1,5 +1,5 @@
 """The "bushes" variant of the Cornell box (Steinhurst 2007 §5.4, Fig 5.5, Table 5.1: "geometrically
-modeled bushes with simple diffuse material properties"; spec seed-001 §3.1 (d)): many small
+modeled bushes with simple diffuse material properties"): many small
 occluders, the role the Sponza atrium plays in Chapter 3 — final-gather rays of neighbouring
 pixels scatter over many leaves, so their photon gathers are far less coherent than in the bare
 box. The 3DPlants.com models are not available; each bush here is ``leaves`` small two-sided
@@ -13,7 +13,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .cornell import DEPTH, MM, WIDTH, _box, _ceiling_light, _diffuse
+from .cornell import DEPTH, MM, WIDTH, ceiling_light, diffuse, empty_box
 
 LEAF = 12.0 * MM  # half edge of a leaf quad
 CROWN = 110.0 * MM  # radius of a bush's crown
@@ -25,8 +25,8 @@ def cornell_bushes(
 ) -> dict:
     """The Cornell box with the ceiling light and ``bushes`` bushes of ``leaves`` leaves each,
     standing on the floor in a row from left to right."""
-    scene = _box(width, height)
-    scene["light"] = _ceiling_light()
+    scene = empty_box(width, height)
+    scene["light"] = ceiling_light()
     rng = np.random.default_rng(seed)
     for b in range(bushes):
         x = WIDTH * (b + 1) / (bushes + 1)
@@ -49,7 +49,7 @@ def _bush(centre: np.ndarray, leaves: int, rng: np.random.Generator, name: str) 
     base = 4 * np.arange(leaves)[:, None]
     faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]], axis=1).reshape(-1, 3)
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict({"type": "twosided", "bsdf": _diffuse(LEAF_GREEN)})
+    props["bsdf"] = mi.load_dict({"type": "twosided", "bsdf": diffuse(LEAF_GREEN)})
     mesh = mi.Mesh(name, len(vertices), len(faces), props)
     params = mi.traverse(mesh)
     params["vertex_positions"] = dr.ravel(mi.Point3f(*vertices.T))

@@ -1,6 +1,6 @@
-"""Cornell-box scenes of Steinhurst (2007) §1.4 as Mitsuba 3 scene dicts (spec seed-001 §3.1, A12).
+"""Cornell-box scenes of Steinhurst (2007) §1.4 as Mitsuba 3 scene dicts.
 
-The dissertation gives no geometry, camera or light power, so these follow spec A12: the box of the
+The dissertation gives no geometry, camera or light power, so these are ours: the box of the
 Cornell University Program of Computer Graphics measurements ("Cornell Box Data"), idealised to a
 rectangular box of 556.0 × 548.8 × 559.2 mm (width x, height y, depth z) open at the front
 (z = 0), with the 130 × 105 mm light at the centre of the ceiling, 0.5 mm below it. World units
@@ -56,8 +56,8 @@ SPOT_HEIGHT = 150.0 * MM  # the spot light under it, aimed straight up
 def cornell_steinhurst(width: int = 512, height: int = 512) -> dict:
     """The Cornell box with the ceiling light, a mirror sphere (left, back) and a glass sphere
     (right, front; n = 1.5) of radius 100 mm resting on the floor (Steinhurst Fig 1.2)."""
-    scene = _box(width, height)
-    scene["light"] = _ceiling_light()
+    scene = empty_box(width, height)
+    scene["light"] = ceiling_light()
     scene["mirror_sphere"] = {
         "type": "sphere",
         "center": list(MIRROR_CENTER),
@@ -78,12 +78,12 @@ def cornell_spot_indirect(width: int = 512, height: int = 512) -> dict:
     the ceiling centre and a spot light 150 mm above the floor whose cone (cut-off angle = the
     disk's angular radius) ends on the disk's rim (Steinhurst Fig 1.2 b). The spot emits the
     power of the standard ceiling light."""
-    scene = _box(width, height)
+    scene = empty_box(width, height)
     centre = np.array([WIDTH / 2, HEIGHT - LIGHT_DROP, DEPTH / 2])
     scene["disk"] = {
         "type": "disk",
-        "to_world": _frame(centre, (DISK_RADIUS, 0, 0), (0, 0, DISK_RADIUS), (0, -1, 0)),
-        "bsdf": _diffuse(WHITE),
+        "to_world": frame(centre, (DISK_RADIUS, 0, 0), (0, 0, DISK_RADIUS), (0, -1, 0)),
+        "bsdf": diffuse(WHITE),
     }
     cutoff = np.arctan(DISK_RADIUS / (centre[1] - SPOT_HEIGHT))
     beam = 0.75 * cutoff
@@ -97,7 +97,7 @@ def cornell_spot_indirect(width: int = 512, height: int = 512) -> dict:
         "to_world": _look_up(spot),
         "cutoff_angle": float(np.degrees(cutoff)),
         "beam_width": float(np.degrees(beam)),
-        "intensity": _rgb(intensity),
+        "intensity": rgb(intensity),
     }
     return scene
 
@@ -109,12 +109,12 @@ def cornell_glossy_floor(
     wall the floor reflects (Steinhurst Fig 7.5). The floor's BRDF is ``(1 − glossy)·ρ_d/π +
     glossy·f_mirror,α`` (``blendbsdf``): a brown Lambertian term and a perfectly reflecting
     Beckmann microfacet lobe of ``roughness`` α — Steinhurst's "Lambertian + one Phong lobe"."""
-    scene = _box(width, height)
-    scene["light"] = _ceiling_light()
+    scene = empty_box(width, height)
+    scene["light"] = ceiling_light()
     scene["floor"]["bsdf"] = {
         "type": "blendbsdf",
         "weight": float(glossy),
-        "diffuse": _diffuse(FLOOR_DIFFUSE),
+        "diffuse": diffuse(FLOOR_DIFFUSE),
         "glossy": {
             "type": "roughconductor",
             "material": "none",
@@ -126,50 +126,51 @@ def cornell_glossy_floor(
         "type": "diffuse",
         "reflectance": {
             "type": "checkerboard",
-            "color0": _rgb(WHITE),
-            "color1": _rgb(np.array(WHITE) * 0.25),
+            "color0": rgb(WHITE),
+            "color1": rgb(np.array(WHITE) * 0.25),
             "to_uv": _uv_scale(8.0),
         },
     }
     return scene
 
 
-def _box(width: int, height: int) -> dict:
+def empty_box(width: int, height: int) -> dict:
     """Camera, ``path`` integrator and the five walls (unit-normal quads facing inwards)."""
     w, h, d = WIDTH, HEIGHT, DEPTH
     return {
         "type": "scene",
         "integrator": {"type": "path"},
         "sensor": _camera(width, height),
-        "floor": _wall((w / 2, 0, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, 1, 0), WHITE),
-        "ceiling": _wall((w / 2, h, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, -1, 0), WHITE),
-        "back": _wall((w / 2, h / 2, d), (w / 2, 0, 0), (0, h / 2, 0), (0, 0, -1), WHITE),
-        "red_wall": _wall((w, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (-1, 0, 0), RED),
-        "green_wall": _wall((0, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (1, 0, 0), GREEN),
+        "floor": wall((w / 2, 0, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, 1, 0), WHITE),
+        "ceiling": wall((w / 2, h, d / 2), (w / 2, 0, 0), (0, 0, d / 2), (0, -1, 0), WHITE),
+        "back": wall((w / 2, h / 2, d), (w / 2, 0, 0), (0, h / 2, 0), (0, 0, -1), WHITE),
+        "red_wall": wall((w, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (-1, 0, 0), RED),
+        "green_wall": wall((0, h / 2, d / 2), (0, h / 2, 0), (0, 0, d / 2), (1, 0, 0), GREEN),
     }
 
 
-def _ceiling_light() -> dict:
+def ceiling_light() -> dict:
     """The 130 × 105 mm area light facing down, centred 0.5 mm below the ceiling."""
     centre = (WIDTH / 2, HEIGHT - LIGHT_DROP, DEPTH / 2)
     half_x, half_z = LIGHT_SIZE[0] / 2, LIGHT_SIZE[1] / 2
     return {
         "type": "rectangle",
-        "to_world": _frame(centre, (half_x, 0, 0), (0, 0, half_z), (0, -1, 0)),
-        "bsdf": _diffuse(LIGHT_REFLECTANCE),
-        "emitter": {"type": "area", "radiance": _rgb(LIGHT_RADIANCE)},
+        "to_world": frame(centre, (half_x, 0, 0), (0, 0, half_z), (0, -1, 0)),
+        "bsdf": diffuse(LIGHT_REFLECTANCE),
+        "emitter": {"type": "area", "radiance": rgb(LIGHT_RADIANCE)},
     }
 
 
-def _wall(centre, half_u, half_v, normal, reflectance) -> dict:
+def wall(centre, half_u, half_v, normal, reflectance) -> dict:
+    """A diffuse quad (:func:`frame`) of the given RGB ``reflectance``."""
     return {
         "type": "rectangle",
-        "to_world": _frame(centre, half_u, half_v, normal),
-        "bsdf": _diffuse(reflectance),
+        "to_world": frame(centre, half_u, half_v, normal),
+        "bsdf": diffuse(reflectance),
     }
 
 
-def _frame(centre, half_u, half_v, normal):
+def frame(centre, half_u, half_v, normal):
     """The affine map of Mitsuba's unit ``rectangle``/``disk`` (local z = normal) onto the quad or
     disk with half-axes ``half_u``, ``half_v`` and unit ``normal``."""
     matrix = np.eye(4)
@@ -179,7 +180,7 @@ def _frame(centre, half_u, half_v, normal):
 
 def _look_up(position):
     """A spot light's frame at ``position`` whose cone axis (local +z) points along +y."""
-    return _frame(position, (1, 0, 0), (0, 0, -1), (0, 1, 0))
+    return frame(position, (1, 0, 0), (0, 0, -1), (0, 1, 0))
 
 
 def _camera(width: int, height: int) -> dict:
@@ -205,11 +206,13 @@ def _uv_scale(factor: float):
     return mi.ScalarTransform3f().scale([factor, factor])
 
 
-def _diffuse(reflectance) -> dict:
-    return {"type": "diffuse", "reflectance": _rgb(reflectance)}
+def diffuse(reflectance) -> dict:
+    """A Mitsuba ``diffuse`` BSDF dict of the given RGB ``reflectance`` (or grey value)."""
+    return {"type": "diffuse", "reflectance": rgb(reflectance)}
 
 
-def _rgb(value) -> dict:
+def rgb(value) -> dict:
+    """A Mitsuba ``rgb`` texture dict of ``value`` (three channels, or one grey value)."""
     return {
         "type": "rgb",
         "value": np.broadcast_to(np.asarray(value, dtype=np.float64), 3).tolist(),

@@ -1,4 +1,4 @@
-"""Cornell-box scenes of Yao (2011) Ch. 5 for the ``screen`` pipeline (spec seed-004 §3.5).
+"""Cornell-box scenes of Yao (2011) Ch. 5 for the ``screen`` pipeline (Figs 5.1–5.7).
 
 All three reuse the Cornell box of :mod:`.cornell` (metres, the published 556 × 548.8 × 559.2 mm
 box and camera), at the thesis's 1024 × 768, lit by a spot light 10 mm under the ceiling centre
@@ -61,23 +61,23 @@ def cornell_mesh(width: int = 1024, height: int = 768, triangles: int = 20000) -
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     centre = np.array([cornell.WIDTH / 2, 0.2, cornell.DEPTH / 2])
     vertices = (vertices - 0.5 * (lo + hi)) * (0.35 / np.max(hi - lo)) + centre
-    bsdf = mi.load_dict(cornell._diffuse((0.75, 0.75, 0.75)))
+    bsdf = mi.load_dict(cornell.diffuse((0.75, 0.75, 0.75)))
     scene = _box_with_spot(width, height)
     scene["mesh"] = to_mitsuba_mesh("mesh", vertices, faces, bsdf=bsdf)
     return scene
 
 
 def _box_with_spot(width: int, height: int) -> dict:
-    scene = cornell._box(width, height)
+    scene = cornell.empty_box(width, height)
     # the thesis's transport: direct light and two recorded indirect bounces (B = 2), which is
     # Mitsuba's max_depth 4 (the screen method's default B is the file's max_depth - 2)
     scene["integrator"] = {"type": "path", "max_depth": 4}
     scene["spot"] = {
         "type": "spot",
-        "to_world": cornell._frame(SPOT_POSITION, (1, 0, 0), (0, 0, 1), (0, -1, 0)),
+        "to_world": cornell.frame(SPOT_POSITION, (1, 0, 0), (0, 0, 1), (0, -1, 0)),
         "cutoff_angle": SPOT_CUTOFF,
         "beam_width": SPOT_BEAM,
-        "intensity": cornell._rgb(SPOT_INTENSITY),
+        "intensity": cornell.rgb(SPOT_INTENSITY),
     }
     return scene
 
@@ -91,4 +91,4 @@ def _block(base_mm, side_mm: float, height_mm: float, angle_deg: float) -> dict:
         .rotate([0, 1, 0], angle_deg)
         .scale([side_mm * mm / 2, height_mm * mm / 2, side_mm * mm / 2])
     )
-    return {"type": "cube", "to_world": to_world, "bsdf": cornell._diffuse(BLOCK_WHITE)}
+    return {"type": "cube", "to_world": to_world, "bsdf": cornell.diffuse(BLOCK_WHITE)}

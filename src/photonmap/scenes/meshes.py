@@ -1,6 +1,6 @@
-"""Procedural watertight meshes for the MESH benchmark scene (spec seed-000-002 §3.3).
+"""Procedural watertight meshes for the MESH benchmark scene.
 
-The [Sun Table 1] sweeps need one closed mesh at 10k/20k/40k/80k triangles. :func:`torus_knot`
+The sweeps of Sun et al. 2008 Table 1 need one closed mesh at 10k/20k/40k/80k triangles. :func:`torus_knot`
 builds a (p, q) torus-knot tube in NumPy: ``rings × sides`` vertices on a torus-topology grid, two
 triangles per quad, so every edge is shared by exactly two faces and all faces wind
 counter-clockwise seen from outside (outward normals).

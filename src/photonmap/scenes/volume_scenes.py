@@ -1,14 +1,16 @@
-"""Built-in scenes of the volume pipeline as Mitsuba 3 scene dicts (spec seed-000-002 §3.3).
+"""Built-in scenes of the volume pipeline as Mitsuba 3 scene dicts: the papers' scene kinds (a glass
+ball, a noisy cube, a mesh; Sun et al. 2008 Fig 6 and Table 1, Pfeuti 2009 Fig 4.9) with parameters
+of ours, which the papers do not give.
 
 World units: the unit cube [0, 1]³ is the 128³ grid box, so one voxel is 1/128 and a coefficient of
 0.003/voxel is 0.384 in world units. Scene parameters (positions, sizes) are in **voxels**.
 
 Every scene has the same surroundings: a ``cube`` with a ``null`` BSDF filling [0, 1]³ whose
 interior medium is the grey fog (σ_s = κ = 0.003/voxel, albedo 1) — the medium-bearing shape that
-defines the grid box; a ``point`` light at (64, 400, 64) voxels, above the box (spec S5, A49); a
-``perspective`` camera at 30° elevation aimed at the box centre. The refractive object is a
-``dielectric`` (``int_ior = ior``, ``ext_ior = 1``) with an absorbing interior medium
-(κ = σ_a = (0.004, 0.002, 0.001)/voxel) and the fog as its exterior medium.
+defines the grid box; a ``point`` light at (64, 400, 64) voxels, above the box (outside the grid, so
+the photon plane covers it); a ``perspective`` camera at 30° elevation aimed at the box centre. The
+refractive object is a ``dielectric`` (``int_ior = ior``, ``ext_ior = 1``) with an absorbing
+interior medium (κ = σ_a = (0.004, 0.002, 0.001)/voxel) and the fog as its exterior medium.
 
 The scenes also render with Mitsuba's ``volpath`` (their default integrator) for ground truth. The
 fog's phase function is Mitsuba's default (isotropic) and there is no table shape: compare with the
@@ -56,7 +58,8 @@ def homogeneous(sigma_s, sigma_a) -> dict:
 
 
 def camera(width: int, height: int, elevation: float = 30.0, azimuth: float = 35.0) -> dict:
-    """A perspective camera on a sphere around the box centre, framing the whole box (spec A32)."""
+    """A perspective camera on a sphere around the box centre, framing the whole box (the papers
+    give no camera)."""
     fov = 40.0
     distance = 0.5 * np.sqrt(3.0) / np.sin(np.radians(fov / 2))  # box's bounding sphere
     e, a = np.radians(elevation), np.radians(azimuth)
@@ -156,7 +159,7 @@ def perlin_cube(
     size: float = 60.0,
 ) -> dict:
     """CUBE: a ``size``-voxel glass cube turned 25° about y and 20° about x, slightly scattering
-    (σ_s = 0.002/voxel); the pipeline perturbs n and σ_s with Perlin noise ([Pf Fig 4.9]):
+    (σ_s = 0.002/voxel); the pipeline perturbs n and σ_s with Perlin noise (Pfeuti 2009 Fig 4.9):
     ``n = ior + ior_noise·perlin(x/noise_scale)``, ``σ_s·(1 + sigma_s_noise·perlin(...))``."""
     to_world = (
         mi.ScalarTransform4f()
@@ -188,8 +191,8 @@ def mesh_in_fog(
     light_radius: float = 0.0,
 ) -> dict:
     """MESH: a glass trefoil-knot tube of about ``triangles`` faces lying flat (tilted 20° about x)
-    in the box centre, whose largest bounding-box side is ``extent`` voxels ([Sun Table 1]
-    sweeps: 10k/20k/40k/80k triangles, extents 64/77/90/103)."""
+    in the box centre, whose largest bounding-box side is ``extent`` voxels (Sun et al. 2008
+    Table 1 sweeps: 10k/20k/40k/80k triangles, extents 64/77/90/103)."""
     vertices, faces = torus_knot(triangles)
     t = np.radians(20.0) - np.pi / 2  # knot plane (xy) → horizontal, then tilted
     rot = np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]])

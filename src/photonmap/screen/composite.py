@@ -1,5 +1,6 @@
-"""Final compositing and glass seen through eye-ray refraction (Yao 2011 §3.3, §3.5, Ch. 5; spec
-seed-004 §2.9, A27, ``glass_eye="raytrace"``).
+"""Final compositing and glass seen through eye-ray refraction (Yao 2011 §3.3, §3.5, Ch. 5). Yao
+refracts eye rays into a dynamic environment map lit by direct light only; here they are ray traced
+(the reference mode), and glass gets no photon splats.
 
     L_out = V_s · L_direct + Up(L_ind) + L_e                     (diffuse / glossy pixels)
     L_out = Σ_branches T · (L_direct(hit) + L_e(hit))             (mirror / glass pixels)

@@ -1,22 +1,25 @@
-"""Deferred direct lighting and the ray-traced shadow map (Yao 2011 §3.1, Fig 3.3, Ch. 4; spec
-seed-004 §2.3, §2.9, A11, A20, A21, A31).
+"""Deferred direct lighting and the ray-traced shadow map (Yao 2011 §3.1, Fig 3.3, Ch. 4, §3.3 for
+compositing). The material colour is read as ``f = ρ/π``, so direct and indirect light add as
+radiance.
 
 **Spot and point lights.** Per valid eye G-buffer pixel s with normal n and albedo ρ, for the light
 position x_L:
 
     L_direct = ρ/π · I(ω) · max(0, n·l) / D²,   l = (x_L − s)/D,  D = ‖x_L − s‖,
 
-and one shadow ray from s + εn toward x_L over t ∈ (0, D − 2ε) at full eye resolution (A21). An
-any-hit test (the thesis's OptiX any-hit program) gives the hard visibility V_h ∈ {0, 1}; the
-blocked rays only are cast again for their closest hit (A20: the occluder nearest the receiver,
-deterministic), which gives the occluder distance d (from s; 0 where V_h = 1). On the Cornell box
-this costs ≈ half of closest-hit rays for every pixel. Pixels facing away from the light (n·l ≤ 0)
-get V_h = 1 and L_direct = 0 (§2.3: they are no blockers for the soft-shadow search).
+and one shadow ray from s + εn toward x_L over t ∈ (0, D − 2ε) at full eye resolution (the shadow
+map's resolution is not given). An any-hit test (the thesis's OptiX any-hit program) gives the hard
+visibility V_h ∈ {0, 1}; the blocked rays only are cast again for their closest hit (the occluder
+nearest the receiver, deterministic: an any-hit test returns an arbitrary one), which gives the
+occluder distance d (from s; 0 where V_h = 1). On the Cornell box this costs ≈ half of closest-hit
+rays for every pixel. Pixels facing away from the light (n·l ≤ 0) get V_h = 1 and L_direct = 0 (they
+are no blockers for the soft-shadow search, :mod:`.soft_shadow`).
 
-**Area lights** (rectangle, disk, sphere, mesh; A31's "consistent area light" mode). The light is
-not a point: L_direct is the mean of :data:`LIGHT_SAMPLES` jittered-stratified samples y_k of the
-light from Mitsuba's ``emitter.sample_direction`` (solid-angle sampling of a sphere's visible cap,
-area sampling of rectangles and meshes; Le/p_ω per sample),
+**Area lights** (rectangle, disk, sphere, mesh). Yao's area light softens only the shadows and
+shades and emits from its centre; here it is sampled for direct light too. The light is not a point:
+L_direct is the mean of :data:`LIGHT_SAMPLES` jittered-stratified samples y_k of the light from
+Mitsuba's ``emitter.sample_direction`` (solid-angle sampling of a sphere's visible cap, area
+sampling of rectangles and meshes; Le/p_ω per sample),
 
     L_direct = ρ/π · 1/K Σ_k Le(y_k) max(0, n·ω_k) / p_ω(y_k),
 
@@ -68,7 +71,7 @@ def shade(
     distance D and the sampled shadowed radiance (None unless ``samples``; module docstring) at
     points ``p`` with normals ``n`` (for the eye G-buffer and for ray-traced glass,
     :mod:`.composite`). Shadow rays are any-hit tests, as the thesis's OptiX any-hit program; only
-    the blocked rays are cast again for their closest hit, which gives d (A20).
+    the blocked rays are cast again for their closest hit, which gives d (module docstring).
     ``distances=False`` skips that second pass (d is then 0); for an area light with
     ``samples=True`` it skips the shadow map altogether (V_h = 1: the samples' rays shadow it)."""
     if null_shapes is None:
@@ -155,8 +158,8 @@ def light_point(light: Light) -> mi.Point3f:
 def direct_light(
     scene: mi.Scene, gbuf: GBuffer, light: Light, diagonal: float, samples: bool = False
 ) -> DirectLight:
-    """Spec §2.3 + §2.9 over the eye G-buffer (evaluated); ``samples``: also the sampled
-    shadowed radiance ``L_sampled`` (module docstring)."""
+    """Direct light and the shadow map (module docstring) over the eye G-buffer (evaluated);
+    ``samples``: also the sampled shadowed radiance ``L_sampled`` (module docstring)."""
     eps = dr.opaque(mi.Float, EPSILON * diagonal)
     out = DirectLight(
         *shade(

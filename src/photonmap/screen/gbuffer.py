@@ -1,9 +1,9 @@
-"""G-buffers of the ``screen`` pipeline (Yao 2011 §3.1, Fig 3.1; spec seed-004 §2.1).
+"""G-buffers of the ``screen`` pipeline (Yao 2011 §3.1, Fig 3.1).
 
 A :class:`GBuffer` holds one sample per pixel as flat Dr.Jit arrays in row-major order (pixel
 ``(x, y)`` at index ``y·width + x``, y = 0 the top row). Every image-space stage (splatting, soft
-shadows, upsampling) reads it; the eye G-buffer is cast with Mitsuba rays (:func:`eye_gbuffer`;
-spec §7: "G-buffers come from primary rays", identical to rasterization up to sub-pixel position).
+shadows, upsampling) reads it; the eye G-buffer is cast with Mitsuba rays (:func:`eye_gbuffer`:
+primary rays, identical to Yao's rasterization up to sub-pixel position).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def focal_px(sensor: mi.Sensor) -> float:
 
 
 def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
-    """The eye G-buffer of spec §2.1, one primary ray per pixel centre (Fig 3.1; the pipeline
+    """The eye G-buffer (Yao 2011 §3.1), one primary ray per pixel centre (Fig 3.1; the pipeline
     applies the film's reconstruction filter to the finished image), and the mask of
     pixels that see a mirror or glass surface (their ``albedo`` is 0: no diffuse shading, no
     splats; :mod:`.composite` ray-traces them).
@@ -71,7 +71,7 @@ def eye_gbuffer(scene: mi.Scene, sensor: mi.Sensor) -> tuple[GBuffer, mi.Bool]:
     valid = si.is_valid()
     emission = dr.select(valid, si.emitter(scene).eval(si, valid), 0.0)
     bsdf = si.bsdf(ray)
-    specular = is_specular(bsdf, valid)  # mirrors, glass: ray-traced (spec §2.9, A27)
+    specular = is_specular(bsdf, valid)  # mirrors, glass: ray-traced (.composite)
     albedo = dr.select(valid & ~specular, diffuse_albedo(bsdf, si, valid), 0.0)
     n = mi.Normal3f(si.sh_frame.n)
     n = dr.select(dr.dot(n, ray.d) > 0, -n, n)

@@ -5,7 +5,7 @@
  * - bounces, light_res, radius, splat, compression, subsample, shadows, isg_samples,
      light_size, glossy, seed
    - see :class:`photonmap.screen.pipeline.ScreenParams`
-   - Defaults as there (spec seed-004 §4.2).
+   - Defaults as there (Yao 2011 Tables 1–2 where given).
 
 .. code-block:: python
 
@@ -14,7 +14,7 @@
     image = mi.render(scene, integrator=mi.load_dict({"type": "ispm", "subsample": 8}))
 
 The integrator keeps the :class:`ScreenPipeline` of the scene it rendered last, so rendering again
-from another sensor reuses the light G-buffer and the photons (spec §7: a camera move keeps the
+from another sensor reuses the light G-buffer and the photons (a camera move keeps the
 photons); an edit of the scene through ``mi.traverse`` rebuilds it (:mod:`photonmap.core.plugin`).
 One primary ray per pixel centre: the ``spp`` of ``mi.render`` is ignored; its ``seed`` seeds the
 fixed random map.

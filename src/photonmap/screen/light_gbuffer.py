@@ -1,5 +1,5 @@
-"""Light G-buffers: the first photon hit seen from the light (Yao 2011 §3.1–3.2, Fig 3.2; spec
-seed-004 §2.2, A25, A26, A31).
+"""Light G-buffers: the first photon hit seen from the light (Yao 2011 §3.1–3.2, Fig 3.2). A texel
+stores the power arriving there (its "flux"); the BSDF applies at the first scatter.
 
 - **Spot light**: a square perspective frustum from the light position along the spot axis with
   half-angle θ_outer (the spot's cut-off), one ray per texel centre (u, v) on the image plane at
@@ -9,14 +9,15 @@ seed-004 §2.2, A25, A26, A31).
   stratified equal-area directions over the sphere, Ω = 4π/N each.
 - **Area light** (rectangle, disk, sphere, mesh; support by sampling): ``emitter.sample_ray`` at
   stratified points of the light, Φ = weight/N (an unbiased estimate of the emitted power Φ_e).
-  Direct light samples points on the light (:mod:`.direct`), not its centre: the spec's A31 option
-  "consistent area light", which reference comparisons need. The virtual light radius of the soft
-  shadows is the light's own: :func:`light_radius` (``light_size`` is for spot and point lights).
+  Direct light samples points on the light (:mod:`.direct`), not its centre as in Yao's thesis
+  (whose area light only softens shadows): reference comparisons need it. The virtual light radius
+  of the soft shadows is the light's own: :func:`light_radius` (``light_size`` is for spot and point
+  lights).
 
 Every texel's first hit is direct light, which :mod:`.direct` shades; :mod:`.light_photons` scatters
 photons on from it. I(ω) of spot and point lights comes from Mitsuba's own ``sample_direction``, so
 direct light and photons use the same profile (Mitsuba's linear fall-off from the beam width to
-the cut-off rather than the spec's smoothstep, A26).
+the cut-off; the thesis does not give its profile).
 """
 
 from __future__ import annotations
@@ -62,9 +63,9 @@ IGNORED_SHARE = 0.05  # the other emitters' share of the power a one-light rende
 
 @dataclass
 class LightGBuffer:
-    """Spec §2.2, per texel (row-major, ``width × height``): first hit ``si`` (a Mitsuba
-    SurfaceInteraction, kept for scattering), incident power ``flux`` (W) and ``valid`` (a surface
-    was hit with non-zero flux)."""
+    """The light G-buffer (Yao 2011 §3.2), per texel (row-major, ``width × height``): first hit
+    ``si`` (a Mitsuba SurfaceInteraction, kept for scattering), incident power ``flux`` (W) and
+    ``valid`` (a surface was hit with non-zero flux)."""
 
     width: int
     height: int
@@ -175,9 +176,9 @@ def intensity(light: Light, d: mi.Vector3f) -> mi.Color3f:
 def light_gbuffer(
     scene: mi.Scene, light: Light, width: int, height: int, seed: int = 0, half_angle=None
 ) -> LightGBuffer:
-    """The light G-buffer of ``light`` at ``width × height`` texels (spec §2.2). ``half_angle``
-    (radians) overrides a spot's frustum half-angle (default: its cut-off); ``seed`` places the
-    stratified samples of area lights."""
+    """The light G-buffer of ``light`` at ``width × height`` texels (module docstring).
+    ``half_angle`` (radians) overrides a spot's frustum half-angle (default: its cut-off); ``seed``
+    places the stratified samples of area lights."""
     n = width * height
     i = dr.arange(mi.UInt32, n)
     cu, cv = (mi.Float(i % width) + 0.5) / width, (mi.Float(i // width) + 0.5) / height

@@ -1,32 +1,35 @@
-"""Photon tracing from the light G-buffer (Yao 2011 §3.1–3.2, Ch. 4; spec seed-004 §2.2, §2.4,
-A1–A9).
+"""Photon tracing from the light G-buffer (Yao 2011 §3.1–3.2, Ch. 4). Where the thesis leaves a rule
+open, the choice made is said below.
 
-Every light G-buffer texel (i, j) starts one path at its first hit x₁ with the incident power
-Φ_ij. The path scatters B times — the first time at x₁ here, then in the transport core's photon
-loop (:func:`photonmap.core.photon_trace.trace_light_paths`, without Russian roulette) — and draws
-its random numbers from the **fixed random map** (PRM, §2.4, A4): one 32-bit seed per texel made
-once from ``seed``, the path's n-th number u = hash(seed_ij, n) ∈ [0, 1) by TEA
-(:class:`FixedRandom`), so bounces are uncorrelated and frames are temporally stable. Hit k + 1
-(k = 1 … B) goes to the fixed slot ``(k − 1)·W_L·H_L + texel`` (A1: the map holds W_L·H_L·B
-records); hit 1 is never stored, direct light covers it (A2).
+Every light G-buffer texel (i, j) starts one path at its first hit x₁ with the incident power Φ_ij.
+The path scatters B times — the first time at x₁ here, then in the transport core's photon loop
+(:func:`photonmap.core.photon_trace.trace_light_paths`, without Russian roulette) — and draws its
+random numbers from the **fixed random map** (Yao's PRM): one 32-bit seed per texel made once from
+``seed``, the path's n-th number u = hash(seed_ij, n) ∈ [0, 1) by TEA (:class:`FixedRandom`), so
+bounces are uncorrelated and frames are temporally stable. Hit k + 1 (k = 1 … B) goes to the fixed
+slot ``(k − 1)·W_L·H_L + texel`` (the map holds W_L·H_L·B records, the product that gives Tables
+1–2's 10k per bounce); hit 1 is never stored, direct light covers it (the thesis's "more than twice"
+read as "from the second hit on").
 
-Scattering rules (§2.4 table), through Mitsuba's BSDFs in importance mode:
+Scattering rules (Yao §3.1–3.2; cosine-weighted diffuse bounces and the exact Fresnel term where the
+thesis gives neither), through Mitsuba's BSDFs in importance mode:
 
 | surface | direction | power | path density h |
 |---|---|---|---|
-| diffuse | cosine-weighted hemisphere (A5) | Φ·ρ_d | 1 |
+| diffuse | cosine-weighted hemisphere | Φ·ρ_d | 1 |
 | mirror | ω_i − 2(ω_i·n)n | Φ·ρ_s | 4 |
-| glossy | ``"yao_average"``: normalize(ω_d + ω_r) (A6); ``"bsdf"``: Mitsuba's lobe sample | Φ·ρ_g | 2 |
-| glass | reflect with probability F, else refract; TIR reflects (A7) | Φ | 4 |
+| glossy | ``"yao_average"``: normalize(ω_d + ω_r) (Yao's); ``"bsdf"``: Mitsuba's lobe sample | Φ·ρ_g | 2 |
+| glass | reflect with probability F, else refract; TIR reflects | Φ | 4 |
 
 Glass uses the exact unpolarized dielectric Fresnel F with η from the BSDF (1.5 in the built-in
 scenes).
 
 Mitsuba's ``diffuse``, ``conductor`` and ``dielectric`` samplers are exactly these rules (the
-dielectric chooses reflection iff u < F). No Russian roulette (A8). Photons are stored only on
-surfaces with a diffuse or glossy lobe; a mirror or glass hit uses up its bounce and leaves its slot
-invalid (A3). ρ_path = Π h_k scales the splat radius (A9). Photons pass through ``null``-BSDF
-shapes: crossing one is no bounce.
+dielectric chooses reflection iff u < F). No Russian roulette (none in the thesis). Photons are
+stored only on surfaces with a diffuse or glossy lobe; a mirror or glass hit uses up its bounce and
+leaves its slot invalid (a Lambertian splat would light glass). ρ_path = Π h_k scales the splat
+radius (Yao stores a path density without defining it; h after ISPM's a-priori density, McGuire &
+Luebke 2009). Photons pass through ``null``-BSDF shapes: crossing one is no bounce.
 """
 
 from __future__ import annotations
@@ -49,7 +52,7 @@ GLOSSY_MODES = ("yao_average", "bsdf")
 
 @dataclass
 class ScreenPhotons:
-    """The photon map of spec §2.4: ``W_L·H_L·B`` fixed slots (texel, bounce), flat arrays.
+    """The photon map (module docstring): ``W_L·H_L·B`` fixed slots (texel, bounce), flat arrays.
 
     ``pos``: hit point; ``nrm``: unit surface normal oriented toward the side the photon arrived
     from; ``power``: RGB power incident at the record point (watts); ``density``: the path density
@@ -96,7 +99,8 @@ def trace_photons(
     bounces: int,
     glossy: str = "yao_average",
 ) -> ScreenPhotons:
-    """The photon map of ``bounces`` recorded bounces per light G-buffer texel (spec §2.4)."""
+    """The photon map of ``bounces`` recorded bounces per light G-buffer texel (module
+    docstring)."""
     if not isinstance(bounces, int) or bounces < 1:
         raise ParameterError(f"bounces must be an integer >= 1, got {bounces!r}")
     if glossy not in GLOSSY_MODES:
@@ -135,8 +139,8 @@ def _density(lobe: mi.UInt32) -> mi.Float:
 
 
 def _redirect(si: mi.SurfaceInteraction3f, bs: mi.BSDFSample3f, gen) -> mi.Vector3f:
-    """Yao's glossy direction (A6): normalize(ω_d + ω_r), ω_d cosine-distributed, ω_r the mirror
-    direction, where a glossy lobe was sampled (two more numbers from ``gen``)."""
+    """Yao's glossy direction (not a BSDF sample): normalize(ω_d + ω_r), ω_d cosine-distributed, ω_r
+    the mirror direction, where a glossy lobe was sampled (two more numbers from ``gen``)."""
     w_d = mi.warp.square_to_cosine_hemisphere(mi.Point2f(gen.next_float32(), gen.next_float32()))
     w_d = dr.mulsign(w_d, mi.Frame3f.cos_theta(si.wi))
     is_glossy = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Glossy)

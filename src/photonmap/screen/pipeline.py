@@ -1,5 +1,5 @@
 """``ScreenPipeline`` — Yao 2011's real-time global illumination: image-space photon mapping
-(McGuire & Luebke 2009) with image-space soft shadows (spec seed-004 §2, §7).
+(McGuire & Luebke 2009) with image-space soft shadows (Robison & Shirley 2009).
 
 ::
 
@@ -8,20 +8,20 @@
                                                                    glass eye rays ─────────────┘
 
 Each stage's result is cached (:class:`~photonmap.core.stages.StageCache`) under a key of exactly
-the inputs it depends on (spec §7 stage graph): a camera move reruns the eye G-buffer and
-everything image-space, but keeps the light G-buffer and the photons; a light change reruns
-everything but the random map; a change of ``radius``, ``splat`` or ``subsample`` reruns only
-splatting, upsampling and compositing; a change of ``light_size`` or ``isg_samples`` only the soft
-shadows and compositing (``shadows`` to or from ``"sampled"`` also the direct light).
-``recomputed`` lists the stages the last :meth:`render` ran, ``timer`` their milliseconds,
-:meth:`invalidate` forgets stages.
+the inputs it depends on: a camera move reruns the eye G-buffer and everything image-space, but
+keeps the light G-buffer and the photons; a light change reruns everything but the random map; a
+change of ``radius``, ``splat`` or ``subsample`` reruns only splatting, upsampling and compositing;
+a change of ``light_size`` or ``isg_samples`` only the soft shadows and compositing (``shadows`` to
+or from ``"sampled"`` also the direct light). ``recomputed`` lists the stages the last
+:meth:`render` ran, ``timer`` their milliseconds, :meth:`invalidate` forgets stages.
 
 The splat ``radius`` is in scene units, as every method's gather radius; its default (0) is
 :data:`RADIUS` × the scene's bounding-box diagonal (``null``-BSDF shapes do not count): the
-thesis's radii 4.5 / 8.5 / 10.5 have no unit, and 0.045 × diagonal is the photon-per-kernel
-regime its Cornell box figure shows. ``light_size`` is a fraction of that diagonal.
+thesis's radii 4.5 / 8.5 / 10.5 have no unit, and 0.045 × diagonal (about 30 photons per kernel
+disk at 10k photons in a Cornell box) is the regime its Cornell box figure shows (Fig 3.9).
+``light_size`` is a fraction of that diagonal.
 
-**Area lights** (issue 10) are lit by samples on the light (:mod:`.direct`), seen by the eye and
+**Area lights** are lit by samples on the light (:mod:`.direct`), seen by the eye and
 in mirrors, and their soft shadows have the light's own size (:func:`.light_gbuffer.light_radius`;
 ``light_size`` is the virtual size of spot and point lights only). Their penumbrae come either
 from image space gathering (``shadows="soft"``, the default: the thesis's method, applied to the
@@ -73,7 +73,7 @@ SPLATS = ("quad", "icosahedron")
 SHADOWS = (*MODES, "sampled")
 """Shadow modes: those of :mod:`.soft_shadow` and ``"sampled"`` (area lights: each light sample's
 own shadow ray, :mod:`.direct`; spot and point lights: the hard shadow)."""
-RADIUS = 0.045  # the automatic splat radius, × the scene diagonal (A17)
+RADIUS = 0.045  # the automatic splat radius, × the scene diagonal
 MAX_BOUNCES = 8  # recorded bounces at most (a file's unbounded max_depth gets these)
 STAGES = (
     "eye G-buffer",
@@ -93,7 +93,7 @@ STAGES = (
 @dataclasses.dataclass
 class ScreenParams:
     """Parameters of the screen pipeline (the ``ispm`` plugin and the CLI's ``--set`` keys).
-    Defaults: spec §4.2 (thesis values where given, [REC] otherwise)."""
+    Defaults: the thesis's values where it gives them (Tables 1–2), ours otherwise."""
 
     RENAMED: ClassVar[dict[str, Renamed]] = {
         "light_res": Renamed("photons", int, lambda side: side * side)
@@ -104,9 +104,9 @@ class ScreenParams:
     max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
     hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
     photons: int = 100**2  # light paths, one per light G-buffer texel: W_L = H_L = √photons
-    radius: float = 0.0  # splat radius r, scene units; 0 = RADIUS × the scene diagonal (A17)
+    radius: float = 0.0  # splat radius r, scene units; 0 = RADIUS × the scene diagonal
     splat: str = "quad"  # quad | icosahedron (Tab 2)
-    compression: float = 1.0  # icosahedron normal compression c (A18; 1 = Yao's uncompressed)
+    compression: float = 1.0  # icosahedron normal compression c (1 = Yao's uncompressed)
     subsample: int = 4  # s: indirect light at (W/s)×(H/s) (Tab 1: 8, 4, 2)
     # soft (ISG, Eqs 2–5) | hard | fixed_radius (penumbra = light_size) | sampled (area lights)
     shadows: str = "soft"
@@ -114,7 +114,7 @@ class ScreenParams:
     # virtual light radius L of spot / point lights, × scene diagonal (0 = hard shadow); area
     # lights use their own size (ScreenPipeline.shadow_radius)
     light_size: float = 0.02
-    glossy: str = "yao_average"  # glossy photon bounce: yao_average (A6) | bsdf
+    glossy: str = "yao_average"  # glossy photon bounce: yao_average (Yao's) | bsdf
     seed: int = 0  # seed of the fixed random map (PRM)
 
     @property
@@ -171,8 +171,8 @@ class ScreenParams:
 
 def visible_diagonal(scene: mi.Scene) -> float:
     """The bounding-box diagonal of the shapes the method sees, the scale of the automatic
-    ``radius`` and the unit of ``light_size`` (A17): ``null``-BSDF shapes (a fog box around the
-    scene) do not count, so that they change nothing in the image."""
+    ``radius`` and the unit of ``light_size`` (module docstring): ``null``-BSDF shapes (a fog box
+    around the scene) do not count, so that they change nothing in the image."""
     boxes = [s.bbox() for s in scene.shapes() if not _null(s)]
     if not boxes:
         return 0.0
@@ -375,7 +375,7 @@ class ScreenPipeline(Pipeline):
     @property
     def settings(self) -> PathSettings:
         """The file's ``max_depth`` and ``hide_emitters`` with this pipeline's parameters applied
-        (no Russian roulette: every path records its bounces, A8)."""
+        (no Russian roulette, as in the thesis: every path records its bounces)."""
         p = self.params
         return overridden(self.file_settings, p.max_depth, 0, p.hide_emitters)
 
@@ -405,7 +405,7 @@ class ScreenPipeline(Pipeline):
     # ------------------------------------------------------------------------------- stages
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance. Every
-        intermediate is in :attr:`outputs` (spec §7 testability)."""
+        intermediate is in :attr:`outputs` (for tests and debug views)."""
         from .splat import splat_icosahedra, splat_quads
         from .upsample import subsample, upsample
 

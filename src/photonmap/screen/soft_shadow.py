@@ -1,8 +1,11 @@
-"""Image-space soft shadows by image space gathering (Yao 2011 §3.4, Eqs 2–5, Figs 3.10–3.11; spec
-seed-004 §2.7, A19; after Robison & Shirley 2009).
+"""Image-space soft shadows by image space gathering (Yao 2011 §3.4, Eqs 2–5, Figs 3.10–3.11; after
+Robison & Shirley 2009). The thesis leaves the units open: L is read as a world-space light radius
+(times the focal length in pixels), t and σ in units of the scene diagonal, "samples 4+5" as radial
+step counts on a disk lattice.
 
-Inputs per pixel: the hard visibility V_h ∈ {0, 1}, the occluder distance d (from the receiver, where
-V_h = 0) and the light distance D of the ray-traced shadow map (§2.3). All radii are in pixels.
+Inputs per pixel: the hard visibility V_h ∈ {0, 1}, the occluder distance d (from the receiver,
+where V_h = 0) and the light distance D of the ray-traced shadow map (:mod:`.direct`). All radii are
+in pixels.
 
 1. Blocker search, Eqs (2)–(4): over the **shadowed** pixels p_i in the disk R_p = L·f_px/Z_eye,
    g = Σ γ_i d_i / Σ γ_i with the range weight γ = exp(−t²/σ), t the world distance of p_i and p_0
@@ -13,7 +16,7 @@ V_h = 0) and the light distance D of the ray-traced shadow map (§2.3). All radi
 Each pass reads the taps (i, j)·R/n with i² + j² ≤ n² ("Samples 4+5": n = 4 and 5, 49 and 81 taps),
 rounded to the nearest pixel; taps outside the image are skipped. The lattice is rotated by
 :data:`LATTICE_ANGLE` so that screen-aligned straight edges do not line up with whole tap columns:
-on the O17 straight edge (w = 10–40 px) the axis-aligned lattice is off the exact area-light
+on a straight shadow edge (w = 10–40 px) the axis-aligned lattice is off the exact area-light
 profile by up to 0.04–0.06, the rotated one by ≤ 0.02.
 
 ``mode="fixed_radius"`` skips step 1 and blurs every pixel with R_g = f_px·r/Z_eye for a world

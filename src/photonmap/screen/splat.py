@@ -1,25 +1,28 @@
-"""Photon splatting: quads and icosahedra (Yao 2011 §3.3, Eq 1, Ch. 5; spec seed-004 §2.5, §2.6).
+"""Photon splatting: quads and icosahedra (Yao 2011 §3.3, Eq 1, Ch. 5; the icosahedra of McGuire &
+Luebke 2009). The thesis's falloff texture, "surface material colour" and path density are not
+defined there; the choices are those below.
 
 Every covered pixel with G-buffer point s, normal n and albedo ρ gathers Eq (1),
 
-    L(s) += f(s) · max(0, n_p·n) · Φ_p · κ(s − s_p),   f = ρ/π  (A11),   E(s) = L(s) without f,
+    L(s) += f(s) · max(0, n_p·n) · Φ_p · κ(s − s_p),   f = ρ/π,   E(s) = L(s) without f,
 
-with the normalized Jensen cone κ(ρ) = 3/(π r_p²) · max(0, 1 − ρ/r_p) (A10) and the per-photon
-radius r_p = clamp(r/√ρ_path, r/8, r) (A9). Photons that are invalid or face away from the eye,
-(e − s_p)·n_p ≤ 0, are culled (§2.5 step 1, A13). Where κ is evaluated:
+with the normalized Jensen cone κ(ρ) = 3/(π r_p²) · max(0, 1 − ρ/r_p) (normalized, so splats
+conserve power) and the per-photon radius r_p = clamp(r/√ρ_path, r/8, r). Photons that are invalid
+or face away from the eye, (e − s_p)·n_p ≤ 0, are culled (with the eye position e). Where κ is
+evaluated:
 
-- quad (A15): Δ = s − s_p, h = Δ·n_p, ρ = ‖Δ − h n_p‖, and the pixel is covered only if
-  |h| ≤ τ r_p (τ = :data:`TAU`). The kernel is radial, so the quad's tangent frame (§2.5 step 2)
-  does not change the result;
-- icosahedron (§2.6, A18) with normal compression c = 1: the 3D distance ρ = ‖Δ‖ (Yao's
-  uncompressed volume); c < 1: the in-plane ρ with |h| ≤ c r_p (ISPM style).
+- quad (at the G-buffer point, with a depth tolerance): Δ = s − s_p, h = Δ·n_p,
+  ρ = ‖Δ − h n_p‖, and the pixel is covered only if |h| ≤ τ r_p (τ = :data:`TAU`). The kernel is
+  radial, so the quad's tangent frame does not change the result;
+- icosahedron (circumradius 1.25841 r_p) with normal compression c = 1: the 3D distance
+  ρ = ‖Δ‖ (Yao's uncompressed volume); c < 1: the in-plane ρ with |h| ≤ c r_p (ISPM style).
 
-**Scatter as a gather** (§2.5 step 7): each pixel sums over the photons whose support contains its
-G-buffer point. The kept photons are sorted into a uniform grid of cells of edge half the reach
-R = max r_p, times √(1 + τ²) (or √(1 + c²)) for the in-plane kernels, whose support reaches
-‖Δ‖ < r_p √(1 + τ²). A pixel visits the cells overlapping the box s ± R as x-runs of consecutive
-cells, i.e. contiguous ranges of the sorted photons (outer loop over runs, inner loop over a run's
-photons).
+**Scatter as a gather** (no rasterizer: each splat is evaluated over its screen bounds): each pixel
+sums over the photons whose support contains its G-buffer point. The kept photons are sorted into a
+uniform grid of cells of edge half the reach R = max r_p, times √(1 + τ²) (or √(1 + c²)) for the
+in-plane kernels, whose support reaches ‖Δ‖ < r_p √(1 + τ²). A pixel visits the cells overlapping
+the box s ± R as x-runs of consecutive cells, i.e. contiguous ranges of the sorted photons (outer
+loop over runs, inner loop over a run's photons).
 """
 
 from __future__ import annotations
@@ -38,7 +41,7 @@ from .light_photons import ScreenPhotons
 MAX_CELLS = 1 << 21
 """Cells of the photon grid at most (the cell edge grows to fit)."""
 TAU = 0.25
-"""Plane tolerance τ of the quads, in units of r_p (A15)."""
+"""Plane tolerance τ of the quads, in units of r_p."""
 
 
 def splat_quads(
@@ -47,7 +50,7 @@ def splat_quads(
     """Indirect radiance L_ind and irradiance E_ind per pixel of ``gbuf`` from photon quads.
 
     ``radius``: the splat radius r in world units (module docstring). Invalid pixels get 0.
-    ``cull``: leave out the photons facing away from the eye (A13); False for points seen
+    ``cull``: leave out the photons facing away from the eye; False for points seen
     in mirrors and through glass, which face other ways.
     """
     return _splat(gbuf, photons, radius, TAU, "gbuffer", cull)
@@ -86,7 +89,7 @@ def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mod
         raise ParameterError(
             f"the G-buffer holds {dr.width(gbuf.pos)} pixels, not width·height = {pixels}"
         )
-    # ---- keep the photons that can contribute: valid, facing the eye (A13), some power
+    # ---- keep the photons that can contribute: valid, facing the eye, some power
     eye = mi.Point3f(gbuf.eye)
     r_p = dr.clip(radius / dr.sqrt(dr.maximum(photons.density, 1e-30)), radius / 8, radius)
     keep = photons.valid & (dr.max(photons.power) > 0)

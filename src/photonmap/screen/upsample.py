@@ -1,7 +1,7 @@
-"""Subsampled indirect light and geometry-aware upsampling (Yao 2011 §3.5, Figs 3.12–3.14; spec
-seed-004 §2.8, A16, A22).
+"""Subsampled indirect light and geometry-aware upsampling (Yao 2011 §3.5, Figs 3.12–3.14; the
+thesis gives neither the subsampling rule nor the weights: they are said below).
 
-**Subsample** (A16): the low-resolution G-buffer of factor s has ⌈W/s⌉×⌈H/s⌉ pixels; low pixel (i, j)
+**Subsample**: the low-resolution G-buffer of factor s has ⌈W/s⌉×⌈H/s⌉ pixels; low pixel (i, j)
 point-samples the full-resolution pixel at the centre of its block, X(i) = i·s + ⌊b/2⌋ with b the
 block's width (s, or less for the last block when s does not divide W), likewise Y(j). Positions and
 normals are never averaged.
@@ -26,7 +26,7 @@ from ..core.errors import ParameterError
 from .gbuffer import GBuffer
 
 MIN_WEIGHT = 1e-4
-"""Below this total weight the upsampler falls back to the most similar sample (A22)."""
+"""Below this total weight the upsampler falls back to the most similar sample."""
 
 
 def _check_factor(s) -> int:

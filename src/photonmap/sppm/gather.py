@@ -1,5 +1,4 @@
-"""SPPM gather and update (Hachisuka & Jensen 2009 §4, Eqs 6–8; Knaus & Zwicker 2011; spec
-beyond-seeds §1 steps 2–4, §2).
+"""SPPM gather and update (Hachisuka & Jensen 2009 §4, Eqs 6–8; Knaus & Zwicker 2011).
 
 **Gather.** The iteration's photons go into a hash grid (:class:`photonmap.core.hashgrid.HashGrid`)
 whose cell edge is the largest current radius, so every photon within ``R_j`` of visible point
@@ -152,7 +151,7 @@ class PixelState:
     def updated(
         self, points: VisiblePoints, got: Gathered, alpha: float, target: float | None = None
     ) -> PixelState:
-        """The state after one iteration (spec beyond-seeds §1 step 3); pixels without a visible
+        """The state after one iteration (the progressive update above); pixels without a visible
         point or without photons keep N, R and τ.
 
         ``target`` (the first iteration only): a pixel that found ``M`` photons may shrink its

@@ -1,4 +1,4 @@
-"""SPPM photon pass (Hachisuka & Jensen 2009 §4; spec beyond-seeds §1 step 2).
+"""SPPM photon pass (Hachisuka & Jensen 2009 §4, the photon tracing pass).
 
 Each iteration traces ``M`` photon paths from the lights with the transport core's photon loop
 (:func:`photonmap.core.photon_trace.trace_photons`: power split by emitted power, Russian

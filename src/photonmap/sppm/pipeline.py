@@ -1,5 +1,5 @@
 """``SPPMPipeline`` — stochastic progressive photon mapping (Hachisuka & Jensen 2009) and its
-memoryless variant (Knaus & Zwicker 2011); spec beyond-seeds §1–2.
+memoryless variant (Knaus & Zwicker 2011).
 
 One iteration ``i`` (1-based) is an eye pass (:mod:`.visible`: ``spp`` visible points per pixel
 and the direct term ``L_d``), a photon pass (:mod:`.photons`: ``photons`` paths)

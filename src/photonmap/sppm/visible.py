@@ -1,12 +1,12 @@
 """SPPM eye pass: eye paths through mirrors, glass and media to their visible points
-(Hachisuka & Jensen 2009 §4; spec beyond-seeds §1 step 1), by the transport core's eye-path loop
+(Hachisuka & Jensen 2009 §4, the ray tracing pass), by the transport core's eye-path loop
 (:func:`photonmap.core.eye_trace.trace_eye_paths`).
 
-Rule for glossy surfaces (the spec asks to choose one): an eye path ends at a vertex whose BSDF
-has a smooth (diffuse *or* glossy) lobe, and the visible point is stored there; delta and
-``Null`` lobes are followed (a BSDF with both splits the path by Russian roulette). Glossy
-reflections are then the photons' density estimate at the visible point, which the shrinking
-radius makes consistent.
+Rule for glossy surfaces (SPPM leaves it open; pbrt-v4 stores the visible point at the first diffuse
+or glossy vertex too): an eye path ends at a vertex whose BSDF has a smooth (diffuse *or* glossy)
+lobe, and the visible point is stored there; delta and ``Null`` lobes are followed (a BSDF with both
+splits the path by Russian roulette). Glossy reflections are then the photons' density estimate at
+the visible point, which the shrinking radius makes consistent.
 
 The pass adds to the pixel's direct term ``L_d``: the light arriving straight from the emitters
 at the visible point (emitter sampling and BSDF sampling with MIS,

@@ -1,22 +1,21 @@
-"""Importance sampling of final-gather directions from tabular pdfs (Steinhurst 2007 Ch. 6; spec
-seed-001 §2.10.3 Jensen's photon-map pdf, Algs 6.1–6.2, and §2.10.6 Combined Importance Sampling,
-Alg 6.3, Eqs 6.10–6.11).
+"""Importance sampling of final-gather directions from tabular pdfs (Steinhurst 2007 Ch. 6:
+Jensen's photon-map pdf, Algs 6.1–6.2, and Combined Importance Sampling, Alg 6.3, Eqs 6.10–6.11).
 
 Every table lives on the **cosine-warped unit square** of the diffuse BRDF's warp
 ``T(u, v) = (θ = arccos √u, φ = 2πv)`` (Eq 6.8), cut into ``C_J = 4 × 8`` cells (4 in u, 8 in v;
 cell ``iu·8 + iv``). Uniform points of the square map to the cosine-weighted hemisphere, so each
 cell covers the projected solid angle π/C_J and a cell of probability ``P[c]`` has the
-solid-angle density ``p(ω) = C_J · P[c] · cos θ / π`` (spec §2.10.3 [DERIVED]).
+solid-angle density ``p(ω) = C_J · P[c] · cos θ / π`` (derived from Eq 6.8's warp).
 
-- ``jensen`` (Alg 6.1): the k nearest photons of the global map at x (spec §2.4 with its normal
-  test, so they arrive from above the tangent plane) add their energy (RGB mean of the flux) to
-  the cell of their incoming direction; empty cells receive ``0.05 · total / C_J``; normalised.
-  Only photons of the light the final gather integrates count — those that arrived after a
-  diffuse bounce (the "indirect" map of spec §2.1): a photon straight from a light (or through
-  mirrors and glass) points where the final gather finds nothing, since direct light and
-  caustics at x are computed separately. Measured on the glossy-floor box before this filter:
-  Jensen needed 8× the rays of cosine sampling on the diffuse walls.
-- ``cis`` (Alg 6.3): the average, cell by cell, of Jensen's table and a BRDF table — the BRDF
+- ``jensen`` (Alg 6.1): the k nearest photons of the global map at x (the gather of
+  :mod:`photonmap.core.knn` with its normal test, so they arrive from above the tangent plane) add
+  their energy (RGB mean of the flux) to the cell of their incoming direction; empty cells receive
+  ``0.05 · total / C_J``; normalised. Only photons of the light the final gather integrates count —
+  those that arrived after a diffuse bounce (Steinhurst's "indirect" map): a photon straight from a
+  light (or through mirrors and glass) points where the final gather finds nothing, since direct
+  light and caustics at x are computed separately. Measured on the glossy-floor box before this
+  filter: Jensen needed 8× the rays of cosine sampling on the diffuse walls. - ``cis`` (Alg 6.3):
+  the average, cell by cell, of Jensen's table and a BRDF table — the BRDF
   ``f(x, ω_c, ω_o)`` at each cell's centre direction ω_c, with the same donation to zero cells —
   a one-strategy balance-heuristic mixture with ``N_B/N = N_P/N = ½`` (Eq 6.10).
 
@@ -36,7 +35,7 @@ import mitsuba as mi
 
 from .photon_map import PhotonMap
 
-CELLS_U, CELLS_V = 4, 8  # Jensen's 4 × 8 table (spec Table 7.1, C_J)
+CELLS_U, CELLS_V = 4, 8  # Jensen's 4 × 8 table (Steinhurst 2007 Table 7.1, C_J)
 CELLS = CELLS_U * CELLS_V
 DONATION = 0.05  # empty cells receive DONATION · total / C_J (Algs 6.1, 6.3)
 TABLE_SAMPLING = ("jensen", "cis")

@@ -3,16 +3,16 @@ a Monte Carlo integral over the hemisphere::
 
     L_indirect(x, ω_o) = (1/N) Σ_i f_r(x, ω_i, ω_o) · L(y_i → x) · (ω_i · n) / p(ω_i)
 
-Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``),
-cosine-weighted (``"cosine"``) or uniform (``"uniform"``, the naive algorithm's "visible
-hemisphere uniformly", spec §3.1) hemisphere sampling, or from a per-point tabular pdf — Jensen's
-photon-map pdf or Steinhurst's combined importance sampling (``"jensen"``, ``"cis"``: Ch. 6,
-:mod:`.cis`) — the N_FG directions of a point warped from a randomly shifted Hammersley set
-(:func:`~photonmap.core.sampling.rotated_hammersley`) — passes
-through purely specular surfaces and reads the photon map at the first non-specular hit y_i —
-emitters met on the way add nothing (direct light and caustics at x are computed separately).
-``L(y_i → x)`` comes from irradiance precomputed at photon positions (default) or from an exact
-k-NN radiance estimate at y_i (the dissertation's naive algorithm, ``lookup="knn"``).
+Each of the N_FG rays leaves x by BSDF sampling (smooth lobes, ``sampling="bsdf"``), cosine-weighted
+(``"cosine"``) or uniform (``"uniform"``, the naive algorithm's "visible hemisphere uniformly",
+Steinhurst §3.1) hemisphere sampling, or from a per-point tabular pdf — Jensen's photon-map pdf or
+Steinhurst's combined importance sampling (``"jensen"``, ``"cis"``: Ch. 6, :mod:`.cis`) — the N_FG
+directions of a point warped from a randomly shifted Hammersley set
+(:func:`~photonmap.core.sampling.rotated_hammersley`) — passes through purely specular surfaces and
+reads the photon map at the first non-specular hit y_i — emitters met on the way add nothing (direct
+light and caustics at x are computed separately). ``L(y_i → x)`` comes from irradiance precomputed
+at photon positions (default) or from an exact k-NN radiance estimate at y_i (the dissertation's
+naive algorithm, ``lookup="knn"``).
 
 With the precomputed irradiance the whole batch — BSDF sampling, the eye-path loop and the
 nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is one fused kernel; no
@@ -24,7 +24,7 @@ query point at a time as fit in ``BATCH_RAYS`` (2²¹) rays per batch — the un
 reordering works on. With a ``layout`` (:class:`~.gather_batch.RequestLayout`) the k-NN lookups of
 a batch run as a :class:`~.gather_batch.GatherBatch` of the hits, in one of Steinhurst's gather
 orders (Ch. 3); each ray's result goes back to its lane before the per-pixel sums, so the image is
-bit-identical in every order (spec oracle O1).
+bit-identical in every order (tested).
 """
 
 from __future__ import annotations
@@ -72,7 +72,6 @@ def final_gather(
     ``layout`` (k-NN lookups, ``fused=False``): issue each batch's gathers in ``layout.order``."""
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
-    ctx = mi.BSDFContext()  # the smooth lobes only: delta and Null samples count nothing
     total = dr.zeros(mi.Spectrum, count)
     shifts = rng(count, seed, FG_STREAM - 1)
     shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
@@ -86,21 +85,7 @@ def final_gather(
         gen = rng(count * m, seed, FG_STREAM + first)
         i = first + dr.arange(mi.UInt32, count * m) % m
         u = rotated_hammersley(rays, i, dr.gather(mi.Point2f, shift, query))
-        if sampling == "bsdf":
-            bs, weight = bsdf.sample(ctx, x, gen.next_float32(), u, ok)
-            smooth = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
-            wo, pdf, ok = bs.wo, bs.pdf, ok & (bs.pdf > 0) & smooth
-        else:
-            if sampling == "cosine":
-                wo = mi.warp.square_to_cosine_hemisphere(u)
-                pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
-            elif sampling == "uniform":
-                wo = mi.warp.square_to_uniform_hemisphere(u)
-                pdf = mi.warp.square_to_uniform_hemisphere_pdf(wo)
-            else:
-                wo, pdf = sample_table(table, query, u)
-            weight = bsdf.eval(ctx, x, wo, ok) / dr.maximum(pdf, 1e-12)
-            ok &= pdf > 0
+        wo, pdf, weight, ok = _sample_direction(sampling, x, bsdf, gen, u, ok, table, query)
         if irradiance is not None:
             cos_pdf = mi.Spectrum(dr.maximum(wo.z, 0.0) / dr.maximum(pdf, 1e-12))
             weight = dr.select(dr.gather(mi.Bool, irradiance, query), cos_pdf, weight)
@@ -128,6 +113,28 @@ def final_gather(
         total += mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, m) for c in L])
         dr.eval(total)
     return total / rays
+
+
+def _sample_direction(sampling: str, x, bsdf, gen, u: mi.Point2f, ok, table, query):
+    """A final-gather direction at ``x`` from the 2D sample ``u``: ``(wo, pdf, weight, ok)``,
+    ``weight = f cos / pdf`` of the smooth lobes (delta and ``Null`` samples count nothing), by
+    BSDF sampling, cosine or uniform hemisphere sampling, or from the per-query tabular pdf
+    ``table`` (:func:`~.cis.sample_table`: ``jensen``, ``cis``)."""
+    ctx = mi.BSDFContext()
+    if sampling == "bsdf":
+        bs, weight = bsdf.sample(ctx, x, gen.next_float32(), u, ok)
+        smooth = mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
+        return bs.wo, bs.pdf, weight, ok & (bs.pdf > 0) & smooth
+    if sampling == "cosine":
+        wo = mi.warp.square_to_cosine_hemisphere(u)
+        pdf = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+    elif sampling == "uniform":
+        wo = mi.warp.square_to_uniform_hemisphere(u)
+        pdf = mi.warp.square_to_uniform_hemisphere_pdf(wo)
+    else:
+        wo, pdf = sample_table(table, query, u)
+    weight = bsdf.eval(ctx, x, wo, ok) / dr.maximum(pdf, 1e-12)
+    return wo, pdf, weight, ok & (pdf > 0)
 
 
 def _ordered_lookup(lookup, layout: RequestLayout, si_y, found, query, i, direction) -> mi.Spectrum:

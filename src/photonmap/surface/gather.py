@@ -19,6 +19,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
+from ..core.knn import neighbour_sum
 from .photon_map import PhotonMap
 
 
@@ -37,22 +38,17 @@ def radiance_estimate(
     return _reflected(pmap, si, bsdf, k, max_radius, neighbours, active)
 
 
-@dr.syntax
 def _reflected(pmap, si, bsdf, k, max_radius, nb, active):
     """``Σ f_r(ω_p, ω_o) ΔΦ_p / (π r²)`` over the neighbours ``nb`` of each query."""
     count = dr.width(nb.count)
     active = active & dr.full(mi.Bool, True, count)  # a scalar mask means every query
     ctx = mi.BSDFContext()
-    base = dr.arange(mi.UInt32, count) * k
-    L = dr.zeros(mi.Spectrum, count)
-    j = dr.zeros(mi.UInt32, count)
-    while active & (j < nb.count):
-        idx = dr.gather(mi.UInt32, nb.index, base + j)
-        power = dr.gather(mi.Color3f, pmap.photons.power, idx, active)
-        wo = si.to_local(-dr.gather(mi.Vector3f, pmap.photons.direction, idx, active))
-        f = bsdf.eval(ctx, si, wo, active) / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
-        L += f * power
-        j += 1
+
+    def brdf(arriving, active):
+        wo = si.to_local(arriving)
+        return bsdf.eval(ctx, si, wo, active) / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
+
+    L = neighbour_sum(nb, pmap.photons.power, pmap.photons.direction, brdf, active)
     area = _disk_area(nb, k, max_radius)
     return dr.select(active & (nb.count > 0) & (area > 0), L / dr.maximum(area, 1e-30), 0.0)
 

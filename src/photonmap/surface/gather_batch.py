@@ -1,27 +1,30 @@
-"""Final-gather request batches and their orders (Steinhurst 2007 Ch. 3; spec seed-001 §2.3,
-§2.7, ambiguities A1, A2, A16, A18; oracles O1, O2).
+"""Final-gather request batches and their orders (Steinhurst 2007 Ch. 3).
 
-The eye pass emits its final-gather photon gathers as an explicit batch
-(:class:`GatherBatch`, the deferred request record of [DOC §3.4]: gather position ``y`` with its
-normal, destination pixel, ray index and the world direction ``ω_i`` of the final-gather ray).
-Directions come from a counter-based generator keyed by (pixel, ray index), so every order below
-is a *permutation* of one fixed batch and the image does not depend on it (O1): the gathers are
-independent and each pixel sums its rays in ray-index order after the gathers.
+The eye pass emits its final-gather photon gathers as an explicit batch (:class:`GatherBatch`, the
+deferred request record of Steinhurst 2007 §3.4: gather position ``y`` with its normal, destination
+pixel, ray index and the world direction ``ω_i`` of the final-gather ray). Directions come from a
+counter-based generator keyed by (pixel, ray index), so every order below is a *permutation* of one
+fixed batch and the image does not depend on it (tested): the gathers are independent and each pixel
+sums its rays in ray-index order after the gathers.
 
 Orders (:data:`ORDERS`; ``tile`` × ``tile`` screen tiles, row-major over the image):
 
-- ``naive`` — pixels in scanline order, each pixel's rays in index order (§2.7.1);
-- ``tiled`` — tiles in row-major order, scanline order inside a tile (§2.7.2);
-- ``tiled_dirbin`` — per tile, rays sorted by world-space direction bin (``bins`` = 32
-  equal-solid-angle bins by default: 4 bands uniform in ``ω·up`` × 8 azimuth sectors, A1), then
-  pixel, then ray; pixels whose eye ray met a specular surface go last (§2.7.3, A18);
+- ``naive`` — pixels in scanline order, each pixel's rays in index order (§3.1);
+- ``tiled`` — tiles in row-major order, scanline order inside a tile (§3.3.1; the tiles' order is
+  not given);
+- ``tiled_dirbin`` — per tile, rays sorted by world-space direction bin (§3.3.2 gives no
+  bin count or frame: ``bins`` = 32 world-space equal-solid-angle bins by default, 4 bands uniform
+  in ``ω·up`` × 8 azimuth sectors), then pixel, then ray; pixels whose eye ray met a specular
+  surface go last;
 - ``hashed`` — the naive stream through ``queues`` (17) hashed queues of ``slots`` (128) over a
-  ``grid``³ world grid, one stream for the whole image (§2.7.6);
-- ``tiled_dirbin_hashed`` — ``tiled_dirbin`` through the hashed queues, flushed per tile (§2.7.7);
-- ``tiled_hilbert`` — per tile, stable sort by the 3D Hilbert index of ``y`` (§2.7.5);
-- ``hilbert`` — the whole batch along the 3D Hilbert curve (§2.7.4).
+  ``grid``³ world grid, one stream for the whole image (§3.4.3);
+- ``tiled_dirbin_hashed`` — ``tiled_dirbin`` through the hashed queues, flushed per tile (§3.4.4,
+  §7.3.4);
+- ``tiled_hilbert`` — per tile, stable sort by the 3D Hilbert index of ``y`` (§3.4.2);
+- ``hilbert`` — the whole batch along the 3D Hilbert curve (§3.4.1).
 
-**Hashed queues** (A2): a request goes to queue ``(i + G j + G² k) mod p`` of its grid cell. If
+**Hashed queues** (§3.4.3 names neither the hash nor what happens when a queue is full; ours): a
+request goes to queue ``(i + G j + G² k) mod p`` of its grid cell (a prime ``p``, as there). If
 that queue is full the fullest queue (lowest index on ties) is drained completely, in arrival
 order, until it has room; at the end of a stream all queues drain, fullest first. Since every
 drain empties a full queue, the simulation advances by one drain per step for every stream at once
@@ -47,19 +50,20 @@ ORDERS = (
     "tiled_hilbert",
     "hilbert",
 )
-DIR_BANDS, DIR_SECTORS = 4, 8  # 32 world-space direction bins (spec A1)
-HILBERT_BITS = 16  # cells per axis of the Hilbert grid: 2^16 (spec A16: a grid finer than gathers)
+DIR_BANDS, DIR_SECTORS = 4, 8  # 32 world-space direction bins (module docstring)
+HILBERT_BITS = 16  # cells per axis of the Hilbert grid: 2^16 (§3.4.1: a grid finer than gathers)
 
 
 @dataclass
 class OrderParams:
-    """The reordering parameters of Steinhurst §3.3–3.4 (defaults: spec quick parameter card)."""
+    """The reordering parameters of Steinhurst §3.3–3.4 (defaults: the dissertation's where it
+    gives them, §3.3.2 and §3.4.3; the direction bins ours)."""
 
     tile: int = 16  # tile edge in pixels
     queues: int = 17  # hashed queues p (a prime)
     slots: int = 128  # requests per queue s
     grid: int = 5  # world-grid intervals per axis for the hash (Cornell 5, Sponza 8)
-    bins: int = DIR_BANDS * DIR_SECTORS  # direction bins, a power of two (A1: swept 8 … 128)
+    bins: int = DIR_BANDS * DIR_SECTORS  # direction bins, a power of two (8 … 128)
 
     def validate(self) -> None:
         for key in ("tile", "queues", "slots", "grid", "bins"):
@@ -126,8 +130,8 @@ def gather_order(batch: GatherBatch, order: str, params: OrderParams | None = No
 
 
 def direction_bin(direction: np.ndarray, bins: int = DIR_BANDS * DIR_SECTORS) -> np.ndarray:
-    """World-space direction bin (0 … bins − 1) of unit vectors (N, 3): bands of equal solid
-    angle in ``d_y`` (+y is up) × azimuth sectors (spec A1); ``bins`` = 2^b splits into 2^⌊b/2⌋
+    """World-space direction bin (0 … bins − 1) of unit vectors (N, 3): bands of equal solid angle
+    in ``d_y`` (+y is up) × azimuth sectors (module docstring); ``bins`` = 2^b splits into 2^⌊b/2⌋
     bands × 2^⌈b/2⌉ sectors (32 → 4 × 8, the default; 8 → 2 × 4; 128 → 8 × 16)."""
     bands = 1 << (int(bins).bit_length() - 1) // 2
     sectors = int(bins) // bands
@@ -150,7 +154,8 @@ def _hilbert_keys(batch: GatherBatch) -> np.ndarray:
 
 
 def _queue(batch: GatherBatch, params: OrderParams) -> np.ndarray:
-    """Hash queue ``(i + G j + G² k) mod p`` of each request's world-grid cell (spec A2)."""
+    """Hash queue ``(i + G j + G² k) mod p`` of each request's world-grid cell (module
+    docstring)."""
     c = _cells(batch, params.grid)
     g = params.grid
     return (c[:, 0] + g * c[:, 1] + g * g * c[:, 2]) % params.queues

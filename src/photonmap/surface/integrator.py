@@ -6,7 +6,7 @@
      fg_sampling, irradiance_cache, ic_error, irradiance_every, spp, emitter_spp, volume_k,
      volume_radius, rr_depth, hide_emitters
    - see :class:`photonmap.surface.pipeline.SurfaceParams`
-   - Defaults as there (Steinhurst 2007 Table 7.1; spec seed-001 §2.0, A12).
+   - Defaults as there (Steinhurst 2007 Table 7.1).
 
 .. code-block:: python
 

@@ -1,11 +1,12 @@
 """Irradiance caching for the final gather: Ward's sequential cache and Steinhurst's tiled cache
-with R_avg precomputed at photons (Steinhurst 2007 Ch. 5; spec seed-001 §2.9, ambiguities A3, A4).
+with R_avg precomputed at photons (Steinhurst 2007 Ch. 5).
 
 A cache decides, before any final gather, which eye-ray hits gather (and become *records*) and
 which *interpolate* the irradiance of earlier records (Eqs 5.7–5.10). Only purely Lambertian hits
 take part (``L_r = ρ/π · E``, Eq 5.4); every other hit runs its own full final gather.
 
-**Error and weights** (spec §2.9.3 [REC], Ward's form without ``E(x')``, A3)::
+**Error and weights** (Ward's form without ``E(x')``, as Steinhurst §5.3 drops it; Eqs 5.7 and
+5.9 disagree on the 4/π and the normal term, so their common form is taken)::
 
     ε_j(x) = ||x − x_j|| / R_j + sqrt(max(0, 1 − n_x·n_j))        w_j(x) = 1 / max(ε_j, 10⁻⁶)
 
@@ -16,15 +17,16 @@ otherwise it gathers and is inserted as a record.
 
 **Modes**:
 
-- ``ward`` (§2.9.1, the baseline): one cache for the whole image, hits taken in scanline order,
+- ``ward`` (§5.1, the baseline): one cache for the whole image, hits taken in scanline order,
   ``R_j`` the harmonic mean distance (Eq 5.8) of ``RAVG_RAYS`` cosine rays cast at the record
   itself. Steinhurst takes R_j from the record's own final-gather rays; distances from separate
   rays of the same distribution make the same decisions in distribution and let every ``R`` be
   known before any decision. The dependence stays sequential (one SIMD lane walks the image).
-- ``tiled`` (§2.9.2, §2.9.3): a new empty cache per ``TILE × TILE`` pixel tile, and ``R`` read
+- ``tiled`` (§5.2, §5.3): a new empty cache per ``TILE × TILE`` pixel tile, and ``R`` read
   from the nearest (facing the same way) of the points at every ``RAVG_EVERY``-th photon where it
-  was precomputed once per photon map (:func:`precompute_ravg`; spec A4: 1/8 of the photons,
-  64 rays, misses add ``1/R = 0``). All decisions of a tile are then known before any gather.
+  was precomputed once per photon map (:func:`precompute_ravg`; the subset and ray count are not
+  given: 1/8 of the photons as Christensen 1999's radiance photons, 64 rays, misses add
+  ``1/R = 0``). All decisions of a tile are then known before any gather.
 
 **Decisions, vectorised**: the pairs (x_i, record candidate x_j) of one cache with ``j`` before
 ``i`` — every pair of a tile (NumPy, a block of tiles at a time), or for Ward's image-wide cache
@@ -54,9 +56,9 @@ from .photon_map import PhotonMap
 
 MODES = ("none", "ward", "tiled")
 TILE = 16  # pixels per tile side (Steinhurst's 16 × 16)
-RAVG_EVERY = 8  # R_avg precomputed at every 8th photon (spec A4)
-RAVG_RAYS = 64  # cosine rays per R_avg (spec A4)
-RAVG_CLAMP = (0.001, 2.0)  # R_avg limits × the cube root of the scene box's volume (spec A4)
+RAVG_EVERY = 8  # R_avg precomputed at every 8th photon (Christensen 1999's ratio)
+RAVG_RAYS = 64  # cosine rays per R_avg
+RAVG_CLAMP = (0.001, 2.0)  # R_avg limits × the cube root of the scene box's volume
 PAIRWISE_RUN = 4096  # caches up to this many lanes enumerate all their pairs
 PAIR_BLOCK = 1 << 22  # pairs examined at a time
 QUERY_BLOCK = 4096  # k-d tree queries at a time
@@ -65,7 +67,7 @@ RAVG_STREAM = 1 << 20  # RNG streams of the R_avg rays
 
 
 def ravg_limits(scene: mi.Scene) -> tuple[float, float]:
-    """``RAVG_CLAMP`` × (scene box volume)^(1/3). Spec A4 recommends pbrt-v1's upper limit 0.125;
+    """``RAVG_CLAMP`` × (scene box volume)^(1/3). pbrt-v1 clamps at 0.125;
     in the Cornell box the median R_avg of the eye-ray hits is 0.65 × that size (measured), so
     that limit would make R_avg a constant on most hits. The upper limit here, about the box's
     diagonal, only bounds points that see mostly sky."""
@@ -132,7 +134,7 @@ class RavgPoints:
 def precompute_ravg(
     scene: mi.Scene, pmap: PhotonMap, seed: int, null_shapes: bool | None = None
 ) -> RavgPoints:
-    """R_avg at every ``RAVG_EVERY``-th photon of ``pmap`` (Steinhurst §5.3, spec A4)."""
+    """R_avg at every ``RAVG_EVERY``-th photon of ``pmap`` (Steinhurst §5.3)."""
     if pmap.size == 0:
         return RavgPoints(dr.zeros(mi.Vector3f, 0), dr.zeros(mi.Float, 0), None)
     index = dr.arange(mi.UInt32, 0, pmap.size, RAVG_EVERY)

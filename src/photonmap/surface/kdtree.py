@@ -1,13 +1,13 @@
 """Left-balanced kd-tree photon map in heap order (Steinhurst 2007 §2.6.1, §4.2; Jensen 1996).
 
-Spec seed-001 §2.3 (photon record, heap layout), §2.4 (kNN gather with maximum radius and normal
-test), §2.8 (the kd-tree, the structure the dissertation's bandwidth model assumes), oracle O5. Same
+The photon record and heap layout of §3.5 and §4.2, the k-NN gather with a maximum radius and a
+normal test of §7.3.4.1: the structure the dissertation's bandwidth model assumes. Same
 interface and same results as :class:`photonmap.core.hashgrid.HashGrid`; :mod:`photonmap.core.knn`
 defines the result (ties broken by photon index), the normal test and the k-best heap.
 
 **Tree.** ``N`` photons fill heap slots ``1..N`` exactly: slot ``i`` has children ``2i`` and
-``2i + 1`` (a slot > N does not exist), so no pointers are stored (the "priority heap" of [DOC
-§4.2]). Left-balanced (Jensen): a node's left subtree holds the number of photons that keeps the
+``2i + 1`` (a slot > N does not exist), so no pointers are stored (the "priority heap" of Steinhurst
+§4.2). Left-balanced (Jensen): a node's left subtree holds the number of photons that keeps the
 tree complete, and the node's photon is the one of that rank along the node's split axis — the axis
 of largest extent of the subtree's photons. Every photon of the left subtree has a coordinate ≤ the
 node's on the split axis, every photon of the right subtree ≥ it. Built level by level with NumPy:
@@ -25,9 +25,9 @@ array       bytes  content
 ==========  =====  ===========================================================================
 
 ``record`` is what a gather reads: one 16-byte record per visited node, the counterpart of
-Jensen's 20-byte photon (position, power, direction, split flag; spec §2.3). ``order`` and
+Jensen's 20-byte photon (position, power, direction, split flag; Steinhurst §3.5). ``order`` and
 ``axis`` repeat its last field for callers. A cache simulator maps node ``i`` to a memory address
-with either record size (spec §2.3: ``line(i) = (i − 1) div ⌊line_bytes / record_bytes⌋``).
+with either record size (``line(i) = (i − 1) div ⌊line_bytes / record_bytes⌋``).
 
 **Search** (Jensen's locate, iterative): a symbolic loop per query with an explicit stack in local
 memory. At a node: offer its photon to the k-best heap, go on to the near child (the side of the
@@ -37,10 +37,11 @@ that bound. Ties are kept (``≤``), so a photon at exactly the k-th distance wi
 still found, and float32 rounding is monotone, so ``δ²`` never exceeds a far-side photon's ``d²``:
 the results are exact. The stack holds at most one entry per tree level (≤ 32).
 
-**Address trace** (:meth:`KDTree.visits`): the same search also counts the nodes each query
-visits and can write their heap slots, in visiting order, to a buffer — the exact stream of record
-reads of a gather (spec §2.6). The cache simulator runs a compiled copy of this search
-(:mod:`photonmap.analysis.kdwalk`), tested slot for slot against this one.
+**Address trace** (:meth:`KDTree.visits`): the same search also counts the nodes each query visits
+and can write their heap slots, in visiting order, to a buffer — the exact stream of record reads of
+a gather (Steinhurst §3.2: the renderer notes every photon-map access). The cache simulator runs a
+compiled copy of this search (:mod:`photonmap.analysis.kdwalk`), tested slot for slot against this
+one.
 """
 
 from __future__ import annotations

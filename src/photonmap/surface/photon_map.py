@@ -1,17 +1,19 @@
 """The global and caustic photon maps (Steinhurst 2007 §2.6.1, Alg 2.4; Jensen 1996).
 
-Photons come from the transport core's photon loop (:func:`photonmap.core.photon_trace.trace_photons`:
-light paths through Mitsuba's BSDFs and media with Russian roulette, stored at every smooth hit).
-Following Jensen's convention (spec seed-001 A5): the **global map** holds every stored hit of
-``photons`` light paths, first bounces included (the final gather needs them at its secondary
-hits); the **caustic map** holds the hits of a separate ``caustic_photons`` paths that lie on
-L S+ D paths. Caustics at an eye-ray hit come only from the caustic map, so nothing is counted
-twice. In a scene with participating media a third map, the volume map (Jensen & Christensen
-1998), holds the photons stored at scattering events in the media.
+Photons come from the transport core's photon loop
+(:func:`photonmap.core.photon_trace.trace_photons`: light paths through Mitsuba's BSDFs and media
+with Russian roulette, stored at every smooth hit). Following Jensen's convention (Jensen 1996;
+Steinhurst's Alg 2.4 as printed never records a caustic photon, and his text and pseudo-code
+disagree on the indirect map): the **global map** holds every stored hit of ``photons`` light paths,
+first bounces included (the final gather needs them at its secondary hits); the **caustic map**
+holds the hits of a separate ``caustic_photons`` paths that lie on L S+ D paths. Caustics at an
+eye-ray hit come only from the caustic map, so nothing is counted twice. In a scene with
+participating media a third map, the volume map (Jensen & Christensen 1998), holds the photons
+stored at scattering events in the media.
 
-Each map keeps its photons as a struct of arrays (position, power, direction, normal; float32,
-52 bytes a photon) in tracing order; its search structure keeps the positions with their indices in
-its own order — a hash grid sorted by cell, or a left-balanced kd-tree in heap order (spec §2.3) —
+Each map keeps its photons as a struct of arrays (position, power, direction, normal; float32, 52
+bytes a photon) in tracing order; its search structure keeps the positions with their indices in its
+own order — a hash grid sorted by cell, or a left-balanced kd-tree in heap order (Steinhurst §4.2) —
 so the memory layout a gather touches is explicit.
 """
 
@@ -45,8 +47,9 @@ class PhotonMap:
         return self.photons.count
 
     def knn(self, query: mi.Point3f, normal: mi.Vector3f, k: int, max_radius: float):
-        """The ``k`` nearest photons to each query that pass the normal test (spec §2.4, A13):
-        arrived from the query's front side and stored on a surface facing the same way."""
+        """The ``k`` nearest photons to each query that pass the normal test
+        (:mod:`photonmap.core.knn`): arrived from the query's front side and stored on a surface
+        facing the same way."""
         return self.structure.knn(
             query,
             k=k,

@@ -1,5 +1,5 @@
 """``SurfacePipeline`` — classic two-pass photon mapping as Steinhurst 2007 uses it as his baseline
-(Ch. 2 §2.6; spec seed-001 §2.1–2.5), after Jensen.
+(Ch. 2 §2.6, §7.3), after Jensen.
 
 Pass 1 traces ``photons`` light paths into the global map and ``caustic_photons`` into the caustic
 map. Pass 2 sends ``spp`` eye rays per pixel; each follows mirrors and glass to the first
@@ -24,7 +24,7 @@ non-specular surface x, where
 The photon maps are built once per scene and parameter set and reused for every render (a camera
 move re-renders without new photons, Steinhurst §7.2.1).
 
-Participating media (Jensen & Christensen 1998; spec beyond-seeds §4): in a scene with fog
+Participating media (Jensen & Christensen 1998): in a scene with fog
 (homogeneous or ``heterogeneous`` Mitsuba media, bounded by ``null``, dielectric or any
 medium-transition shapes, around the sensor or the emitters) the photons fly through the media and
 a third map holds the volume photons (:func:`~.photon_map.build_photon_maps`). Eye and
@@ -91,8 +91,8 @@ STAGES = (
     "final gather",
     "light images",
 )
-CAUSTIC_RADIUS = 0.05  # automatic caustic gather radius, × scene diagonal (spec A12)
-GLOBAL_RADIUS = 0.1  # automatic global gather radius, × scene diagonal (A12 says unbounded)
+CAUSTIC_RADIUS = 0.05  # automatic caustic gather radius, × scene diagonal (radii(): ours)
+GLOBAL_RADIUS = 0.1  # automatic global gather radius, × scene diagonal (radii(): ours)
 VOLUME_RADIUS = 0.1  # automatic volume gather radius, × scene diagonal
 
 
@@ -207,9 +207,10 @@ class SurfacePipeline(Pipeline):
         return scene_bounds(self.scene)[1]
 
     def radii(self) -> tuple[float, float]:
-        """Maximum gather radius for the caustic and the global map: spec A12's 5% of the scene
-        diagonal for caustics; for the global map 10% rather than A12's unbounded search, which
-        visits the whole grid wherever fewer than k photons pass the normal test."""
+        """Maximum gather radius for the caustic and the global map (Steinhurst gives none): 5% of
+        the scene diagonal for caustics; for the global map 10% rather than an unbounded search
+        (k-limited), which visits the whole grid wherever fewer than k photons pass the normal
+        test."""
         if self.params.radius > 0:
             return self.params.radius, self.params.radius
         return CAUSTIC_RADIUS * self.diagonal, GLOBAL_RADIUS * self.diagonal

@@ -1,5 +1,5 @@
-"""The surface method's light in participating media (Jensen & Christensen 1998; spec
-beyond-seeds §4): the in-scattered radiance per unit length along the eye paths,
+"""The surface method's light in participating media (Jensen & Christensen 1998):
+the in-scattered radiance per unit length along the eye paths,
 
     L_s(x, ω) = σ_s f_p L_e T / p  (single scattering of direct light, a shadow ray)
               + Σ_p f_p Φ_p / ((4/3) π r³)  (the volume map: everything else),
@@ -80,7 +80,7 @@ class MediumLight:
         return out
 
     def march(self, segments: Segments, lanes: int, stream: int) -> mi.Spectrum:
-        """Ray marching (beyond-seeds §4): per lane, ``Σ w T(x) L_s(x) / p(x)`` over its
+        """Ray marching (Jensen & Christensen 1998): per lane, ``Σ w T(x) L_s(x) / p(x)`` over its
         segments, ``w`` the segment's throughput and ``T(x)`` the transmittance from the segment's
         origin (:func:`~photonmap.core.media.segment_transmittance`: exact when homogeneous,
         ratio tracking otherwise).

@@ -1,5 +1,5 @@
-"""``photonmap view``: interactive relighting in the browser (issue 14; Sun et al. 2008 §6,
-seed 002: drag the light, change the glass, paint fog, see the caustics follow).
+"""``photonmap view``: interactive relighting in the browser (Sun et al. 2008 §6:
+drag the light, change the glass, paint fog, see the caustics follow).
 
 A FastAPI server (:mod:`.app`) with one static page (``static/``) over a render thread
 (:mod:`.worker`) that drives a pipeline through its adapter (:mod:`.adapters`); the state

@@ -1,15 +1,15 @@
 """One method's pipeline behind the viewer: its state (:mod:`.state`), the checks of an update
-against it, and applying a change through the pipeline's own setters, so that each change
-reruns only the stages it needs (Sun et al. 2008 §6.1–6.2, seed 002; spec seed-000-002 §4.1,
-seed-004 §7). The adapters are in :mod:`.volume_adapter` and :mod:`.mitsuba_adapters`;
-:data:`.methods.ADAPTERS` maps a method name to its adapter (a new method is one line there).
+against it, and applying a change through the pipeline's own setters, so that each change reruns
+only the stages it needs (Sun et al. 2008 §6.1–6.2; Yao 2011 Ch. 3). The adapters are in
+:mod:`.volume_adapter` and :mod:`.mitsuba_adapters`; :data:`.methods.ADAPTERS` maps a method name to
+its adapter (a new method is one line there).
 
 During a drag (``preview`` frames, :mod:`.worker`) a change that makes the pipeline trace its
 photons again (a light, a material, a parameter, the volume) is rendered with a reduced photon
 budget: each parameter of :attr:`Adapter.preview_divisors` divided (the volume method's photons
 by 16, the screen method's ``photons`` by 16), so that the preview costs
 about 1/16 of the photon tracing that dominates a light move (Sun et al. 2008 §6: the preview
-while the user drags, the converged image when they stop; issue 14 item 2). The next full-size
+while the user drags, the converged image when they stop). The next full-size
 frame restores the user's budget, so it is the render of the full settings; the state keeps the
 user's values throughout. A camera-only drag keeps whatever photons the pipeline holds.
 

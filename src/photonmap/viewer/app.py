@@ -1,5 +1,5 @@
-"""The viewer's web server: one static page and a small HTTP API (issue 14 items 1 and 3;
-docs/viewer.md documents it).
+"""The viewer's web server: one static page and a small HTTP API (docs/viewer.md documents
+it).
 
 =========================  ===============================================================
 ``GET /``                  the page (``static/index.html``)

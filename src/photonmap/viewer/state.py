@@ -1,4 +1,4 @@
-"""The viewer's state document and the checks of an update against it (issue 14 item 3).
+"""The viewer's state document and the checks of an update against it.
 
 The state is plain JSON: what ``GET /api/state`` returns and what ``POST /api/update`` takes, an
 update carrying only what changes::

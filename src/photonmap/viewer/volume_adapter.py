@@ -1,4 +1,4 @@
-"""The viewer's handle on the volume pipeline (Sun et al. 2008 §6.1–6.2, seed 002; Pfeuti 2009):
+"""The viewer's handle on the volume pipeline (Sun et al. 2008 §6.1–6.2; Pfeuti 2009):
 lights, the refractive objects' and the fog's media, photons and emission, a sequence of
 simulation volumes (§6.2.3) and volume painting (§6.2.1)."""
 

@@ -1,5 +1,4 @@
-"""The render thread: changes coalesce, the newest wins, no queue of stale frames (issue 14
-item 2).
+"""The render thread: changes coalesce, the newest wins, no queue of stale frames.
 
 Requests never touch the pipeline: :meth:`RenderWorker.update` checks an update against the
 target state (:meth:`.adapters.Adapter.check`) and merges it in; the thread wakes, takes the

@@ -1,8 +1,9 @@
 """A4–A5 — phase 2 of Pfeuti's adaptive pipeline: importance-distributed photons (Pfeuti 2009
-§3.2.3 after Pharr & Humphreys; spec seed-000-002 §A4, A5, A39, A41).
+§3.2.3 after Pharr & Humphreys). Stages A4–A5 of the pipeline (:mod:`.pipeline`).
 
 The pdf ``P[j, i]`` of phase 1 (``pilot.py``) is piecewise constant on a ``W × H`` grid over the
-photon plane ``[0,1]²``. Marginal/conditional sampling (A4)::
+photon plane ``[0,1]²``. Marginal/conditional sampling, continuous
+piecewise-constant (Pharr & Humphreys' ``Distribution2D``; the weight uses the continuous density)::
 
     m[j]   = Σ_i P[j, i]                 Cy[j]   = Σ_{j'<j} m[j']          (rows: the plane's w)
     q[i|j] = P[j, i] / m[j]              Cx[i|j] = Σ_{i'<i} q[i'|j]        (columns: u)
@@ -12,9 +13,10 @@ photon plane ``[0,1]²``. Marginal/conditional sampling (A4)::
 
 with ``(u₁, u₂)`` Hammersley points and binary searches on the CDFs ("we do not build the inverse
 explicitly"); rows and cells of zero mass are never chosen. A photon's power is the S5 power for
-``N`` plane samples times its weight ``w = 1/p(x, y)`` (A41: ``w_rel``, = 1 for the uniform pdf,
-so ``Φ = I·(A/N)·cos³θ/(d²·p)``, Pfeuti's ``light_power/(p_x·p_y·square_area·photon_count)``).
-The phase-2 march (A5) is S6/S7 with the count and weight sums in the spare accumulator channels
+``N`` plane samples times its weight ``w = 1/p(x, y)`` (relative to the uniform pdf, so Δweight is
+dimensionless; Pfeuti's weight ``1/(p·A·N)`` holds the factor ``A·N`` too; = 1 for the uniform pdf,
+so ``Φ = I·(A/N)·cos³θ/(d²·p)``, Pfeuti's ``light_power/(p_x·p_y·square_area·photon_count)``). The
+phase-2 march (A5) is S6/S7 with the count and weight sums in the spare accumulator channels
 (:func:`photonmap.volume.deposit.weight_tally`).
 """
 
@@ -36,7 +38,8 @@ from .scene import Light
 
 @dataclass
 class PlaneSampler:
-    """Marginal/conditional CDFs of a ``(H, W)`` pdf [row j = w, column i = u] (spec A4)."""
+    """Marginal/conditional CDFs of a ``(H, W)`` pdf [row j = w, column i = u] (module
+    docstring)."""
 
     pdf: np.ndarray  # (H, W) cell probabilities, sum 1
     row_cdf: mi.Float  # Cy, H + 1 entries

@@ -1,23 +1,25 @@
-"""S5 — photon generation (Pfeuti 2009 §3.1.4, Listing A.3; Sun et al. 2008 §4.3; issue 11 item 3).
+"""S5 — photon generation for lights anywhere (Pfeuti 2009 §3.1.4, Listing A.3; Sun et al. 2008
+§4.3).
 
 How a light's photons are made depends on the light (:func:`emission_mode`):
 
 - ``"plane"`` — a point or spot light with the whole grid in front of it, and every directional
-  light: the **photon plane**. A square between the light and the grid covers the whole grid as
-  seen from the light; photon ``i`` starts at plane point ``Q_i`` of a 2D point set (Hammersley
-  by default, Pfeuti §4.1 Table 4.1), travels along ``d₀ = normalize(Q_i − P_L)`` (point/spot) or
-  the light direction (directional) and enters the grid at the slab-test entry point ``x₀``.
-  Energy (spec S5, A14, physically normalised — the default): ``Φ_i = I(d₀)·(A/N)·cos³θ_i/d²``
-  for point/spot lights — the solid angle of the photon's plane cell, so ``Σ Φ_i → I·Ω_plane``
-  (oracle 16) — and ``Φ_i = E·A/N`` for a directional light (``A`` in world units);
-  ``fidelity="paper"``: Pfeuti's constant ``Φ_i = I·(A/N)/d²`` (no cosine, a vignetted image).
+  light: the **photon plane**. A square between the light and the grid covers the whole grid as seen
+  from the light; photon ``i`` starts at plane point ``Q_i`` of a 2D point set (Hammersley by
+  default, Pfeuti §4.1 Table 4.1), travels along ``d₀ = normalize(Q_i − P_L)`` (point/spot) or the
+  light direction (directional) and enters the grid at the slab-test entry point ``x₀``. Energy
+  (physically normalised — the default; Pfeuti's text and listing disagree):
+  ``Φ_i = I(d₀)·(A/N)·cos³θ_i/d²`` for point/spot lights — the solid angle of the photon's plane
+  cell, so ``Σ Φ_i → I·Ω_plane`` (tested) — and ``Φ_i = E·A/N`` for a directional light (``A`` in
+  world units); ``fidelity="paper"``: Pfeuti's constant ``Φ_i = I·(A/N)/d²`` (no cosine, a
+  vignetted image).
 - ``"cone"`` (ours) — a point or spot light **inside the grid**, or beside it where no plane in
-  front of the light covers the grid (spec A49): photons start at the light with stratified
-  directions in a cone (axis ``c``, half-angle ``θ_max``): the whole sphere for a point light,
-  the cutoff cone for a spot light. The 2D point ``(u, w)`` maps to
-  ``cos θ = 1 − u(1 − cos θ_max)``, ``φ = 2πw``, an area-preserving map, so every photon
-  carries the same solid angle ``Ω/N`` with ``Ω = 2π(1 − cos θ_max)`` and
-  ``Φ_i = I(d_i)·Ω/N`` (``Σ Φ_i → 4πI`` for a point light).
+  front of the light covers the grid (the photon plane assumes a light outside it): photons start at
+  the light with stratified directions in a cone (axis ``c``, half-angle ``θ_max``): the whole
+  sphere for a point light, the cutoff cone for a spot light. The 2D point ``(u, w)`` maps to
+  ``cos θ = 1 − u(1 − cos θ_max)``, ``φ = 2πw``, an area-preserving map, so every photon carries
+  the same solid angle ``Ω/N`` with ``Ω = 2π(1 − cos θ_max)`` and ``Φ_i = I(d_i)·Ω/N``
+  (``Σ Φ_i → 4πI`` for a point light).
 - ``"area"`` (ours) — an area emitter (sphere, rectangle, mesh) is sampled on its surface:
   ``p`` from the shape's ``sample_position`` (density ``p_A``), and the direction by cosine
   about the normal (density ``cos θ_e/π``, what Mitsuba's ``AreaLight.sample_ray`` does) where
@@ -34,13 +36,13 @@ How a light's photons are made depends on the light (:func:`emission_mode`):
   ``Φ = L(ω)·A_⊥(ω)/(p(ω)·N)``. (For a constant ``L``: ``Σ Φ → L·4π·A_total/4 = πL·A_total``.)
 
 Photons that start outside the grid move to where they enter it (slab test); photons that miss
-it carry no power (spec S5, oracle 17), and the marcher never activates them. Photons from 2D
+it carry no power, and the marcher never activates them. Photons from 2D
 point sets are listed in Morton order of the point so that neighbouring SIMD lanes deposit into
 neighbouring voxels (the deposited sums are exact and do not depend on the order); area and
 environment photons use the Hammersley set of 4 and 5 dimensions (``(i+½)/N, Φ₂(i), Φ₃(i), …``,
 Cranley–Patterson-shifted by the seed). A spot light's intensity falls off as Mitsuba's ``spot``
-plugin's (:func:`spot_falloff`; spec A16 proposed a smoothstep). All positions here are in
-**voxel units** of the grid (spec §0.2); powers in watts.
+plugin's (:func:`spot_falloff`; neither paper has spot lights). All positions here are in
+**voxel units** of the grid (:mod:`photonmap.core.grid`); powers in watts.
 """
 
 from __future__ import annotations
@@ -131,7 +133,7 @@ def emission_mode(light: Light, box: GridBox) -> str:
 
 
 def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
-    """The square photon plane that covers the grid as seen from ``light`` (spec S5).
+    """The square photon plane that covers the grid as seen from ``light`` (Pfeuti 2009 §3.1.4).
 
     Raises :class:`SceneError` for a light that has none (the plane-based ``emission="adaptive"``
     cannot use it; ``emission="uniform"`` emits such lights from the light itself)."""
@@ -157,7 +159,7 @@ def photon_plane(light: Light, box: GridBox) -> PhotonPlane:
         raise SceneError(
             f"the {light.kind} light at {np.round(light.position, 4).tolist()} lies inside or beside "
             "the volume grid; the photon plane of emission='adaptive' needs the whole grid in front "
-            "of the light (spec A49). Use emission='uniform' (it emits such a light's photons from "
+            "of the light. Use emission='uniform' (it emits such a light's photons from "
             "its position), or move the light outside the grid box (grid_bbox)"
         )
     p = box.to_voxel(light.position)
@@ -257,36 +259,6 @@ def cone_photons(light: Light, box: GridBox, u, w):
     return p, d, mi.Color3f(_v(light.intensity)) * scale
 
 
-PRIMES = (2, 3, 5, 7)
-
-
-def radical_inverse(base: int, i: mi.UInt32, count: int) -> mi.Float:
-    """Φ_b(i) for ``i < count``: the base-``b`` digits of ``i`` mirrored about the point (one
-    fused kernel, ``⌈log_b count⌉`` digits)."""
-    if base == 2:
-        return sampling.radical_inverse_2(i)
-    out, x, scale = dr.zeros(mi.Float, dr.width(i)), mi.UInt32(i), 1.0 / base
-    for _ in range(max(1, math.ceil(math.log(max(count, 2)) / math.log(base)))):
-        digit = x % base
-        x = x // base
-        out += mi.Float(digit) * scale
-        scale /= base
-    return out
-
-
-def hammersley_nd(count: int, dims: int, seed: int) -> list[mi.Float]:
-    """The ``dims``-dimensional Hammersley set ``((i+½)/N, Φ₂(i), Φ₃(i), Φ₅(i), …)``, every
-    dimension but the first shifted modulo 1 by a random offset drawn from ``seed``
-    (Cranley–Patterson rotation: each point uniform, the set stratified)."""
-    i = dr.arange(mi.UInt32, count)
-    shift = np.random.default_rng(seed).random(dims)
-    out = [(mi.Float(i) + 0.5) / count]
-    for k in range(dims - 1):
-        x = radical_inverse(PRIMES[k], i, count) + _s(shift[k])
-        out.append(x - dr.floor(x))
-    return out
-
-
 def area_photons(
     light: Light, box: GridBox, count: int, seed: int = 0, aim: bool = True, offset: bool = False
 ):
@@ -295,7 +267,7 @@ def area_photons(
     everywhere (:func:`emit_everywhere`); ``offset``: start off the surface by Mitsuba's spawn
     offset, where a cast from there must not find the emitter itself (opaque surfaces)."""
     emitter = light.emitter
-    u = hammersley_nd(count, 4, seed)
+    u = sampling.hammersley_nd(count, 4, seed)
     ps = light.shape.sample_position(0.0, mi.Point2f(u[0], u[1]))
     si = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
     radius = _s(0.5 * float(np.linalg.norm(box.extent)))  # the grid's bounding sphere (opaque)
@@ -323,7 +295,7 @@ def area_photons(
 def environment_photons(light: Light, box: GridBox, count: int, seed: int = 0):
     """Start point on the grid's faces (voxel units), direction and power of an environment's
     photons (mode ``"environment"``, module docstring)."""
-    u = hammersley_nd(count, 5, seed)
+    u = sampling.hammersley_nd(count, 5, seed)
     it = dr.zeros(mi.Interaction3f, count)
     it.p = _v(box.center) + dr.zeros(mi.Point3f, count)
     ds, weight = light.emitter.sample_direction(it, mi.Point2f(u[0], u[1]))  # L(ω)/p(ω)
@@ -412,7 +384,7 @@ def emit_at(light: Light, box: GridBox, u, w, fidelity: str = "physical", weight
     grid.
 
     ``weight`` (per photon, optional) multiplies the power: ``1/p(u, w)`` for points drawn from a
-    density ``p`` on the plane (Pfeuti §3.2.3, spec A4), so that the estimator stays unbiased.
+    density ``p`` on the plane (Pfeuti §3.2.3), so that the estimator stays unbiased.
     """
     o, d, power = plane_photons(light, box, photon_plane(light, box), u, w, fidelity)
     if weight is not None:
@@ -464,7 +436,7 @@ def emit_everywhere(
             d = _v(axis / np.linalg.norm(axis)) + dr.zeros(mi.Vector3f, count)
             weight = mi.Color3f(_v(light.intensity))
         else:  # environment: the emitter's own direction sampling (L(ω)/p(ω))
-            xi = hammersley_nd(count, 4, seed)
+            xi = sampling.hammersley_nd(count, 4, seed)
             u, w = xi[2], xi[3]
             it = dr.zeros(mi.Interaction3f, count)
             it.p = _v(box.to_world(centre)) + dr.zeros(mi.Point3f, count)

@@ -9,7 +9,7 @@
      iso_reflect, iso_ior, ior_noise, sigma_s_noise, noise_scale, fidelity, smoothing, blur_all,
      spp, emission and the adaptive-emission keys
    - see :class:`photonmap.volume.pipeline.VolumeParams`
-   - Defaults as there (spec seed-000-002 §1 and §6).
+   - Defaults as there (Sun et al. 2008 and Pfeuti 2009 where they give them).
 
 .. code-block:: python
 

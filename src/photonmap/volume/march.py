@@ -1,6 +1,6 @@
 """S6 + S7 — adaptive photon marching along curved rays with exact 3D line rasterisation.
 
-Photon marching [Sun et al. 2008 §4.4 eqs 4–6; Pfeuti 2009 §3.1.5]. With ``v = n dx/ds`` the ray
+Photon marching (Sun et al. 2008 §4.4 eqs 4–6; Pfeuti 2009 §3.1.5). With ``v = n dx/ds`` the ray
 equation ``d/ds (n dx/ds) = ∇n`` is integrated by forward differences::
 
     x_{i+1} = x_i + (Δs / n(x_i)) · v_i                     (4)
@@ -8,33 +8,35 @@ equation ``d/ds (n dx/ds) = ∇n`` is integrated by forward differences::
     L̃_{i+1} = L̃_i · exp(−κ(x_i) · ‖x_{i+1} − x_i‖)            (6)
 
 The step is the distance ``t`` to the face of the octree node holding ``x_i`` plus δ = 10⁻³ voxel,
-clamped to ``[Δs_min, Δs_max(x_i)]`` (Sun §4.4, §5.3); spec A12 turns that target displacement into
-``Δs = t · n(x_i)/‖v_i‖``. A photon stops when it leaves the grid (after depositing the clipped
-segment), when ``max L̃ < 10⁻³ · max L̃₀`` (A18) or after ``max_steps`` steps (total internal
-reflection can trap photons).
+clamped to ``[Δs_min, Δs_max(x_i)]`` (Sun §4.4, §5.3, "a little bit further"); that target
+displacement gives ``Δs = t · n(x_i)/‖v_i‖`` and eqs 4–5 apply literally (``v`` is not
+renormalised). A photon stops when it leaves the grid (after depositing the clipped segment), when
+``max L̃ < 10⁻³ · max L̃₀`` (the papers' "low threshold", relative so that relighting by a colour
+scale stays exact) or after ``max_steps`` steps (total internal reflection can trap photons).
 
 Deposition (S7, Pfeuti §3.1.5 Fig 3.14, "similar to the Bresenham algorithm"): every step's segment
 deposits into the voxels that contain its intersections with the major-axis voxel-centre planes in
-the half-open range ``[s_a, e_a)`` (spec oracle 18), adding per voxel (spec S8)::
+the half-open range ``[s_a, e_a)``, adding per voxel (S8's grids)::
 
     C[v] += w · L̃(u)                 (RGB energy)
     D[v] += w · (L̃_r + L̃_g + L̃_b)(u) · v̂(u)   (Sun §4.4: direction weighted by R+G+B)
 
-Defaults follow spec §6: ``w = 1/|v̂_a|`` (length-weighted deposits, A19) and geometric energy
-interpolation ``L̃(u) = L̃_s · exp(−κ ‖Δx‖ u)`` (exact for constant κ, A20); ``fidelity="paper"``
+By default ``w = 1/|v̂_a|`` (length-weighted deposits) and the energy is interpolated geometrically,
+``L̃(u) = L̃_s · exp(−κ ‖Δx‖ u)`` (exact for constant κ; :mod:`.deposit`); ``fidelity="paper"``
 deposits ``w = 1`` with linear interpolation, as both papers do. Directions are interpolated
-linearly. Accumulation is in 64-bit fixed point (``2³²`` units per ``Φ_max``), so sums are exact
-and independent of thread scheduling (spec A54: deterministic accumulation).
+linearly. Accumulation is in 64-bit fixed point (``2³²`` units per ``Φ_max``), so sums are exact and
+independent of thread scheduling.
 
 The deposits (S7), the fixed-point accumulator's packets and the tallies are in ``deposit.py``.
 Each deposit writes two packets of four 64-bit channels per voxel; a *tally* chooses what goes in
 them. :func:`radiance_tally` (C rgb, D xyz, two spare channels) is S6/S7. Pfeuti's phase-2 marcher
-[§3.2.3, spec A5] also counts photons and sums their weights per voxel; here those two numbers fill
+(§3.2.3, stage A5) also counts photons and sums their weights per voxel; here those two numbers fill
 the spare channels of the same packets (:func:`weight_tally`), so the adaptive march costs no
-second atomic per deposit — the cost Pfeuti measured in Fig 4.14. The pilot marcher [§3.2.2, A2]
-deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``).
+second atomic per deposit — the cost Pfeuti measured in Fig 4.14. The pilot marcher (§3.2.2,
+stage A2) deposits into a grid ``2^shift`` times coarser with its own tally (``pilot.py``).
 
-Multiple scattering (``scattering``, beyond-seeds §5; sampling in ``scatter.py``): each order is
+Multiple scattering (``scattering``, our extension of Sun et al. 2008; sampling in
+``scatter.py``): each order is
 this march (:func:`_march_order`, which also samples the order's collision); the photons that
 scatter are compacted, sorted (:func:`.scatter.coherent_order`) and marched as the next order
 (:func:`_march_multiple`), into the same accumulator, so C and D hold the fluence of all orders
@@ -74,9 +76,10 @@ from .deposit import (
     weight_tally,
 )
 from .emit import Photons
+from .scatter import Collision, Wavefront
 
-OVERSHOOT = 1e-3  # δ, voxels (A10)
-KILL_FRACTION = 1e-3  # τ_rel (A18)
+OVERSHOOT = 1e-3  # δ, voxels: Sun's "a little bit further" past the node's face
+KILL_FRACTION = 1e-3  # τ_rel: a photon below τ_rel × its initial power stops
 
 
 @dataclass
@@ -85,7 +88,7 @@ class MarchGrids:
     ``medium`` = (n, ∂n/∂x, ∂n/∂y, ∂n/∂z, κ_r, κ_g, κ_b, 0) per voxel (trilinear), ``octree`` =
     (level, Δs_max, 0, 0) per voxel (nearest); for multiple scattering ``scatter`` =
     (σ_s,r, σ_s,g, σ_s,b, 0) per voxel (trilinear). ``dims = (n_x, n_y, n_z)``: the grid's
-    extent (a box grid, issue 11 item 2)."""
+    extent (a box grid)."""
 
     dims: tuple
     medium: mi.Float
@@ -130,6 +133,20 @@ class MarchResult:
     surface: object | None = None  # SurfacePhotons: photons recorded on opaque surfaces
 
 
+@dataclass
+class MarchSettings:
+    """The constants of one march (not frozen: Dr.Jit loops read it; ``exclude``d from their
+    state): Δs_min in voxels and the deposits' fixed-point scale (opaque arrays, so a new value
+    does not recompile), the step cap, the papers' literal deposits (``paper``: one per voxel,
+    linear energy) and Pfeuti's direction update (``pfeuti_update``)."""
+
+    ds_min: mi.Float
+    max_steps: int
+    scale: mi.Float
+    paper: bool
+    pfeuti_update: bool
+
+
 @dataclass(frozen=True)
 class Scattering:
     """Multiple scattering's settings (``scatter.py``): Schlick's ``k`` of the phase function and
@@ -139,13 +156,30 @@ class Scattering:
     seed: int = 0
 
 
-def _advance(
-    medium: MarchGrids, x, v, L, ds_min, size: mi.Point3f, pfeuti_update: bool, surface=None
-):
+@dataclass
+class Step:
+    """One curved-ray step of a photon (:func:`curved_step`), from ``x`` to :attr:`x`."""
+
+    x: mi.Point3f  # x_{i+1}, eq (4)
+    v: mi.Vector3f  # v_{i+1} = n dx/ds there, eq (5)
+    L: mi.Color3f  # L̃_{i+1}, eq (6)
+    direction: mi.Vector3f  # v̂_i, the unit direction at the start
+    new_direction: mi.Vector3f  # v̂_{i+1}
+    kappa: mi.Color3f  # κ(x_i), constant over the step
+    length: mi.Float  # t = ‖x_{i+1} − x_i‖ in voxels
+    leaving: mi.Bool  # the step ends on the grid's exit face
+    ior: mi.Float  # n(x_i)
+
+
+def curved_step(
+    medium: MarchGrids, x, v, L, march: MarchSettings, size: mi.Point3f, surface=None
+) -> Step:
     """S6: one curved-ray step (eqs 4–6) from ``x`` with ``v = n dx/ds`` and energy ``L``, to the
     face of the octree node holding ``x`` (+δ), clamped to ``[Δs_min, Δs_max]`` and clipped at the
     grid's exit face and at ``surface`` (the distance in voxels to an opaque surface,
-    ``surface_march.py``). Returns ``(x', v', L', v̂, v̂', κ(x), t, leaving, n(x))``."""
+    ``surface_march.py``). ``Δs = t · n(x)/‖v‖`` for the target displacement ``t``, and ``v``
+    is not renormalised, so eqs (4)–(5) apply literally; ``march.pfeuti_update`` uses Pfeuti's
+    ``v += Δs·n·∇n`` (Pfeuti 2009 Listing A.4) for eq (5)."""
     n_x, grad, kappa = sample_medium(medium, x)
     vox = voxel_index(x, medium.dims)
     oct_idx = mi.UInt32(flat_index(vox.x, vox.y, vox.z, medium.dims))
@@ -156,7 +190,7 @@ def _advance(
     dir_ = dr.normalize(v)
     t_face = dr.select(dir_ > 0, (lo + node - x) / dir_, (lo - x) / dir_)
     t_face = dr.select(dir_ == 0, dr.inf, t_face)
-    t = dr.clip(dr.min(t_face) + OVERSHOOT, ds_min, limit)
+    t = dr.clip(dr.min(t_face) + OVERSHOOT, march.ds_min, limit)
 
     # the step leaves the grid: clip it at the exit face and finish after depositing
     t_exit = dr.min(dr.select(dir_ > 0, (size - x) / dir_, dr.select(dir_ < 0, -x / dir_, dr.inf)))
@@ -165,11 +199,31 @@ def _advance(
     if surface is not None:
         t = dr.minimum(t, dr.maximum(surface, 0.0))
 
-    ds = t * n_x / dr.norm(v)  # A12: Δs for the target displacement t
+    ds = t * n_x / dr.norm(v)  # Δs for the target displacement t
     x_new = mi.Point3f(x + (ds / n_x) * v)  # (4)
-    v_new = v + dr.select(pfeuti_update, ds * n_x, ds) * grad  # (5); A13 Pfeuti variant
+    v_new = v + dr.select(march.pfeuti_update, ds * n_x, ds) * grad  # (5); Pfeuti's variant
     L_new = L * dr.exp(-kappa * t)  # (6), ‖x_{i+1} − x_i‖ = t
-    return x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving, n_x
+    return Step(x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving, n_x)
+
+
+def deposit_step(acc, n, x, step: Step, L, march: MarchSettings, tally, shift=0, expand=True):
+    """S7: rasterise the segment ``x → step.x`` of a photon that carried ``L`` at ``x``
+    (:func:`.deposit.deposit_segment`)."""
+    deposit_segment(
+        acc,
+        n,
+        x,
+        step.x,
+        L,
+        step.kappa * step.length,
+        step.direction,
+        step.new_direction,
+        march.scale,
+        march.paper,
+        tally=tally,
+        shift=shift,
+        expand=expand,
+    )
 
 
 @dr.syntax
@@ -179,11 +233,7 @@ def _march(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     tally=radiance_tally,
     shift: int = 0,
 ):
@@ -196,18 +246,12 @@ def _march(
     active = dr.max(L) > 0  # photons that miss the grid carry no power
     size = grid_extent(n)
 
-    while active:
-        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving, _ = _advance(
-            medium, x, v, L, ds_min, size, pfeuti_update
-        )
-        # ---- S7: rasterise the segment x → x_new ------------------------------------------
-        deposit_segment(
-            acc, n, x, x_new, L, kappa * t, dir_, dir_new, scale, paper, tally=tally, shift=shift
-        )
-
-        x, v, L = x_new, v_new, L_new
+    while dr.hint(active, exclude=[march]):
+        step = curved_step(medium, x, v, L, march, size)
+        deposit_step(acc, n, x, step, L, march, tally, shift)
+        x, v, L = step.x, step.v, step.L
         steps += 1
-        active = ~leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
+        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < march.max_steps)
     return steps, x, v, L
 
 
@@ -218,66 +262,33 @@ def _march_order(
     x: mi.Point3f,
     v: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     target: mi.Float,
     channel: mi.UInt32,
     tally=radiance_tally,
     shift: int = 0,
     expand: bool = True,
 ):
-    """One scattering order of every photon (beyond-seeds §5): :func:`_march`'s loop from
-    ``(x, v = n dx/ds, L)``, which also finds the collision where the optical depth of colour
-    ``channel`` reaches ``target`` (κ constant over a step, as in eq (6)). Returns the steps, the
-    final ``(x, v, L̃)`` and, per photon, whether it collided, the collision point, its
-    direction there, ``T/p̄`` there (:func:`.scatter.collision_weight` without σ_s) and the start
-    of the step it lies in (where σ_s is read, like κ)."""
+    """One scattering order of every photon (module docstring): :func:`_march`'s loop from
+    ``(x, v = n dx/ds, L)``, which also finds the :class:`Collision` where the optical depth of
+    colour ``channel`` reaches ``target``. Returns the steps, the final ``(x, v, L̃)`` and the
+    collision."""
     n = medium.dims
     count = dr.width(L)
     size = grid_extent(n)
     L_kill = dr.max(L) * KILL_FRACTION
     steps = dr.zeros(mi.UInt32, count)
     active = dr.max(L) > 0
-    depth = dr.zeros(mi.Color3f, count)  # optical depth since the order's start (RGB)
-    found = dr.zeros(mi.Bool, count)
-    x_c, x_s = dr.zeros(mi.Point3f, count), dr.zeros(mi.Point3f, count)
-    d_c, ratio = dr.zeros(mi.Vector3f, count), dr.zeros(mi.Color3f, count)
+    collision = Collision.none(count)
 
-    while active:
-        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving, _ = _advance(
-            medium, x, v, L, ds_min, size, pfeuti_update
-        )
-        depth_new = depth + kappa * t
-        before, after = scatter.channel_of(depth, channel), scatter.channel_of(depth_new, channel)
-        hit = ~found & (after >= target) & (after > before)
-        f = (target - before) / dr.maximum(after - before, 1e-30)  # where in the step
-        x_c = dr.select(hit, dr.lerp(x, x_new, f), x_c)
-        x_s = dr.select(hit, x, x_s)
-        d_c = dr.select(hit, dr.normalize(dr.lerp(dir_, dir_new, f)), d_c)
-        ratio = dr.select(hit, scatter.collision_weight(1.0, kappa, depth + kappa * (f * t)), ratio)
-        found |= hit
-        deposit_segment(
-            acc,
-            n,
-            x,
-            x_new,
-            L,
-            kappa * t,
-            dir_,
-            dir_new,
-            scale,
-            paper,
-            tally=tally,
-            shift=shift,
-            expand=expand,
-        )
-        x, v, L, depth = x_new, v_new, L_new, depth_new
+    while dr.hint(active, exclude=[march]):
+        step = curved_step(medium, x, v, L, march, size)
+        collision.search(x, step, target, channel)
+        deposit_step(acc, n, x, step, L, march, tally, shift, expand)
+        x, v, L = step.x, step.v, step.L
         steps += 1
-        active = ~leaving & (dr.max(L) >= L_kill) & (steps < max_steps)
-    return steps, x, v, L, found, x_c, d_c, ratio, x_s
+        active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < march.max_steps)
+    return steps, x, v, L, collision
 
 
 def _march_multiple(
@@ -286,83 +297,57 @@ def _march_multiple(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     scattering: Scattering,
     tally=radiance_tally,
     shift: int = 0,
     atomic: Int64 | None = None,
 ):
-    """:func:`_march` with multiple scattering (``scatter.py``, beyond-seeds §5), one order at a
-    time over the photons still alive (a wavefront: the scattered photons are compacted, so SIMD
-    lanes do not wait for a neighbour's further orders). The collision of each order starts the
-    next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian
-    roulette (:func:`.scatter.roulette`). Photon ``i`` draws from PCG32 stream ``i`` of the seed.
-    The first order deposits into ``acc`` as :func:`_march` does; the scattered orders deposit
-    with atomics into ``atomic`` (same layout, summed with ``acc`` by the caller): one
-    reduction mode per array, one ``Expand`` launch (see :func:`reduce_mode`).
-    Returns the total steps and, per photon, the final ``(x, v, L̃)`` and its scattering events.
+    """:func:`_march` with multiple scattering (``scatter.py``), one order at a
+    time over the photons still alive (a :class:`Wavefront`). The collision of each order starts
+    the next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian
+    roulette (:func:`.scatter.roulette`). The first order deposits into ``acc`` as
+    :func:`_march` does; the scattered orders deposit with atomics into ``atomic`` (same layout,
+    summed with ``acc`` by the caller): one reduction mode per array, one ``Expand`` launch (see
+    :func:`reduce_mode`). Returns the total steps and, per photon, the final ``(x, v, L̃)`` and
+    its scattering events.
     """
-    count = dr.width(L)
-    rng = mi.PCG32(count, dr.opaque(mi.UInt64, scattering.seed), dr.arange(mi.UInt64, count))
     k = dr.opaque(mi.Float, scattering.phase_k)
-    ids = dr.arange(mi.UInt32, count)
-    start = dr.max(L)  # the photon's emitted power, Russian roulette's reference
     v = sample_medium(medium, x)[0] * d  # v₀ = n(x₀)·d₀
-    final = [mi.Point3f(x), mi.Vector3f(v), mi.Color3f(L), dr.zeros(mi.UInt32, count)]
-    weights = getattr(tally, "weights", None)
-    steps = 0
+    photons = Wavefront.emitted(x, v, L, scattering.seed, tally)
+    rng = photons.rng
     for order in range(scatter.MAX_ORDERS + 1):
         target, channel = scatter.free_flight(rng)
         into = acc if order == 0 else atomic
-        n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s = _march_order(
+        n_steps, x, v, L_end, collision = _march_order(
             into,
             medium,
             x,
             v,
             L,
-            ds_min,
-            max_steps,
-            scale,
-            paper,
-            pfeuti_update,
+            march,
             target,
             channel,
-            tally,
+            photons.tally,
             shift,
             order == 0,
         )
-        dr.eval(into, n_steps, x, v, L_end, found, x_c, d_c, ratio, x_s)  # one launch per order
-        for array, value in zip(final, (x, v, L_end, dr.opaque(mi.UInt32, order)), strict=True):
-            dr.scatter(array, value, ids)
-        steps += int(dr.sum(Float64(n_steps))[0])
+        dr.eval(into, n_steps, x, v, L_end, collision)  # one launch per order
+        photons.record(order, n_steps, x, v, L_end)
         if order == scatter.MAX_ORDERS:
             break
-        # the next order starts at the collisions (σ_s read where κ was, at the step's start)
-        sigma_s = mi.Color3f(
-            trilinear_packed(medium.scatter, medium.dims, 1, x_s, active=found)[0].xyz
-        )
-        survives, W = scatter.roulette(L * sigma_s * ratio, start, order, rng.next_float32())
+        # the next order starts at the collisions
+        W = L * collision.sigma_s(medium) * collision.ratio
+        survives, W = scatter.roulette(W, photons.start, order, rng.next_float32())
         omega = scatter.schlick_direction(
-            k, d_c, mi.Point2f(rng.next_float32(), rng.next_float32())
+            k, collision.direction, mi.Point2f(rng.next_float32(), rng.next_float32())
         )
-        alive = dr.compress(found & survives & (dr.max(W) > 0))  # not absorbed, not rouletted
+        alive = dr.compress(collision.found & survives & (dr.max(W) > 0))  # not absorbed
         if dr.width(alive) == 0:
             break
-        alive = dr.gather(mi.UInt32, alive, scatter.coherent_order(x_c, omega, alive, medium.n))
-        x = dr.gather(mi.Point3f, x_c, alive)
-        v = sample_medium(medium, x)[0] * dr.gather(mi.Vector3f, omega, alive)
-        L = dr.gather(mi.Color3f, W, alive)
-        ids, start = dr.gather(mi.UInt32, ids, alive), dr.gather(mi.Float, start, alive)
-        rng.state = dr.gather(mi.UInt64, rng.state, alive)
-        rng.inc = dr.gather(mi.UInt64, rng.inc, alive)
-        if weights is not None:
-            weights = dr.gather(mi.Float, weights, alive)
-            tally = weight_tally(weights)
-    return steps, *final
+        x, omega, L = photons.compact(alive, collision.x, omega, W, medium.n)
+        v = sample_medium(medium, x)[0] * omega
+    return photons.steps, *photons.final
 
 
 def accumulate(
@@ -392,33 +377,35 @@ def accumulate(
     steps, final, atomic, on_surfaces = 0, (), None, None
     if phi_max > 0:
         scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
-        args = (
-            acc,
-            medium,
-            mi.Point3f(photons.origin),
-            mi.Vector3f(photons.direction),
-            mi.Color3f(photons.power),
+        settings = MarchSettings(
             dr.opaque(mi.Float, ds_min),
             max_steps or 8 * n,
             scale,
             fidelity == "paper",
             pfeuti_update,
         )
+        rays = (
+            mi.Point3f(photons.origin),
+            mi.Vector3f(photons.direction),
+            mi.Color3f(photons.power),
+        )
         if surfaces is not None:
             from .surface_march import march_with_surfaces  # it builds on this module
 
             atomic = dr.zeros(Int64, cells * CHANNELS)
             steps, final, on_surfaces = march_with_surfaces(
-                *args[:1], atomic, *args[1:], scattering, surfaces, iso, tally
+                acc, atomic, medium, *rays, settings, scattering, surfaces, iso, tally
             )
             dr.eval(acc, *final)
         elif scattering is None:
-            steps, *final = _march(*args, tally, shift)
+            steps, *final = _march(acc, medium, *rays, settings, tally, shift)
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
         else:
             atomic = dr.zeros(Int64, cells * CHANNELS)  # no memory until an order writes to it
-            steps, *final = _march_multiple(*args, scattering, tally, shift, atomic)
+            steps, *final = _march_multiple(
+                acc, medium, *rays, settings, scattering, tally, shift, atomic
+            )
             dr.eval(acc, *final)
         final = tuple(final)
     voxel = dr.arange(mi.UInt32, cells) * 2
@@ -443,13 +430,13 @@ def march(
     surfaces=None,
     iso: float = float("inf"),
 ) -> MarchResult:
-    """March ``photons`` through ``medium`` and return the deposited C, D grids (spec S6/S7).
+    """March ``photons`` through ``medium`` and return the deposited C, D grids (S6/S7).
 
     ``C`` is returned divided by ``voxel_size²`` (the voxel edge h in world units), i.e. as fluence
-    in world units (spec §2.6: ``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
+    in world units (``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
     per-photon ``weights`` (``1/p`` of importance sampling, Pfeuti §3.2.3) the result also holds
     the deposit count and average weight per voxel. With ``scattering`` (needs ``medium.scatter``)
-    the photons scatter (beyond-seeds §5), and C, D hold the fluence of all orders. With opaque
+    the photons scatter (module docstring), and C, D hold the fluence of all orders. With opaque
     ``surfaces`` (:class:`~.surfaces.Surfaces`) photons stop at them and, scattering, bounce off
     them (``surface_march.py``); ``result.surface`` holds the photons recorded there.
     """

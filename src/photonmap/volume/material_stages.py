@@ -1,8 +1,7 @@
-"""S1 voxelization and S2 material grids of the volume pipeline (Sun et al. 2008 §4; spec
-seed-000-002 §4.1) as cached stages: the grids of n, σ_s and κ, from the scene's shapes and media
-or from grids given directly (``set_volume``), under keys that keep n, κ and σ_s apart — painting
-σ_s with κ unchanged reruns the viewing pass alone — and the fog volumes' coverages that the octree
-splits its nodes at."""
+"""S1 voxelization and S2 material grids of the volume pipeline (Sun et al. 2008 §4, §6) as cached
+stages: the grids of n, σ_s and κ, from the scene's shapes and media or from grids given directly
+(``set_volume``), under keys that keep n, κ and σ_s apart — painting σ_s with κ unchanged reruns the
+viewing pass alone — and the fog volumes' coverages that the octree splits its nodes at."""
 
 from __future__ import annotations
 
@@ -23,7 +22,7 @@ def voxelized_materials(
     ``geometry_version`` counts the shapes replaced so far (a new shape reruns S1)."""
     box = s.box
     if s.grids is not None:
-        # separate keys, so that painting σ_s with κ unchanged reruns S9 only (spec §4.1)
+        # separate keys, so that painting σ_s with κ unchanged reruns S9 only (Sun et al. 2008 §6)
         ior_key = ("grids", cache_key(s.grids["n"]), cache_key(box))
         kappa_key = ("grids", cache_key(s.grids["kappa"]), cache_key(box))
         key = (ior_key, kappa_key, cache_key(s.grids["sigma_s"]))

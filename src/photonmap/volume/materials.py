@@ -2,26 +2,28 @@
 
 Sun et al. 2008 §4.1 (convert coverage to refractive index and smooth it), Pfeuti 2009 §3.1.2
 ("the refraction index voxel grid is then filtered", "we build the gradient array from the
-refraction indices"); spec seed-000-002 S2, S3 and A3–A6.
+refraction indices"). Where the papers leave a rule open (which grids are blurred, the
+boundary, the coverage map, the gradient scheme), the choice is said below.
 
-**Mapping (S2, A5).** Linear in coverage, from the surrounding medium's values to each object's,
+**Mapping (S2).** Linear in coverage, from the surrounding medium's values to each object's,
 objects applied in turn: ``q(v) ← q(v) + cov(v)·(q_obj(v) − q(v))`` for ``q ∈ {n, σ_s, κ}`` (RGB
-for σ_s and κ). Bounded fog (issue 11 item 1: the interior of a ``null``/``thindielectric`` shape)
+for σ_s and κ). Bounded fog (the interior of a ``null``/``thindielectric`` shape)
 is applied the same way before the objects, to σ_s and κ only (index-matched: n unchanged), so
 that outside its shape σ is the surrounding medium's (vacuum: 0) and on its border the coverage
 fraction of it. A heterogeneous medium's values are per voxel (``medium_grid.py``: Mitsuba's own
 evaluation, averaged over 2³ points per voxel). Coefficients are stored in **voxel units**:
 ``σ_vox = σ_world · h``.
 
-**Perturbation** (the CUBE scene of spec §3.3, [Pf Fig 4.9]): inside objects, at voxel centres
+**Perturbation** (the cube scene of Pfeuti 2009 Fig 4.9): inside objects, at voxel centres
 ``v``, ``n_obj(v) = n_obj + a_n·perlin(v/s)`` and
 ``σ_s,obj(v) = σ_s,obj·max(0, 1 + a_σ·perlin'(v/s))`` with ``κ_obj = σ_s,obj + σ_a,obj``;
 ``perlin`` is seeded with ``noise_seed``, ``perlin'`` with ``noise_seed + 1``.
 
-**Blur (S2, A3, A4).** Separable 9-tap Gaussian, σ = 9/6 = 1.5 voxels, normalised, clamp-to-edge
-(:data:`BLUR_TAPS`), applied to n; ``blur_all=True`` also blurs σ_s and κ.
+**Blur (S2).** Separable 9-tap Gaussian, σ = 9/6 = 1.5 voxels, normalised, clamp-to-edge
+(:data:`BLUR_TAPS`), applied to n (Pfeuti blurs "the refraction index voxel grid"); ``blur_all=True``
+also blurs σ_s and κ.
 
-**Gradient (S3, A6).** Central differences in voxel units,
+**Gradient (S3).** Central differences in voxel units,
 ``∂n/∂x (i,j,k) = (n[i+1,j,k] − n[i−1,j,k]) / 2``, one-sided at the grid faces.
 
 Simulation or painted data bypass S1 and S2 through :func:`from_arrays`.
@@ -38,8 +40,8 @@ import numpy as np
 from ..core.errors import ParameterError
 from ..core.grid import GridBox, filter_separable, gaussian_taps, grid_shape, voxel_count, voxel_of
 from ..core.noise import perlin3
+from .medium import Medium
 from .medium_grid import medium_on_grid
-from .scene import Medium
 
 BLUR_TAPS = gaussian_taps(4, 1.5)
 """The 9 taps of the S2 blur: [0.00761, 0.03607, 0.10959, 0.21344, 0.26656, 0.21344, ...]."""
@@ -156,7 +158,7 @@ def material_grids(
 
 
 def from_arrays(grids: dict, box: GridBox) -> MaterialGrids:
-    """Material grids from NumPy data in world units (the bypass of S1/S2 [Sun §3]):
+    """Material grids from NumPy data in world units (the bypass of S1/S2, Sun et al. 2008 §3):
     ``{"n": (n_z, n_y, n_x), "sigma_s": (n_z, n_y, n_x) or (n_z, n_y, n_x, 3), "kappa": same}``,
     indexed [z, y, x] (the box's :attr:`~.GridBox.shape`)."""
     keys = {"n", "sigma_s", "kappa"}

@@ -1,15 +1,15 @@
-"""Heterogeneous media on the voxel grid (issue 11 item 1: Mitsuba's ``heterogeneous`` medium read
-as Mitsuba defines it).
+"""Heterogeneous media on the voxel grid (Mitsuba's ``heterogeneous`` medium read as Mitsuba defines
+it).
 
 A Mitsuba ``heterogeneous`` medium (``sigma_t`` and ``albedo`` volumes, e.g. ``gridvolume``, times
 ``scale``) is evaluated by Mitsuba itself: ``Medium.get_scattering_coefficients`` at world points
 gives ``σ_t = scale·sigma_t(p)`` and ``σ_s = albedo(p)·σ_t`` exactly as ``volpath`` reads them.
 Stage S2 needs one value per voxel: the mean over ``s³`` points of each voxel (``s =``
-:data:`SUPERSAMPLE`, at ``(i + (a+½)/s, j + (b+½)/s, k + (c+½)/s)``), i.e. the voxel averages of
-σ_s and σ_t (not of the albedo), which the marcher and the viewing pass then read trilinearly from
-the voxel centres like every other grid (Pfeuti §3.1.1). The octree splits its nodes where κ varies
-(spec A50, :data:`KAPPA_TOLERANCE`), since the marcher holds κ constant over a step (Sun et al. 2008
-eq 6).
+:data:`SUPERSAMPLE`, at ``(i + (a+½)/s, j + (b+½)/s, k + (c+½)/s)``), i.e. the voxel averages of σ_s
+and σ_t (not of the albedo), which the marcher and the viewing pass then read trilinearly from the
+voxel centres like every other grid (Pfeuti §3.1.1). The octree splits its nodes where κ varies
+(:data:`KAPPA_TOLERANCE`; both papers ignore κ in the octree), since the marcher holds κ constant
+over a step (Sun et al. 2008 eq 6).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from ..core.grid import GridBox, voxel_count, voxel_of
 from ..core.media import within_extent
 
 SUPERSAMPLE = 2  # points per voxel and axis at which a heterogeneous medium is evaluated
-KAPPA_TOLERANCE = 0.01  # octree eps_kappa (A50) with a heterogeneous medium: κ range per node,
+KAPPA_TOLERANCE = 0.01  # octree eps_kappa with a heterogeneous medium: κ range per node,
 #                         optical depth per voxel
 
 

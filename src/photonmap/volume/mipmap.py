@@ -1,12 +1,14 @@
 """A6–A7 — reconstruction of Pfeuti's adaptive pipeline: mipmap pyramids and the per-voxel level
-selection (Pfeuti 2009 §3.2.4, Listings B.2, B.3; spec seed-000-002 §A6, A7, A42–A47).
+selection (Pfeuti 2009 §3.2.4, Listings B.2, B.3): stages A6–A7 of the pipeline (:mod:`.pipeline`).
+The thesis gives the filters' names, not all their details; the choices are said below.
 
-**A6 mipmaps.** Level ℓ+1 from level ℓ, per axis, for the colour ``C``: a 4-tap Gaussian of
-variance 4 (fine voxels) at offsets −1.5 … +1.5 around the coarse cell centre, weights
-:data:`GAUSS4` = [0.21891, 0.28109, 0.28109, 0.21891], clamped edges, then decimation by 2
-(A43). Photon counts: the sum of the 2×2×2 children (A44). Average photon weights: the mean over
-the children with weight > 0, 0 if none (Listing B.2). Levels up to ``max_level = log₂N − 2`` (4³
-for 128³, A45).
+**A6 mipmaps.** Level ℓ+1 from level ℓ, per axis, for the colour ``C``: a 4-tap Gaussian of variance
+4 (fine voxels) at offsets −1.5 … +1.5 around the coarse cell centre, weights :data:`GAUSS4` =
+[0.21891, 0.28109, 0.28109, 0.21891], clamped edges, then decimation by 2 ("4x4x4 with variance
+four", cascaded level to level). Photon counts: the sum of the 2×2×2 children (so a count ≥ 1 means
+some photon crossed the region). Average photon weights: the mean over the children with weight > 0,
+0 if none (Listing B.2). Levels up to ``max_level = log₂N − 2`` (4³ for 128³: the thesis skips "the
+last few levels").
 
 The direction sums ``D`` get no pyramid (Pfeuti filters them like ``C``): every voxel keeps its
 level-0 ``D``, and the pipeline does not even S8-smooth it. ``D̂`` only orients the phase function
@@ -17,13 +19,14 @@ colour reads halve (≈ 30 ms of ≈ 100 at 128³); without S8 on ``D`` it is 0.
 0.01189 against 0.00504 / 0.00900 / 0.01189 (blended per-voxel levels), ≈ 20 ms less.
 
 **A7 filter.** Every level is read at the voxel centres of the full grid with trilinear
-interpolation (A47). Per voxel:
+interpolation. Per voxel:
 
 - photon-weight filter: the lowest level ``l`` whose count is ≥ 1 gives the weight ``w̄_l``;
   ``wLevel = clamp(⌊w̄_l / Δweight⌋, 0, max_level)`` (the pipeline scales Δweight with the photon
   budget, :func:`weight_step`);
 - centre-surround filter on ``Y = R+G+B``, ``d_k = |Y_k − Y_{k+1}|``: the level rises from 0 to
-  ``k`` while ``d_k ≤ d_{k−1}`` and ``k + 1 < max_level`` (Listing B.3 as resolved in A46);
+  ``k`` while ``d_k ≤ d_{k−1}`` and ``k + 1 < max_level`` (Listing B.3, whose typos are read as: the
+  count loop updates ``pc``, ``curDiff`` starts from levels 0 and 1);
 - ``level = min(wLevel, cenLevel)``; the output is ``C_level`` at the voxel (and its ``D``).
 
 Cost (the thesis paid ~30 ms of its 48 ms overhead here): the Gaussian levels are separable
@@ -70,7 +73,7 @@ from ..core.errors import ParameterError
 from ..core.grid import flat_index, grid_shape, trilinear_packed, voxel_count, voxel_of
 
 # the 4-tap Gaussian of variance 4 at these offsets (fine voxels from the coarse cell centre),
-# normalised: [0.21891, 0.28109, 0.28109, 0.21891] (spec A6)
+# normalised: [0.21891, 0.28109, 0.28109, 0.21891]
 GAUSS4_OFFSETS = np.array([-1.5, -0.5, 0.5, 1.5])
 GAUSS4 = tuple(
     float(w) for w in np.exp(-(GAUSS4_OFFSETS**2) / 8) / np.exp(-(GAUSS4_OFFSETS**2) / 8).sum()
@@ -85,7 +88,7 @@ def weight_step(delta_weight: float, photons: int, n: int) -> float:
 
     The user's Δweight holds at the reference density of :data:`REFERENCE_DENSITY` photons per
     voxel column and scales with ``√photons`` from there. Pfeuti's weight ``1/(p·A·N)`` falls as
-    ``1/N`` (linear scaling here); spec A41's budget-free ``w = 1/p`` would keep the levels (and
+    ``1/N`` (linear scaling here); a budget-free ``w = 1/p`` would keep the levels (and
     their blur) at any budget. The photon noise of a voxel falls as ``1/√N`` while the bias of a
     level's blur does not depend on N, so the weight at which a level pays grows as ``√N``.
     Measured (``benchmarks/adaptive_vs_reference.py`` scenes, 128³): at half the reference density
@@ -97,8 +100,8 @@ def weight_step(delta_weight: float, photons: int, n: int) -> float:
 
 
 def max_level(n: int) -> int:
-    """The top level built for an ``n³`` grid: 4³ cells (A45), at least level 0. A box grid
-    (issue 11 item 2) builds the levels of its longest side ``n``."""
+    """The top level built for an ``n³`` grid: 4³ cells, at least level 0. A box grid builds
+    the levels of its longest side ``n``."""
     return max(0, int(math.floor(math.log2(n))) - 2)
 
 
@@ -279,7 +282,7 @@ def _spread(fine_Y: list, fine_in: list):
 
 def _filter_level(w, dw, top: int, blend: bool) -> mi.Float:
     """The photon-weight filter's level of average weight ``w``: ``clamp(⌊w/Δweight⌋, 0, top)``
-    (Pfeuti A7) or, with ``blend``, ``clamp(w/Δweight − ½, 0, top)`` — the piecewise-linear
+    (Pfeuti's, stage A7) or, with ``blend``, ``clamp(w/Δweight − ½, 0, top)`` — the piecewise-linear
     interpolation of Pfeuti's steps through their midpoints."""
     if blend:
         return dr.clip(w / dw - 0.5, 0.0, top)
@@ -288,7 +291,7 @@ def _filter_level(w, dw, top: int, blend: bool) -> mi.Float:
 
 @dr.syntax
 def _levels(pyramid, centre, Y, spread, found, w_level, dw, blend) -> mi.Float:
-    """The Listing B.3 level loop (A7) from level 1 on, at ``centre`` (fine voxel units), given the
+    """The Listing B.3 level loop (stage A7) from level 1 on, at ``centre`` (fine voxel units), given the
     level-0 state: ``Y`` (ΣRGB), ``found`` / ``w_level`` (photon-weight filter decided at level 0).
     With ``spread`` (:func:`_spread` of a block) the level-1 centre-surround difference is the mean
     of the block's voxels' ``|Y_0(v) − Y_1|``."""

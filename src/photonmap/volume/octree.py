@@ -1,29 +1,28 @@
 """Stage S4: the octree over n as a dense level array, built from a min/max pyramid.
 
 Sun et al. 2008 §4.2 (Fig 4) and §5.3 ("Modified Octree Construction"); Pfeuti 2009 §3.1.3,
-Listings 3.1–3.3 and A.2; spec seed-000-002 S4 and A7–A9, A50.
+Listings 3.1–3.3 and A.2.
 
 A level-k node is an aligned cube of ``2^k`` voxels; level 0 is one voxel, level K the whole
 ``2^K`` grid. With the range ``r_k(v)`` = max − min of n over the level-k node holding v (from the
 min/max pyramid, built bottom-up), every voxel is labelled top-down with the first, i.e. largest,
-level whose node is uniform (A9: strict ``<``):
+level whose node is uniform (strict ``<``, as both papers):
 
     level(v) = max{k ∈ 0..K : r_k(v) < ε'}
-    Δs_max(v) = ∞ if r_level(v)(v) < ε else L                         (A8; ∞ everywhere if ε' = ε)
+    Δs_max(v) = ∞ if r_level(v)(v) < ε else L                (Sun §5.3; ∞ everywhere if ε' = ε)
 
-The defaults are those of [Sun §5.3]: ε = 0.005, ε' = 0.02, L = 8 voxels. A grid whose side is not
-a power of two is padded to the next ``2^K`` by edge replication, for the pyramid only (A7); a box
-grid (``n_x × n_y × n_z``, issue 11 item 2) is padded the same way to the cube ``2^K`` of its
-longest side, so its nodes are the same aligned cubes.
-Optionally (A50) a node must also have an extinction range below ``eps_kappa`` in every channel.
+The defaults are those of Sun §5.3: ε = 0.005, ε' = 0.02, L = 8 voxels. A grid whose side is not a
+power of two is padded to the next ``2^K`` by edge replication, for the pyramid only (the papers
+assume a ``2^K`` cube); a box grid (``n_x × n_y × n_z``) is padded the same way to the cube ``2^K``
+of its longest side, so its nodes are the same aligned cubes. Optionally (both papers ignore κ here)
+a node must also have an extinction range below ``eps_kappa`` in every channel.
 
-Bounded fog (issue 11 item 1): a node must also lie wholly inside or wholly outside every fog
-volume, one voxel of trilinear support included (the coverage uniform over the node grown by one
-voxel, tested on the 3×3×3 box sum of the coverage). The marcher samples κ at the start of a step
-as long as the node (eq 6), so a node across the fog's boundary would carry photons through the
-fog unattenuated, or attenuate them in vacuum; next to the boundary steps are then one voxel, and
-a photon entering the fog misses about half a voxel of its optical depth. Fog that fills the grid
-splits nothing.
+Bounded fog: a node must also lie wholly inside or wholly outside every fog volume, one voxel of
+trilinear support included (the coverage uniform over the node grown by one voxel, tested on the
+3×3×3 box sum of the coverage). The marcher samples κ at the start of a step as long as the node (eq
+6), so a node across the fog's boundary would carry photons through the fog unattenuated, or
+attenuate them in vacuum; next to the boundary steps are then one voxel, and a photon entering the
+fog misses about half a voxel of its optical depth. Fog that fills the grid splits nothing.
 """
 
 from __future__ import annotations
@@ -94,7 +93,7 @@ def build_octree(
 ) -> Octree:
     """Octree levels and step limits of the index grid ``ior`` (n_z, n_y, n_x[, 1]).
 
-    ``eps2=None`` (or ``eps2 == eps``) builds the basic octree of [Sun §4.2], with no step limit.
+    ``eps2=None`` (or ``eps2 == eps``) builds the basic octree of Sun §4.2, with no step limit.
     ``kappa`` (n_z, n_y, n_x, c) with a finite ``eps_kappa`` also splits nodes whose extinction
     varies. ``boundaries`` (n_z, n_y, n_x, c): the coverages of the fog volumes (S1); nodes where
     one varies at all within one voxel of the node are split.

@@ -1,5 +1,5 @@
-"""Parameters of the volume pipeline and their validation (spec seed-000-002 §1 parameter table,
-§6 recommendations): :class:`VolumeParams` (the CLI's ``--set`` keys, the plugin's properties), the
+"""Parameters of the volume pipeline and their validation (the authors' defaults of Sun et al.
+2008 and Pfeuti 2009): :class:`VolumeParams` (the CLI's ``--set`` keys, the plugin's properties), the
 stage lists, the memory check of the box grids (:func:`check_grid`) and the checks of light and
 medium edits (:func:`check_light`, :func:`updated_medium`).
 """
@@ -54,8 +54,8 @@ ADAPTIVE_STAGES = (
 
 @dataclasses.dataclass
 class VolumeParams:
-    """Pipeline parameters (the CLI's ``--set`` keys). Defaults: spec seed-000-002 §1 parameter
-    table and §6 recommendations."""
+    """Pipeline parameters (the CLI's ``--set`` keys). Defaults: the papers' values where they
+    give them (cited per key), ours otherwise."""
 
     RENAMED: ClassVar[dict[str, Renamed]] = {"max_radius": Renamed("radius", float)}
 
@@ -71,33 +71,33 @@ class VolumeParams:
     ds_min: float = 1.0  # Δs_min, voxels (Sun §4.4)
     ds_max: float = 8.0  # Δs_max where ε ≤ range < ε', voxels (Sun §5.3)
     supersample: int = 4  # voxelization supersampling (Sun §4.1)
-    blur_all: bool = False  # also blur σ_s and κ (spec A3)
+    blur_all: bool = False  # also blur σ_s and κ (Pfeuti blurs n only)
     smoothing: bool = True  # 3×3×3 smoothing of C and D (S8; emission="adaptive": C only)
     phase_k: float | None = dataclasses.field(default=None, metadata={"type": float})
-    # Schlick k (spec A25); None: from the fog's Mitsuba phase function (isotropic 0, hg g →
-    # k = 1.55 g − 0.55 g³); the built-in scenes set Sun's 0.3
+    # Schlick k (Pfeuti's phase function; k not given); None: from the fog's Mitsuba phase
+    # function (isotropic 0, hg g → k = 1.55 g − 0.55 g³); the built-in scenes set Sun's 0.3
     table: float = 0.0  # ρ_table of the reflective bottom layer; 0 = none (Pfeuti §3.1.6)
-    iso_reflect: float = 0.04  # R_iso of the reflective isosurface (spec A29); 0 = none
+    iso_reflect: float = 0.04  # R_iso of the isosurface (Fresnel R₀ at n = 1.5); 0 = none
     iso_ior: float = 0.0  # n_iso; 0 = midway between the fog's and the densest object's n
     ior_noise: float = 0.0  # Perlin amplitude on n inside objects (CUBE scene)
     sigma_s_noise: float = 0.0  # relative Perlin amplitude on σ_s inside objects
     noise_scale: float = 16.0  # Perlin feature size, voxels
-    fidelity: str = "physical"  # "paper": the papers' literal behaviour (spec §6)
+    fidelity: str = "physical"  # "paper": the papers' literal behaviour (march.py, view.py)
     spp: int = 1  # camera rays per pixel
     k: int = 50  # photons per radiance estimate on opaque surfaces (Jensen; shading.py)
     radius: float = 0.0  # their gather radius (k-NN searches end there), world units; 0 = 8 voxels
     light_samples: int = 4  # emitter + BSDF samples of each area / environment light per hit
     emission: str = "uniform"  # "adaptive": Pfeuti's pilot + importance photons (§3.2)
-    scattering: str = "multiple"  # photons scatter in the fog (beyond-seeds §5); "single": Sun's
+    scattering: str = "multiple"  # photons scatter in the fog (scatter.py); "single": Sun's
     pilot_photons: int = 64**2  # adaptive: pilot photons, s² on an s × s grid (Pfeuti §4.3)
     grad_threshold: float = 0.0  # adaptive: pilot gradient threshold in (0, 1]; 0 = automatic
     rad_threshold: float = 0.0  # adaptive: pilot radiance threshold in (0, 1]; 0 = automatic
-    background: float = 0.75  # adaptive: share β of the pdf spread uniformly (spec A37: 0.25)
+    background: float = 0.75  # adaptive: share β of the pdf spread uniformly (pilot.py)
     delta_weight: float = 1.0  # adaptive: Δweight of the photon-weight filter at 16 photons per
-    # voxel column (spec A7; mipmap.weight_step scales it with √budget)
-    placement: str = "importance"  # adaptive: photons placed by the pilot pdf (Pfeuti A4) or
+    # voxel column (Pfeuti §3.2.4; mipmap.weight_step scales it with √budget)
+    placement: str = "importance"  # adaptive: photons placed by the pilot pdf (Pfeuti) or
     # "uniform" (the reference's plane points; the filter still reads the pilot pdf's weights)
-    mip_block: int = 1  # adaptive: filter level chosen per voxel (1, Pfeuti A7) or per 2×2×2 block
+    mip_block: int = 1  # adaptive: filter level chosen per voxel (1, Pfeuti's) or per 2×2×2 block
     hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
     mip_blend: bool = True  # adaptive: fractional photon-weight levels blending two mip levels
     # (False: Pfeuti's integer levels ⌊w/Δweight⌋)
@@ -105,7 +105,7 @@ class VolumeParams:
     def validate(self) -> None:
         """Raise :class:`ParameterError` saying what is wrong and which values are allowed: the
         types (floats finite, seed in [0, 2³²)) by :func:`~photonmap.core.params.check_fields`,
-        then the ranges of spec seed-000-002 §1 and §A."""
+        then the ranges of each key."""
         check_fields(self)
         check_grid(self.grid)
         check_bbox(self.grid_bbox)
@@ -177,7 +177,7 @@ class VolumeParams:
         self._validate_adaptive()
 
     def _validate_adaptive(self) -> None:
-        """The keys of ``emission="adaptive"`` (Pfeuti §3.2, spec §A)."""
+        """The keys of ``emission="adaptive"`` (Pfeuti §3.2)."""
         check_choice("emission", self.emission, EMISSION)
         pilot.pilot_side(self.pilot_photons)
         if self.emission == "adaptive":
@@ -272,7 +272,7 @@ PHOTON_BYTES = 128  # per photon: plane samples, entry point, direction, power, 
 
 def memory_estimate(grid, objects: int = 1, photons: int = 0, threads: int | None = None):
     """Bytes the pipeline needs for a ``grid``³ volume, or a box grid of ``grid = (n_x, n_y, n_z)``
-    voxels (issue 11 item 2; a rough upper estimate), as ``(total, per_voxel)``.
+    voxels (a rough upper estimate), as ``(total, per_voxel)``.
 
     Per voxel, what stays cached: coverage (4 B per refractive object), material grids n, σ_s, κ
     (28 B), ∇n (12 B), octree level and Δs_max (8 B), march grids (40 B, + 16 B of σ_s for

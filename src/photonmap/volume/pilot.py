@@ -1,27 +1,30 @@
 """A1–A3 — phase 1 of Pfeuti's adaptive pipeline: pilot photons → a 2D pdf on the photon plane
-(Pfeuti 2009 §3.2.2, Listing B.1; spec seed-000-002 §A1–A3, A33–A37).
+(Pfeuti 2009 §3.2.2, Listing B.1): stages A1–A3 of the pipeline (:mod:`.pipeline`). Where the thesis
+says "slightly" or leaves a value open, the choice is said below.
 
 **A1 pilot generation.** ``s × s`` photons on a square grid of the photon plane, each jittered
-within its cell (A33: uniform, seeded), listed row by row so that photon ``idx`` comes from origin
-cell ``(ox, oy) = (idx mod s, ⌊idx/s⌋)`` (the jitter is ignored for the origin). Energy as in S5.
+within its cell (uniformly, by a seeded generator), listed row by row so that photon ``idx`` comes
+from origin cell ``(ox, oy) = (idx mod s, ⌊idx/s⌋)`` (the jitter is ignored for the origin). Energy
+as in S5.
 
 **A2 pilot marching.** The S6/S7 marcher at full resolution, depositing into a grid 2^k times
 coarser (16³ for 128³) per voxel the energy ``C``, the deposit count ``n`` and the origin sums
-``Σox, Σoy, Σox², Σoy²`` — unpacked (A34). A photon deposits once per fine voxel it crosses, so
-the statistics are per deposit: the mean and spread of the origins are weighted by the path length
-through the coarse voxel ("the same as rasterizing … into a voxel grid of higher resolution and
-applying a smoothing filter").
+``Σox, Σoy, Σox², Σoy²`` — unpacked (Pfeuti's 12/15/15/10/10-bit packing overflows for 64 × 64
+origins). A photon deposits once per fine voxel it crosses, so the statistics are per deposit: the
+mean and spread of the origins are weighted by the path length through the coarse voxel ("the same
+as rasterizing … into a voxel grid of higher resolution and applying a smoothing filter").
 
-**A3 importance distribution.** With the pilot radiance ``Y = R+G+B`` normalised by its maximum
-and ``g = ‖∇Y‖`` (central differences, A35), voxel ``v`` is selected if ``n > 0`` and
-``g ≥ grad_threshold`` or ``0 < Y ≤ rad_threshold`` (Listing B.1). Threshold 0 means automatic:
-the 90th percentile of ``g`` and the 10th percentile of ``Y`` over the lit voxels, so a selection
-adapts to each light (Pfeuti §5 names manual thresholds as the method's main usability flaw). Each
-selected voxel adds 1 to the cells of the ``s × s`` origin grid inside a disc centred at the mean
-origin ``μ = Σo/n`` with diameter ``max(1, σx + σy)``, ``σ² = Σo²/n − μ²`` (A36; the radius is at
-least √2/2 so the disc always holds a cell centre). Then a background ``β·M/((1−β)·s²)`` is added to
-every cell (M = the circles' mass, β = ``background``, A37), the 5×5 Gaussian of variance 2 is
-applied (clamped edges) and the grid is normalised to sum 1. If nothing is selected the pdf is
+**A3 importance distribution.** With the pilot radiance ``Y = R+G+B`` normalised by its maximum and
+``g = ‖∇Y‖`` (central differences; the thesis's "color based gradient" is not defined), voxel ``v``
+is selected if ``n > 0`` and ``g ≥ grad_threshold`` or ``0 < Y ≤ rad_threshold`` (Listing B.1).
+Threshold 0 means automatic: the 90th percentile of ``g`` and the 10th percentile of ``Y`` over the
+lit voxels, so a selection adapts to each light (Pfeuti §5 names manual thresholds as the method's
+main usability flaw). Each selected voxel adds 1 to the cells of the ``s × s`` origin grid inside a
+disc centred at the mean origin ``μ = Σo/n`` with diameter ``max(1, σx + σy)``, ``σ² = Σo²/n − μ²``
+(the shader's point size; the radius is at least √2/2 so the disc always holds a cell centre). Then
+a background ``β·M/((1−β)·s²)`` is added to every cell (M = the circles' mass, β = ``background``: a
+fraction of the final mass rather than the thesis's absolute value), the 5×5 Gaussian of variance 2
+is applied (clamped edges) and the grid is normalised to sum 1. If nothing is selected the pdf is
 uniform. All of A3 is host work on ≤ 16³ voxels and s² cells (NumPy).
 """
 
@@ -44,7 +47,7 @@ from .scene import Light
 PILOT_GRID = 16  # cells per axis of the pilot grid for a 128³ volume (Pfeuti §3.2.2)
 GRAD_PERCENTILE = 90.0  # automatic grad_threshold: this percentile of g over lit voxels
 RAD_PERCENTILE = 10.0  # automatic rad_threshold: this percentile of Y over lit voxels
-PDF_BLUR = (0.1117, 0.23648, 0.30364, 0.23648, 0.1117)  # 5 taps, σ² = 2 (spec A3)
+PDF_BLUR = (0.1117, 0.23648, 0.30364, 0.23648, 0.1117)  # 5 taps, σ² = 2 (Listing B.1)
 
 
 @dataclass

@@ -6,20 +6,21 @@
     lights ─► S5 photon generation ────────────────────────────────────┼─► S6/S7 march ─► S8 smooth ─┐
     camera, phase k, table, isosurface ─────────────────────────────────────────────────────────────┴─► S9
 
-With ``emission="adaptive"`` (Pfeuti 2009 §3.2, spec §A) S5–S8 become the stages of
-:data:`ADAPTIVE_STAGES`: pilot photons (A1–A2, ``pilot.py``), the photon-plane pdf (A3),
-importance-sampled photons marched with their weights (A4–A5, ``adaptive.py``), mipmaps and the
-level-selecting filter (A6–A7, ``mipmap.py``).
+The labels S1–S9 name the stages of this diagram (Sun et al. 2008 §4; Pfeuti 2009 §3.1) in the
+docstrings of the package. With ``emission="adaptive"`` (Pfeuti 2009 §3.2) S5–S8 become the stages
+A1–A7 of :data:`ADAPTIVE_STAGES`: pilot photons (A1 generation, A2 marching, ``pilot.py``), the
+photon-plane pdf (A3), importance-sampled photons marched with their weights (A4–A5,
+``adaptive.py``), mipmaps (A6) and the level-selecting filter (A7, ``mipmap.py``).
 
 Every stage's result is cached under a key made of exactly the inputs it depends on, so a change
-reruns only what it must (spec seed-000-002 §4.1): a camera change reruns S9 only; a light change
-S5–S9 (adaptive: A1–A7 and S9); a change of σ_s that keeps κ reruns S9 only; a change of κ reruns
-S6–S9 (adaptive: A2–A7 and S9); a change of n reruns S2–S9; new geometry reruns everything. With
-multiple scattering (``scattering="multiple"``, the default; beyond-seeds §5) σ_s and the phase
-function steer the photons too: a change of σ_s reruns S6–S9, one of the phase k S6/S7–S9.
-The stage outputs live in a :class:`~photonmap.core.stages.StageCache`: ``recomputed`` lists the
-stages the last :meth:`render` ran and ``timer`` their milliseconds (the rows of Sun et al.
-Table 1); :meth:`invalidate` forgets stages, :meth:`stage_output` reads one.
+reruns only what it must (the edits of Sun et al. 2008 §6): a camera change reruns S9 only; a light
+change S5–S9 (adaptive: A1–A7 and S9); a change of σ_s that keeps κ reruns S9 only; a change of κ
+reruns S6–S9 (adaptive: A2–A7 and S9); a change of n reruns S2–S9; new geometry reruns everything.
+With multiple scattering (``scattering="multiple"``, the default; our extension of Sun's single
+scattering) σ_s and the phase function steer the photons too: a change of σ_s reruns S6–S9, one of
+the phase k S6/S7–S9. The stage outputs live in a :class:`~photonmap.core.stages.StageCache`:
+``recomputed`` lists the stages the last :meth:`render` ran and ``timer`` their milliseconds (the
+rows of Sun et al. Table 1); :meth:`invalidate` forgets stages, :meth:`stage_output` reads one.
 ``render(progress=f)`` calls ``f(stage)`` as each stage that must run starts (the CLI's progress
 bar).
 
@@ -311,7 +312,7 @@ class VolumePipeline(Pipeline):
 
         mats, ior_key, kappa_key, sigma_key = self._materials()
         grad = self.cache.stage("gradient", ior_key, lambda: gradient(mats.ior))
-        # a heterogeneous medium's κ varies within its shape: nodes split there too (A50)
+        # a heterogeneous medium's κ varies within its shape: nodes split there too
         varying = s.grids is None and s.heterogeneous
         octree_key = (ior_key, p.eps, p.eps2, p.ds_max, kappa_key if varying else None)
         octree = self.cache.stage(
@@ -328,7 +329,7 @@ class VolumePipeline(Pipeline):
             ),
         )
         phase_k = self.phase_k
-        # multiple scattering: σ_s and the phase function steer the photons too (beyond-seeds §5)
+        # multiple scattering: σ_s and the phase function steer the photons too (scatter.py)
         scatter = march.Scattering(phase_k, p.seed) if p.scattering == "multiple" else None
         scatter_key = None if scatter is None else (sigma_key, cache_key(scatter))
         march_grids = self.cache.stage(

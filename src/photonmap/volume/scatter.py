@@ -1,4 +1,4 @@
-"""Multiple scattering in the voxel radiance grid (spec beyond-seeds §5, our extension of Sun et
+"""Multiple scattering in the voxel radiance grid (our extension of Sun et
 al. 2008): the sampling pieces the marcher (``march.py``) uses between its curved-ray steps.
 
 Each photon order is marched as Sun marches it (S6/S7: deposits of the attenuated energy
@@ -14,15 +14,24 @@ with the phase-sampled direction and the weight
 — the collision density of the next order, estimated without bias. Orders beyond
 :data:`RR_DEPTH` continue with Russian roulette on ``q = min(1, max W' / max W₀)`` (survivors
 divide by ``q``). A photon stops after :data:`MAX_ORDERS` scattering events. Each order's
-photons are marched in :func:`coherent_order`.
+photons are marched in :func:`coherent_order`. A :class:`Collision` is searched along each
+order's steps, and the photons still alive go from order to order as a :class:`Wavefront`.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
+
+from ..core.grid import trilinear_packed
+from .deposit import Float64, weight_tally
+
+if TYPE_CHECKING:
+    from .march import MarchGrids, Step
 
 SCATTERING = ("single", "multiple")
 RR_DEPTH = 3  # scattering events before Russian roulette starts (the weights decay by albedo)
@@ -92,3 +101,96 @@ def coherent_order(x: mi.Point3f, d: mi.Vector3f, subset: mi.UInt32, n: int) -> 
     direction = (face * 4 + bu) * 4 + bw
     cell = mi.Vector3u(dr.clip(p * (256.0 / n), 0.0, 255.0))
     return dr.argsort(mi.math.morton_encode3(cell) | (direction << 24))
+
+
+@dataclass
+class Collision:
+    """The collision of each photon in one scattering order: where the optical depth of colour
+    ``channel`` since the order's start reaches the sampled ``target`` (κ constant over a step, as
+    in eq (6)). Updated step by step inside a marching loop (:meth:`search`)."""
+
+    found: mi.Bool
+    x: mi.Point3f  # the collision point
+    start: mi.Point3f  # the start of the step it lies in (where σ_s is read, like κ)
+    direction: mi.Vector3f  # the photon's direction there
+    ratio: mi.Color3f  # T/p̄ there (:func:`.scatter.collision_weight` without σ_s)
+    depth: mi.Color3f  # optical depth since the order's start (RGB)
+
+    @staticmethod
+    def none(count: int) -> Collision:
+        """No collision yet, at optical depth 0."""
+        return Collision(
+            dr.zeros(mi.Bool, count),
+            dr.zeros(mi.Point3f, count),
+            dr.zeros(mi.Point3f, count),
+            dr.zeros(mi.Vector3f, count),
+            dr.zeros(mi.Color3f, count),
+            dr.zeros(mi.Color3f, count),
+        )
+
+    def search(self, x: mi.Point3f, step: Step, target: mi.Float, channel: mi.UInt32) -> None:
+        """Record the collision of the photons whose ``target`` lies within ``step`` from ``x``
+        and add the step's optical depth."""
+        depth_new = self.depth + step.kappa * step.length
+        before = channel_of(self.depth, channel)
+        after = channel_of(depth_new, channel)
+        hit = ~self.found & (after >= target) & (after > before)
+        f = (target - before) / dr.maximum(after - before, 1e-30)  # where in the step
+        self.x = dr.select(hit, dr.lerp(x, step.x, f), self.x)
+        self.start = dr.select(hit, x, self.start)
+        turned = dr.normalize(dr.lerp(step.direction, step.new_direction, f))
+        self.direction = dr.select(hit, turned, self.direction)
+        depth_f = self.depth + step.kappa * (f * step.length)
+        self.ratio = dr.select(hit, collision_weight(1.0, step.kappa, depth_f), self.ratio)
+        self.found |= hit
+        self.depth = depth_new
+
+    def sigma_s(self, medium: MarchGrids) -> mi.Color3f:
+        """σ_s at the collisions (read where κ was, at the start of the step)."""
+        packed = trilinear_packed(medium.scatter, medium.dims, 1, self.start, active=self.found)
+        return mi.Color3f(packed[0].xyz)
+
+
+@dataclass
+class Wavefront:
+    """The photons of multiple scattering, marched one order (or leg) at a time: the live ones
+    are compacted after each order, so SIMD lanes do not wait for a neighbour's further orders.
+    Photon ``i`` draws from PCG32 stream ``i`` of the seed."""
+
+    ids: mi.UInt32  # each live photon's index among the emitted ones
+    start: mi.Float  # its emitted power (max over RGB), Russian roulette's reference
+    rng: mi.PCG32
+    tally: object  # the deposit tally; a weighted one follows its photons (weight_tally)
+    final: list  # per emitted photon: x, v (or d), L̃ where it stopped, its last order
+    steps: int = 0  # marching steps of all orders
+
+    @staticmethod
+    def emitted(x, v, L, seed: int, tally) -> Wavefront:
+        """The emitted photons at ``x`` with ``v`` (or ``d``) and power ``L``."""
+        count = dr.width(L)
+        rng = mi.PCG32(count, dr.opaque(mi.UInt64, seed), dr.arange(mi.UInt64, count))
+        final = [mi.Point3f(x), mi.Vector3f(v), mi.Color3f(L), dr.zeros(mi.UInt32, count)]
+        return Wavefront(dr.arange(mi.UInt32, count), dr.max(L), rng, tally, final)
+
+    def record(self, order: int, steps: mi.UInt32, x, v, L) -> None:
+        """Where the live photons stopped in ``order`` (evaluated), and its steps."""
+        values = (x, v, L, dr.opaque(mi.UInt32, order))
+        for array, value in zip(self.final, values, strict=True):
+            dr.scatter(array, value, self.ids)
+        self.steps += int(dr.sum(Float64(steps))[0])
+
+    def compact(self, alive: mi.UInt32, x, omega, W, n: int):
+        """Keep the photons ``alive`` (indices), reordered for coherence
+        (:func:`.scatter.coherent_order`): their ``(x, ω, W)`` and their bookkeeping."""
+        alive = dr.gather(mi.UInt32, alive, coherent_order(x, omega, alive, n))
+        x = dr.gather(mi.Point3f, x, alive)
+        omega = dr.gather(mi.Vector3f, omega, alive)
+        W = dr.gather(mi.Color3f, W, alive)
+        self.ids = dr.gather(mi.UInt32, self.ids, alive)
+        self.start = dr.gather(mi.Float, self.start, alive)
+        self.rng.state = dr.gather(mi.UInt64, self.rng.state, alive)
+        self.rng.inc = dr.gather(mi.UInt64, self.rng.inc, alive)
+        weights = getattr(self.tally, "weights", None)
+        if weights is not None:
+            self.tally = weight_tally(dr.gather(mi.Float, weights, alive))
+        return x, omega, W

@@ -1,4 +1,4 @@
-"""What the volume pipeline reads from a Mitsuba 3 scene (spec seed-000-002 §0, DESIGN.md "Scenes").
+"""What the volume pipeline reads from a Mitsuba 3 scene (docs/DESIGN.md "Scenes").
 
 A :class:`VolumeScene` is plain data in **world units**; stage S2 converts coefficients to voxel
 units (``σ_vox = σ_world · h``). It is built from a Mitsuba scene by :func:`from_mitsuba`:
@@ -6,11 +6,11 @@ units (``σ_vox = σ_world · h``). It is built from a Mitsuba scene by :func:`f
 - every closed shape with a ``dielectric`` BSDF is a :class:`RefractiveObject` (``int_ior/ext_ior``
   → n; its interior ``homogeneous`` medium → σ_s, σ_a);
 - every closed shape with a ``null`` or ``thindielectric`` BSDF and an interior medium is a
-  :class:`FogVolume`: the fog is inside it and nowhere else (issue 11 item 1);
+  :class:`FogVolume`: the fog is inside it and nowhere else;
 - the sensor's medium fills the rest of the grid (:attr:`VolumeScene.outside`);
 - the grid box is the box grid fitted to the medium-bearing shapes (or an explicit ``grid_bbox``);
 - point, spot, directional and area emitters are :class:`Light` s; a ``constant`` or ``envmap``
-  emitter is the background and a light too (photons through the grid's faces, issue 11 item 3);
+  emitter is the background and a light too (photons through the grid's faces);
 - the perspective sensor is the camera.
 """
 
@@ -26,41 +26,12 @@ import numpy as np
 from ..core.errors import SceneError
 from ..core.grid import GridBox
 from ..core.scene_info import has_media, warn_unmodelled
-from .medium_grid import coefficients_at
+from .medium import MediaReader, Medium, read_medium
 from .surfaces import Surfaces, digest, unmodelled
 from .voxelize import check_closed
 
 LIGHT_KINDS = ("point", "spot", "directional")  # lights set_light can make
 EMITTER_KINDS = ("area", "environment")  # lights that are the scene's own Mitsuba emitters
-
-
-@dataclass
-class Medium:
-    """A medium in world units: scattering and absorption coefficients (RGB, 1/length).
-
-    For a refractive object ``ior`` is its index relative to the fog (whose ``ior`` is 1).
-    A heterogeneous medium (issue 11 item 1) keeps the Mitsuba medium itself in ``field``
-    (evaluated per voxel by S2, ``medium_grid.py``) and a digest of its parameters in
-    ``fingerprint``; ``sigma_s``, ``sigma_a`` are then its means over its shape's bounding box.
-    """
-
-    sigma_s: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    sigma_a: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    ior: float = 1.0
-    phase_k: float | None = 0.0  # Schlick k of its phase function (isotropic 0; None: other)
-    field: object | None = None  # mi.Medium of a heterogeneous medium
-    fingerprint: str = ""
-
-    @property
-    def kappa(self) -> np.ndarray:
-        """Extinction κ = σ_s + σ_a."""
-        return np.asarray(self.sigma_s) + np.asarray(self.sigma_a)
-
-    @property
-    def extinction_key(self) -> tuple:
-        """What κ depends on: the cache key of the photon stages (a heterogeneous medium's field
-        and its parameters too)."""
-        return tuple(self.kappa), id(self.field), self.fingerprint
 
 
 @dataclass
@@ -74,9 +45,9 @@ class RefractiveObject:
 
 @dataclass
 class FogVolume:
-    """A closed shape bounding a medium (issue 11 item 1): a ``null`` or ``thindielectric`` BSDF
-    with an interior medium. Index-matched: it does not change n (the pipeline refracts only
-    through ∇n, spec seed-000-002 §0.1), and a thin dielectric's reflection is not rendered."""
+    """A closed shape bounding a medium: a ``null`` or ``thindielectric`` BSDF with an interior
+    medium. Index-matched: it does not change n (the pipeline refracts only through ∇n, Sun et al.
+    2008 eq 5), and a thin dielectric's reflection is not rendered."""
 
     name: str
     shape: object  # mi.Shape: voxelized like the refractive objects (stage S1)
@@ -92,7 +63,7 @@ class Light:
     (``cos θ ≥ cos_inner``), linearly in the angle θ to 0 at the cutoff ``cos_outer``.
     ``directional``: propagation ``direction`` and RGB ``irradiance`` (W/m² normal to the beam),
     stored in ``intensity``.
-    ``area`` and ``environment`` (issue 11 item 3): the scene's Mitsuba ``emitter`` itself (an
+    ``area`` and ``environment``: the scene's Mitsuba ``emitter`` itself (an
     area emitter on a sphere, rectangle or mesh; a ``constant`` or ``envmap`` environment), sampled
     by S5 (``emit.py``); ``intensity`` is an RGB factor on its radiance (1: as in the scene) and
     ``fingerprint`` a digest of its parameters and its shape's, so that an edited emitter re-keys
@@ -169,7 +140,7 @@ class VolumeScene:
 # ------------------------------------------------------------------------------------------------
 # Reading a Mitsuba scene
 
-MARGIN = 6.0  # voxels left around refractive objects when no fog box bounds the grid (spec A4)
+MARGIN = 6.0  # voxels left around refractive objects when no fog box bounds the grid (GridBox)
 EMITTERS = "point, spot, directional and area emitters, or a constant or envmap environment"
 
 
@@ -180,7 +151,7 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
       BSDF. ``medium.ior`` is Mitsuba's relative index ``int_ior / ext_ior`` (the BSDF keeps only
       this ratio; the ray equation is unchanged when n is scaled, so the fog has n = 1). The
       interior medium (none: clear glass, σ = 0) gives the object's σ_s and σ_a.
-    - **Fog volumes** (issue 11 item 1): closed shapes with a ``null`` or ``thindielectric`` BSDF
+    - **Fog volumes**: closed shapes with a ``null`` or ``thindielectric`` BSDF
       and an interior medium, several allowed, each with its own medium; the medium is inside the
       shape only (S1 voxelizes it, S2 maps its coverage to σ_s and κ). They are index-matched (n
       unchanged); a thin dielectric's reflection is left to the surface methods.
@@ -195,12 +166,12 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     - **Fog** (:attr:`VolumeScene.fog`, the medium ``set_material("fog")`` edits): the exterior
       medium of the refractive objects, else the sensor's medium, else the interior medium of the
       first fog volume, else vacuum.
-    - **Grid box** (a box grid, issue 11 item 2: ``n_x × n_y × n_z`` cubic voxels with ``grid``
+    - **Grid box** (a box grid: ``n_x × n_y × n_z`` cubic voxels with ``grid``
       of them along the longest side, :meth:`GridBox.fitted`): around ``grid_bbox = (min, max)``
       if given, else around the fog volumes with no margin when they enclose every refractive
       object (the fog box is the domain), else around all medium-bearing shapes with ``MARGIN``
       voxels.
-    - **Lights** (anywhere, issue 11 item 3): point, spot (``cutoff_angle`` → ``cos_outer``,
+    - **Lights** (anywhere): point, spot (``cutoff_angle`` → ``cos_outer``,
       ``beam_width`` → ``cos_inner``), directional, and area emitters (kept as Mitsuba emitters,
       sampled on their surface by S5); a ``constant``/``envmap`` emitter is the ``environment``
       (the background of the viewing pass) and also a light whose photons enter through the
@@ -215,26 +186,8 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     Raises :class:`SceneError` saying what to fix for anything the pipeline cannot render.
     """
     sensor = _camera(scene)
-    media = _Media(scene.bbox())
-    objects, fog_volumes, exteriors = [], [], []
-    for number, shape in enumerate(scene.shapes()):
-        bsdf = shape.bsdf()
-        kind = bsdf.class_name() if bsdf is not None else "none"
-        if kind == "SmoothDielectric":
-            objects.append(_refractive_object(shape, bsdf, media))
-            if shape.exterior_medium() is not None:
-                exteriors.append((shape.id(), shape.exterior_medium()))
-        elif kind == "RoughDielectric":
-            raise SceneError(
-                f"{_shape_name(shape, number)} has a {kind} BSDF; the volume pipeline refracts "
-                "only through smooth 'dielectric' objects: change its BSDF type to 'dielectric', "
-                "or render the scene with --method sppm (or surface)"
-            )
-        elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
-            name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
-            check_closed(shape, name)
-            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape.bbox())
-            fog_volumes.append(FogVolume(name, shape, medium))
+    media = MediaReader(scene.bbox())
+    objects, fog_volumes, exteriors = _medium_shapes(scene, media)
     if not objects and not fog_volumes:
         raise SceneError(
             "the scene has no refractive or medium-bearing shape, which the volume method's grid "
@@ -258,11 +211,38 @@ def from_mitsuba(scene: mi.Scene, grid: int = 128, grid_bbox=None) -> VolumeScen
     )
 
 
+def _medium_shapes(scene: mi.Scene, media: MediaReader) -> tuple[list, list, list]:
+    """The scene's refractive objects, its fog volumes and the ``(id, medium)`` outside each
+    refractive object that has an exterior medium (:func:`from_mitsuba`)."""
+    objects, fog_volumes, exteriors = [], [], []
+    for number, shape in enumerate(scene.shapes()):
+        bsdf = shape.bsdf()
+        kind = bsdf.class_name() if bsdf is not None else "none"
+        if kind == "SmoothDielectric":
+            objects.append(_refractive_object(shape, bsdf, media))
+            if shape.exterior_medium() is not None:
+                exteriors.append((shape.id(), shape.exterior_medium()))
+        elif kind == "RoughDielectric":
+            raise SceneError(
+                f"{_shape_name(shape, number)} has a {kind} BSDF; the volume pipeline refracts "
+                "only through smooth 'dielectric' objects: change its BSDF type to 'dielectric', "
+                "or render the scene with --method sppm (or surface)"
+            )
+        elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
+            name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
+            check_closed(shape, name)
+            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape.bbox())
+            fog_volumes.append(FogVolume(name, shape, medium))
+    return objects, fog_volumes, exteriors
+
+
 SURFACE_HINT = "--method sppm renders every BSDF (Python: photonmap.SPPMPipeline)"
 
 
 def _shape_name(shape, number: int) -> str:
-    return f"shape '{shape.id()}'" if shape.id() else f"shape number {number} ({shape.class_name()})"
+    return (
+        f"shape '{shape.id()}'" if shape.id() else f"shape number {number} ({shape.class_name()})"
+    )
 
 
 def _rgb(value) -> np.ndarray:
@@ -288,7 +268,7 @@ def _camera(scene: mi.Scene):
     return sensor
 
 
-def _refractive_object(shape, bsdf, media: _Media) -> RefractiveObject:
+def _refractive_object(shape, bsdf, media: MediaReader) -> RefractiveObject:
     name = shape.id()
     check_closed(shape, name)
     eta = float(np.asarray(mi.traverse(bsdf)["eta"]).reshape(-1)[0])
@@ -298,79 +278,12 @@ def _refractive_object(shape, bsdf, media: _Media) -> RefractiveObject:
             "pipeline needs a finite n >= 1 (an object optically denser than the fog): fix its "
             "int_ior/ext_ior"
         )
-    medium = _medium(shape.interior_medium(), f"the interior medium of '{name}'", shape.bbox())
+    medium = read_medium(shape.interior_medium(), f"the interior medium of '{name}'", shape.bbox())
     medium.ior = eta
     return RefractiveObject(name, shape, medium)
 
 
-class _Media:
-    """One :class:`Medium` per Mitsuba medium, so that the fog volumes, the outside and
-    :attr:`VolumeScene.fog` sharing a Mitsuba medium share the object ``set_material`` replaces."""
-
-    def __init__(self, bbox):
-        self.bbox = bbox  # the scene's: where a medium bounded by no shape is averaged
-        self._read: list[tuple[object, Medium]] = []
-
-    def read(self, medium, what: str, bbox=None) -> Medium:
-        if medium is None:
-            return Medium()
-        for known, ours in self._read:
-            if known is medium:
-                return ours
-        ours = _medium(medium, what, self.bbox if bbox is None else bbox)
-        self._read.append((medium, ours))
-        return ours
-
-
-def _medium(medium, what: str, bbox) -> Medium:
-    """Coefficients of a Mitsuba medium (None → vacuum), checked: Mitsuba's own
-    ``get_scattering_coefficients`` (``σ_t·scale`` and ``albedo·σ_t·scale``, RGB), at the centre
-    of ``bbox`` for a homogeneous medium; a heterogeneous one is kept (``field``) with its means
-    over ``bbox`` (8³ points)."""
-    if medium is None:
-        return Medium()
-    heterogeneous = not medium.is_homogeneous()
-    lo, hi = _np3(bbox.min), _np3(bbox.max)
-    side = 8 if heterogeneous else 1
-    u = (np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5)
-    points = lo + (hi - lo) * u / side
-    sigma_s, sigma_t = coefficients_at(medium, mi.Point3f(*points.T.astype(np.float32)))
-    sigma_s = np.asarray(sigma_s, dtype=np.float64).reshape(-1, 3).mean(0)
-    sigma_t = np.asarray(sigma_t, dtype=np.float64).reshape(-1, 3).mean(0)
-    if not (np.all(np.isfinite(sigma_t)) and np.all(np.isfinite(sigma_s))):
-        raise SceneError(f"{what} has non-finite coefficients (σ_t = {sigma_t}): use finite values")
-    sigma_a = sigma_t - sigma_s
-    if np.any(sigma_s < 0) or np.any(sigma_a < -1e-7 * np.abs(sigma_t)):
-        raise SceneError(
-            f"{what} has negative coefficients (σ_s = {sigma_s}, σ_a = {sigma_a}): sigma_t and "
-            "scale must be >= 0 and albedo in [0, 1]"
-        )
-    if not heterogeneous:
-        return Medium(sigma_s, np.maximum(sigma_a, 0.0), phase_k=_schlick_k(medium))
-    return Medium(
-        sigma_s,
-        np.maximum(sigma_a, 0.0),
-        phase_k=_schlick_k(medium),
-        field=medium,
-        fingerprint=digest(medium),
-    )
-
-
-def _schlick_k(medium) -> float | None:
-    """Schlick's k matching a Mitsuba phase function: isotropic → 0; Henyey–Greenstein g →
-    k = 1.55 g − 0.55 g³ (Blasi, Le Saëc & Schlick 1993, the fit the volume pipeline's Schlick
-    phase function, spec A25, is made for)."""
-    phase = medium.phase_function()
-    name = phase.class_name()
-    if name == "IsotropicPhaseFunction":
-        return 0.0
-    if name == "HGPhaseFunction":
-        g = float(np.asarray(mi.traverse(phase)["g"]).ravel()[0])
-        return float(np.clip(1.55 * g - 0.55 * g**3, -0.999, 0.999))
-    return None  # another phase function: the pipeline asks for an explicit phase_k
-
-
-def _fog(sensor, exteriors, fog_volumes, media: _Media) -> tuple[Medium, Medium | None]:
+def _fog(sensor, exteriors, fog_volumes, media: MediaReader) -> tuple[Medium, Medium | None]:
     """(the fog, the medium outside the fog volumes: None when there is none, the fog filling
     the grid); see :func:`from_mitsuba`."""
     bounded = [v.shape.interior_medium() for v in fog_volumes]
@@ -487,8 +400,8 @@ def _lights(scene, center) -> tuple[list[Light], object]:
 
 def check_has_fog(mi_scene: mi.Scene, source) -> None:
     """Raise :class:`SceneError` unless ``mi_scene`` holds a participating medium: the volume
-    method renders single scattering in fog (spec seed-000-002 §0.1) and would write a black image
-    of a scene without (issue 10 item 1); the message names the method to use."""
+    method renders single scattering in fog (Sun et al. 2008) and would write a black image of a
+    scene without; the message names the method to use."""
     if has_media(mi_scene):
         return
     what = f"scene {source!r}" if isinstance(source, str) else "the scene"

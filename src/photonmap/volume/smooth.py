@@ -2,9 +2,10 @@
 
 "In each voxel, we approximate the incoming radiance distribution by storing only a weighted average
 of the direction of arriving photons and a single radiance value for the red, green, and blue
-wavelengths" [Sun §4.4]. The deposited sums are smoothed "using a 3×3×3 approximation of a Gaussian
-kernel to reduce noise": the binomial ``[1, 2, 1]/4`` separably with clamped edges (spec A23),
-applied to ``C`` and to the unnormalised ``D``; then ``D̂ = D/‖D‖`` (0 where ``D = 0``, spec A22).
+wavelengths" (Sun §4.4). The deposited sums are smoothed "using a 3×3×3 approximation of a Gaussian
+kernel to reduce noise": the binomial ``[1, 2, 1]/4`` separably with clamped edges (the papers give
+no weights), applied to ``C`` and to the unnormalised ``D``; then ``D̂ = D/‖D‖`` (0 where ``D = 0``;
+Pfeuti's listing treats the stored direction as a unit vector).
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ What a leg leaves behind (:func:`march_with_surfaces`):
   in the fog, a bounce — is recorded there with its power ``L̃ = W·T`` (the expected arrival, as
   the deposits are). Light that arrives straight from an emitter is not: the viewing pass
   computes it with shadow rays (``shading.py``);
-- with multiple scattering, the **next leg** (beyond-seeds §5, ``scatter.py``): a free-flight
+- with multiple scattering, the **next leg** (``scatter.py``): a free-flight
   collision sampled before the surface restarts in a phase-sampled direction with weight
   ``W σ_s T/p̄``; a photon that got to the surface (probability ``P = ⅓ Σ_c T_c``, the spectral
   free-flight sampling's survival) bounces off it with the BSDF's importance sample
@@ -30,18 +30,44 @@ What a leg leaves behind (:func:`march_with_surfaces`):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
-from ..core.grid import grid_extent, trilinear_packed
+from ..core.grid import grid_extent
 from . import scatter
-from .deposit import Float64, Int64, deposit_segment, radiance_tally, weight_tally
+from .deposit import Int64, radiance_tally
 from .emit import box_entry
-from .march import KILL_FRACTION, MarchGrids, Scattering, _advance, sample_medium
+from .march import (
+    KILL_FRACTION,
+    MarchGrids,
+    MarchSettings,
+    Scattering,
+    curved_step,
+    deposit_step,
+    sample_medium,
+)
+from .scatter import Collision, Wavefront
 from .surfaces import RECAST_TURN, SurfacePhotons, Surfaces, record
 
 IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
 SMOOTH = int(mi.BSDFFlags.Smooth)
+
+
+@dataclass
+class Leg:
+    """Where one leg of each photon ended (:func:`_leg`)."""
+
+    steps: mi.UInt32  # marching steps in the grid
+    x: mi.Point3f  # the final position (voxel coordinates)
+    v: mi.Vector3f  # the final v = n dx/ds
+    L: mi.Color3f  # the final L̃
+    collision: Collision  # the free-flight collision on the way, if found
+    surface: mi.Bool  # the leg ended on a surface
+    cast_x: mi.Point3f  # the ray cast that found it: origin (voxel coordinates) ...
+    cast_d: mi.Vector3f  # ... and direction
+    bent: mi.Bool  # it passed where n ≥ iso (through a refractive object)
 
 
 @dr.syntax
@@ -52,11 +78,7 @@ def _leg(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     target: mi.Float,
     channel: mi.UInt32,
     iso: mi.Float,
@@ -65,10 +87,8 @@ def _leg(
     expand: bool = True,
 ):
     """One leg of every photon from ``x`` (voxel coordinates, inside the grid or not) along unit
-    ``d`` with energy ``L`` (module docstring); the collision as in ``march._march_order``.
-    Returns the steps; the final ``x``, ``v``, ``L̃``; the collision (found, point, direction,
-    ``T/p̄``, the start of its step); whether the leg ended on a surface, the cast that found it
-    (voxel origin and direction); whether it passed n ≥ ``iso``; its optical depth."""
+    ``d`` with energy ``L`` (module docstring), which also finds its
+    :class:`~.scatter.Collision` as ``march._march_order`` does."""
     n = medium.dims
     count = dr.width(L)
     size = grid_extent(n)
@@ -88,53 +108,26 @@ def _leg(
     exited = dr.zeros(mi.Bool, count)
     recast = dr.zeros(mi.Bool, count)
     bent = dr.zeros(mi.Bool, count)
-    depth = dr.zeros(mi.Color3f, count)
-    found = dr.zeros(mi.Bool, count)
-    x_c, x_s = dr.zeros(mi.Point3f, count), dr.zeros(mi.Point3f, count)
-    d_c, ratio = dr.zeros(mi.Vector3f, count), dr.zeros(mi.Color3f, count)
+    collision = Collision.none(count)
 
-    while active:
+    while dr.hint(active, exclude=[march]):
         cast = active & recast  # the direction has turned since the last cast
         t_new = surfaces.distance(x, dr.normalize(v), cast)
         t_surf = dr.select(cast, t_new, t_surf)
         cast_x = dr.select(cast, x, cast_x)
         cast_d = dr.select(cast, dr.normalize(v), cast_d)
-        x_new, v_new, L_new, dir_, dir_new, kappa, t, leaving, n_x = _advance(
-            medium, x, v, L, ds_min, size, pfeuti_update, surface=t_surf
-        )
-        hits = t_surf <= t
-        bent |= n_x >= iso
-        depth_new = depth + kappa * t
-        before, after = scatter.channel_of(depth, channel), scatter.channel_of(depth_new, channel)
-        hit = ~found & (after >= target) & (after > before)
-        f = (target - before) / dr.maximum(after - before, 1e-30)  # where in the step
-        x_c = dr.select(hit, dr.lerp(x, x_new, f), x_c)
-        x_s = dr.select(hit, x, x_s)
-        d_c = dr.select(hit, dr.normalize(dr.lerp(dir_, dir_new, f)), d_c)
-        ratio = dr.select(hit, scatter.collision_weight(1.0, kappa, depth + kappa * (f * t)), ratio)
-        found |= hit
-        deposit_segment(
-            acc,
-            n,
-            x,
-            x_new,
-            L,
-            kappa * t,
-            dir_,
-            dir_new,
-            scale,
-            paper,
-            tally=tally,
-            shift=shift,
-            expand=expand,
-        )
-        x, v, L, depth = x_new, v_new, L_new, depth_new
-        t_surf -= t
+        step = curved_step(medium, x, v, L, march, size, surface=t_surf)
+        hits = t_surf <= step.length
+        bent |= step.ior >= iso
+        collision.search(x, step, target, channel)
+        deposit_step(acc, n, x, step, L, march, tally, shift, expand)
+        x, v, L = step.x, step.v, step.L
+        t_surf -= step.length
         steps += 1
-        recast = dr.norm(dir_new - cast_d) > RECAST_TURN
+        recast = dr.norm(step.new_direction - cast_d) > RECAST_TURN
         surface |= hits
-        exited = leaving & ~hits
-        active = ~leaving & ~hits & (dr.max(L) >= L_kill) & (steps < max_steps)
+        exited = step.leaving & ~hits
+        active = ~step.leaving & ~hits & (dr.max(L) >= L_kill) & (steps < march.max_steps)
 
     # after the grid: straight on to a surface, or away
     again = exited & recast
@@ -143,7 +136,7 @@ def _leg(
     cast_x = dr.select(again, x, cast_x)
     cast_d = dr.select(again, dr.normalize(v), cast_d)
     surface |= exited & dr.isfinite(t_surf)
-    return steps, x, v, L, found, x_c, d_c, ratio, x_s, surface, cast_x, cast_d, bent, depth
+    return Leg(steps, x, v, L, collision, surface, cast_x, cast_d, bent)
 
 
 def march_with_surfaces(
@@ -153,11 +146,7 @@ def march_with_surfaces(
     x: mi.Point3f,
     d: mi.Vector3f,
     L: mi.Color3f,
-    ds_min: mi.Float,
-    max_steps: int,
-    scale: mi.Float,
-    paper: bool,
-    pfeuti_update: bool,
+    march: MarchSettings,
     scattering: Scattering | None,
     surfaces: Surfaces,
     iso: float,
@@ -167,16 +156,12 @@ def march_with_surfaces(
     (the later legs; summed by the caller, as ``march._march_multiple`` does). Returns the total
     steps, the per-photon final ``(x, v, L̃, events)`` and the :class:`~.surfaces.SurfacePhotons`.
     Photon ``i`` draws from PCG32 stream ``i`` of the scattering seed."""
-    count = dr.width(L)
     seed = scattering.seed if scattering is not None else 0
-    rng = mi.PCG32(count, dr.opaque(mi.UInt64, seed), dr.arange(mi.UInt64, count))
     k = dr.opaque(mi.Float, scattering.phase_k if scattering is not None else 0.0)
     iso = dr.opaque(mi.Float, iso)
-    ids = dr.arange(mi.UInt32, count)
-    start = dr.max(L)  # the photon's emitted power, Russian roulette's reference
-    final = [mi.Point3f(x), mi.Vector3f(d), mi.Color3f(L), dr.zeros(mi.UInt32, count)]
-    weights = getattr(tally, "weights", None)
-    records, steps = [], 0
+    photons = Wavefront.emitted(x, d, L, seed, tally)
+    rng = photons.rng
+    records = []
     last = scatter.MAX_ORDERS if scattering is not None else 0
     for order in range(last + 1):
         if scattering is not None:
@@ -184,69 +169,56 @@ def march_with_surfaces(
         else:  # single scattering: no collision
             target, channel = dr.full(mi.Float, dr.inf, dr.width(L)), dr.zeros(mi.UInt32, 1)
         into = acc if order == 0 else atomic
-        out = _leg(
-            into, medium, surfaces, x, d, L, ds_min, max_steps, scale, paper, pfeuti_update,
-            target, channel, iso, tally, 0, order == 0,
+        leg = _leg(
+            into, medium, surfaces, x, d, L, march, target, channel, iso, photons.tally, 0,
+            order == 0,
         )  # fmt: skip
-        dr.eval(into, *out)  # one launch per leg
-        n_steps, x_end, v, L_end, found, x_c, d_c, ratio, x_s = out[:9]
-        surface, cast_x, cast_d, bent, depth = out[9:]
-        for array, value in zip(final, (x_end, v, L_end, dr.opaque(mi.UInt32, order)), strict=True):
-            dr.scatter(array, value, ids)
-        steps += int(dr.sum(Float64(n_steps))[0])
-        si = surfaces.hit(cast_x, cast_d, surface)
-        surface &= si.is_valid()
-        keep = surface & (bent | (order > 0)) & (dr.max(L_end) > 0)  # after an event
+        dr.eval(into, leg)  # one launch per leg
+        photons.record(order, leg.steps, leg.x, leg.v, leg.L)
+        si = surfaces.hit(leg.cast_x, leg.cast_d, leg.surface)
+        surface = leg.surface & si.is_valid()
+        keep = surface & (leg.bent | (order > 0)) & (dr.max(leg.L) > 0)  # after an event
         keep &= (mi.UInt32(si.bsdf().flags()) & SMOOTH) != 0  # a mirror shows none (view.py)
         position, normal = mi.Point3f(si.p), mi.Vector3f(si.sh_frame.n)
         if order == last:
             dr.eval(keep, position, normal)
-            records.append(record(position, cast_d, L_end, normal, keep))
+            records.append(record(position, leg.cast_d, leg.L, normal, keep))
             break
         # the next leg: from the collisions, or off the surfaces the others reached
-        sigma_s = mi.Color3f(
-            trilinear_packed(medium.scatter, medium.dims, 1, x_s, active=found)[0].xyz
-        )
+        collision = leg.collision
+        sigma_s = collision.sigma_s(medium)
         omega = scatter.schlick_direction(
-            k, d_c, mi.Point2f(rng.next_float32(), rng.next_float32())
+            k, collision.direction, mi.Point2f(rng.next_float32(), rng.next_float32())
         )
-        bounce = surface & ~found
-        W, x_next, omega = _bounce(
-            surfaces, si, L_end, depth, bounce, rng, L * sigma_s * ratio, x_c, omega, found
-        )
-        survives, W = scatter.roulette(W, start, order, rng.next_float32())
-        next_leg = (found | bounce) & survives & (dr.max(W) > 0)
+        bounce = surface & ~collision.found
+        W_scatter = L * sigma_s * collision.ratio
+        W, x_next, omega = _bounce(surfaces, si, leg, bounce, rng, W_scatter, omega)
+        survives, W = scatter.roulette(W, photons.start, order, rng.next_float32())
+        next_leg = (collision.found | bounce) & survives & (dr.max(W) > 0)
         dr.eval(keep, position, normal, next_leg, W, x_next, omega, rng)  # one kernel
-        records.append(record(position, cast_d, L_end, normal, keep))
+        records.append(record(position, leg.cast_d, leg.L, normal, keep))
         alive = dr.compress(next_leg)
         if dr.width(alive) == 0:
             break
-        alive = dr.gather(mi.UInt32, alive, scatter.coherent_order(x_next, omega, alive, medium.n))
-        x = dr.gather(mi.Point3f, x_next, alive)
-        d = dr.gather(mi.Vector3f, omega, alive)
-        L = dr.gather(mi.Color3f, W, alive)
-        ids, start = dr.gather(mi.UInt32, ids, alive), dr.gather(mi.Float, start, alive)
-        rng.state = dr.gather(mi.UInt64, rng.state, alive)
-        rng.inc = dr.gather(mi.UInt64, rng.inc, alive)
-        if weights is not None:
-            weights = dr.gather(mi.Float, weights, alive)
-            tally = weight_tally(weights)
-    return steps, final, SurfacePhotons.concat(records)
+        x, d, L = photons.compact(alive, x_next, omega, W, medium.n)
+    return photons.steps, photons.final, SurfacePhotons.concat(records)
 
 
-def _bounce(surfaces, si, L_end, depth, bounce, rng, W_scatter, x_c, omega, found):
+def _bounce(surfaces, si, leg: Leg, bounce, rng, W_scatter, omega):
     """The next leg's weight, start (voxel coordinates) and direction: the medium collisions'
-    (``found``) as given, and for the photons that reached a surface (``bounce``) its BSDF's
-    importance sample, ``W = L̃ / P · f cos/pdf`` with ``P = ⅓ Σ_c T_c``."""
-    T = dr.exp(-depth)
+    as given (``W_scatter``, ``omega``), and for the photons that reached a surface
+    (``bounce``) its BSDF's importance sample, ``W = L̃ / P · f cos/pdf`` with
+    ``P = ⅓ Σ_c T_c``."""
+    T = dr.exp(-leg.collision.depth)
     survival = (T.x + T.y + T.z) / 3.0
     bs, f = si.bsdf().sample(
         IMPORTANCE, si, rng.next_float32(), mi.Point2f(rng.next_float32(), rng.next_float32()),
         bounce,
     )  # fmt: skip
     wo = si.to_world(bs.wo)
-    W_bounce = L_end / dr.maximum(survival, 1e-30) * mi.Color3f(f)
+    W_bounce = leg.L / dr.maximum(survival, 1e-30) * mi.Color3f(f)
     W_bounce = dr.select(bounce & (bs.pdf > 0), W_bounce, 0.0)
     start = surfaces.voxel(si.spawn_ray(wo).o)
+    found = leg.collision.found
     W = dr.select(found, W_scatter, W_bounce)
-    return W, dr.select(found, x_c, start), dr.select(found, omega, wo)
+    return W, dr.select(found, leg.collision.x, start), dr.select(found, omega, wo)

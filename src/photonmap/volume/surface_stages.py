@@ -1,8 +1,8 @@
 """The opaque surfaces in the volume pipeline's stages (``pipeline.py``): what the photon and
 viewing stages' cache keys hold of them, the viewing pass's :class:`~.shading.SurfaceShading`,
-and the warnings about what the settings leave out of a scene with surfaces (spec seed-000-002
-§4.1's rerun matrix: the photons on the surfaces are a photon-stage output, their shading a
-viewing-stage output)."""
+and the warnings about what the settings leave out of a scene with surfaces (the photons on the
+surfaces are a photon-stage output, their shading a viewing-stage output, as Sun et al. 2008 §6
+keeps the photons across camera moves)."""
 
 from __future__ import annotations
 

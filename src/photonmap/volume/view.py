@@ -18,17 +18,19 @@ ray conserves across a change of index (Veach 1997 §5.2; ours: the papers rende
 units, ``fidelity="paper"`` leaves it out). Without it a scattering medium inside glass of index
 1.5 came out 2.25× too bright against ``volpath``.
 
-with the Schlick phase function ``p = (1 − k²) / (4π (1 − k cos θ)²)`` (Pfeuti §2.1.3); leaving
-the grid adds ``colScale · T ⊙ L_env(v̂)``. This is the single-scattering volume rendering equation
-with ``∫ p L_i dω' ≈ p(θ(D̂, −ω)) · φ`` (spec §2.6), ``C`` being the fluence ``φ``. The step that
-reaches the grid's exit face is cut there (``h`` the distance to the face; ours): with box grids
-the fog often ends at the grid's face, and a whole last step would add up to a voxel of fog
-beyond it (measured: +3 % brightness in a 16-voxel-thick fog box).
+with the Schlick phase function ``p = (1 − k²) / (4π (1 − k cos θ)²)`` (Pfeuti §2.1.3); leaving the
+grid adds ``colScale · T ⊙ L_env(v̂)``. This is the single-scattering volume rendering equation with
+``∫ p L_i dω' ≈ p(θ(D̂, −ω)) · φ`` (one stored direction per voxel, Sun §4.4), ``C`` being the
+fluence ``φ``. The step that reaches the grid's exit face is cut there (``h`` the distance to the
+face; ours): with box grids the fog often ends at the grid's face, and a whole last step would add
+up to a voxel of fog beyond it (measured: +3 % brightness in a 16-voxel-thick fog box).
 
-Reflective table (Pfeuti §3.1.6): a ray going down through the bottom voxel layer is mirrored at
-the plane ``y = 1`` and picks up ``ρ_table/π · C ⊙ T`` (a Lambertian table of albedo ρ lit by the
-fluence there; spec A27/A28: only for ``v_y < 0``, attenuated by T). ``fidelity="paper"`` adds
-``ρ_table · C`` without T, as Listing A.4 does, and updates ``v += h·n(x)·∇n`` (spec A13).
+Reflective table (Pfeuti §3.1.6): a ray going down through the bottom voxel layer is mirrored at the
+plane ``y = 1`` and picks up ``ρ_table/π · C ⊙ T`` (a Lambertian table of albedo ρ lit by the
+fluence there; only for ``v_y < 0``, so a reflected ray does not trigger it again, and attenuated by
+T, as the table lies inside the fog). ``fidelity="paper"`` adds ``ρ_table · C`` without T, as
+Listing A.4 does, and updates ``v += h·n(x)·∇n`` (Listing A.4; eq 5 otherwise, as in the photon
+march).
 
 Opaque surfaces of the user's scene (``surfaces.py``; ours, for Sun Fig. 1's table and any
 floor or wall): a camera ray ends at the first one, in the grid or beyond it. One Mitsuba cast
@@ -38,9 +40,10 @@ adds its radiance (``shading.py``) weighted by ``colScale·T``; where it has a m
 goes on in the mirrored direction (:func:`_view_surfaces`). Only rays that meet no surface see
 the environment.
 
-Reflective isosurface (Pfeuti §3.1.1, §3.1.6; spec A29): the first time ``n(x_old) < n_iso ≤ n(x)``
-a 10-step bisection finds the crossing, the normal is ``−∇n/‖∇n‖`` and ``R_iso · T ⊙ L_env(r)`` is
-added for the mirrored direction ``r``; the ray then continues with weight ``1 − R_iso``.
+Reflective isosurface (Pfeuti §3.1.1, §3.1.6; its text and code disagree on the crossing test): the
+first time ``n(x_old) < n_iso ≤ n(x)`` a 10-step bisection finds the crossing, the normal is
+``−∇n/‖∇n‖`` and ``R_iso · T ⊙ L_env(r)`` is added for the mirrored direction ``r``; the ray then
+continues with weight ``1 − R_iso``.
 """
 
 from __future__ import annotations
@@ -75,7 +78,7 @@ class ViewGrids:
     - ``aux`` — ``(n, C_rgb)``: read at every step only when the isosurface test or the paper's
       ``v += h·n·∇n`` needs n, and for the table.
 
-    ``dims = (n_x, n_y, n_z)``: the grid's extent (a box grid, issue 11 item 2).
+    ``dims = (n_x, n_y, n_z)``: the grid's extent (a box grid).
     """
 
     dims: tuple
@@ -94,7 +97,7 @@ class ViewGrids:
 
 @dataclass
 class ViewSettings:
-    """Appearance parameters of S9 (none of them requires new photons, spec §4.1)."""
+    """Appearance parameters of S9 (none of them requires new photons)."""
 
     phase_k: float = 0.3
     table: tuple = (0.0, 0.0, 0.0)  # ρ_table (RGB); 0 = no table
@@ -152,7 +155,7 @@ def _sample_aux(grids: ViewGrids, x: mi.Point3f):
 
 def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: float):
     """Bisection (10 steps) on ``[x_old, x]`` for ``n = n_iso``; returns the parameter of the hit
-    along the segment and the outward normal ``−∇n/‖∇n‖`` there (spec A29)."""
+    along the segment and the outward normal ``−∇n/‖∇n‖`` there (Pfeuti §3.1.6)."""
     lo = dr.zeros(mi.Float, dr.width(x))
     hi = dr.ones(mi.Float, dr.width(x))
     for _ in range(BISECTION_STEPS):
@@ -164,23 +167,47 @@ def isosurface_hit(grids: ViewGrids, x_old: mi.Point3f, x: mi.Point3f, iso: floa
     return t, -dr.normalize(_sample(grids, dr.lerp(x_old, x, t))[0])
 
 
+def _entry(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, surf):
+    """Where camera rays (voxel origin ``o``, unit ``d``) enter the grid: ``(x, inside,
+    (t_surf, cast_x, cast_d, hit, reached))``; with opaque surfaces ``surf`` the cast from the
+    camera (``hit``: a surface before the grid; ``t_surf`` from ``x``), else Nones."""
+    far = grid_extent(grids.dims)
+    enters, t_near, _ = box_entry(o, d, grids.dims)
+    x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
+    inside = enters & dr.all((x >= 0.0) & (x < far))
+    if surf is None:
+        return x, inside, (None, None, None, None, None)
+    reached = dr.zeros(mi.Bool, dr.width(o))
+    t_surf = surf.distance(o, d, True)  # one cast from the camera
+    cast_x, cast_d = mi.Point3f(o), mi.Vector3f(d)
+    hit = dr.isfinite(t_surf) & (~inside | (t_surf <= t_near + ENTRY_NUDGE))
+    inside &= ~hit  # a surface before the grid
+    t_surf = t_surf - (t_near + ENTRY_NUDGE)
+    return x, inside, (t_surf, cast_x, cast_d, hit, reached)
+
+
+def _appearance(s: ViewSettings):
+    """The table's colour (``/π`` but with ``paper``) and whether there is one, the isosurface's
+    index and whether it reflects, its reflectance, the phase function's k: ``(table, table_on,
+    iso, iso_on, r_iso, k)``. The values enter the kernel as opaque arrays, so changing them
+    does not recompile it."""
+    table_rgb = [float(c) * (1.0 if s.paper else 1.0 / math.pi) for c in s.table]
+    table = mi.Color3f(*[dr.opaque(mi.Float, c) for c in table_rgb])
+    table_on = bool(np.any(np.asarray(s.table) > 0))
+    iso_on = s.iso_ior is not None and s.iso_reflect > 0
+    iso = dr.opaque(mi.Float, float(s.iso_ior) if iso_on else 0.0)
+    r_iso = dr.opaque(mi.Float, s.iso_reflect)
+    k = dr.opaque(mi.Float, s.phase_k)
+    return table, table_on, iso, iso_on, r_iso, k
+
+
 @dr.syntax
 def _march_loop(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSettings, surf):
     """The march through the grid (:func:`_march_rays`): ``(L, colScale·T, final direction,
     final x, inside, (t_surf, cast_x, cast_d, hit))``, the last four None without ``surf``."""
     far = grid_extent(grids.dims)
     count = dr.width(o)
-    enters, t_near, _ = box_entry(o, d, grids.dims)
-    x = mi.Point3f(o + (t_near + ENTRY_NUDGE) * d)
-    inside = enters & dr.all((x >= 0.0) & (x < far))
-    t_surf, cast_x, cast_d, hit, reached = None, None, None, None, None
-    if surf is not None:
-        reached = dr.zeros(mi.Bool, count)
-        t_surf = surf.distance(o, d, True)  # one cast from the camera
-        cast_x, cast_d = mi.Point3f(o), mi.Vector3f(d)
-        hit = dr.isfinite(t_surf) & (~inside | (t_surf <= t_near + ENTRY_NUDGE))
-        inside &= ~hit  # a surface before the grid
-        t_surf = t_surf - (t_near + ENTRY_NUDGE)
+    x, inside, (t_surf, cast_x, cast_d, hit, reached) = _entry(grids, o, d, surf)
     n_x = _sample_aux(grids, x)[0]
     n_eye = mi.Float(n_x)  # the index where the ray enters: the camera's medium
     v = mi.Vector3f(n_x * d)
@@ -191,14 +218,7 @@ def _march_loop(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
     reflected = dr.zeros(mi.Bool, count)
     steps = dr.zeros(mi.UInt32, count)
     max_steps = 4 * max(grids.dims)
-    # appearance parameters enter the kernel as opaque values: changing them does not recompile
-    table_rgb = [float(c) * (1.0 if s.paper else 1.0 / math.pi) for c in s.table]
-    table = mi.Color3f(*[dr.opaque(mi.Float, c) for c in table_rgb])
-    table_on = bool(np.any(np.asarray(s.table) > 0))
-    iso_on = s.iso_ior is not None and s.iso_reflect > 0
-    iso = dr.opaque(mi.Float, float(s.iso_ior) if iso_on else 0.0)
-    r_iso = dr.opaque(mi.Float, s.iso_reflect)
-    k = dr.opaque(mi.Float, s.phase_k)
+    table, table_on, iso, iso_on, r_iso, k = _appearance(s)
     need_n = iso_on or s.paper
 
     active = mi.Bool(inside)
@@ -215,7 +235,7 @@ def _march_loop(grids: ViewGrids, o: mi.Point3f, d: mi.Vector3f, env, s: ViewSet
             n_x, C = _sample_aux(grids, x)
             L += col * table * C * (1.0 if s.paper else T)
         elif iso_on & ~reflected & (n_old < iso) & (n_x >= iso):
-            # reflective isosurface (Pfeuti §3.1.6, spec A29): mirror the environment
+            # reflective isosurface (Pfeuti §3.1.6): mirror the environment
             t_iso, normal = isosurface_hit(grids, x_old, x, iso)
             dv = dr.normalize(dr.lerp(v_old, v, t_iso))
             r = dv - 2.0 * dr.dot(dv, normal) * normal
@@ -290,7 +310,7 @@ def _march_rays(
 def render_view(
     grids: ViewGrids, box: GridBox, sensor, env, settings: ViewSettings, shading=None
 ) -> mi.TensorXf:
-    """Render the image seen by ``sensor`` (a Mitsuba perspective sensor) — spec S9; with
+    """Render the image seen by ``sensor`` (a Mitsuba perspective sensor) — stage S9; with
     ``shading`` (:class:`~.shading.SurfaceShading`) camera rays end at opaque surfaces and add
     their radiance (``shading.py``). The film's reconstruction filter is honoured:
     importance-sampled with ``spp`` > 1, applied to the image of the pixel centres with ``spp``

@@ -1,6 +1,6 @@
 """Stage S1: fractional inside coverage of a closed shape on the voxel grid.
 
-Sun et al. 2008 §4.1; Pfeuti 2009 §3.1.2, Listing A.1; spec seed-000-002 S1 and A1, A2.
+Sun et al. 2008 §4.1; Pfeuti 2009 §3.1.2, Listing A.1.
 
 The inside test is the parity of surface crossings along +z (the XOR bit-slice voxelization of
 Eisemann & Décoret 2008 that Pfeuti uses), computed with Mitsuba's own ray tracer: for each
@@ -10,15 +10,16 @@ at a sample's height counts as above it). Columns are shifted by a fixed irratio
 voxel (:data:`COLUMN_JITTER`) so that they do not run exactly through the edges or vertices of
 meshes built on simple rational coordinates, nor graze a face.
 
-Coverage [Sun §4.1]:
+Coverage (Sun §4.1):
 
 - ``B[v]``: inside test at the centre of voxel ``v``;
 - ``v`` is a *border* voxel iff ``B`` is not uniform over its 3×3×3 neighbourhood (clamped);
 - ``cov[v] = B[v]`` off the border, and on the border the mean of the ``s×s×s`` sub-samples at
   ``(i + (a+½)/s, j + (b+½)/s, k + (c+½)/s)`` (``s = 4``: multiples of 1/64).
 
-``full_supersample=True`` supersamples every voxel (A2): it also catches features thinner than a
-voxel that the centre samples miss (a thin plate), and agrees with the default for smooth objects.
+``full_supersample=True`` supersamples every voxel (the papers: the border only): it also catches
+features thinner than a voxel that the centre samples miss (a thin plate), and agrees with the
+default for smooth objects.
 """
 
 from __future__ import annotations
