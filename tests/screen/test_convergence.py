@@ -22,7 +22,7 @@ import numpy as np
 
 from photonmap import ScreenPipeline
 from photonmap.scenes import SCENES
-from photonmap.screen.pipeline import visible_diagonal
+from photonmap.screen.scene_checks import visible_diagonal
 
 W, H = 64, 48
 SEQUENCE = ((50, 0.06), (150, 0.035), (400, 0.02))

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 
 from photonmap import ScreenPipeline
-from photonmap.screen.pipeline import visible_diagonal
+from photonmap.screen.scene_checks import visible_diagonal
 
 # the plain Mitsuba files of ../shared/tools/scenes, beside the repository (CI has them there)
 GLASS_SCENE = str(Path(__file__).resolve().parents[3] / "shared/tools/scenes/glass_sphere_plane.xml")

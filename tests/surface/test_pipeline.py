@@ -195,8 +195,8 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     from photonmap.core.eye_trace import trace_eye_paths
     from photonmap.core.media import broadcast
     from photonmap.core.sampling import rng
+    from photonmap.surface.eye_terms import caustic_radiance
     from photonmap.surface.gather import radiance_estimate
-    from photonmap.surface.pipeline import caustic_radiance
 
     pipe = SurfacePipeline("cornell_steinhurst", photons=2000, caustic_photons=100_000)
     _, caustic_map, _ = pipe.photon_maps()

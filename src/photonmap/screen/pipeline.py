@@ -52,13 +52,12 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import is_null
 from ..core.errors import ParameterError, SceneError
 from ..core.film_filter import filter_image
 from ..core.memory import check_once
 from ..core.params import Renamed, check_choice, check_fields, check_range, updated
 from ..core.pipeline import Pipeline
-from ..core.scene_info import refuse_media, warn_unmodelled
+from ..core.scene_info import refuse_media
 from ..core.settings import HIDE_CHOICES, UNBOUNDED, PathSettings, overridden
 from ..core.stages import StageCache
 from . import memory
@@ -66,7 +65,8 @@ from .composite import chain_indirect, composite, glass_eye
 from .direct import direct_light
 from .gbuffer import GBuffer, eye_gbuffer
 from .light_gbuffer import check_light_outside, find_light, light_gbuffer
-from .light_photons import GLOSSY_MODES, random_map, trace_photons
+from .light_photons import GLOSSY_MODES, ScreenPhotons, random_map, trace_photons
+from .scene_checks import check_dielectrics, check_shading, visible_diagonal
 from .soft_shadow import MODES, soft_visibility
 
 SPLATS = ("quad", "icosahedron")
@@ -167,80 +167,6 @@ class ScreenParams:
                 f"got {self.isg_samples!r}"
             )
         return pair
-
-
-def visible_diagonal(scene: mi.Scene) -> float:
-    """The bounding-box diagonal of the shapes the method sees, the scale of the automatic
-    ``radius`` and the unit of ``light_size`` (module docstring): ``null``-BSDF shapes (a fog box
-    around the scene) do not count, so that they change nothing in the image."""
-    boxes = [s.bbox() for s in scene.shapes() if not _null(s)]
-    if not boxes:
-        return 0.0
-    lo = np.min([np.array(b.min, dtype=np.float64).ravel() for b in boxes], axis=0)
-    hi = np.max([np.array(b.max, dtype=np.float64).ravel() for b in boxes], axis=0)
-    return float(np.linalg.norm(hi - lo))
-
-
-def _null(shape: mi.Shape) -> bool:
-    bsdf = shape.bsdf()
-    return bsdf is not None and not shape.is_emitter() and bool(is_null(bsdf, True)[0])
-
-
-def check_shading(scene: mi.Scene) -> None:
-    """The screen method shades a surface by its diffuse reflectance (Yao's G-buffer holds the
-    albedo ρ, Eq 1) with its geometric shading normal, and ray-traces mirrors and glass. Raise a
-    :class:`SceneError` naming the shapes it would render wrong: BSDFs with smooth lobes but no
-    diffuse one (``roughconductor``, ``roughdielectric``: black) and partly transparent ones
-    (``mask``: opaque); warn about the parts it leaves out (the glossy or specular lobes of a
-    BSDF that also has a diffuse one, ``bumpmap`` and ``normalmap``)."""
-    refused, left_out = [], []
-    for number, shape in enumerate(scene.shapes()):
-        bsdf = shape.bsdf()
-        if bsdf is None or shape.is_emitter() or bool(is_null(bsdf, True)[0]):
-            continue
-        flags = int(bsdf.flags())
-        name = f"shape '{shape.id()}'" if shape.id() else f"shape number {number}"
-        what = f"{name} ({bsdf.class_name()})"
-        smooth, diffuse = flags & int(mi.BSDFFlags.Smooth), flags & int(mi.BSDFFlags.Diffuse)
-        if flags & int(mi.BSDFFlags.Null) and smooth:
-            refused.append(f"{what} is partly transparent")
-        elif smooth and not diffuse:
-            refused.append(f"{what} has no diffuse lobe")
-        elif diffuse and flags & int(mi.BSDFFlags.Glossy | mi.BSDFFlags.Delta):
-            left_out.append(f"the glossy or specular lobes of {what}")
-        text = str(bsdf)
-        for kind in ("BumpMap", "NormalMap"):
-            if kind in text:
-                left_out.append(f"the {kind.lower()} of {name} (shaded with its own normal)")
-    if refused:
-        raise SceneError(
-            "the screen method shades surfaces by their diffuse reflectance and ray-traces "
-            f"mirrors and glass; it would render wrong: {'; '.join(refused)}; render this scene "
-            "with --method sppm (or surface)"
-        )
-    warn_unmodelled("screen", left_out, "--method sppm renders them")
-
-
-def check_dielectrics(scene: mi.Scene) -> None:
-    """Raise a :class:`SceneError` naming the shape if a BSDF's relative index of refraction
-    ``eta`` (a dielectric's ``int_ior / ext_ior``, nested BSDFs included) is not a finite positive
-    number: Snell's law and Fresnel would turn the glass pixels and caustic photons into NaN."""
-    for number, shape in enumerate(scene.shapes()):
-        bsdf = shape.bsdf()
-        if bsdf is None:
-            continue
-        params = mi.traverse(bsdf)
-        for key in params.keys():
-            if key.split(".")[-1] != "eta":
-                continue
-            eta = np.array(params[key], dtype=np.float64).ravel()
-            if not (np.all(np.isfinite(eta)) and np.all(eta > 0)):
-                name = f"'{shape.id()}'" if shape.id() else f"number {number}"
-                raise SceneError(
-                    f"shape {name} ({shape.class_name()}) has a {bsdf.class_name()} whose index "
-                    f"of refraction eta = {eta.tolist()} is not a finite positive number; set "
-                    "int_ior and ext_ior to finite values (e.g. 1.5 and 1.0 for glass in air)"
-                )
 
 
 def _film_image(out: mi.Color3f, emission: mi.Color3f | None, film) -> mi.TensorXf:
@@ -405,104 +331,27 @@ class ScreenPipeline(Pipeline):
     # ------------------------------------------------------------------------------- stages
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance. Every
-        intermediate is in :attr:`outputs` (for tests and debug views)."""
-        from .splat import splat_icosahedra, splat_quads
-        from .upsample import subsample, upsample
-
-        p, scene, diag = self.params, self.scene, self.diagonal
-        check_once(self, p, self.sensor.film().crop_size(), self.check_memory)
+        intermediate is in :attr:`outputs` (spec §7 testability)."""
+        p = self.params
+        check_once(self, p, self.size, self.check_memory)
         self.cache.new_frame(progress)
-        stage = self.cache.stage
         cam_key = _sensor_key(self.sensor)
-        light_key = (self.params.light, self._light_version)
-
-        gbuf, specular = stage("eye G-buffer", cam_key, lambda: eye_gbuffer(scene, self.sensor))
-        lgb_key = (light_key, p.light_res, p.seed)
-        lgb = stage(
-            "light G-buffer",
-            lgb_key,
-            lambda: light_gbuffer(scene, self.light, p.light_res, p.light_res, p.seed),
+        light_key = (p.light, self._light_version)
+        gbuf, specular = self.cache.stage(
+            "eye G-buffer", cam_key, lambda: eye_gbuffer(self.scene, self.sensor)
         )
-        if self._prm[0] != (p.light_res, p.seed):  # the PRM is made once (§2.4), not a stage
-            self._prm = ((p.light_res, p.seed), random_map(p.light_res, p.light_res, p.seed))
-        prm = self._prm
-        bounces = self.recorded_bounces()
-        photon_key = (lgb_key, bounces, p.glossy)
-        photons = stage(
-            "photon tracing",
-            photon_key,
-            lambda: trace_photons(scene, lgb, prm[1], bounces, p.glossy) if bounces else None,
+        lgb, photons, photon_key = self._photon_stages(light_key)
+        direct, visibility, shadow_key = self._direct_stages(gbuf, (cam_key, light_key))
+        low, L_low, E_low, indirect, splat_key = self._indirect_stages(
+            gbuf, cam_key, photons, photon_key
         )
-        sampled = p.shadows == "sampled"
-        direct_key = (cam_key, light_key)
-        direct = stage(
-            "direct + shadow rays",
-            (direct_key, sampled),
-            lambda: direct_light(scene, gbuf, self.light, diag, samples=sampled),
-        )
-        light_radius = self.shadow_radius()
-        shadow_key = (direct_key, sampled, p.shadows, light_radius, p.isg_pair())
-        visibility = stage(
-            "soft shadows",
-            shadow_key,
-            lambda: soft_visibility(
-                gbuf,
-                direct.hard,
-                direct.occluder_dist,
-                direct.light_dist,
-                light_radius,
-                diag,
-                samples=p.isg_pair(),
-                mode="hard" if sampled else p.shadows,
-            ),
-        )
-        low_key = (cam_key, p.subsample)
-        low = stage("subsample", low_key, lambda: subsample(gbuf, p.subsample))
-        splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
-
-        def splat(photons, points: GBuffer, cull: bool = True):
-            if photons is None:  # direct light only
-                zero = dr.zeros(mi.Color3f, points.width * points.height)
-                return zero, zero
-            if p.splat == "quad":
-                return splat_quads(points, photons, self.splat_radius, cull)
-            return splat_icosahedra(points, photons, self.splat_radius, p.compression, cull)
-
-        L_low, E_low = stage("splatting", splat_key, lambda: splat(photons, low))
-        up_key = splat_key
-        indirect = stage("upsampling", up_key, lambda: upsample(L_low, low, gbuf, p.subsample))
-        depth = self.settings.max_depth
-        chains = stage(
-            "glass",
-            (direct_key, depth),
-            lambda: glass_eye(scene, gbuf, specular, self.light, diag, depth),
-        )
-
-        def chain_bounces(level: int) -> int:  # m + k + 2 segments at most (.composite)
-            return bounces if depth == UNBOUNDED else min(bounces, depth - 2 - level)
-
-        def splat_ends(points: GBuffer, k: int):
-            texels = p.light_res**2  # bounce k fills slots [(k - 1) texels, k texels)
-            kept = photons.valid & (dr.arange(mi.UInt32, dr.width(photons.valid)) < k * texels)
-            return splat(dataclasses.replace(photons, valid=kept), points, cull=False)
-
-        glass_indirect = stage(
-            "glass indirect",
-            (direct_key, splat_key, depth),
-            lambda: (
-                None
-                if chains is None or photons is None
-                else chain_indirect(chains[1], splat_ends, chain_bounces, gbuf.width * gbuf.height)
-            ),
-        )
-        glass = None if chains is None else chains[0]
-        if glass_indirect is not None:
-            glass = glass + glass_indirect
+        glass = self._glass_stages(gbuf, specular, photons, (cam_key, light_key), splat_key)
         hide = self.settings.hide_emitters  # Mitsuba hides the emitters seen directly only
         emission = None if hide else gbuf.emission
-        out = stage(
+        sampled = p.shadows == "sampled"
+        out = self.cache.stage(
             "composite",
-            (shadow_key, up_key, direct_key, splat_key, depth, hide),
+            (shadow_key, splat_key, cam_key, light_key, self.settings.max_depth, hide),
             lambda: composite(
                 direct.L_sampled if sampled else direct.L,
                 None if sampled else visibility,
@@ -512,22 +361,14 @@ class ScreenPipeline(Pipeline):
             ),
         )
         self.outputs = {
-            "gbuffer": gbuf,
-            "specular": specular,
-            "light_gbuffer": lgb,
-            "photons": photons,
-            "direct": direct,
-            "visibility": visibility,
-            "low_gbuffer": low,
-            "indirect_low": L_low,
-            "irradiance_low": E_low,
-            "indirect": indirect,
-            "glass": glass,
-            "image": out,
-        }
+            "gbuffer": gbuf, "specular": specular, "light_gbuffer": lgb, "photons": photons,
+            "direct": direct, "visibility": visibility, "low_gbuffer": low,
+            "indirect_low": L_low, "irradiance_low": E_low, "indirect": indirect,
+            "glass": glass, "image": out,
+        }  # fmt: skip
         self.stats.update(
             photons=int(dr.count(photons.valid)[0]) if photons is not None else 0,
-            photon_slots=p.light_res**2 * bounces,
+            photon_slots=p.light_res**2 * self.recorded_bounces(),
             width=gbuf.width,
             height=gbuf.height,
         )
@@ -539,3 +380,83 @@ class ScreenPipeline(Pipeline):
                 "parameters and light intensity for NaN"
             )
         return image
+
+    def _photon_stages(self, light_key):
+        """The light G-buffer and the photons traced from it (with the fixed random map, made
+        once per size and seed, §2.4: not a stage); the photons' stage key."""
+        p = self.params
+        lgb_key = (light_key, p.light_res, p.seed)
+        lgb = self.cache.stage("light G-buffer", lgb_key, lambda: light_gbuffer(
+            self.scene, self.light, p.light_res, p.light_res, p.seed))  # fmt: skip
+        if self._prm[0] != (p.light_res, p.seed):
+            self._prm = ((p.light_res, p.seed), random_map(p.light_res, p.light_res, p.seed))
+        prm, bounces = self._prm[1], self.recorded_bounces()
+        photon_key = (lgb_key, bounces, p.glossy)
+        photons = self.cache.stage("photon tracing", photon_key, lambda: (
+            trace_photons(self.scene, lgb, prm, bounces, p.glossy) if bounces else None))  # fmt: skip
+        return lgb, photons, photon_key
+
+    def _direct_stages(self, gbuf: GBuffer, direct_key):
+        """Direct light with its shadow rays, then the soft shadows' visibility V_s (Yao §3.4);
+        the visibility's stage key."""
+        p, diag = self.params, self.diagonal
+        sampled = p.shadows == "sampled"
+        direct = self.cache.stage("direct + shadow rays", (direct_key, sampled), lambda: (
+            direct_light(self.scene, gbuf, self.light, diag, samples=sampled)))  # fmt: skip
+        radius = self.shadow_radius()
+        shadow_key = (direct_key, sampled, p.shadows, radius, p.isg_pair())
+        visibility = self.cache.stage("soft shadows", shadow_key, lambda: soft_visibility(
+            gbuf, direct.hard, direct.occluder_dist, direct.light_dist, radius, diag,
+            samples=p.isg_pair(), mode="hard" if sampled else p.shadows,
+        ))  # fmt: skip
+        return direct, visibility, shadow_key
+
+    def _indirect_stages(self, gbuf: GBuffer, cam_key, photons, photon_key):
+        """The subsampled G-buffer, the photons splatted on it (L_ind, E_ind) and L_ind
+        upsampled to every pixel (Yao §3.3, Eq 1); the splats' stage key."""
+        from .upsample import subsample, upsample
+
+        p = self.params
+        low_key = (cam_key, p.subsample)
+        low = self.cache.stage("subsample", low_key, lambda: subsample(gbuf, p.subsample))
+        splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
+        L_low, E_low = self.cache.stage("splatting", splat_key, lambda: self._splat(photons, low))
+        indirect = self.cache.stage(
+            "upsampling", splat_key, lambda: upsample(L_low, low, gbuf, p.subsample)
+        )
+        return low, L_low, E_low, indirect, splat_key
+
+    def _splat(self, photons: ScreenPhotons | None, points: GBuffer, cull: bool = True):
+        """L_ind and E_ind at ``points`` from the photons' quads or icosahedra (0 without)."""
+        from .splat import splat_icosahedra, splat_quads
+
+        p = self.params
+        if photons is None:  # direct light only
+            zero = dr.zeros(mi.Color3f, points.width * points.height)
+            return zero, zero
+        if p.splat == "quad":
+            return splat_quads(points, photons, self.splat_radius, cull)
+        return splat_icosahedra(points, photons, self.splat_radius, p.compression, cull)
+
+    def _glass_stages(self, gbuf, specular, photons, direct_key, splat_key):
+        """The mirror and glass pixels: their chains' direct light and emission, plus the
+        photons' indirect light at the chains' ends within ``max_depth`` (:mod:`.composite`)."""
+        depth, bounces = self.settings.max_depth, self.recorded_bounces()
+        chains = self.cache.stage("glass", (direct_key, depth), lambda: glass_eye(
+            self.scene, gbuf, specular, self.light, self.diagonal, depth))  # fmt: skip
+
+        def chain_bounces(level: int) -> int:  # m + k + 2 segments at most
+            return bounces if depth == UNBOUNDED else min(bounces, depth - 2 - level)
+
+        def splat_ends(points: GBuffer, k: int):
+            texels = self.params.light_res**2  # bounce k fills slots [(k - 1) texels, k texels)
+            kept = photons.valid & (dr.arange(mi.UInt32, dr.width(photons.valid)) < k * texels)
+            return self._splat(dataclasses.replace(photons, valid=kept), points, cull=False)
+
+        indirect = self.cache.stage("glass indirect", (direct_key, splat_key, depth), lambda: (
+            None if chains is None or photons is None
+            else chain_indirect(chains[1], splat_ends, chain_bounces, gbuf.width * gbuf.height)
+        ))  # fmt: skip
+        if chains is None:
+            return None
+        return chains[0] if indirect is None else chains[0] + indirect

@@ -63,6 +63,7 @@ from ..core.stages import StageCache
 from ..core.volume_map import ScatteredDensity, VolumeMap
 from . import memory
 from .cis import TABLE_SAMPLING, sampling_table
+from .eye_terms import caustic_radiance, light_images
 from .final_gather import final_gather
 from .gather import radiance_estimate
 from .gather_batch import ORDERS, OrderParams, RequestLayout
@@ -491,68 +492,3 @@ def _added(L: mi.Spectrum, term) -> mi.Spectrum:
     out = L + term()
     dr.eval(out)
     return out
-
-
-def light_images(
-    scene, sensor, emitted: mi.Spectrum, specular: mi.Bool, w: int, h: int, p, settings, traits
-) -> mi.Spectrum:
-    """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
-    eye samples' ``emitted``, except in the pixels where a sample saw a light or followed a
-    mirror or glass (``specular``), and their neighbours: there it is the mean of
-    ``p.emitter_spp`` new samples of this term alone (a selection by the samples themselves, as
-    in adaptive sampling: a slight bias at a light's edge, within the noise it removes). Those
-    pixels hold the lights and their specular images — bright, small, and the one place where
-    the eye samples alone leave visible noise. Flagging every pixel that sees glass, not only
-    those whose sample happened to meet a light, keeps the glints of a glass stack (one of
-    many reflections at one of many interfaces: few eye samples find them). The extra samples
-    only follow mirrors, glass and the media's transmittance, so they are cheap."""
-    image = pixel_means(emitted, p.spp)
-    if p.emitter_spp == 0:
-        return image
-    specular = dr.block_reduce(dr.ReduceOp.Max, mi.UInt32(specular), p.spp) > 0
-    seen = np.array((dr.max(image) > 0) | specular)
-    seen = np.pad(seen.reshape(h, w), 1)
-    grown = np.zeros((h, w), bool)
-    for dy in range(3):
-        for dx in range(3):
-            grown |= seen[dy : dy + h, dx : dx + w]
-    flagged = mi.UInt32(np.flatnonzero(grown).astype(np.uint32))
-    count = dr.width(flagged)
-    if count == 0:
-        return image
-    lanes = count * p.emitter_spp
-    which = dr.arange(mi.UInt32, lanes) // p.emitter_spp
-    pixel = dr.gather(mi.UInt32, flagged, which)
-    shifts = rng(count, p.seed, 3)
-    shift = mi.Point2f(shifts.next_float32(), shifts.next_float32())
-    sample = dr.arange(mi.UInt32, lanes) % p.emitter_spp
-    jitter = rotated_hammersley(p.emitter_spp, sample, dr.gather(mi.Point2f, shift, which))
-    ray, weight = pixel_rays(sensor, pixel, jitter)
-    extra = trace_eye_paths(
-        scene, ray, weight, broadcast(sensor.get_medium(), lanes), rng(lanes, p.seed, 4),
-        settings, traits, emission=True, media_mode="transmit", rough_glass=True,
-    ).radiance  # fmt: skip
-    dr.scatter(image, pixel_means(extra, p.emitter_spp), flagged)
-    return image
-
-
-def caustic_radiance(
-    caustic_map, si: mi.SurfaceInteraction3f, found, bounces, spp: int, k: int, radius: float
-) -> mi.Spectrum:
-    """The caustic map's radiance estimate (Eq 2.6) at every sample of a pixel — except where
-    all of a pixel's ``spp`` samples see the same surface directly: there the estimate at the
-    first sample serves them all. The k-NN kernel spans many pixels, so the estimate barely
-    changes within one, and its gathers are the costliest per-sample work; pixels on edges or
-    seen through mirrors and glass, where samples land far apart, keep one estimate each."""
-    lanes = dr.width(found)
-    lane = dr.arange(mi.UInt32, lanes)
-    first = lane // spp * spp
-    same = found & (bounces == 0) & (si.shape == dr.gather(mi.ShapePtr, si.shape, first))
-    plain = dr.gather(
-        mi.Bool, dr.block_reduce(dr.ReduceOp.Min, mi.UInt32(same), spp) > 0, lane // spp
-    )
-    needed = dr.compress(found & (~plain | (lane == first)))
-    at = dr.gather(mi.SurfaceInteraction3f, si, needed)
-    estimate = dr.zeros(mi.Spectrum, lanes)
-    dr.scatter(estimate, radiance_estimate(caustic_map, at, at.bsdf(), k, radius, True), needed)
-    return dr.gather(mi.Spectrum, estimate, dr.select(plain, first, lane))

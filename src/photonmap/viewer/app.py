@@ -27,11 +27,12 @@ from fastapi import FastAPI, Request, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from .. import METHODS
 from ..core.errors import ParameterError, PhotonmapError
 from .guard import Guard, allowed_hosts, new_token
 from .methods import ADAPTERS
 from .state import READ_ONLY
-from .volume_adapter import VolumeAdapter, check_stroke
+from .volume_adapter import check_stroke
 from .worker import RenderWorker
 
 STATIC = files("photonmap.viewer") / "static"
@@ -50,7 +51,7 @@ class Viewer:
             )
         extra = {}
         if frames is not None:
-            if not issubclass(ADAPTERS[method], VolumeAdapter):
+            if "volume" not in METHODS[method].pipeline.edits:
                 raise ParameterError("a volume sequence (--volumes) needs the volume method")
             extra["frames"] = frames
         self.adapter = ADAPTERS[method](method, scene, overrides, size, **extra)
@@ -64,7 +65,7 @@ class Viewer:
         values = self.worker.target_state()
         out = {"scene": self.scene, "method": self.method, "methods": list(ADAPTERS),
                "stages": list(self.adapter.stages), **values}  # fmt: skip
-        if isinstance(self.adapter, VolumeAdapter):
+        if "volume" in self.adapter.pipe.edits:  # the volume grids: painted or played
             out["frames"] = self.adapter.frame_count
             out["brush_fields"] = ["sigma_s", "n"]
         return out
@@ -131,6 +132,20 @@ def create_app(viewer: Viewer, host: str = "127.0.0.1", port: int | None = None)
     async def photonmap_error(request, exc):
         return _unprocessable(exc)
 
+    _page_and_edit_routes(app, viewer)
+    _frame_routes(app, viewer)
+
+    @app.websocket("/api/stream")
+    async def stream(ws: WebSocket):
+        await _stream(ws, viewer)
+
+    return Guard(app, viewer.token, allowed_hosts(host), port)
+
+
+def _page_and_edit_routes(app: FastAPI, viewer: Viewer) -> None:
+    """``GET /`` (the page; its token becomes a cookie), ``GET /api/state`` and the edits:
+    ``POST /api/update``, and painting and its reset where the method edits the volume."""
+
     @app.get("/")
     def index(request: Request):
         page = FileResponse(str(STATIC / "index.html"))
@@ -148,21 +163,26 @@ def create_app(viewer: Viewer, host: str = "127.0.0.1", port: int | None = None)
         version = viewer.update(await _json(request))
         return {"version": version, "state": viewer.state()}
 
+    def paintable(what: str) -> None:
+        if "volume" not in viewer.adapter.pipe.edits:
+            raise ParameterError(f"{what} needs the volume method, not {viewer.method}")
+
     @app.post("/api/paint")
     async def post_paint(request: Request):
-        if not isinstance(viewer.adapter, VolumeAdapter):
-            raise ParameterError(f"painting needs the volume method, not {viewer.method}")
+        paintable("painting")
         stroke = check_stroke(await _json(request))
         return {"version": viewer.worker.act(lambda: viewer.adapter.paint(stroke))}
 
     @app.post("/api/reset")
     def post_reset():
-        if not isinstance(viewer.adapter, VolumeAdapter):
-            raise ParameterError(f"reset undoes painting, which needs the volume method, not "
-                                 f"{viewer.method}")  # fmt: skip
+        paintable("reset undoes painting, which")
         return {"version": viewer.worker.act(viewer.adapter.reset_volume)}
 
-    def _frame(timeout: float):
+
+def _frame_routes(app: FastAPI, viewer: Viewer) -> None:
+    """``GET /api/frame.png`` and ``/api/frame.json``: the next frame (504 after ``timeout``)."""
+
+    def next_frame(timeout: float):
         try:
             return viewer.worker.wait_frame(timeout=timeout)
         except TimeoutError as exc:
@@ -170,7 +190,7 @@ def create_app(viewer: Viewer, host: str = "127.0.0.1", port: int | None = None)
 
     @app.get("/api/frame.png")
     def get_frame_png(timeout: float = 300.0):
-        frame = _frame(timeout)
+        frame = next_frame(timeout)
         if isinstance(frame, JSONResponse):
             return frame
         headers = {"X-Frame-Version": str(frame.version)}
@@ -180,57 +200,57 @@ def create_app(viewer: Viewer, host: str = "127.0.0.1", port: int | None = None)
 
     @app.get("/api/frame.json")
     def get_frame_json(timeout: float = 300.0):
-        frame = _frame(timeout)
+        frame = next_frame(timeout)
         return frame if isinstance(frame, JSONResponse) else frame.meta()
 
-    @app.websocket("/api/stream")
-    async def stream(ws: WebSocket):
-        await ws.accept()
-        loop = asyncio.get_running_loop()
-        wake = asyncio.Event()
-        latest: list = []  # newest message only: a slow client skips frames, never queues them
-        errors: list = []
 
-        def listener(message, frame):
-            (latest if frame is not None else errors).append((message, frame))
-            del latest[:-1]
-            loop.call_soon_threadsafe(wake.set)
+async def _stream(ws: WebSocket, viewer: Viewer) -> None:
+    """``/api/stream``: each new frame's metadata and JPEG as the render thread finishes it
+    (the newest only: a slow client skips frames, never queues them), and each error."""
+    await ws.accept()
+    loop = asyncio.get_running_loop()
+    wake = asyncio.Event()
+    latest: list = []
+    errors: list = []
 
-        frame = viewer.worker.frame
-        if frame is not None:
-            latest.append((frame.meta(), frame))
-            wake.set()
-        closed = []
+    def listener(message, frame):
+        (latest if frame is not None else errors).append((message, frame))
+        del latest[:-1]
+        loop.call_soon_threadsafe(wake.set)
 
-        async def watch():  # the page sends nothing; this notices when it goes away
-            try:
-                while True:
-                    await ws.receive_text()
-            except WebSocketDisconnect:
-                closed.append(True)
-                wake.set()
+    frame = viewer.worker.frame
+    if frame is not None:
+        latest.append((frame.meta(), frame))
+        wake.set()
+    closed = []
 
-        watcher = asyncio.create_task(watch())
-        viewer.worker.subscribe(listener)
+    async def watch():  # the page sends nothing; this notices when it goes away
         try:
             while True:
-                await wake.wait()
-                wake.clear()
-                if closed:
-                    break
-                while errors:
-                    await ws.send_json(errors.pop(0)[0])
-                if latest:
-                    message, frame = latest.pop()
-                    await ws.send_json(message)
-                    await ws.send_bytes(frame.data)
-        except (WebSocketDisconnect, RuntimeError):
-            pass
-        finally:
-            viewer.worker.unsubscribe(listener)
-            watcher.cancel()
+                await ws.receive_text()
+        except WebSocketDisconnect:
+            closed.append(True)
+            wake.set()
 
-    return Guard(app, viewer.token, allowed_hosts(host), port)
+    watcher = asyncio.create_task(watch())
+    viewer.worker.subscribe(listener)
+    try:
+        while True:
+            await wake.wait()
+            wake.clear()
+            if closed:
+                break
+            while errors:
+                await ws.send_json(errors.pop(0)[0])
+            if latest:
+                message, frame = latest.pop()
+                await ws.send_json(message)
+                await ws.send_bytes(frame.data)
+    except (WebSocketDisconnect, RuntimeError):
+        pass
+    finally:
+        viewer.worker.unsubscribe(listener)
+        watcher.cancel()
 
 
 class Background:

@@ -33,20 +33,18 @@ from __future__ import annotations
 
 import dataclasses
 
-import drjit as dr
 import mitsuba as mi
 import numpy as np
 
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
-from ..core.grid import filter_separable
 from ..core.memory import check_image_memory, check_once
 from ..core.params import parameter_names, updated
 from ..core.pipeline import Pipeline
 from ..core.scene_info import warn_unmodelled
 from ..core.settings import UNBOUNDED, PathSettings, overridden
 from ..core.stages import StageCache, cache_key
-from . import adaptive, emit, march, mipmap, pilot
+from . import march
 from .material_stages import fog_boundaries, voxelized_materials
 from .materials import MaterialGrids, from_arrays, gradient
 from .medium_grid import KAPPA_TOLERANCE
@@ -62,9 +60,9 @@ from .params import (
     memory_estimate,
     updated_medium,
 )
+from .photon_stages import adaptive_photons, uniform_photons
 from .scene import Light, VolumeScene, check_has_fog, from_mitsuba
-from .smooth import BINOMIAL, smooth
-from .surface_stages import emission, shading_key, surface_key, surface_shading, warn_settings
+from .surface_stages import shading_key, surface_shading, warn_settings
 from .view import ViewGrids, ViewSettings, render_view, sensor_key
 
 SHORT_DEPTH = 4  # a file's max_depth up to which the volume method refuses the file
@@ -346,14 +344,10 @@ class VolumePipeline(Pipeline):
         )
 
         warn_settings(s, p, self._warned)
-        if p.emission == "adaptive":
-            C, D, smooth_key, on_surfaces = self._adaptive(
-                march_grids, octree_key, kappa_key, scatter, scatter_key
-            )
-        else:
-            C, D, smooth_key, on_surfaces = self._uniform(
-                march_grids, octree_key, kappa_key, scatter, scatter_key
-            )
+        photons = adaptive_photons if p.emission == "adaptive" else uniform_photons
+        C, D, smooth_key, on_surfaces, self.stats = photons(
+            self.cache, s, p, march_grids, (octree_key, kappa_key), scatter, scatter_key
+        )
         surf = s.surfaces
         view_grids = self.cache.stage(
             "view grids",
@@ -387,137 +381,6 @@ class VolumePipeline(Pipeline):
         if not np.all(np.isfinite(np.asarray(image))):
             raise SceneError("the render produced NaN or infinite values; please report this scene")
         return image
-
-    def _uniform(self, march_grids, octree_key, kappa_key, scatter=None, scatter_key=None):
-        """S5–S8: uniform photons on the photon plane, marched and smoothed."""
-        s, p = self.world, self.params
-        light_key = (
-            cache_key(s.lights),
-            cache_key(s.box),
-            p.photons,
-            p.sampler,
-            p.seed,
-            p.fidelity,
-        )
-        spread = emission(s, scatter is not None)
-        light_key += (surface_key(s), spread["scene_bounds"] is not None)
-        photons = self.cache.stage(
-            "photon generation",
-            light_key,
-            lambda: emit.emit_lights(
-                s.lights, s.box, p.photons, p.sampler, p.seed, p.fidelity, **spread
-            ),
-        )
-        march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity, scatter_key)
-        march_key += (s.refracted_ior,)
-        traced = self.cache.stage(
-            "photon tracing",
-            march_key,
-            lambda: march.march(
-                photons,
-                march_grids,
-                ds_min=p.ds_min,
-                fidelity=p.fidelity,
-                voxel_size=s.box.h,
-                scattering=scatter,
-                surfaces=s.surfaces,
-                iso=s.refracted_ior,
-            ),
-        )
-        smooth_key = (march_key, p.smoothing)
-        C, D = self.cache.stage(
-            "smoothing", smooth_key, lambda: smooth(traced.C, traced.D, p.smoothing)
-        )
-        self.stats = {
-            "photons_generated": len(s.lights) * p.photons,
-            "photons_propagated": photons.count,
-            "steps": traced.steps,
-            "scatterings": traced.scatterings,
-        }
-        self.stats["surface_photons"] = traced.surface.count if traced.surface else 0
-        return C, D, smooth_key, traced.surface
-
-    def _adaptive(self, march_grids, octree_key, kappa_key, scatter=None, scatter_key=None):
-        """A1–A7 (Pfeuti §3.2): pilot photons → photon-plane pdf per light → importance photons
-        marched with their weights → mipmaps → level-selecting filter."""
-        s, p = self.world, self.params
-        box, lights = s.box, s.lights
-        pilot_key = (cache_key(lights), cache_key(box), p.pilot_photons, p.seed, p.fidelity)
-        pilots = self.cache.stage(
-            "pilot photon generation",
-            pilot_key,
-            lambda: [
-                pilot.emit_pilot(li, box, p.pilot_photons, p.seed, p.fidelity) for li in lights
-            ],
-        )
-        pilot_march_key = (pilot_key, octree_key, kappa_key, p.ds_min)
-        pilot_grids = self.cache.stage(
-            "pilot photon marching",
-            pilot_march_key,
-            lambda: [pilot.march_pilot(b, march_grids, p.ds_min, p.fidelity) for b in pilots],
-        )
-        pdf_key = (pilot_march_key, p.grad_threshold, p.rad_threshold, p.background, p.placement)
-        samplers = self.cache.stage(
-            "photon distribution",
-            pdf_key,
-            lambda: [
-                adaptive.plane_sampler(
-                    g, p.grad_threshold, p.rad_threshold, p.background, p.placement
-                )
-                for g in pilot_grids
-            ],
-        )
-        gen_key = (pdf_key, p.photons, p.sampler)
-        count = p.photons - p.pilot_photons
-
-        def generate():
-            batches = [
-                adaptive.emit_importance(li, box, smp, count, p.sampler, p.seed, p.fidelity)
-                for li, smp in zip(lights, samplers, strict=True)
-            ]
-            return emit.concat([b[0] for b in batches]), dr.concat([b[1] for b in batches])
-
-        photons, weights = self.cache.stage("photon generation", gen_key, generate)
-        march_key = (gen_key, octree_key, kappa_key, p.ds_min, scatter_key)
-        march_key += (surface_key(s), s.refracted_ior)
-        traced = self.cache.stage(
-            "photon tracing",
-            march_key,
-            lambda: march.march(
-                photons,
-                march_grids,
-                ds_min=p.ds_min,
-                fidelity=p.fidelity,
-                voxel_size=box.h,
-                weights=weights,
-                scattering=scatter,
-                surfaces=s.surfaces,
-                iso=s.refracted_ior,
-            ),
-        )
-        mip_key = (march_key, p.smoothing)
-
-        def mipmaps():  # S8 on C only: the directions stay as marched (mipmap.py notes)
-            C = filter_separable(traced.C, BINOMIAL) if p.smoothing else traced.C
-            return mipmap.build_pyramid(C, traced.D, traced.count, traced.weight)
-
-        pyramid = self.cache.stage("mipmap generation", mip_key, mipmaps)
-        filter_key = (mip_key, p.delta_weight, p.mip_block, p.mip_blend)
-
-        def reconstruct():
-            step = mipmap.weight_step(p.delta_weight, count, box.n)
-            C, D, level = mipmap.reconstruct(pyramid, step, p.mip_block, p.mip_blend)
-            return (*smooth(C, D, enabled=False), level)
-
-        C, D, _ = self.cache.stage("filtering", filter_key, reconstruct)
-        self.stats = {
-            "photons_generated": len(lights) * p.photons,
-            "photons_propagated": photons.count + sum(b.count for b in pilots),
-            "pilot_photons_propagated": sum(b.count for b in pilots),
-            "steps": traced.steps + sum(g.steps for g in pilot_grids),
-            "scatterings": traced.scatterings,
-        }
-        return C, D, filter_key, traced.surface
 
     @property
     def phase_k(self) -> float:
