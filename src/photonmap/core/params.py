@@ -214,6 +214,20 @@ def parse_field(params_type, key: str, text: str):
     return parse_value(key, text, field_types(params_type)[key])
 
 
+def check_vector3(name: str, value, shown=repr) -> np.ndarray:
+    """``value`` as three finite numbers (float64), else a :class:`ParameterError` naming
+    ``name`` and showing the value through ``shown``."""
+    try:
+        a = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        a = np.zeros(0)
+    if a.shape != (3,) or isinstance(value, str | dict):
+        raise ParameterError(f"{name} must be 3 numbers [x, y, z], got {shown(value)}")
+    if not np.all(np.isfinite(a)):
+        raise ParameterError(f"{name} must be finite, got {shown(value)}")
+    return a
+
+
 def check_view(origin, target, up, fov=None) -> None:
     """A camera placement ``look_at(origin, target, up)`` with horizontal ``fov`` (degrees):
     origin, target and up 3 finite numbers each, origin apart from target, up not along the
@@ -221,15 +235,7 @@ def check_view(origin, target, up, fov=None) -> None:
     give a NaN transform and a black image)."""
     vectors = {}
     for name, value in (("origin", origin), ("target", target), ("up", up)):
-        try:
-            a = np.asarray(value, dtype=np.float64)
-        except (TypeError, ValueError):
-            a = np.zeros(0)
-        if a.shape != (3,) or isinstance(value, str | dict):
-            raise ParameterError(f"camera {name} must be 3 numbers [x, y, z], got {value!r}")
-        if not np.all(np.isfinite(a)):
-            raise ParameterError(f"camera {name} must be finite, got {a.tolist()}")
-        vectors[name] = a
+        vectors[name] = check_vector3(f"camera {name}", value)
     forward = vectors["target"] - vectors["origin"]
     length = float(np.linalg.norm(forward))
     if not length > 1e-9 * max(1.0, float(np.abs(vectors["origin"]).max())):

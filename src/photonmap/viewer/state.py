@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from ..core.errors import ParameterError
+from ..core.params import check_vector3
 
 SECTIONS = ("camera", "lights", "materials", "params", "volume")
 READ_ONLY = ("scene", "method", "methods", "stages", "frames", "brush_fields")
@@ -44,14 +45,7 @@ def shown(value) -> str:
 
 def vector(name: str, value, nonnegative: bool = False) -> list[float]:
     """Three finite numbers (``nonnegative``: each >= 0) as a list of floats."""
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        a = np.zeros(0)
-    if a.shape != (3,) or isinstance(value, str | dict):
-        raise ParameterError(f"{name} must be 3 numbers [x, y, z], got {shown(value)}")
-    if not np.all(np.isfinite(a)):
-        raise ParameterError(f"{name} must be finite, got {shown(value)}")
+    a = check_vector3(name, value, shown)
     if nonnegative and np.any(a < 0):
         raise ParameterError(f"{name} must be >= 0 in every channel, got {shown(value)}")
     return a.tolist()
