@@ -331,7 +331,7 @@ class ScreenPipeline(Pipeline):
     # ------------------------------------------------------------------------------- stages
     def render(self, progress=None) -> mi.TensorXf:
         """Render from the current camera: ``(height, width, 3)`` linear radiance. Every
-        intermediate is in :attr:`outputs` (spec §7 testability)."""
+        intermediate is in :attr:`outputs`, for inspection and tests."""
         p = self.params
         check_once(self, p, self.size, self.check_memory)
         self.cache.new_frame(progress)
