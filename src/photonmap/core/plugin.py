@@ -23,7 +23,7 @@ import hashlib
 import mitsuba as mi
 import numpy as np
 
-from .params import MITSUBA_BASE, read_properties, updated
+from .params import MITSUBA_BASE, current_names, read_properties, updated
 from .scene_info import parameter_values
 
 
@@ -60,7 +60,7 @@ class PipelineIntegrator(mi.SamplingIntegrator):
             props, self.params_type, self.plugin_name, extra=self.extra, ignore=self.ignore
         )
         self.options = {k: params.pop(k) for k in list(params) if k in self.extra}
-        self.params = params
+        self.params = current_names(self.params_type, params, self.plugin_name)  # warned once
         updated(self.params_type(), self.params, self.plugin_name)
         self.check_options(self.options)
         self.pipeline = None
