@@ -36,7 +36,6 @@ from abc import ABC, abstractmethod
 import mitsuba as mi
 
 from .camera import MovableCamera
-from .errors import ParameterError
 from .stages import StageCache, StagedPipeline
 
 EDITS = ("camera", "params", "light", "material", "volume", "reload")
@@ -84,11 +83,3 @@ class Pipeline(MovableCamera, StagedPipeline, ABC):
         """The image size (width, height): the film's crop window."""
         w, h = (int(c) for c in self.sensor.film().crop_size())
         return w, h
-
-    def require(self, edit: str) -> None:
-        """Raise a :class:`~.errors.ParameterError` unless the method supports ``edit``."""
-        if edit not in self.edits:
-            raise ParameterError(
-                f"the {self.method} method cannot change the {edit}; it supports: "
-                f"{', '.join(e for e in EDITS if e in self.edits)}"
-            )
