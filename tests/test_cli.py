@@ -157,7 +157,7 @@ S = Path(__file__).resolve().parents[1] / "examples"  # plain Mitsuba files, as 
     ],
 )
 def test_bad_inputs_are_refused_before_any_work(tmp_path, args, message):
-    """Issue 10 item 3: each bad input is a one-line error, exit 2, and nothing is written."""
+    """Each bad input is a one-line error, exit 2, and nothing is written."""
     result = run("render", "mesh_in_fog", "-o", tmp_path / "x.png", *SMALL, *args)
     assert result.exit_code == 2, result.output
     assert message in result.output

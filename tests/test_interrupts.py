@@ -1,4 +1,4 @@
-"""Ctrl-C at any moment (issue 21 item 2): SIGINT sent at random times to tiny renders of every
+"""Ctrl-C at any moment: SIGINT sent at random times to tiny renders of every
 method, to ``reference`` and to the real ``photonmap`` process (its import included) ends each
 either with the image reached so far written whole or with nothing written — never a partial
 file, never a traceback — with exit status 130 and one line ``interrupted: ...`` saying which.

@@ -1,4 +1,4 @@
-"""Memory estimated before allocation in every method (issue 21 item 3): settings that cannot
+"""Memory estimated before allocation in every method: settings that cannot
 fit are refused in one line naming what takes the memory, before any work, through the CLI and
 the Python API alike; arrays past Dr.Jit's 2³² entries are refused too; the available memory
 honours ``ulimit -v`` and ``--max-memory``."""

@@ -149,5 +149,5 @@ def test_plugin_errors_are_photonmap_errors():
     with pytest.raises(RuntimeError) as info:
         mi.render(scene, integrator=integrator())
     assert isinstance(info.value.__cause__, SceneError)
-    assert "no fog" in str(info.value.__cause__)  # issue 10: refused, naming --method surface
+    assert "no fog" in str(info.value.__cause__)  # refused, naming --method surface
     assert issubclass(ParameterError, PhotonmapError)

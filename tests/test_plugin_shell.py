@@ -26,7 +26,7 @@ def _scene(plugin: str) -> tuple[mi.Scene, str]:
 
 @pytest.mark.parametrize("plugin", sorted(SMALL))
 def test_a_traverse_edit_of_the_light_reaches_the_image(plugin):
-    """Issue 10 item 6: doubling a light's radiance in place doubled the photon mapper's image
+    """Doubling a light's radiance in place doubled the photon mapper's image
     only ×1.74 and left the ispm image unchanged (stale photons)."""
     scene, what = _scene(plugin)
     integ = mi.load_dict({"type": plugin, **SMALL[plugin]})

@@ -108,7 +108,7 @@ def test_to_mitsuba_mesh():
 
 
 def test_area_lights():
-    """Area emitters stay Mitsuba emitters (issue 11 item 3: S5 samples their surface; their
+    """Area emitters stay Mitsuba emitters (S5 samples their surface; their
     photon powers are tested in tests/volume/test_lights_anywhere.py); an edit re-keys them."""
     scene = load_scene("glass_sphere_fog", light_radius=4.0, **SMALL)[0]
     (light,) = from_mitsuba(scene).lights
@@ -178,7 +178,7 @@ def test_lights_spot_directional_and_environment():
     np.testing.assert_allclose(sun.direction, np.array([0, -1, 1]) / np.sqrt(2), atol=1e-6)
     np.testing.assert_allclose(sun.intensity, 2.0, rtol=1e-5)
     assert vs.environment is not None and vs.environment.is_environment()
-    assert sky.emitter is vs.environment  # the background is a light too (issue 11 item 3)
+    assert sky.emitter is vs.environment  # the background is a light too
 
 
 def test_fog_from_sensor_medium_and_margin():

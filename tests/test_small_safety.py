@@ -1,4 +1,4 @@
-"""The smaller items of issue 21, each a one-line refusal now: an infinite time budget, a camera
+"""Small bad inputs, each a one-line refusal now: an infinite time budget, a camera
 whose origin is its target, a scene that is not one, a file Mitsuba cannot render."""
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Frame specs (photonmap.cluster.frames), block plans (.progressive) and the refusals of the
 cluster CLI that happen before any Ray work: bad specs, bad keys, bad output patterns, bad
-addresses (issue 15 items 2–4)."""
+addresses."""
 
 import json
 import socket

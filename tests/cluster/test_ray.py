@@ -1,5 +1,5 @@
 """Distributed rendering on a local Ray cluster that this module starts (2 worker CPUs on the
-loopback address; issue 15 item 4): the merged progressive image equals the single-process one
+loopback address): the merged progressive image equals the single-process one
 bit for bit, also when a worker is killed mid-run or the driver is interrupted; a sequence comes
 out complete, each file holding its own frame, with the workers' stage caches kept between
 frames, also when a worker dies for good."""
@@ -178,7 +178,7 @@ def _sigint_when(condition, timeout=120.0):
 
 def test_ctrl_c_on_a_sequence_keeps_whole_frames(address, tmp_path, quiet_sigint):
     """Ctrl-C after the first frame is on disk: the frames written stay whole, one line says how
-    many, exit 130 (issue 21 item 2)."""
+    many, exit 130."""
     spec = tmp_path / "light.json"
     spec.write_text(json.dumps({**LIGHT_PATH, "frames": 12, "width": 48, "height": 36,
                                 "set": VOLUME.params}))  # fmt: skip
@@ -215,7 +215,7 @@ def test_ctrl_c_on_distributed_sppm_writes_the_merged_blocks(address, tmp_path, 
 
 
 def test_a_local_instance_keeps_its_files_in_its_own_temporary_folder(address):
-    """Issue 21: Ray left a /tmp/ray/session_* folder per run; a private instance's session
+    """Ray left a /tmp/ray/session_* folder per run; a private instance's session
     lives in a temporary folder of its own, removed when it is shut down."""
     from ray._private import worker
 

@@ -1,4 +1,4 @@
-"""``render-sequence`` checks every frame before the first one starts (issue 21 item 5): types,
+"""``render-sequence`` checks every frame before the first one starts: types,
 lengths, ranges and memory, each refusal one line naming the frame; and a worker's failure
 reaches the user as one plain line naming the frame, without the remote traceback or its colour
 codes. No Ray instance is needed: the checks run before Ray starts, and the scheduler is driven

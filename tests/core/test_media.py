@@ -1,4 +1,4 @@
-"""core.media and the photon tracing through media (issue 11 item 5; Jensen & Christensen 1998,
+"""core.media and the photon tracing through media (Jensen & Christensen 1998,
 spec beyond-seeds §4): transmittance through a slab of fog against exp(−σ_t d) (homogeneous in
 closed form, heterogeneous by ratio tracking), free flights against the slab's scattering
 probability, and the energy balance of photon tracing in closed boxes of fog."""

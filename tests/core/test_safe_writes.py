@@ -1,4 +1,4 @@
-"""Writes that cannot lose data (issue 21 item 1): every image goes to a temporary file in the
+"""Writes that cannot lose data: every image goes to a temporary file in the
 target's directory and is renamed into place, so a failed write leaves the previous file intact
 and says so in one line (exit status 1 for I/O, 2 for a path the user can fix); an output that
 is not a regular file is refused before any work."""

@@ -1,4 +1,4 @@
-"""``photonmap render --method screen`` (issue 4 item 3)."""
+"""``photonmap render --method screen``."""
 
 import mitsuba as mi
 import numpy as np

@@ -1,5 +1,5 @@
 """O10 on ``cornell_ispm``: the screen pipeline converges toward Mitsuba's ``path`` render of the
-same scene (issue 4 item 5).
+same scene.
 
 Setup: 64 × 48, B = 2 recorded bounces against ``path`` with ``max_depth = 4`` (direct light + two
 indirect bounces, the same light transport), hard shadows (the spot is a point light for both),

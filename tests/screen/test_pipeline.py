@@ -1,5 +1,5 @@
 """ScreenPipeline: the stage graph (spec §7), the built-in scenes, the ``ispm`` plugin and bad
-input (issue 4 items 2–4, 7)."""
+input."""
 
 import math
 import re

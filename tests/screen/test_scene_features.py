@@ -1,4 +1,4 @@
-"""The screen method on ordinary Mitsuba scenes (issue 10 item 1): area lights (a sphere light's
+"""The screen method on ordinary Mitsuba scenes: area lights (a sphere light's
 direct light against the analytic cap irradiance, the light seen in a mirror), ``null``-BSDF
 shapes invisible, media and extra lights warned about, a NaN index of refraction refused."""
 

@@ -1,4 +1,4 @@
-"""The screen method against Mitsuba's own ``path`` on ordinary Mitsuba scenes (issue 10 item 2):
+"""The screen method against Mitsuba's own ``path`` on ordinary Mitsuba scenes:
 ``mi.cornell_box()`` (a rectangular area light under the ceiling), the same box lit by a mesh
 light (a flat ``cube`` mesh emitting on all six faces, hanging under the ceiling) and a glass
 sphere over a plane lit by a small spherical area light (``glass_sphere_plane.xml``).
@@ -7,7 +7,7 @@ The screen method records B = 2 indirect bounces; ``path`` with ``max_depth = 4`
 transport (emission, direct light and two indirect bounces; in Mitsuba's counting direct light is
 ``max_depth = 2``). Both render at the same small resolution with a box pixel filter. Compared:
 
-- the mean brightness, within 10 % (issue 10);
+- the mean brightness, within 10 %;
 - the relative RMSE of 4 × 4-pixel block means, ‖blocks(screen) − blocks(path)‖ / mean(path):
   noise-robust, sensitive to bias (a misplaced shadow, caustic or light).
 
@@ -18,8 +18,9 @@ soft shadows): brightness 0.999, block RMSE 0.072 [0.04]; with the mesh light 0.
 splat kernel: 0.11 without the blocks that see the light); glass sphere 80 × 60 with 200² photons,
 radius 0.015 and no subsampling, so that the splats resolve the caustic: brightness 1.000, block
 RMSE 0.147 [0.04] (defaults: 1.006 and 0.50 — the 0.77-unit default kernel spreads the caustic
-over a dozen blocks). Before issue 10 the screen method rendered these at 0.41 and 0.13 of the
-brightness (shadow rays toward the light's centre hit the light itself, the light itself black).
+over a dozen blocks). Before area lights were sampled, the screen method rendered these at 0.41
+and 0.13 of the brightness (shadow rays toward the light's centre hit the light itself, the light
+itself black).
 """
 
 from pathlib import Path

@@ -1,5 +1,5 @@
-"""The memoryless mode's independent iterations (Knaus & Zwicker 2011; issue 12, the API issue 15
-builds on): ``render_block`` ranges merge into the same sums as one block, ``run`` equals
+"""The memoryless mode's independent iterations (Knaus & Zwicker 2011; the API distributed
+rendering builds on): ``render_block`` ranges merge into the same sums as one block, ``run`` equals
 ``render_block(1, N).image()``, an iteration depends only on ``(seed, i)``."""
 
 import pathlib

@@ -1,5 +1,5 @@
-"""SPPM parameters, the ``sppm`` plugin and ``photonmap render --method sppm`` (issue 12 item 3;
-bad input: item 4)."""
+"""SPPM parameters, the ``sppm`` plugin and ``photonmap render --method sppm``, and
+their bad input."""
 
 import pathlib
 

@@ -1,4 +1,4 @@
-"""SPPM against Mitsuba's own integrators and analytic oracles (issue 12 item 4; spec
+"""SPPM against Mitsuba's own integrators and analytic oracles (spec
 beyond-seeds §1–2).
 
 - Convergence: a glass ball focusing a spot light onto a floor the camera sees (not the ball),

@@ -1,4 +1,4 @@
-"""Importance sampling of final-gather directions (issue 13 item 6; spec seed-001 §2.10, oracles
+"""Importance sampling of final-gather directions (spec seed-001 §2.10, oracles
 O6, O7, O10, O11): the 1-D teaching example, the tabular pdfs of Jensen's method and CIS, and
 the unbiasedness of every sampling strategy on the glossy-floor box."""
 

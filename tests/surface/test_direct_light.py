@@ -1,4 +1,4 @@
-"""Direct light of the surface method for every Mitsuba emitter type and shape (issue 10; spec
+"""Direct light of the surface method for every Mitsuba emitter type and shape (spec
 seed-001 §2.1 L_direct, Steinhurst §7.3.2): emitter sampling and BSDF sampling with the power
 heuristic, as Mitsuba's ``path``. Each scene is one floor under one emitter — a plane cannot light
 itself and there is no glass, so the surface method's image is emission plus direct light and

@@ -1,4 +1,4 @@
-"""An area light inside the fog (issue 11 items 1 and 5): a sphere emitter whose shape has the fog
+"""An area light inside the fog: a sphere emitter whose shape has the fog
 as its exterior medium, in the fog-only box of test_fog_media, seen directly — the photons start
 in the shape's exterior medium (Mitsuba gives an area emitter no medium of its own) — against
 Mitsuba ``volpath``."""

@@ -1,4 +1,4 @@
-"""A glass ball and a diffuse floor inside a box of fog (issue 11 item 5): the surface method
+"""A glass ball and a diffuse floor inside a box of fog: the surface method
 models the medium (volumetric photon mapping, Jensen & Christensen 1998) and agrees with Mitsuba's
 ``volpath`` on the same scene — with no warning: the fog is no longer ignored."""
 

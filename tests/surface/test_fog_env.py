@@ -1,7 +1,7 @@
-"""The surface method in a box of fog over a diffuse floor lit only by a constant environment
-(issue 11 items 1 and 5): photons enter the fog from the environment, the floor's final-gather
-rays fly through the fog and read its in-scattered light, the sky is seen through the fog with its
-transmittance — against Mitsuba ``volpath`` on the same scene."""
+"""The surface method in a box of fog over a diffuse floor lit only by a constant environment:
+photons enter the fog from the environment, the floor's final-gather rays fly through the fog and
+read its in-scattered light, the sky is seen through the fog with its transmittance — against
+Mitsuba ``volpath`` on the same scene."""
 
 import mitsuba as mi
 import numpy as np

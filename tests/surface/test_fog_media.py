@@ -1,4 +1,4 @@
-"""The surface method in fog alone (issue 11 item 5; Jensen & Christensen 1998, spec beyond-seeds
+"""The surface method in fog alone (Jensen & Christensen 1998, spec beyond-seeds
 §4): a box of homogeneous fog with a point light or a spot light inside it, no other surface, seen
 from outside, against Mitsuba's ``volpath`` on the same scene (full depth). The light sits just
 above the image, so no pixel holds the 1/d peak of the light itself (its variance is the eye

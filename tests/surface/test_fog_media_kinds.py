@@ -1,7 +1,7 @@
-"""The surface method in the fog-only box of test_fog_media with the other kinds of Mitsuba media
-(issue 11 item 5): a ``heterogeneous`` grid volume (photons by delta tracking, eye rays by ratio
-tracking) and a Henyey–Greenstein phase function (the volume map's k-NN estimate with the phase
-function of each photon's direction), against Mitsuba ``volpath``."""
+"""The surface method in the fog-only box of test_fog_media with the other kinds of Mitsuba media: a
+``heterogeneous`` grid volume (photons by delta tracking, eye rays by ratio tracking) and a
+Henyey–Greenstein phase function (the volume map's k-NN estimate with the phase function of each
+photon's direction), against Mitsuba ``volpath``."""
 
 import os
 

@@ -1,4 +1,4 @@
-"""Irradiance caching (issue 13 item 5; spec seed-001 §2.9, oracles O3, O23, O24): the vectorised
+"""Irradiance caching (spec seed-001 §2.9, oracles O3, O23, O24): the vectorised
 decisions against a sequential reference, R_avg against an analytic case, and the cached renders
 against the full final gather."""
 

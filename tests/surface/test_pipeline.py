@@ -1,4 +1,4 @@
-"""The surface pipeline end to end (issue 3 item 6; spec seed-001 §5.2 O12, O13)."""
+"""The surface pipeline end to end (spec seed-001 §5.2 O12, O13)."""
 
 import math
 

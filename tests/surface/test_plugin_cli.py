@@ -1,4 +1,4 @@
-"""The ``photon_mapper`` plugin and ``photonmap render --method surface`` (issue 3 item 4)."""
+"""The ``photon_mapper`` plugin and ``photonmap render --method surface``."""
 
 import mitsuba as mi
 import numpy as np

@@ -1,4 +1,4 @@
-"""The surface method against Mitsuba's own integrators on the same scene (issue 10 item 2; spec
+"""The surface method against Mitsuba's own integrators on the same scene (spec
 seed-001 §2.1): ``mi.cornell_box()`` and ../shared/tools/scenes/glass_sphere_plane.xml against
 ``path`` with the same ``max_depth`` (mean brightness, relative RMSE of 4x4-pixel block means),
 and the power of a glass ball's caustic against ``ptracer``.

@@ -1,4 +1,4 @@
-"""The viewer's HTTP API (issue 14 item 3) on a small glass_sphere_fog: every endpoint, bad input
+"""The viewer's HTTP API on a small glass_sphere_fog: every endpoint, bad input
 (422 with the reason, state unchanged), and the images against the oracle — the same changes
 made through the package API (conftest.direct)."""
 

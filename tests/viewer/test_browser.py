@@ -1,4 +1,4 @@
-"""The page in a real browser (issue 14 item 4): Playwright for Python driving Debian's
+"""The page in a real browser: Playwright for Python driving Debian's
 ``chromium`` (installed by ``scripts/ensure-chromium.sh``; no browser downloads). The image the
 page shows (a JPEG) is read back from its <img> and compared with ``GET /api/frame.png``."""
 

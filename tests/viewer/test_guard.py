@@ -1,4 +1,4 @@
-"""A viewer only its own page can drive (issue 21 item 4): a token per server, ``Host`` and
+"""A viewer only its own page can drive: a token per server, ``Host`` and
 ``Origin`` of the server only, JSON bodies of at most 1 MB, errors that never echo the request or
 carry a traceback; and an update whose render fails is rolled back (state and frame as before,
 the reason once), while one beyond memory is refused before it is applied."""

@@ -82,7 +82,7 @@ def test_gaussian_taps_are_the_spec_values():
     assert mipmap.max_level(128) == 5 and mipmap.max_level(4) == 0
 
 
-@pytest.mark.parametrize("n", [16, 12, (6, 13, 16)])  # cubes and a box grid (issue 11 item 2)
+@pytest.mark.parametrize("n", [16, 12, (6, 13, 16)])  # cubes and a box grid
 def test_pyramid_matches_numpy(n):
     grids = random_grids(n)
     pyramid = build(*grids)
@@ -194,7 +194,7 @@ def test_filter_matches_numpy(delta_weight, blend, empty, n):
     """Per voxel; ``empty``: a slab no photon crossed, whose voxels find their weight at a coarse
     level (Listing B.3) and may still be read at a finer one. At 64³ (5 levels) most voxels take
     the loop-free path (``mipmap._dense_levels``), the others the level loop; the box grid
-    (issue 11 item 2) has levels of different extents per axis."""
+    has levels of different extents per axis."""
     grids = random_grids(n, seed=2)
     if empty:
         grids[2][:, :, shape3(n)[2] // 4 :] = 0

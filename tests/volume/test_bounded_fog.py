@@ -1,4 +1,4 @@
-"""Fog where the scene puts it (issue 11 item 1): the interior of its boundary shapes only.
+"""Fog where the scene puts it: the interior of its boundary shapes only.
 
 A ``null``- or ``thindielectric``-BSDF closed shape with an interior medium is a fog volume; the
 volume method voxelizes it like a refractive object (S1, fractional coverage) and maps coverage to
@@ -13,7 +13,7 @@ not seen) and depth 2 is direct light plus single scattering, what Sun's method 
 is 1.42× brighter, depth 32 1.76×). Measured (grid 48, 64 × 48, 64² photons, 4 spp, volpath 256
 spp): brightness ratio 1.012, relative RMSE of 4×4-block means 0.042 (0.024 of it is the
 reference's own noise: 256 against 2048 spp). Mutations (by hand, then reverted): fog filling the
-whole grid (the behaviour before issue 11; scene.py) gives ratio 1.58 and error 2.22, and fails
+whole grid (the behaviour before scene.py) gives ratio 1.58 and error 2.22, and fails
 the per-voxel test; an octree that ignores the fog's boundary (pipeline.py: steps across it read
 κ outside the fog, so photons cross the box unattenuated) 1.70 and 1.01; a boundary without the
 voxel of trilinear support (octree.py) 1.067 and 0.108 (fluence in the box 12 % too high).

@@ -1,4 +1,4 @@
-"""Box grids (issue 11 item 2): ``n_x × n_y × n_z`` cubic voxels fitted to the media's bounding
+"""Box grids: ``n_x × n_y × n_z`` cubic voxels fitted to the media's bounding
 box, ``grid = N`` voxels along its longest side (``core.grid.GridBox.fitted``).
 
 Oracles: the grid's extent and voxel size from the bounding box; the flat index ``(k·n_y + j)·n_x

@@ -113,7 +113,7 @@ def test_paper_fidelity_gives_constant_photon_energy():
 
 
 def test_photon_plane_of_a_light_inside_the_grid_is_refused():
-    """Only the plane-based emission='adaptive' refuses it (issue 11 item 3: emit() sends such a
+    """Only the plane-based emission='adaptive' refuses it (emit() sends such a
     light's photons from its position, tests/volume/test_lights_anywhere.py)."""
     light = Light("point", np.ones(3), position=np.array([0.5, 0.5, 0.5]))
     with pytest.raises(SceneError, match="inside or beside the volume grid.*emission='uniform'"):

@@ -1,4 +1,4 @@
-"""Heterogeneous media in the volume method (issue 11 item 1): a Mitsuba ``heterogeneous`` medium
+"""Heterogeneous media in the volume method: a Mitsuba ``heterogeneous`` medium
 (``gridvolume`` σ_t and albedo, ``scale``) read as Mitsuba defines it, per voxel
 (``volume/medium_grid.py``: Mitsuba's ``get_scattering_coefficients`` averaged over 2³ points per
 voxel), instead of being refused.

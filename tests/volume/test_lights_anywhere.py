@@ -1,4 +1,4 @@
-"""Lights anywhere (issue 11 item 3): S5 emission from lights inside the grid, area emitters
+"""Lights anywhere: S5 emission from lights inside the grid, area emitters
 sampled on their surface, environments through the grid's faces (``volume/emit.py``).
 
 Oracles: the emitted power of each light (I·4π; a spot's I·2π∫f(θ) sinθ dθ and Mitsuba's own

@@ -1,8 +1,8 @@
-"""Lights anywhere (issue 11 item 3) against Mitsuba ``volpath``: one fog box, one light of each
+"""Lights anywhere against Mitsuba ``volpath``: one fog box, one light of each
 kind, single scattering.
 
 The fog is a 4 × 2 × 2 box (σ_t 0.5, albedo 0.9, isotropic) in vacuum, the box grid over it
-(32 × 16 × 16 voxels, issue 11 item 2; 48 for the spot, point and sphere lights); the lights:
+(32 × 16 × 16 voxels, 48 for the spot, point and sphere lights); the lights:
 a point light and a spot light inside the fog, a spherical area emitter inside the fog, a
 rectangle emitter above the grid (outside it, facing down), a constant
 environment and an envmap with a bright patch (the background too). ``volpath`` at

@@ -1,4 +1,4 @@
-"""Multiple scattering in the voxel radiance grid (issue 11 item 4; spec beyond-seeds §5).
+"""Multiple scattering in the voxel radiance grid (spec beyond-seeds §5).
 
 ``scattering="multiple"`` marches every photon order as Sun et al. 2008 §4.4 march the first
 (expected-value deposits ``W·T`` along the curved path); a collision sampled against κ on the

@@ -1,4 +1,4 @@
-"""The volume method takes the fog's phase function from the Mitsuba scene (issue 11 item 1):
+"""The volume method takes the fog's phase function from the Mitsuba scene:
 isotropic → Schlick k = 0, Henyey–Greenstein g → k = 1.55 g − 0.55 g³; ``phase_k`` overrides."""
 
 import numpy as np

@@ -92,7 +92,7 @@ def test_index_below_one_or_nan(bsdf):
 def test_no_light():
     with pytest.raises(SceneError, match="no light"):
         read(scene_dict(light=None))
-    # an environment alone lights the scene (issue 11 item 3: photons through the grid's faces)
+    # an environment alone lights the scene (photons through the grid's faces)
     (sky,) = read(scene_dict(light={"type": "constant"})).lights
     assert sky.kind == "environment"
 
@@ -146,7 +146,7 @@ def test_open_shapes():
 
 
 def test_heterogeneous_medium_is_kept_as_a_field():
-    """(Issue 11 item 1: read per voxel by S2, tests/volume/test_heterogeneous.py.)"""
+    """(Read per voxel by S2, tests/volume/test_heterogeneous.py.)"""
     grid = mi.VolumeGrid(np.ones((2, 2, 2, 1), dtype=np.float32))
     interior = {"type": "heterogeneous", "sigma_t": {"type": "gridvolume", "grid": grid}}
     d = scene_dict()
@@ -182,7 +182,7 @@ def test_different_exterior_media():
     ids=["glass sphere without media", "cornell_steinhurst"],
 )
 def test_scene_without_fog_is_refused_naming_the_surface_method(scene):
-    """Issue 10 item 1: no participating medium → a SceneError naming the method to use, not a
+    """No participating medium → a SceneError naming the method to use, not a
     black image (also through the plugin, where Mitsuba wraps the error)."""
     with pytest.raises(SceneError, match="no fog.*--method surface.*SurfacePipeline"):
         VolumePipeline(scene, grid=16, photons=64)

@@ -1,4 +1,4 @@
-"""S9's curved camera rays against Mitsuba ``volpath`` on the same scene (issue 10 item 6).
+"""S9's curved camera rays against Mitsuba ``volpath`` on the same scene.
 
 A clear glass ball (n = 1.5) inside a cube of thin, purely absorbing fog, in front of a smooth
 colour-pattern ``envmap``: every pixel is the environment seen along the camera ray, attenuated by
