@@ -24,6 +24,7 @@ import pytest
 
 from photonmap import VolumePipeline, mi
 from photonmap.core.errors import ParameterError, SceneError
+from photonmap.core.image import block_means
 from photonmap.volume.scene import from_mitsuba
 
 # ------------------------------------------------------------------------------------------------
@@ -235,11 +236,6 @@ def fog_only_box() -> dict:
         "light": {"type": "point", "position": [0, 6, 0], "intensity": 60.0},
         "sensor": camera([0, 1.5, 9], [0, 0, 0], WIDTH, HEIGHT),
     }
-
-
-def block_means(image: np.ndarray, k: int = 4) -> np.ndarray:
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 @pytest.fixture(scope="module")

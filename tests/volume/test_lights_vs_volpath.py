@@ -20,7 +20,9 @@ bounds (~1.5-2x) are at ``CASES``.
 import numpy as np
 import pytest
 
+from camera_blocks import blocks_near
 from photonmap import VolumePipeline, mi
+from photonmap.core.image import block_means
 
 WIDTH, HEIGHT = 64, 48
 SPHERE = (np.array([-1.0, 0.55, 0.2]), 0.15)
@@ -93,28 +95,6 @@ def fog_box(light: str) -> dict:
     }
 
 
-def block_means(image: np.ndarray, k: int = 4) -> np.ndarray:
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
-
-
-def near_blocks(point, radius: float) -> np.ndarray:
-    """The 4 × 4 blocks with a pixel whose camera ray (through its corners or centre) passes
-    within ``radius`` of ``point``."""
-    sensor = mi.load_dict(camera())
-    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
-    near = np.zeros((HEIGHT, WIDTH), bool)
-    for dx, dy in ((0.5, 0.5), (0, 0), (1, 0), (0, 1), (1, 1)):
-        pos = mi.Point2f(((x + dx) / WIDTH).ravel(), ((y + dy) / HEIGHT).ravel())
-        ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
-        o, d = np.array(ray.o).T, np.array(ray.d).T
-        rel = np.asarray(point) - o
-        along = np.sum(rel * d, axis=1)
-        miss = np.linalg.norm(rel - along[:, None] * d, axis=1)
-        near |= (miss < radius).reshape(HEIGHT, WIDTH)
-    return block_means(near[..., None].astype(float))[..., 0] > 0
-
-
 def compare(light: str, seed: int = 0) -> tuple[float, float]:
     """(brightness ratio, 4 × 4-block relative RMSE) of ours against volpath (``seed``)."""
     grid, spp, centre, radius = SETUP[light]
@@ -127,7 +107,9 @@ def compare(light: str, seed: int = 0) -> tuple[float, float]:
     )
     ours = np.array(pipe.render())
     a, b = block_means(ours), block_means(reference)
-    keep = ~near_blocks(centre, radius) if radius > 0 else np.ones(a.shape[:2], bool)
+    keep = np.ones(a.shape[:2], bool)
+    if radius > 0:
+        keep = ~blocks_near(mi.load_dict(camera()), centre, radius, WIDTH, HEIGHT)
     a, b = a[keep], b[keep]
     return a.mean() / b.mean(), np.sqrt(np.mean((a - b) ** 2)) / b.mean()
 

@@ -40,6 +40,7 @@ from scipy.stats import qmc
 from photonmap import VolumePipeline
 from photonmap.core.errors import ParameterError, PhotonmapError
 from photonmap.core.grid import GridBox
+from photonmap.core.image import block_means
 from photonmap.volume.emit import Photons, emit
 from photonmap.volume.march import MarchGrids, Scattering, march
 from photonmap.volume.scatter import schlick_cosine, schlick_direction
@@ -279,11 +280,6 @@ def fog_cube() -> dict:
             },
         },
     }
-
-
-def block_means(image: np.ndarray, k: int = 4) -> np.ndarray:
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
 
 
 @pytest.fixture(scope="module")

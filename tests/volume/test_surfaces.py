@@ -16,7 +16,9 @@ relative RMSE of 4 × 4-block means, ours deterministic, ``volpath`` at the seed
 import numpy as np
 import pytest
 
+from camera_blocks import blocks_near
 from photonmap import PhotonmapWarning, VolumePipeline, mi
+from photonmap.core.image import block_means
 
 WIDTH, HEIGHT = 64, 48
 ISOTROPIC = {"type": "isotropic"}
@@ -147,28 +149,6 @@ def glass_over_floor() -> dict:
     }
 
 
-def block_means(image: np.ndarray, k: int = 4) -> np.ndarray:
-    h, w = image.shape[0] // k * k, image.shape[1] // k * k
-    return image[:h, :w].reshape(h // k, k, w // k, k, -1).mean(axis=(1, 3))
-
-
-def blocks_seeing(scene: dict, point, radius: float) -> np.ndarray:
-    """The 4 × 4 blocks with a pixel whose camera ray (through its corners or centre) passes
-    within ``radius`` of ``point``."""
-    sensor = mi.load_dict(scene["sensor"])
-    y, x = np.mgrid[0:HEIGHT, 0:WIDTH]
-    near = np.zeros((HEIGHT, WIDTH), bool)
-    for dx, dy in ((0.5, 0.5), (0, 0), (1, 0), (0, 1), (1, 1)):
-        pos = mi.Point2f(((x + dx) / WIDTH).ravel(), ((y + dy) / HEIGHT).ravel())
-        ray, _ = sensor.sample_ray(0.0, 0.5, pos, mi.Point2f(0.5, 0.5))
-        o, d = np.array(ray.o).T, np.array(ray.d).T
-        rel = np.asarray(point) - o
-        along = np.sum(rel * d, axis=1)
-        miss = np.linalg.norm(rel - along[:, None] * d, axis=1)
-        near |= (miss < radius).reshape(HEIGHT, WIDTH)
-    return block_means(near[..., None].astype(float))[..., 0] > 0
-
-
 # scene: (builder, volpath spp, blocks left out: (centre, radius) or None)
 SETUP = {
     "lamp_in_fog": (lamp_in_fog, 1024, (LAMP, 0.2)),
@@ -193,10 +173,13 @@ def compare(name: str, seed: int = 0) -> tuple[float, float, float]:
     reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed))
     ours = np.array(VolumePipeline(scene, **OURS).render())
     a, b = block_means(ours), block_means(reference[..., :3])
-    keep = ~blocks_seeing(scene, *left_out) if left_out else np.ones(a.shape[:2], bool)
+    sensor = mi.load_dict(scene["sensor"])
+    keep = np.ones(a.shape[:2], bool)
+    if left_out:
+        keep = ~blocks_near(sensor, *left_out, WIDTH, HEIGHT)
     spot = float("nan")
     if name == "glass_over_floor":
-        under = blocks_seeing(scene, [0, 0, 0], 0.45) & keep
+        under = blocks_near(sensor, [0, 0, 0], 0.45, WIDTH, HEIGHT) & keep
         spot = a[under].mean() / b[under].mean()
     a, b = a[keep], b[keep]
     return a.mean() / b.mean(), np.sqrt(np.mean((a - b) ** 2)) / b.mean(), spot
