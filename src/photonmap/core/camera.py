@@ -119,3 +119,19 @@ def pixel_means(L: mi.Spectrum, spp: int) -> mi.Spectrum:
     reduction of each channel of a lazy ``L`` would rerun the kernel that computes it."""
     dr.eval(L)
     return mi.Spectrum(*[dr.block_reduce(dr.ReduceOp.Add, c, spp) for c in L]) / spp
+
+
+def footprint_radius(scene: mi.Scene, sensor: mi.Sensor, pixels: float) -> float:
+    """``pixels`` pixel footprints at the median distance of the first surfaces the camera rays
+    through the pixel centres meet (a gather radius that looks the same size in every image);
+    10⁻³ of the scene's diagonal if they meet none."""
+    w, h = (int(c) for c in sensor.film().crop_size())
+    pixel = dr.arange(mi.UInt32, w * h)
+    ray, _ = pixel_rays(sensor, pixel, mi.Point2f(0.5, 0.5))
+    side, _ = pixel_rays(sensor, pixel, mi.Point2f(1.5, 0.5))
+    angle = dr.safe_acos(dr.dot(ray.d, side.d))
+    si = scene.ray_intersect(ray)
+    footprint = (si.t * angle).numpy()[si.is_valid().numpy()]
+    if footprint.size:
+        return pixels * float(np.median(footprint))
+    return 1e-3 * scene_bounds(scene)[1]

@@ -38,8 +38,6 @@ a photon counts at a visible point where the two paths together fit ``max_depth`
 
 from __future__ import annotations
 
-import math
-import time
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -47,9 +45,8 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core import interrupt
 from ..core.bsdf import has_delta_lobes
-from ..core.camera import pixel_rays, scene_bounds
+from ..core.camera import footprint_radius, scene_bounds
 from ..core.emission import checked_powers, shape_name
 from ..core.errors import ParameterError, SceneError
 from ..core.eye_trace import Caustics
@@ -57,6 +54,7 @@ from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import Renamed, check_choice, check_fields, check_range, updated
 from ..core.pipeline import Pipeline
+from ..core.progressive import Progressive
 from ..core.scene_info import SceneTraits, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.stages import StageCache
@@ -154,7 +152,7 @@ def check_gathered_bsdfs(scene: mi.Scene) -> None:
             "render this scene with --method surface"
         )
 
-class SPPMPipeline(Pipeline):
+class SPPMPipeline(Progressive, Pipeline):
     """Progressive photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
 
     >>> pipe = SPPMPipeline("examples/glass_sphere_plane.xml", photons=100_000)
@@ -254,17 +252,7 @@ class SPPMPipeline(Pipeline):
         if self.params.radius > 0:
             return self.params.radius
         if self._r1 is None:
-            w, h = self.size
-            pixel = dr.arange(mi.UInt32, w * h)
-            ray, _ = pixel_rays(self.sensor, pixel, mi.Point2f(0.5, 0.5))
-            side, _ = pixel_rays(self.sensor, pixel, mi.Point2f(1.5, 0.5))
-            angle = dr.safe_acos(dr.dot(ray.d, side.d))
-            si = self.scene.ray_intersect(ray)
-            footprint = (si.t * angle).numpy()[si.is_valid().numpy()]
-            if footprint.size:
-                self._r1 = RADIUS_PIXELS * float(np.median(footprint))
-            else:
-                self._r1 = 1e-3 * scene_bounds(self.scene)[1]
+            self._r1 = footprint_radius(self.scene, self.sensor, RADIUS_PIXELS)
         return self._r1
 
     def radius_at(self, i: int) -> float:
@@ -423,53 +411,3 @@ class SPPMPipeline(Pipeline):
                 "emitters for NaN"
             )
         return mi.TensorXf(image)
-
-    def run(self, seconds=None, iterations=None, progress=None, preview=None, preview_every=10.0):
-        """Iterate until ``seconds`` have passed or ``iterations`` more have run (whichever comes
-        first; one of them is required) and return :meth:`image`. ``progress(iterations,
-        elapsed, mean_radius)`` is called after each iteration; ``preview(image)`` every
-        ``preview_every`` seconds. An interrupt (Ctrl-C) stops after a whole iteration: the
-        image so far stays available through :meth:`image` (the interrupt is raised as
-        :class:`~photonmap.core.interrupt.Interrupted`, a ``KeyboardInterrupt``, after the step
-        in progress: :mod:`photonmap.core.interrupt`)."""
-        if seconds is None and iterations is None:
-            raise ParameterError("run() needs a budget: seconds=… or iterations=…")
-        if seconds is not None:
-            check_range("seconds", seconds, 0, None, "the time budget", lo_open=True)
-            if not math.isfinite(seconds):
-                raise ParameterError(f"seconds must be finite, got {seconds}: give a time budget")
-        if iterations is not None:
-            if not isinstance(iterations, int):
-                raise ParameterError(f"iterations must be an integer, got {iterations!r}")
-            check_range("iterations", iterations, 1, None, "iterations to run")
-        start = time.perf_counter()
-        last_preview = start
-        done = 0
-        with interrupt.deferred():  # Ctrl-C is answered between iterations, never inside one
-            while True:
-                self.step()
-                done += 1
-                now = time.perf_counter()
-                if progress is not None:
-                    progress(self.iterations, now - start, self.mean_radius)
-                interrupt.check()
-                if preview is not None and now - last_preview >= preview_every:
-                    preview(self.image())
-                    last_preview = now
-                if iterations is not None and done >= iterations:
-                    break
-                if seconds is not None and now - start >= seconds:
-                    break
-        return self.image()
-
-    def render(self, progress=None) -> mi.TensorXf:
-        """Render ``iterations`` iterations from scratch (``progress(stage)`` as the other
-        pipelines: called per iteration with ``"iteration i/n"``)."""
-        self.reset()
-        n = self.params.iterations
-
-        def report(i, _elapsed, _radius):
-            if progress:
-                progress(f"iteration {i}/{n}")
-
-        return self.run(iterations=n, progress=report)

@@ -1,0 +1,70 @@
+"""Progressive rendering: the loop that runs a progressive pipeline's iterations for a time or
+iteration budget, with progress reports, previews and Ctrl-C answered between iterations
+(:mod:`.interrupt`). The ``sppm`` and ``vcm`` pipelines are :class:`Progressive`."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import mitsuba as mi
+
+from . import interrupt
+from .errors import ParameterError
+from .params import check_range
+
+
+class Progressive:
+    """``run`` and ``render`` for a pipeline with ``step()`` (one iteration), ``image()``,
+    ``reset()``, ``iterations``, ``mean_radius`` and the ``iterations`` parameter."""
+
+    def run(self, seconds=None, iterations=None, progress=None, preview=None, preview_every=10.0):
+        """Iterate until ``seconds`` have passed or ``iterations`` more have run (whichever comes
+        first; one of them is required) and return :meth:`image`. ``progress(iterations,
+        elapsed, mean_radius)`` is called after each iteration; ``preview(image)`` every
+        ``preview_every`` seconds. An interrupt (Ctrl-C) stops after a whole iteration: the
+        image so far stays available through :meth:`image` (the interrupt is raised as
+        :class:`~photonmap.core.interrupt.Interrupted`, a ``KeyboardInterrupt``, after the step
+        in progress: :mod:`photonmap.core.interrupt`)."""
+        if seconds is None and iterations is None:
+            raise ParameterError("run() needs a budget: seconds=… or iterations=…")
+        if seconds is not None:
+            check_range("seconds", seconds, 0, None, "the time budget", lo_open=True)
+            if not math.isfinite(seconds):
+                raise ParameterError(f"seconds must be finite, got {seconds}: give a time budget")
+        if iterations is not None:
+            if not isinstance(iterations, int):
+                raise ParameterError(f"iterations must be an integer, got {iterations!r}")
+            check_range("iterations", iterations, 1, None, "iterations to run")
+        start = time.perf_counter()
+        last_preview = start
+        done = 0
+        with interrupt.deferred():  # Ctrl-C is answered between iterations, never inside one
+            while True:
+                self.step()
+                done += 1
+                now = time.perf_counter()
+                if progress is not None:
+                    progress(self.iterations, now - start, self.mean_radius)
+                interrupt.check()
+                if preview is not None and now - last_preview >= preview_every:
+                    preview(self.image())
+                    last_preview = now
+                if iterations is not None and done >= iterations:
+                    break
+                if seconds is not None and now - start >= seconds:
+                    break
+        return self.image()
+
+
+    def render(self, progress=None) -> mi.TensorXf:
+        """Render the ``iterations`` parameter's iterations from scratch (``progress(stage)``
+        as the other pipelines: called per iteration with ``"iteration i/n"``)."""
+        self.reset()
+        n = self.params.iterations
+
+        def report(i, _elapsed, _radius):
+            if progress:
+                progress(f"iteration {i}/{n}")
+
+        return self.run(iterations=n, progress=report)

@@ -1,0 +1,361 @@
+"""The light pass of vertex connection and merging: one light subpath per pixel, its vertices
+stored, and each vertex connected to the camera (light tracing) (Georgiev et al. 2012 §5;
+Georgiev 2012, TR §5.3; SmallVCM's ``vertexcm.hxx``, ``GenerateLightSample`` and the light loop).
+
+**Emission.** A light is picked with Mitsuba's emitter distribution (``scene.sample_emitter``:
+its ``sampling_weight``\\s), a point on it with ``sample_position`` and a direction
+cosine-distributed about its normal (area lights) or uniform on the sphere (point and spot
+lights: positional delta lights, whose intensity is read through ``sample_direction``). The
+subpath's throughput is ``L_e cos θ / p_e`` with ``p_e`` the emission density per area and
+solid angle and the pick probability (``emissionPdfW``), and its MIS quantities start as TR (31)–(33):
+``dVCM = p_direct / p_e``, ``dVC = cos θ / p_e`` (0 for delta lights), ``dVM = dVC / η_VCM``.
+
+Next-event estimation samples a point on a sphere light from the cone it subtends, not
+uniformly on its area, so ``p_direct`` depends on the point it lights: the first vertex's
+``dVCM`` is computed there from Mitsuba's own ``pdf_emitter_direction`` (the densities of every
+technique are then exactly those that sample them).
+
+**Vertices.** At each surface hit the quantities are completed (TR (31)–(36): × d², ÷ |cos|);
+a vertex with a smooth lobe is stored (its interaction, throughput, segments from the light and
+the three quantities) and, in the modes that use light tracing, connected to the camera: the
+contribution ``w · β f_s(→ camera) W_e / d²`` lands in the pixel the camera sees it in, weighted
+by TR (46) (the camera's density is Mitsuba's sensor importance over the crop, per pixel). The
+subpath goes on by the adjoint BSDF sample (``TransportMode.Importance``) and Russian roulette
+on its throughput from ``rr_depth`` on; a vertex needs a segment to the camera, so the subpath
+stops where one more would not fit ``max_depth``.
+
+**Wavefront.** The subpaths run in symbolic Dr.Jit loops of :data:`CHUNK` vertices; the stored
+vertices of a chunk are compacted and the subpaths still alive go on in the next chunk (memory per
+chunk, whatever ``max_depth``). At the end the vertices are sorted by subpath (each carries its
+rank on it): the camera pass connects each camera vertex to the vertices of the subpath with its
+pixel's index.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+from ..core.sampling import rng
+from ..core.settings import UNBOUNDED, PathSettings
+from . import mis
+from .mis import Techniques
+
+CHUNK = 8  # vertices per subpath in one symbolic loop
+MAX_STEPS = 4096  # vertices of one subpath at most
+IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
+RADIANCE = mi.BSDFContext()
+FOLLOWED_DELTA = mi.BSDFFlags.Delta | mi.BSDFFlags.Null  # sampled events with no density
+
+
+@dataclass
+class LightVertices:
+    """The stored vertices of one iteration's light subpaths, sorted by subpath; subpath ``i``'s
+    are ``start[i] … start[i + 1] − 1``."""
+
+    si: mi.SurfaceInteraction3f  # ``wi``: towards the previous vertex (local)
+    throughput: mi.Spectrum  # β from the light, without the 1/N_L
+    depth: mi.UInt32  # segments from the light (s)
+    d_vcm: mi.Float
+    d_vc: mi.Float
+    d_vm: mi.Float
+    start: mi.UInt32  # N_L + 1 offsets
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.depth)
+
+
+@dataclass
+class LightPass:
+    """What the light pass made: the vertices and the light-tracing image (H×W×3, float64,
+    the crop's pixels, not yet filtered)."""
+
+    vertices: LightVertices
+    image: np.ndarray
+    paths: int
+
+
+def emitter_pick(scene: mi.Scene, emitter: mi.EmitterPtr) -> mi.Float:
+    """The probability that ``scene.sample_emitter`` picks ``emitter``."""
+    total = sum(e.sampling_weight() for e in scene.emitters())
+    return emitter.sampling_weight() / total
+
+
+def emitted(scene, si_or_ds, emitter, cos_light, delta) -> tuple[mi.Float, mi.Float]:
+    """``(p_e, pick)``: the density with which a light subpath starts at the point of
+    ``si_or_ds`` (a position sample on ``emitter``) towards a direction at ``cos_light`` from
+    its normal, per area and solid angle (``1/(4π)`` per solid angle for delta lights), with the
+    probability of the pick included."""
+    pick = emitter_pick(scene, emitter)
+    area = emitter.get_shape().pdf_position(mi.PositionSample3f(si_or_ds), ~delta)
+    per_direction = dr.select(delta, 1.0 / (4.0 * math.pi), area * cos_light / math.pi)
+    return pick * per_direction, pick
+
+
+@dataclass
+class _State:
+    """The subpaths alive between chunks, at their current vertex ``si``."""
+
+    si: mi.SurfaceInteraction3f
+    valid: mi.Bool  # si is a hit to process
+    beta: mi.Spectrum
+    beta0: mi.Spectrum  # for Russian roulette
+    d_vcm: mi.Float
+    d_vc: mi.Float
+    d_vm: mi.Float
+    depth: mi.UInt32  # segments to si
+    rank: mi.UInt32  # vertices stored so far
+    path: mi.UInt32
+    gen: object
+
+    @property
+    def count(self) -> int:
+        return dr.width(self.path)
+
+    def kept(self, alive: mi.Bool) -> _State:
+        index = dr.compress(alive)
+        state = _State(*(dr.gather(type(v), v, index) for v in vars(self).values()))
+        dr.eval(*vars(state).values())
+        return state
+
+
+def update_at_hit(si: mi.SurfaceInteraction3f, d_vcm, d_vc, d_vm):
+    """:func:`.mis.after_hit` at ``si`` (its distance and the cosine of its incoming direction)."""
+    cos_in = dr.maximum(dr.abs(mi.Frame3f.cos_theta(si.wi)), 1e-12)
+    return mis.after_hit(d_vcm, d_vc, d_vm, dr.square(si.t), cos_in)
+
+
+def reverse_pdf(bsdf, ctx, si: mi.SurfaceInteraction3f, wo: mi.Vector3f, active) -> mi.Float:
+    """The density of sampling ``si.wi`` from ``wo`` (the reverse of the forward sample)."""
+    swapped = mi.SurfaceInteraction3f(si)
+    swapped.wi = wo
+    return bsdf.pdf(ctx, swapped, si.wi, active)
+
+
+def scattered(bsdf, ctx, si, gen, d_vcm, d_vc, d_vm, tech: Techniques, active):
+    """Sample the BSDF at ``si`` and update the MIS quantities for the next segment (TR (34)–(36),
+    SmallVCM's ``SampleScattering``): after a delta (or ``Null``) event ``dVCM = 0`` and the other
+    two are scaled by ``cos θ_o``; otherwise ``dVC = cos θ_o / p (dVC p_rev + dVCM + η)``,
+    ``dVM = cos θ_o / p (dVM p_rev + dVCM / η + 1)``, ``dVCM = 1 / p``. Returns the sample, its
+    weight ``f |cos θ_o| / p``, whether it was a delta event and the new quantities."""
+    bs, weight = bsdf.sample(
+        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
+    )
+    delta = mi.has_flag(bs.sampled_type, FOLLOWED_DELTA)
+    cos_out = dr.abs(mi.Frame3f.cos_theta(bs.wo))
+    p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, active & ~delta)
+    vm_factor, vc_factor = dr.opaque(mi.Float, tech.vm_factor), dr.opaque(mi.Float, tech.vc_factor)
+    smooth = mis.after_bounce(d_vcm, d_vc, d_vm, cos_out, dr.maximum(bs.pdf, 1e-30), p_rev,
+                              vm_factor, vc_factor)  # fmt: skip
+    specular = mis.after_delta(d_vcm, d_vc, d_vm, cos_out)
+    new_vcm, new_vc, new_vm = (dr.select(delta, a, b) for a, b in zip(specular, smooth,
+                                                                        strict=True))
+    if not tech.connect:  # no connections: the subpaths need dVC only for them (module docstring)
+        new_vc = dr.zeros(mi.Float, dr.width(new_vc))
+    ok = active & (bs.pdf > 0) & dr.any(weight != 0.0)
+    return bs, weight, delta, new_vcm, new_vc, new_vm, ok
+
+
+def _start(scene: mi.Scene, n: int, gen, tech: Techniques) -> _State:
+    """Emit ``n`` subpaths and find their first hits (module docstring)."""
+    idx, _, _ = scene.sample_emitter(gen.next_float32())
+    emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), idx)
+    delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.DeltaPosition)
+    ps, _ = emitter.sample_position(0.0, mi.Point2f(gen.next_float32(), gen.next_float32()))
+    u = mi.Point2f(gen.next_float32(), gen.next_float32())
+    local = mi.warp.square_to_cosine_hemisphere(u)
+    si0 = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
+    si0.wi = local
+    d = dr.select(delta, mi.warp.square_to_uniform_sphere(u), si0.to_world(local))
+    cos_light = dr.select(delta, 1.0, mi.Frame3f.cos_theta(local))
+    radiance = emitter.eval(si0, ~delta) * cos_light
+    it = dr.zeros(mi.Interaction3f, n)
+    it.p = ps.p + d
+    _, intensity = emitter.sample_direction(it, mi.Point2f(0.5, 0.5), delta)  # I(d) / 1²
+    p_e, pick = emitted(scene, ps, emitter, cos_light, delta)
+    beta = dr.select(delta, intensity, radiance) / dr.maximum(p_e, 1e-30)
+    ray = si0.spawn_ray(d)
+    ray.o = dr.select(delta, ps.p, ray.o)  # a point light's rays leave from the point itself
+    si = scene.ray_intersect(ray)
+    valid = si.is_valid() & dr.any(beta > 0)
+    # the first vertex's quantities (module docstring)
+    cos_in = dr.maximum(dr.abs(mi.Frame3f.cos_theta(si.wi)), 1e-12)
+    ds = mi.DirectionSample3f(ps)
+    ds.d = dr.normalize(ps.p - si.p)
+    ds.dist = si.t
+    ds.emitter = emitter
+    p_direct = dr.select(  # next-event estimation's density of the light point, per area
+        delta, pick, scene.pdf_emitter_direction(mi.Interaction3f(si), ds, valid & ~delta)
+        * cos_light / dr.square(si.t),
+    )  # fmt: skip
+    p_e = dr.maximum(p_e, 1e-30)
+    d_vc, d_vm = mis.light_start(p_e, cos_light, dr.opaque(mi.Float, tech.vc_factor))
+    d_vc, d_vm = (dr.select(delta, 0.0, v) for v in (d_vc, d_vm))
+    if not tech.connect:
+        d_vc = dr.zeros(mi.Float, n)
+    d_vcm = mis.first_light_hit(p_direct, p_e, dr.square(si.t), cos_in)
+    _, d_vc, d_vm = mis.after_hit(d_vcm, d_vc, d_vm, dr.square(si.t), cos_in)
+    zeros = dr.zeros(mi.UInt32, n)
+    return _State(si, valid, beta, mi.Spectrum(beta), d_vcm, d_vc, d_vm, zeros + 1, zeros,
+                  dr.arange(mi.UInt32, n), gen)  # fmt: skip
+
+
+RECORD_FIELDS = {
+    "si": mi.SurfaceInteraction3f, "throughput": mi.Spectrum, "depth": mi.UInt32,
+    "d_vcm": mi.Float, "d_vc": mi.Float, "d_vm": mi.Float, "path": mi.UInt32, "rank": mi.UInt32,
+    "pixel": mi.UInt32, "splat": mi.Spectrum,
+}  # fmt: skip
+
+
+def light_pass(
+    scene: mi.Scene, sensor: mi.Sensor, seed: int, settings: PathSettings, tech: Techniques
+) -> LightPass:
+    """Trace ``tech.light_paths`` light subpaths (random numbers from ``seed``), store their
+    vertices and, where light tracing is one of the techniques, their splats into the image."""
+    n = tech.light_paths
+    w, h = (int(c) for c in sensor.film().crop_size())
+    limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
+    state = _start(scene, n, rng(n, seed, 2), tech)
+    chunks, steps = [], 0
+    while state.count and steps < MAX_STEPS:
+        rec, state = _chunk(scene, sensor, state, limit, settings.rr_depth, tech, (w, h))
+        chunks.append(rec)
+        steps += CHUNK
+    records = {k: _concat([c[k] for c in chunks]) for k in RECORD_FIELDS}
+    image = np.zeros((h, w, 3))
+    if tech.light_tracing and dr.width(records["pixel"]):
+        pixel = records["pixel"].numpy()
+        splat = np.asarray(records["splat"].numpy(), np.float64).reshape(3, -1)
+        for c in range(3):  # a fixed order of summation: deterministic
+            image[..., c] = np.bincount(pixel, splat[c], minlength=w * h + 1)[: w * h].reshape(h, w)
+    return LightPass(_sorted(records, n), image, n)
+
+
+def _concat(values: list):
+    values = [v for v in values if dr.width(v)] or values[:1]
+    if len(values) == 1:
+        return values[0]
+    return dr.concat(values)
+
+
+def _sorted(records: dict, n: int) -> LightVertices:
+    """The records sorted by subpath: subpath ``i``'s vertex of rank ``k`` goes to
+    ``start[i] + k`` (integer counts and an exclusive prefix sum: deterministic)."""
+    count = dr.width(records["depth"])
+    counts = dr.zeros(mi.UInt32, n)
+    if count:
+        dr.scatter_reduce(dr.ReduceOp.Add, counts, 1, records["path"])
+    start = dr.prefix_sum(counts)  # exclusive
+    start = dr.concat([start, mi.UInt32(count)]) if n else mi.UInt32([0])
+    keys = ("si", "throughput", "depth", "d_vcm", "d_vc", "d_vm")
+    if not count:
+        return LightVertices(*(records[k] for k in keys), start)
+    target = dr.gather(mi.UInt32, start, records["path"]) + records["rank"]
+    out = []
+    for k in keys:
+        value = dr.zeros(RECORD_FIELDS[k], count)
+        dr.scatter(value, records[k], target)
+        out.append(value)
+    dr.eval(*out)
+    return LightVertices(*out, start)
+
+
+def _chunk(scene, sensor, state: _State, limit, rr_depth, tech, size):
+    lanes = state.count
+    slots = lanes * CHUNK
+    rec = {k: dr.zeros(t, slots) for k, t in RECORD_FIELDS.items()}
+    stored = dr.zeros(mi.Bool, slots)
+
+    def to_camera(si, bsdf, beta, d_vcm, d_vc, active):
+        return _to_camera(scene, sensor, si, bsdf, beta, d_vcm, d_vc, tech, size, active)
+
+    def scatter(bsdf, si, gen, d_vcm, d_vc, d_vm, active):
+        return scattered(bsdf, IMPORTANCE, si, gen, d_vcm, d_vc, d_vm, tech, active)
+
+    alive = _loop(scene, state, rec, stored, limit, rr_depth, to_camera, scatter)
+    dr.eval(rec, stored, alive, *vars(state).values())
+    index = dr.compress(stored)
+    out = {k: dr.gather(type(v), v, index) for k, v in rec.items()}
+    dr.eval(out)
+    return out, state.kept(alive)
+
+
+@dr.syntax
+def _loop(scene, state: _State, rec, stored, limit, rr_depth, to_camera, scatter):
+    """One chunk: at each vertex store it and connect it to the camera, then sample the next
+    segment (module docstring). Updates ``state`` in place; returns the subpaths still alive."""
+    lanes = state.count
+    limit = dr.opaque(mi.UInt32, limit)
+    rr_depth = dr.opaque(mi.UInt32, rr_depth)
+    lane = dr.arange(mi.UInt32, lanes)
+    stride = dr.opaque(mi.UInt32, lanes)
+    step = dr.zeros(mi.UInt32, lanes)
+    active = mi.Bool(state.valid)
+    while active & (step < CHUNK):
+        si = state.si
+        bsdf = si.bsdf()
+        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+        keep = active & smooth & (state.depth + 1 <= limit)
+        slot = step * stride + lane
+        pixel, splat = to_camera(si, bsdf, state.beta, state.d_vcm, state.d_vc, keep)
+        for key, value in (
+            ("si", si), ("throughput", state.beta), ("depth", state.depth),
+            ("d_vcm", state.d_vcm), ("d_vc", state.d_vc), ("d_vm", state.d_vm),
+            ("path", state.path), ("rank", state.rank), ("pixel", pixel), ("splat", splat),
+        ):  # fmt: skip
+            dr.scatter(rec[key], value, slot, keep)
+        dr.scatter(stored, True, slot, keep)
+        state.rank[keep] += 1
+        # ---- the next segment, if a vertex after it could still reach the camera
+        go_on = active & (state.depth + 2 <= limit)
+        bs, weight, _, d_vcm, d_vc, d_vm, ok = scatter(
+            bsdf, si, state.gen, state.d_vcm, state.d_vc, state.d_vm, go_on
+        )
+        go_on &= ok
+        state.beta[go_on] *= weight
+        rolled = go_on & (state.depth >= rr_depth)
+        q = dr.minimum(dr.max(state.beta / dr.maximum(state.beta0, 1e-30)), 0.95)
+        state.beta[rolled] /= q
+        go_on &= ~rolled | (state.gen.next_float32() < q)
+        ray = si.spawn_ray(si.to_world(bs.wo))
+        nxt = scene.ray_intersect(ray, go_on)
+        go_on &= nxt.is_valid()
+        d_vcm, d_vc, d_vm = update_at_hit(nxt, d_vcm, d_vc, d_vm)
+        state.si[go_on] = nxt
+        state.d_vcm[go_on] = d_vcm
+        state.d_vc[go_on] = d_vc
+        state.d_vm[go_on] = d_vm
+        state.depth[go_on] += 1
+        active = go_on
+        step += 1
+    return active
+
+
+def _to_camera(scene, sensor, si, bsdf, beta, d_vcm, d_vc, tech: Techniques, size, active):
+    """Light tracing at a stored vertex: its pixel (``w · h`` where it misses the crop) and the
+    splat ``w_LT · β f_s W_e / d²`` (TR (46): ``w_light = p_cam (η + dVCM + dVC p_rev)``; the
+    only technique in ``lt`` mode)."""
+    w, h = size
+    miss = dr.full(mi.UInt32, w * h, dr.width(active))
+    if not tech.light_tracing:
+        return miss, dr.zeros(mi.Spectrum, dr.width(active))
+    ds, importance = sensor.sample_direction(si, mi.Point2f(0.5, 0.5), active)
+    wo = si.to_local(ds.d)
+    seen = active & (ds.pdf > 0) & dr.any(importance > 0)
+    f = bsdf.eval(IMPORTANCE, si, wo, seen)
+    seen &= dr.any(f != 0.0) & ~scene.ray_test(si.spawn_ray_to(ds.p), seen)
+    x, y = mi.UInt32(dr.floor(ds.uv.x)), mi.UInt32(dr.floor(ds.uv.y))
+    seen &= (ds.uv.x >= 0) & (ds.uv.y >= 0) & (x < w) & (y < h)
+    weight = dr.ones(mi.Float, dr.width(active))
+    if tech.mode != "lt":
+        p_rev = reverse_pdf(bsdf, IMPORTANCE, si, wo, seen)
+        p_camera = importance.x * dr.abs(mi.Frame3f.cos_theta(wo))  # × P / N_L = 1
+        weight = mis.light_tracing_weight(d_vcm, d_vc, p_camera, p_rev,
+                                          dr.opaque(mi.Float, tech.vm_factor))  # fmt: skip
+    splat = dr.select(seen, weight * beta * f * importance, 0.0)
+    return dr.select(seen, y * w + x, miss), splat

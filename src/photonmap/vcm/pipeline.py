@@ -1,0 +1,236 @@
+"""``VCMPipeline`` — vertex connection and merging (Georgiev, Křivánek, Davidovič & Slusallek 2012;
+Hachisuka, Pantaleoni & Jensen 2012's unified path sampling is the same estimator).
+
+Iteration ``i`` (1-based) traces one light subpath per pixel (:mod:`.light`: its vertices
+stored, each connected to the camera), puts the vertices in a hash grid of cell ``r_i``, and
+traces one camera subpath per pixel that at each vertex adds the emission met, next-event
+estimation, connections to its light subpath and merges with the light vertices within ``r_i``,
+every technique weighted by the balance heuristic (:mod:`.camera`, :mod:`.mis`). The image is
+the mean of the iterations' images; the merging radius shrinks as
+``r_i = r_1 · i^((α−1)/2)`` (α = 0.75, SmallVCM's default), which makes the merges consistent
+(Knaus & Zwicker 2011) while the other techniques are unbiased. An iteration's random numbers
+come from ``(seed, i)`` alone, and memory is one iteration's whatever their number.
+
+``radius = 0`` picks ``r_1``: :data:`RADIUS_PIXELS` pixel footprints at the median distance of the
+surfaces the camera sees (:func:`~photonmap.core.camera.footprint_radius`).
+
+``mode`` picks the techniques (:mod:`.mis`: ``vcm``, ``bpt``, ``ppm``, ``pt``, ``lt``); every
+mode converges to the same image, so they check each other.
+
+**The scene file's settings**: ``max_depth``, ``rr_depth`` and ``hide_emitters`` default to the
+file's ``<integrator>`` with Mitsuba's meaning (a path of at most ``max_depth`` segments).
+Refused, each in one line naming ``sppm``: participating media, environment and directional
+lights (area, point and spot lights are supported), sensors other than ``perspective``, and the
+``hair`` BSDF.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mitsuba as mi
+import numpy as np
+
+from ..core.camera import footprint_radius
+from ..core.emission import checked_powers, emitter_name
+from ..core.errors import SceneError
+from ..core.film_filter import filter_image
+from ..core.memory import check_memory, check_once
+from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.pipeline import Pipeline
+from ..core.progressive import Progressive
+from ..core.scene_info import refuse_media
+from ..core.settings import PathSettings, check_path_params, overridden
+from ..core.stages import StageCache
+from ..sppm.pipeline import check_gathered_bsdfs, iteration_seeds
+from .camera import MergeGrid, camera_pass
+from .light import CHUNK, light_pass
+from .mis import MODES, Techniques
+
+STAGES = ("light pass", "camera pass")
+RADIUS_PIXELS = 2.0  # automatic initial radius, in pixel footprints at the median eye distance
+ALPHA = 0.75
+
+
+@dataclass
+class VCMParams:
+    """Parameters of the VCM pipeline (the ``vcm`` plugin and ``--set`` keys)."""
+
+    iterations: int = 64  # iterations of render() (run() takes its own budget)
+    radius: float = 0.0  # initial merging radius r_1 in scene units; 0 = automatic
+    alpha: float = ALPHA  # radius reduction: r_i = r_1 i^((α−1)/2), α in (0, 1)
+    seed: int = 0
+    max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
+    rr_depth: int = 0  # depth where Russian roulette starts; 0 = the scene's
+    hide_emitters: str = "scene"  # hide emitters seen directly: scene | true | false
+    mode: str = "vcm"  # vcm | bpt | ppm | pt | lt (the techniques used)
+
+    def validate(self) -> None:
+        check_fields(self)
+        check_range("iterations", self.iterations, 1, None, "VCM iterations of render()")
+        check_range("radius", self.radius, 0, None, "the initial merging radius; 0 = automatic")
+        check_range("alpha", self.alpha, 0, 1, "the radius reduction α (0.75 is usual)", True,
+                    True)  # fmt: skip
+        check_path_params(self)
+        check_choice("mode", self.mode, MODES, "the techniques: vcm, bpt, ppm, pt or lt")
+
+
+SUPPORTED_EMITTERS = ("AreaLight", "PointLight", "SpotLight")
+HINT = "render this scene with --method sppm"
+
+
+def check_scene(scene: mi.Scene, sensor: mi.Sensor) -> None:
+    """Refuse what the light and camera subpaths cannot start from or pass through (module
+    docstring), in one line each."""
+    refuse_media(scene, "vcm")
+    for emitter in scene.emitters():
+        kind = type(emitter).__name__ if not str(emitter) else str(emitter).split("[")[0]
+        if kind not in SUPPORTED_EMITTERS:
+            raise SceneError(
+                f"the vcm method starts light subpaths on area, point and spot lights only; "
+                f"{emitter_name(emitter)} is a {kind}: {HINT}"
+            )
+    kind = str(sensor).split("[")[0]
+    if kind != "PerspectiveCamera":
+        raise SceneError(
+            f"the vcm method connects light subpaths to a pinhole camera (perspective); the "
+            f"scene's sensor is a {kind}: {HINT}"
+        )
+    check_gathered_bsdfs(scene)
+
+
+BYTES_PER_PIXEL = 900  # camera subpath state, the light subpath's loop state
+SLOT_BYTES = 330  # per light subpath and slot of a chunk: the vertex slot and its compaction
+VERTEX_BYTES = 400  # per vertex kept: the vertex, its sorted copy and the hash grid's
+
+
+class VCMPipeline(Progressive, Pipeline):
+    """Vertex connection and merging of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
+
+    >>> pipe = VCMPipeline("examples/glass_sphere_plane.xml")
+    >>> pipe.run(seconds=30)            # or: iterations=…, or pipe.step() in a loop
+    >>> image = pipe.image()            # mi.TensorXf (height, width, 3)
+    """
+
+    method, params_type, stages = "vcm", VCMParams, STAGES
+    progressive = True
+
+    def __init__(self, scene, **params):
+        from ..scenes import load_with_sensor
+
+        self.cache = StageCache()
+        self.scene, self.sensor, own = load_with_sensor(scene, VCMParams, params)
+        check_scene(self.scene, self.sensor)
+        checked_powers(self.scene, 0)  # no light, a light that emits nothing, NaN
+        self.file_settings = PathSettings.of(self.scene, scene)
+        self.params = VCMParams()
+        self._r1 = None
+        self.set_params(**own)
+
+    # ------------------------------------------------------------------------- settings
+    def set_params(self, **params) -> None:
+        """Change parameters (:class:`VCMParams` fields); the progressive state restarts."""
+        new = updated(self.params, params, "vcm")
+        self.check_memory(new)
+        self.params = new
+        self.reset()
+
+    def set_camera(self, *args, **kwargs) -> None:
+        super().set_camera(*args, **kwargs)
+        check_scene(self.scene, self.sensor)
+        self._r1 = None
+        self.reset()
+
+    @property
+    def settings(self) -> PathSettings:
+        p = self.params
+        return overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters)
+
+    def check_memory(self, params: VCMParams | None = None, size=None) -> int:
+        """Refuse settings that would not fit in memory (one iteration: the subpaths' state, a
+        chunk's vertex slots and the vertices kept, about 4 per light subpath, measured on
+        the Cornell box); return the estimate in bytes."""
+        w, h = size or self.size
+        pixels = w * h
+        parts = {
+            "subpaths": pixels * BYTES_PER_PIXEL,
+            "light vertex slots": pixels * CHUNK * SLOT_BYTES,
+            "light vertices": pixels * 4 * VERTEX_BYTES,
+        }
+        entries = {"pixels × CHUNK vertex slots": pixels * CHUNK}
+        return check_memory("vcm", parts, "lower the image size", entries)
+
+    # ------------------------------------------------------------------------- iterations
+    def initial_radius(self) -> float:
+        """``r_1``: the ``radius`` parameter, or :data:`RADIUS_PIXELS` pixel footprints at the
+        median distance of the surfaces the camera sees."""
+        if self.params.radius > 0:
+            return self.params.radius
+        if self._r1 is None:
+            self._r1 = footprint_radius(self.scene, self.sensor, RADIUS_PIXELS)
+        return self._r1
+
+    def radius_at(self, i: int) -> float:
+        return self.initial_radius() * i ** ((self.params.alpha - 1.0) / 2.0)
+
+    @property
+    def mean_radius(self) -> float:
+        return self.radius_at(max(self.iterations, 1))
+
+    def techniques(self, i: int) -> Techniques:
+        w, h = self.size
+        return Techniques(self.params.mode, w * h, self.radius_at(i))
+
+    def reset(self) -> None:
+        self._total = None
+        self.iterations = 0
+        self.stats = {"light_paths": 0, "camera_paths": 0, "light_vertices": 0}
+        self.cache.new_frame()
+
+    def iteration_image(self, i: int) -> np.ndarray:
+        """Iteration ``i``'s image (H×W×3 float64): the camera subpaths' radiance and the light
+        tracing splats (filtered by the film's filter, :func:`~.film_filter.filter_image`)."""
+        check_once(self, self.params, self.size, self.check_memory)
+        tech = self.techniques(i)
+        light_seed, camera_seed = iteration_seeds(self.params.seed, i)
+        settings = self.settings
+        w, h = self.size
+        run = self.cache.run
+        light = None
+        if tech.light_pass:
+            light = run("light pass", lambda: light_pass(
+                self.scene, self.sensor, light_seed, settings, tech
+            ))  # fmt: skip
+        vertices = light.vertices if light is not None else None
+        radiance = run("camera pass", lambda: camera_pass(
+            self.scene, self.sensor, camera_seed, settings, tech, vertices,
+            MergeGrid.build(vertices, tech.radius) if tech.merge and vertices else None,
+        ))  # fmt: skip
+        image = np.asarray(radiance, np.float64).T.reshape(h, w, 3)
+        if light is not None and tech.light_tracing:
+            image += filter_image(light.image, self.sensor.film())
+            self.stats["light_vertices"] += vertices.count
+        if light is not None:
+            self.stats["light_paths"] += light.paths
+        self.stats["camera_paths"] += w * h
+        return image
+
+    def step(self) -> None:
+        """Run the next iteration and fold it into the image."""
+        i = self.iterations + 1
+        image = self.iteration_image(i)
+        total = image if self._total is None else self._total + image
+        self._total, self.iterations = total, i  # one assignment: Ctrl-C keeps a whole iteration
+
+    def image(self) -> mi.TensorXf:
+        """The mean of the iterations' images so far, ``(height, width, 3)``."""
+        w, h = self.size
+        if self._total is None:
+            return mi.TensorXf(np.zeros((h, w, 3), np.float32))
+        image = (self._total / self.iterations).astype(np.float32)
+        if not np.all(np.isfinite(image)):
+            raise SceneError(
+                "the render produced NaN or infinite values; check the scene's textures and "
+                "emitters for NaN"
+            )
+        return mi.TensorXf(image)
