@@ -51,12 +51,14 @@ def _register_plugins() -> None:
     from .screen.integrator import register as register_screen
     from .sppm.integrator import register as register_sppm
     from .surface.integrator import register as register_surface
+    from .vcm.integrator import register as register_vcm
     from .volume.integrator import register as register_volume
 
     register_volume()
     register_surface()
     register_screen()
     register_sppm()
+    register_vcm()
 
 
 with _interrupt.held():
@@ -73,6 +75,8 @@ from .sppm.pipeline import STAGES as SPPM_STAGES  # noqa: E402
 from .sppm.pipeline import BlockSums, SPPMParams, SPPMPipeline  # noqa: E402
 from .surface.pipeline import STAGES as SURFACE_STAGES  # noqa: E402
 from .surface.pipeline import SurfaceParams, SurfacePipeline  # noqa: E402
+from .vcm.pipeline import STAGES as VCM_STAGES  # noqa: E402
+from .vcm.pipeline import VCMParams, VCMPipeline  # noqa: E402
 from .volume.params import STAGES as VOLUME_STAGES  # noqa: E402
 from .volume.params import VolumeParams  # noqa: E402
 from .volume.pipeline import VolumePipeline  # noqa: E402
@@ -91,6 +95,7 @@ METHODS = {
     "surface": Method(SurfacePipeline, SurfaceParams, SURFACE_STAGES),
     "screen": Method(ScreenPipeline, ScreenParams, SCREEN_STAGES),
     "sppm": Method(SPPMPipeline, SPPMParams, SPPM_STAGES),
+    "vcm": Method(VCMPipeline, VCMParams, VCM_STAGES),
 }
 
 __all__ = [
@@ -112,6 +117,9 @@ __all__ = [
     "ScreenPipeline",
     "SurfaceParams",
     "SurfacePipeline",
+    "VCM_STAGES",
+    "VCMParams",
+    "VCMPipeline",
     "VolumeParams",
     "VolumePipeline",
     "compare",

@@ -34,8 +34,8 @@ def render(  # over 80 lines with its option declarations; the body is shorter
     method: Annotated[
         str | None,
         typer.Option(
-            help="volume | surface | screen | sppm (default: a built-in's own; for a file, sppm, "
-            "which renders everything in it)"
+            help="volume | surface | screen | sppm | vcm (default: a built-in's own; for a file, "
+            "sppm, which renders everything in it)"
         ),
     ] = None,
     width: Annotated[
@@ -57,10 +57,10 @@ def render(  # over 80 lines with its option declarations; the body is shorter
         ),
     ] = False,
     time: Annotated[
-        float | None, typer.Option(help="sppm: iterate for SECONDS (Ctrl-C stops early)")
+        float | None, typer.Option(help="sppm, vcm: iterate for SECONDS (Ctrl-C stops early)")
     ] = None,
     preview_every: Annotated[
-        float | None, typer.Option(help="sppm: rewrite the output every SECONDS while iterating")
+        float | None, typer.Option(help="sppm, vcm: rewrite the output every SECONDS while iterating")
     ] = None,
     workers: Annotated[
         int | None, typer.Option(help="sppm: iterate on N local Ray workers (one per core)")
@@ -190,7 +190,7 @@ def _check_progressive(method, progressive: bool, seconds, preview_every) -> Non
             continue
         if not progressive:
             raise ParameterError(
-                f"{name} applies to a progressive method (--method sppm), not to {method}"
+                f"{name} applies to a progressive method (--method sppm or vcm), not to {method}"
             )
         check_seconds(name, value)
 

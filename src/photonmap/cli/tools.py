@@ -173,7 +173,7 @@ def view(
     scene: Annotated[str, typer.Argument(help="Mitsuba XML file or built-in scene name")],
     method: Annotated[
         str | None,
-        typer.Option(help="volume | screen | surface (sppm where installed); default as render"),
+        typer.Option(help="volume | screen | surface | sppm | vcm; default as render"),
     ] = None,
     port: Annotated[int, typer.Option(help="TCP port of the local web server")] = 8000,
     host: Annotated[str, typer.Option(help="address to bind (default: this machine only)")] = (

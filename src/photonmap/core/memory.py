@@ -22,7 +22,9 @@ DRJIT_MAX_ENTRIES = 2**32  # Dr.Jit arrays hold fewer entries than this
 _limit: int | None = None  # set_memory_limit()
 # bytes in flight per camera sample (rough upper bounds measured on the LLVM backend: the eye
 # pass's interactions, the final-gather batch, the view pass's march state, the G-buffers)
-BYTES_PER_SAMPLE = {"surface": 1200, "volume": 400, "screen": 2000, "sppm": 1200}
+BYTES_PER_SAMPLE = {
+    "surface": 1200, "volume": 400, "screen": 2000, "sppm": 1200, "vcm": 1200,
+}  # fmt: skip
 
 
 def parse_size(text: str, what: str = "--max-memory") -> int:

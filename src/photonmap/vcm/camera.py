@@ -36,8 +36,8 @@ from . import mis
 from .light import (
     IMPORTANCE,
     RADIANCE,
+    Emitters,
     LightVertices,
-    emitted,
     reverse_pdf,
     scattered,
     update_at_hit,
@@ -100,6 +100,7 @@ def camera_pass(
     tech: Techniques,
     vertices: LightVertices | None,
     grid: MergeGrid | None,
+    emitters: Emitters,
 ) -> mi.Spectrum:
     """The radiance of one camera subpath per pixel of the crop (row-major), with every
     technique of ``tech`` (module docstring)."""
@@ -121,6 +122,8 @@ def camera_pass(
         dr.zeros(mi.UInt32, n),
     )  # fmt: skip
     limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
+    if tech.mode == "lt":  # the camera subpaths add the emission they see and stop
+        limit = 1
     limit = dr.opaque(mi.UInt32, limit)
     vm_factor = dr.opaque(mi.Float, tech.vm_factor)
     path = dr.arange(mi.UInt32, n)
@@ -131,7 +134,8 @@ def camera_pass(
         """The techniques at a smooth vertex: next-event estimation, connections, merges."""
         total = dr.zeros(mi.Spectrum, n)
         if tech.nee:
-            total += _next_event(scene, si, bsdf, gen, d_vcm, d_vc, vm_factor, tech, active)
+            total += _next_event(scene, si, bsdf, gen, d_vcm, d_vc, vm_factor, tech, emitters,
+                                 active)  # fmt: skip
         if tech.connect and vertices is not None:
             total += _connect(scene, si, bsdf, path, t, d_vcm, d_vc, vertices, vm_factor, limit,
                               active)  # fmt: skip
@@ -140,12 +144,13 @@ def camera_pass(
         return total
 
     def emission(si, t, d_vcm, d_vc, specular, prev, active):
-        return _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech,
+        return _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech, emitters,
                          settings.hide_emitters, active)  # fmt: skip
 
     def scatter(bsdf, si, gen, d_vcm, d_vc, d_vm, active):
         return scattered(bsdf, RADIANCE, si, gen, d_vcm, d_vc, d_vm, tech, active)
 
+    dr.make_opaque(walk)  # no literal loop state (a literal that the loop changes is refused)
     _loop(scene, walk, gen, limit, dr.opaque(mi.UInt32, settings.rr_depth), tech.mode,
           at_vertex, emission, scatter)  # fmt: skip
     dr.eval(walk.radiance)
@@ -167,8 +172,6 @@ def _loop(scene, walk: _Walk, gen, limit, rr_depth, mode: str, at_vertex, emissi
         walk.radiance[here] += walk.beta * at_vertex(si, bsdf, gen, t, d_vcm, d_vc, d_vm, here)
         # ---- the next segment
         go_on = hit & (t < limit)
-        if dr.hint(mode == "lt", mode="scalar"):
-            go_on &= False
         bs, weight, delta, d_vcm, d_vc, d_vm, ok = scatter(bsdf, si, gen, d_vcm, d_vc, d_vm, go_on)
         go_on &= ok
         if dr.hint(mode == "ppm", mode="scalar"):
@@ -190,7 +193,8 @@ def _loop(scene, walk: _Walk, gen, limit, rr_depth, mode: str, at_vertex, emissi
         walk.events += 1
 
 
-def _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech: Techniques, hide: bool, active):
+def _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech: Techniques, emitters: Emitters,
+              hide: bool, active):  # fmt: skip
     """``w L_e`` of an emitter met (TR (43): ``w = 1 / (1 + p_direct dVCM + p_e dVC)``, with
     ``p_direct`` next-event estimation's density of the point from the previous vertex; 1 for
     the emission seen directly; in ``ppm`` mode 1 along purely specular paths and 0 otherwise,
@@ -209,14 +213,15 @@ def _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech: Techniques, hide:
         cos_light = dr.abs(mi.Frame3f.cos_theta(si.wi))
         p_direct = scene.pdf_emitter_direction(prev, ds, later)
         p_direct_area = p_direct * cos_light / dr.square(si.t)
-        p_e, _ = emitted(scene, si, emitter, cos_light, dr.zeros(mi.Bool, dr.width(t)))
+        p_e = emitters.emitted(si, emitter, cos_light, dr.zeros(mi.Bool, dr.width(t)))
         weight = dr.select(first, 1.0, mis.emission_weight(d_vcm, d_vc, p_direct_area, p_e))
     if hide:
         weight = dr.select(first, 0.0, weight)
     return dr.select(met, weight * radiance, 0.0)
 
 
-def _next_event(scene, si, bsdf, gen, d_vcm, d_vc, vm_factor, tech: Techniques, active):
+def _next_event(scene, si, bsdf, gen, d_vcm, d_vc, vm_factor, tech: Techniques,
+                emitters: Emitters, active):  # fmt: skip
     """Next-event estimation weighted by TR (44)–(45) (``pt`` mode: against the BSDF sample
     alone)."""
     u = mi.Point2f(gen.next_float32(), gen.next_float32())
@@ -231,7 +236,7 @@ def _next_event(scene, si, bsdf, gen, d_vcm, d_vc, vm_factor, tech: Techniques, 
         weight = dr.rcp(1.0 + p_forward / p_direct)
     else:
         p_rev = reverse_pdf(bsdf, RADIANCE, si, wo, lit)
-        p_e, _ = emitted(scene, ds, ds.emitter, cos_light, ds.delta)
+        p_e = emitters.emitted(ds, ds.emitter, cos_light, ds.delta)
         weight = mis.next_event_weight(d_vcm, d_vc, p_forward, p_direct, p_e,
                                        dr.abs(mi.Frame3f.cos_theta(wo)), cos_light, p_rev,
                                        vm_factor)  # fmt: skip

@@ -80,21 +80,45 @@ class LightPass:
     paths: int
 
 
-def emitter_pick(scene: mi.Scene, emitter: mi.EmitterPtr) -> mi.Float:
-    """The probability that ``scene.sample_emitter`` picks ``emitter``."""
-    total = sum(e.sampling_weight() for e in scene.emitters())
-    return emitter.sampling_weight() / total
+@dataclass(frozen=True)
+class Emitters:
+    """What the emission densities need of a scene's emitters: the sum of their sampling weights
+    (Mitsuba picks emitter ``e`` with ``w_e / Σ w``) and, per positional delta light, the density
+    of its light subpaths' directions: uniform on the sphere (point lights) or in the cone of
+    the cutoff angle (spot lights, as Mitsuba's ``sample_ray`` samples them)."""
 
+    total_weight: float
+    cones: tuple  # (mi.EmitterPtr, direction density) per point or spot light
 
-def emitted(scene, si_or_ds, emitter, cos_light, delta) -> tuple[mi.Float, mi.Float]:
-    """``(p_e, pick)``: the density with which a light subpath starts at the point of
-    ``si_or_ds`` (a position sample on ``emitter``) towards a direction at ``cos_light`` from
-    its normal, per area and solid angle (``1/(4π)`` per solid angle for delta lights), with the
-    probability of the pick included."""
-    pick = emitter_pick(scene, emitter)
-    area = emitter.get_shape().pdf_position(mi.PositionSample3f(si_or_ds), ~delta)
-    per_direction = dr.select(delta, 1.0 / (4.0 * math.pi), area * cos_light / math.pi)
-    return pick * per_direction, pick
+    @classmethod
+    def of(cls, scene: mi.Scene) -> Emitters:
+        cones = []
+        for emitter in scene.emitters():
+            if not mi.has_flag(emitter.flags(), mi.EmitterFlags.DeltaPosition):
+                continue
+            cutoff = mi.traverse(emitter).get("cutoff_angle")
+            cos_max = -1.0 if cutoff is None else math.cos(math.radians(float(cutoff[0])))
+            cones.append((mi.EmitterPtr(emitter), 1.0 / (2.0 * math.pi * (1.0 - cos_max))))
+        return cls(sum(e.sampling_weight() for e in scene.emitters()), tuple(cones))
+
+    def pick(self, emitter: mi.EmitterPtr) -> mi.Float:
+        """The probability that ``scene.sample_emitter`` picks ``emitter``."""
+        return emitter.sampling_weight() / self.total_weight
+
+    def cone(self, emitter: mi.EmitterPtr) -> mi.Float:
+        """A delta light's direction density (0 for other emitters)."""
+        density = dr.zeros(mi.Float, dr.width(emitter))
+        for ptr, value in self.cones:  # a loop over the delta lights, not over lanes
+            density = dr.select(emitter == ptr, value, density)
+        return density
+
+    def emitted(self, si_or_ds, emitter, cos_light, delta) -> mi.Float:
+        """``p_e``: the density with which a light subpath starts at the point of ``si_or_ds``
+        (a position sample on ``emitter``) towards a direction at ``cos_light`` from its normal,
+        per area and solid angle (per solid angle for delta lights), the pick included."""
+        area = emitter.get_shape().pdf_position(mi.PositionSample3f(si_or_ds), ~delta)
+        per_direction = dr.select(delta, self.cone(emitter), area * cos_light / math.pi)
+        return self.pick(emitter) * per_direction
 
 
 @dataclass
@@ -161,7 +185,7 @@ def scattered(bsdf, ctx, si, gen, d_vcm, d_vc, d_vm, tech: Techniques, active):
     return bs, weight, delta, new_vcm, new_vc, new_vm, ok
 
 
-def _start(scene: mi.Scene, n: int, gen, tech: Techniques) -> _State:
+def _start(scene: mi.Scene, n: int, gen, tech: Techniques, emitters: Emitters) -> _State:
     """Emit ``n`` subpaths and find their first hits (module docstring)."""
     idx, _, _ = scene.sample_emitter(gen.next_float32())
     emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), idx)
@@ -171,13 +195,15 @@ def _start(scene: mi.Scene, n: int, gen, tech: Techniques) -> _State:
     local = mi.warp.square_to_cosine_hemisphere(u)
     si0 = mi.SurfaceInteraction3f(ps, dr.zeros(mi.Color0f))
     si0.wi = local
-    d = dr.select(delta, mi.warp.square_to_uniform_sphere(u), si0.to_world(local))
+    delta_ray, _ = emitter.sample_ray(0.0, 0.5, u, u, delta)  # point: sphere, spot: cone
+    d = dr.select(delta, delta_ray.d, si0.to_world(local))
     cos_light = dr.select(delta, 1.0, mi.Frame3f.cos_theta(local))
     radiance = emitter.eval(si0, ~delta) * cos_light
     it = dr.zeros(mi.Interaction3f, n)
     it.p = ps.p + d
     _, intensity = emitter.sample_direction(it, mi.Point2f(0.5, 0.5), delta)  # I(d) / 1²
-    p_e, pick = emitted(scene, ps, emitter, cos_light, delta)
+    p_e = emitters.emitted(ps, emitter, cos_light, delta)
+    pick = emitters.pick(emitter)
     beta = dr.select(delta, intensity, radiance) / dr.maximum(p_e, 1e-30)
     ray = si0.spawn_ray(d)
     ray.o = dr.select(delta, ps.p, ray.o)  # a point light's rays leave from the point itself
@@ -213,14 +239,15 @@ RECORD_FIELDS = {
 
 
 def light_pass(
-    scene: mi.Scene, sensor: mi.Sensor, seed: int, settings: PathSettings, tech: Techniques
+    scene: mi.Scene, sensor: mi.Sensor, seed: int, settings: PathSettings, tech: Techniques,
+    emitters: Emitters,
 ) -> LightPass:
     """Trace ``tech.light_paths`` light subpaths (random numbers from ``seed``), store their
     vertices and, where light tracing is one of the techniques, their splats into the image."""
     n = tech.light_paths
     w, h = (int(c) for c in sensor.film().crop_size())
     limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
-    state = _start(scene, n, rng(n, seed, 2), tech)
+    state = _start(scene, n, rng(n, seed, 2), tech, emitters)
     chunks, steps = [], 0
     while state.count and steps < MAX_STEPS:
         rec, state = _chunk(scene, sensor, state, limit, settings.rr_depth, tech, (w, h))
@@ -237,10 +264,16 @@ def light_pass(
 
 
 def _concat(values: list):
+    """The chunks' values one after the other (arrays and Mitsuba structs alike)."""
     values = [v for v in values if dr.width(v)] or values[:1]
     if len(values) == 1:
         return values[0]
-    return dr.concat(values)
+    out = dr.zeros(type(values[0]), sum(dr.width(v) for v in values))
+    offset = 0
+    for v in values:
+        dr.scatter(out, v, dr.arange(mi.UInt32, dr.width(v)) + offset)
+        offset += dr.width(v)
+    return out
 
 
 def _sorted(records: dict, n: int) -> LightVertices:

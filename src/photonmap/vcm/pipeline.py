@@ -44,7 +44,7 @@ from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.stages import StageCache
 from ..sppm.pipeline import check_gathered_bsdfs, iteration_seeds
 from .camera import MergeGrid, camera_pass
-from .light import CHUNK, light_pass
+from .light import CHUNK, Emitters, light_pass
 from .mis import MODES, Techniques
 
 STAGES = ("light pass", "camera pass")
@@ -122,6 +122,7 @@ class VCMPipeline(Progressive, Pipeline):
         self.scene, self.sensor, own = load_with_sensor(scene, VCMParams, params)
         check_scene(self.scene, self.sensor)
         checked_powers(self.scene, 0)  # no light, a light that emits nothing, NaN
+        self.emitters = Emitters.of(self.scene)
         self.file_settings = PathSettings.of(self.scene, scene)
         self.params = VCMParams()
         self._r1 = None
@@ -199,12 +200,13 @@ class VCMPipeline(Progressive, Pipeline):
         light = None
         if tech.light_pass:
             light = run("light pass", lambda: light_pass(
-                self.scene, self.sensor, light_seed, settings, tech
+                self.scene, self.sensor, light_seed, settings, tech, self.emitters
             ))  # fmt: skip
         vertices = light.vertices if light is not None else None
         radiance = run("camera pass", lambda: camera_pass(
             self.scene, self.sensor, camera_seed, settings, tech, vertices,
             MergeGrid.build(vertices, tech.radius) if tech.merge and vertices else None,
+            self.emitters,
         ))  # fmt: skip
         image = np.asarray(radiance, np.float64).T.reshape(h, w, 3)
         if light is not None and tech.light_tracing:

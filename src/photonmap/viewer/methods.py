@@ -15,3 +15,5 @@ ADAPTERS: dict[str, type[Adapter]] = {
 }
 if "sppm" in METHODS:  # stochastic progressive photon mapping: refine, restart on any change
     ADAPTERS["sppm"] = progressive(SurfaceAdapter, ("photons", "alpha"))
+if "vcm" in METHODS:  # vertex connection and merging: the same, with its own parameters
+    ADAPTERS["vcm"] = progressive(SurfaceAdapter, ("radius", "alpha"))
