@@ -1,36 +1,80 @@
-"""SPPM (Hachisuka & Jensen 2009) against Mitsuba's ``path`` (and the two-pass ``surface``
-method) on caustic scenes: time to equal error.
+"""Progressive photon mapping (``sppm``, Hachisuka & Jensen 2009) and vertex connection and
+merging (``vcm``, Georgiev et al. 2012) against Mitsuba's ``path`` (and the two-pass
+``surface`` method) on caustic scenes: time to equal error.
 
-Scenes: ``glass_sphere`` (examples/glass_sphere_plane.xml: a glass ball on a plane under a
-spherical area light), ``glass_knot`` (examples/glass_knot_plane.xml: a procedural glass trefoil
-knot of 4088 triangles) and ``cornell`` (the built-in ``cornell_steinhurst``: Cornell box with a
-glass and a mirror sphere). References: ``path`` at ``--ref-spp`` samples per pixel in two
-halves of different seeds, cached in ``results/cache/`` (not in git); the halves' difference
-estimates the reference's own error, reported as ``reference_rel_rmse``.
+Scenes (``--scenes``, default all), each rendered by every method with the same ``max_depth``
+(the scene's own ``<integrator>``'s, 12 where it has none or an unbounded one, unless fixed
+here):
 
-For each scene: ``path`` at 4 … 4096 spp (timed renders), ``sppm`` for ``--seconds`` (one run,
-the error measured at checkpoints with the clock stopped), ``surface`` at a few budgets. Errors:
-relative RMSE per pixel and of 4×4-pixel block means, over the pixels that do not see a light
-directly or through mirrors and glass (:func:`accuracy.light_image_mask`: a light's image is
-antialiasing noise of the eye samples, the same for every method); whole-image values are kept.
-Headline per scene: ``speedup_vs_path_at_equal_rmse`` = the time ``path`` needs (log-log
-interpolation, ``t^-1/2`` past its last budget) for the error ``sppm`` reaches in ``--seconds``,
-divided by ``--seconds``; its minimum over scenes; the same against the truth
-(``..._vs_truth``: the reference's own error, which both methods' errors contain, subtracted in
-quadrature — it compresses the raw ratio once ``sppm`` nears it) and for 4×4 block errors;
-photons/s and visible-point gathers/s of the SPPM run.
+- ``glass_sphere`` (examples/glass_sphere_plane.xml): a glass ball on a plane under a small
+  spherical area light; max_depth 12.
+- ``glass_knot`` (examples/glass_knot_plane.xml): a procedural glass trefoil knot of 4088
+  triangles; 12.
+- ``cornell`` (the built-in ``cornell_steinhurst``): Cornell box with a glass and a mirror
+  sphere; 12.
+- ``cornell_box``: ``mi.cornell_box()`` itself (two diffuse boxes, gaussian film filter); its 8.
+- ``cornell_glass`` (examples/cornell_glass_sphere.xml): ``mi.cornell_box()`` without its boxes,
+  with a glass sphere on the floor (box filter); 32.
+- ``glass_mesh`` (examples/glass_mesh_glints.xml): a faceted glass gem whose glints are light
+  totally internally reflected several times, so they need paths of more than 8 segments;
+  fixed at 24.
+- ``veach_lamp`` (examples/veach_lamp.xml): a room lit off the ceiling by a sphere light hidden
+  in an aluminium bowl, a glass egg on a table; 32.
 
-Writes ``results/caustics_vs_path.json``, ``.md``, ``.png`` (error-vs-time curves) and each
-scene's SPPM image ``caustics_<scene>_sppm.png`` (``_quick`` with ``--quick``).
+References: ``path`` at ``--ref-spp`` samples per pixel in two halves of different seeds,
+cached in ``results/cache/`` (not in git; the file name holds the scene, size, max_depth and
+spp); the halves' difference estimates the reference's own error, reported as
+``reference_rel_rmse`` and ``reference_block_rel_rmse``.
 
-    .venv/bin/python benchmarks/caustics_vs_path.py [--quick] [--seconds 30]
+Methods (``--methods``, default ``path,sppm,vcm,surface``): ``path`` at 4 … 4096 spp (timed
+renders); ``sppm`` and ``vcm`` for ``--seconds`` each, one run of the progressive pipeline each
+(:func:`run_progressive`: a class made as ``cls(scene, **params)`` with ``step()``,
+``image()``, ``iterations``, ``timer.ms`` and ``stats``; a warm-up run first compiles the
+kernels), their errors measured at checkpoints with the clock stopped; ``surface`` at a few
+budgets. ``vcm`` is ``photonmap.vcm.VCMPipeline(scene, max_depth=…, seed=…)``, imported only
+when it is asked for. Errors: relative RMSE per pixel and of 4×4-pixel block means, over the
+pixels that do not see a light directly or through mirrors and glass
+(:func:`accuracy.light_image_mask`: a light's image is antialiasing noise of the eye samples,
+the same for every method); whole-image values are kept.
+
+Headline per scene (keys whose methods did not run are None):
+
+- ``speedup_vs_path_at_equal_rmse``: the time ``path`` needs (log-log interpolation, ``t^-1/2``
+  past its last budget: :func:`accuracy.loglog_time_for`) for the error ``sppm`` reaches in
+  ``--seconds``, divided by ``--seconds``; the same against the truth (``..._vs_truth``: the
+  reference's own error, which both methods' errors contain, subtracted in quadrature — it
+  compresses the raw ratio once ``sppm`` nears it) and for 4×4 block errors
+  (``speedup_vs_path_at_equal_block_rmse``, also named
+  ``sppm_speedup_vs_path_at_equal_block_rmse``);
+- ``vcm_speedup_vs_path_at_equal_block_rmse`` and ``vcm_speedup_vs_sppm_at_equal_block_rmse``:
+  the time ``path`` (its spp curve) and ``sppm`` (its checkpoint rows) need for the 4×4-block
+  error ``vcm`` reaches at the end, read off their curves the same way, divided by ``vcm``'s
+  seconds;
+- rates: ``photons_per_s`` and ``gathers_per_s`` of the SPPM run; ``light_paths_per_s`` and
+  ``camera_paths_per_s`` of the VCM run (its ``stats`` over its ``"light pass"`` and
+  ``"camera pass"`` stage times); ``ray_intersect_per_s``, Mitsuba's own ray casting on the
+  scene (:func:`ray_intersect_rate`), the yardstick for both.
+
+The top-level headline holds the per-scene values of the speedups and rates and the minimum of
+each over the scenes.
+
+Writes ``results/caustics_vs_path.json``, ``.md`` (every row; budgets: spp, iterations and
+radius, photon paths), ``.png`` (error against time, a panel per scene, a colour per method:
+per-pixel relative RMSE solid, 4×4-block dashed) and each scene's last progressive images
+``caustics_<scene>_<sppm|vcm>.png`` (``_quick`` with ``--quick``: tiny images, 3 s runs).
+
+    .venv/bin/python benchmarks/caustics_vs_path.py [--quick] [--seconds 30] \\
+        [--methods path,sppm,vcm,surface] [--scenes glass_mesh,veach_lamp]
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -46,28 +90,54 @@ from accuracy import (
     vs_truth,
 )
 from photonmap.core.image import write_image
+from photonmap.core.sampling import rng
+from photonmap.core.settings import UNBOUNDED, PathSettings
 from photonmap.scenes import load_scene
-from photonmap.sppm import SPPMPipeline
-from photonmap.surface.pipeline import SurfacePipeline
-from timing import checkpoints, timed
+from timing import checkpoints, median, timed
 
 NAME = "caustics_vs_path"
 EXAMPLES = report.REPO / "examples"
-SCENES = {  # name → (source, full size, quick size)
-    "glass_sphere": (str(EXAMPLES / "glass_sphere_plane.xml"), (160, 120), (48, 36)),
-    "glass_knot": (str(EXAMPLES / "glass_knot_plane.xml"), (160, 120), (48, 36)),
-    "cornell": ("cornell_steinhurst", (128, 128), (40, 40)),
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A benchmark scene: ``source`` for :func:`photonmap.scenes.load_scene` (or a function
+    returning one), the image size of a full and of a quick run, and ``max_depth`` (None: the
+    scene's own, :data:`DEFAULT_MAX_DEPTH` where that is unbounded)."""
+
+    source: str | Callable[[], dict]
+    size: tuple[int, int]
+    quick_size: tuple[int, int]
+    max_depth: int | None = None
+
+
+SCENES = {
+    "glass_sphere": Scene(str(EXAMPLES / "glass_sphere_plane.xml"), (160, 120), (48, 36)),
+    "glass_knot": Scene(str(EXAMPLES / "glass_knot_plane.xml"), (160, 120), (48, 36)),
+    "cornell": Scene("cornell_steinhurst", (128, 128), (40, 40)),
+    "cornell_box": Scene(lambda: mi.cornell_box(), (128, 128), (40, 40)),
+    "cornell_glass": Scene(str(EXAMPLES / "cornell_glass_sphere.xml"), (128, 128), (40, 40)),
+    # its glints need paths of more than 8 segments: never below 24
+    "glass_mesh": Scene(str(EXAMPLES / "glass_mesh_glints.xml"), (160, 120), (48, 36), 24),
+    "veach_lamp": Scene(str(EXAMPLES / "veach_lamp.xml"), (160, 120), (48, 36)),
 }
-MAX_DEPTH = 12
-CHECKPOINTS = (1, 2, 4, 8, 15, 30, 60, 120)  # seconds of SPPM compute at which errors are taken
+DEFAULT_MAX_DEPTH = 12
+CHECKPOINTS = (1, 2, 4, 8, 15, 30, 60, 120)  # seconds of compute at which errors are taken
 # surface budgets: (global photon paths, caustic photon paths, final-gather rays, spp)
 BUDGETS = [(50_000, 300_000, 4, 2), (100_000, 1_000_000, 8, 4), (200_000, 2_000_000, 8, 8)]
 QUICK_BUDGETS = [(20_000, 50_000, 2, 1)]
-METHODS = ("path", "sppm", "surface")
+METHODS = ("path", "sppm", "vcm", "surface")
+LABELS = {"path": "Mitsuba path", "sppm": "sppm", "vcm": "vcm", "surface": "surface"}
+COLORS = {"path": "C0", "sppm": "C1", "vcm": "C3", "surface": "C2"}
+VCM_SEED = 1
+RAYS, QUICK_RAYS = 1 << 20, 1 << 16  # camera rays of ray_intersect_rate
 
 
+# ------------------------------------------------------------------------------------ scenes
 def load(name: str, size) -> mi.Scene:
-    scene, _ = load_scene(SCENES[name][0])
+    """Scene ``name`` of :data:`SCENES` with its film set to ``size``."""
+    source = SCENES[name].source
+    scene, _ = load_scene(source() if callable(source) else source)
     params = mi.traverse(scene.sensors()[0])
     params["film.size"] = size
     params["film.crop_size"] = size
@@ -75,54 +145,117 @@ def load(name: str, size) -> mi.Scene:
     return scene
 
 
-def path_integrator():
-    return mi.load_dict({"type": "path", "max_depth": MAX_DEPTH})
+def max_depth_of(name: str, scene: mi.Scene) -> int:
+    """The ``max_depth`` every method renders scene ``name`` with (:class:`Scene`)."""
+    fixed = SCENES[name].max_depth
+    if fixed is not None:
+        return fixed
+    depth = PathSettings.of(scene).max_depth
+    return DEFAULT_MAX_DEPTH if depth == UNBOUNDED else depth
 
 
-def reference(name, scene, size, spp, cache: Path) -> list[np.ndarray]:
+def path_integrator(max_depth: int):
+    return mi.load_dict({"type": "path", "max_depth": max_depth})
+
+
+def reference(name, scene, size, spp, max_depth, cache: Path) -> list[np.ndarray]:
     """The two halves of a ``path`` reference at ``spp`` samples per pixel (cached)."""
+    stem = f"caustics_{name}_{size[0]}x{size[1]}_d{max_depth}_{spp}spp"
     return [
         cached_image(
-            cache / f"caustics_{name}_{size[0]}x{size[1]}_{spp}spp_{half}.exr",
+            cache / f"{stem}_{half}.exr",
             lambda h=half: render_passes(
-                scene, spp // 2, 512, 100_000 * (h + 1), path_integrator()
+                scene, spp // 2, 512, 100_000 * (h + 1), path_integrator(max_depth)
             ),
         ).astype(np.float64)
         for half in (0, 1)
     ]
 
 
-def run_sppm(scene, score, seconds: float, photons: int):
-    """One SPPM run of ``seconds`` compute time; errors at the checkpoints (clock stopped)."""
-    SPPMPipeline(scene, photons=1000).run(iterations=2)  # compile
-    pipe = SPPMPipeline(scene, photons=photons, max_depth=MAX_DEPTH)
+# ----------------------------------------------------------------------------------- methods
+def run_progressive(label: str, cls, scene, score, seconds: float, params: dict,
+                    warmup: dict | None = None, extra: Callable | None = None):  # fmt: skip
+    """One run of the progressive pipeline ``cls(scene, **params)`` for ``seconds`` of compute
+    (calls of ``step()``), after a warm-up run of two steps with ``params`` updated by
+    ``warmup`` (kernel compilation). At each of :data:`CHECKPOINTS` the clock stops and a row
+    is taken: ``iterations``, ``seconds``, ``extra(pipe)`` and ``score(image)``. Returns the
+    rows, the run's ``timer.ms`` and ``stats`` and its last image."""
+    warm = cls(scene, **{**params, **(warmup or {})})
+    warm.step()
+    warm.step()
+    pipe = cls(scene, **params)
     rows = []
     for spent in checkpoints(pipe.step, seconds, CHECKPOINTS):
         image = np.array(pipe.image())
         rows.append({"iterations": pipe.iterations, "seconds": spent,
-                     "mean_radius": pipe.mean_radius, **score(image)})  # fmt: skip
-        print(f"  sppm {pipe.iterations} it: {spent:.1f} s, rel RMSE {rows[-1]['rel_rmse']:.4f}",
-              flush=True)  # fmt: skip
-    ms, stats = pipe.timer.ms, dict(pipe.stats)
+                     **(extra(pipe) if extra else {}), **score(image)})  # fmt: skip
+        print(f"  {label} {pipe.iterations} it: {spent:.1f} s, rel RMSE "
+              f"{rows[-1]['rel_rmse']:.4f}", flush=True)  # fmt: skip
+    return rows, dict(pipe.timer.ms), dict(pipe.stats), image
+
+
+def per_second(count, ms: dict, stage: str):
+    """``count`` over the seconds of ``stage`` (None without that stage)."""
+    return count / (ms[stage] / 1e3) if ms.get(stage) else None
+
+
+def run_sppm(scene, score, seconds: float, photons: int, max_depth: int):
+    """SPPM for ``seconds``: rows (with the mean gather radius), rates and the last image."""
+    from photonmap.sppm import SPPMPipeline
+
+    rows, ms, stats, image = run_progressive(
+        "sppm", SPPMPipeline, scene, score, seconds,
+        {"photons": photons, "max_depth": max_depth}, warmup={"photons": 1000},
+        extra=lambda pipe: {"mean_radius": pipe.mean_radius},
+    )  # fmt: skip
     rates = {
-        "photons_per_s": stats["photons"] / (ms["photon pass"] / 1e3),
-        "gathers_per_s": stats["gathers"] / (ms["gather"] / 1e3),
-        "eye_paths_per_s": stats["gathers"] / (ms["eye pass"] / 1e3),
+        "photons_per_s": per_second(stats["photons"], ms, "photon pass"),
+        "gathers_per_s": per_second(stats["gathers"], ms, "gather"),
+        "eye_paths_per_s": per_second(stats["gathers"], ms, "eye pass"),
         "aimed_fraction_on_specular": (
             stats["aimed_on_specular"] / stats["aimed_photons"] if stats["aimed_photons"] else None
         ),
-        "stages_ms": dict(ms),
+        "stages_ms": ms,
         "stats": stats,
     }
     return rows, rates, image
 
 
-def run_surface(scene, score, budgets):
-    SurfacePipeline(scene, photons=1000, caustic_photons=1000, fg_rays=1).render()  # compile
+def radius_of(pipe) -> float | None:
+    """The merging radius a VCM pipeline reports (``radius``; its mean if per pixel)."""
+    radius = getattr(pipe, "radius", None)
+    return None if radius is None else float(np.mean(np.asarray(radius, dtype=np.float64)))
+
+
+def run_vcm(scene, score, seconds: float, max_depth: int):
+    """VCM for ``seconds``: rows (with the merging radius), rates and the last image."""
+    from photonmap.vcm import VCMPipeline
+
+    rows, ms, stats, image = run_progressive(
+        "vcm", VCMPipeline, scene, score, seconds, {"max_depth": max_depth, "seed": VCM_SEED},
+        extra=lambda pipe: {"radius": radius_of(pipe)},
+    )  # fmt: skip
+    rates = {
+        "light_paths_per_s": per_second(stats["light_paths"], ms, "light pass"),
+        "camera_paths_per_s": per_second(stats["camera_paths"], ms, "camera pass"),
+        "light_vertices_per_light_path": (
+            stats["light_vertices"] / stats["light_paths"] if stats["light_paths"] else None
+        ),
+        "stages_ms": ms,
+        "stats": stats,
+    }
+    return rows, rates, image
+
+
+def run_surface(scene, score, budgets, max_depth: int):
+    from photonmap.surface.pipeline import SurfacePipeline
+
+    SurfacePipeline(scene, photons=1000, caustic_photons=1000, fg_rays=1,
+                    max_depth=max_depth).render()  # compile  # fmt: skip
     rows = []
     for photons, caustic, fg, spp in budgets:
         pipe = SurfacePipeline(scene, photons=photons, caustic_photons=caustic, fg_rays=fg,
-                               spp=spp, max_depth=MAX_DEPTH)  # fmt: skip
+                               spp=spp, max_depth=max_depth)  # fmt: skip
         t, image = timed(lambda p=pipe: np.array(p.render()))
         rows.append({"photons": photons, "caustic_photons": caustic, "fg_rays": fg, "spp": spp,
                      "seconds": t, **score(image)})  # fmt: skip
@@ -131,77 +264,174 @@ def run_surface(scene, score, budgets):
     return rows
 
 
-def scene_result(name: str, size, args, ref_spp: int, seconds: float) -> tuple[dict, np.ndarray]:
-    """The three curves of one scene, its headline and SPPM's last image."""
+def ray_intersect_rate(scene, rays: int, repeats: int = 3, seed: int = 0) -> dict:
+    """Mitsuba's own ray casting on ``scene``, in rays per second: ``scene.ray_intersect`` on
+    ``rays`` camera rays through uniformly random film positions, then on one bounce ray from
+    each surface point they hit, in a cosine-distributed direction about its shading normal.
+    The rays of both batches are made and evaluated before the clock starts; each batch's clock
+    stops after ``dr.eval`` of its whole ``SurfaceInteraction`` (and Dr.Jit's queue is empty).
+    Rate = rays cast / seconds of both batches; median of ``repeats`` runs after an untimed one
+    (kernel compilation)."""
+    sensor = scene.sensors()[0]
+    gen = rng(rays, seed, 0)
+    film = mi.Point2f(gen.next_float32(), gen.next_float32())
+    ray, _ = sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5))
+    dr.eval(ray)
+
+    def cast(r):
+        si = scene.ray_intersect(r)
+        dr.eval(si)
+        return si
+
+    si = cast(ray)
+    hit = dr.compress(si.is_valid())
+    si = dr.gather(type(si), si, hit)
+    local = mi.warp.square_to_cosine_hemisphere(
+        mi.Point2f(*(dr.gather(mi.Float, gen.next_float32(), hit) for _ in range(2)))
+    )
+    bounce = si.spawn_ray(si.to_world(local))
+    dr.eval(bounce)
+    count = rays + dr.width(bounce)
+    samples = []
+    for _ in range(repeats + 1):
+        seconds = timed(cast, ray)[0] + timed(cast, bounce)[0]
+        samples.append(count / seconds)
+    return {"camera_rays": rays, "bounce_rays": dr.width(bounce),
+            "ray_intersect_per_s": median(samples[1:]), "samples": samples[1:]}  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------ scoring
+def time_for(rows, final, key: str = "rel_rmse") -> float | None:
+    """The time the curve ``rows`` needs for the error ``final[key]`` (log-log,
+    :func:`accuracy.loglog_time_for`); None without either or if it never gets there."""
+    if not rows or final is None:
+        return None
+    t = loglog_time_for(rows, final[key], key)
+    return float(t) if t else None
+
+
+def time_ratio(rows, final, key: str = "block_rel_rmse") -> float | None:
+    """:func:`time_for` over ``final["seconds"]``: the speedup of ``final``'s method."""
+    t = time_for(rows, final, key)
+    return t / final["seconds"] if t else None
+
+
+def scene_headline(res: dict) -> dict:
+    """The headline of one scene's result ``res`` (module docstring)."""
+    path, sppm, vcm, surface = (res.get(m, []) for m in METHODS)
+    s_final, v_final = (sppm[-1] if sppm else None), (vcm[-1] if vcm else None)
+    t_path = time_for(path, s_final)
+    s_rates, v_rates = res.get("sppm_rates", {}), res.get("vcm_rates", {})
+    sppm_block = time_ratio(path, s_final)
+    return {
+        "sppm_rel_rmse": s_final and s_final["rel_rmse"],
+        "path_seconds_for_that_error": t_path,
+        "speedup_vs_path_at_equal_rmse": t_path / s_final["seconds"] if t_path else None,
+        "speedup_vs_path_at_equal_rmse_vs_truth": time_ratio(path, s_final, "rel_rmse_vs_truth"),
+        "speedup_vs_path_at_equal_block_rmse": sppm_block,
+        "sppm_speedup_vs_path_at_equal_block_rmse": sppm_block,
+        "surface_seconds_for_that_error": time_for(surface, s_final),
+        "vcm_rel_rmse": v_final and v_final["rel_rmse"],
+        "vcm_block_rel_rmse": v_final and v_final["block_rel_rmse"],
+        "vcm_speedup_vs_path_at_equal_block_rmse": time_ratio(path, v_final),
+        "vcm_speedup_vs_sppm_at_equal_block_rmse": time_ratio(sppm, v_final),
+        "photons_per_s": s_rates.get("photons_per_s"),
+        "gathers_per_s": s_rates.get("gathers_per_s"),
+        "aimed_fraction_on_specular": s_rates.get("aimed_fraction_on_specular"),
+        "light_paths_per_s": v_rates.get("light_paths_per_s"),
+        "camera_paths_per_s": v_rates.get("camera_paths_per_s"),
+        "ray_intersect_per_s": res["ray_intersect"]["ray_intersect_per_s"],
+    }
+
+
+def scene_result(name: str, size, args, ref_spp: int, seconds: float) -> tuple[dict, dict]:
+    """The curves of the methods ``args.methods`` on one scene, its headline and the last
+    images of the progressive methods."""
     scene = load(name, size)
-    a, b = reference(name, scene, size, ref_spp, args.out_dir / "cache")
+    max_depth = max_depth_of(name, scene)
+    a, b = reference(name, scene, size, ref_spp, max_depth, args.out_dir / "cache")
     ref = (a + b) / 2
     mask = light_image_mask(scene)
-    ref_error = reference_noise(ref, a - b, mask)["rel_rmse"]
+    noise = reference_noise(ref, a - b, mask)
+    print(f"  max_depth {max_depth}, reference rel RMSE {noise['rel_rmse']:.4f}", flush=True)
 
     def score(image):
         return errors(image, ref, mask)
 
-    path_rows = mitsuba_curve(scene, args.spps, score, path_integrator())
-    sppm_rows, rates, image = run_sppm(scene, score, seconds, args.photons)
-    surface_rows = run_surface(scene, score, args.budgets)
-    for row in path_rows + sppm_rows + surface_rows:
-        row["rel_rmse_vs_truth"] = vs_truth(row["rel_rmse"], ref_error)
-    final = sppm_rows[-1]
-
-    def speedup(key: str):
-        t = loglog_time_for(path_rows, final[key], key)
-        return t / final["seconds"] if t else None
-
-    t_path = loglog_time_for(path_rows, final["rel_rmse"])
-    return {
-        "image": list(size),
-        "reference_spp": ref_spp,
-        "reference_rel_rmse": ref_error,
-        "headline": {
-            "sppm_rel_rmse": final["rel_rmse"],
-            "path_seconds_for_that_error": t_path,
-            "speedup_vs_path_at_equal_rmse": t_path / final["seconds"] if t_path else None,
-            "speedup_vs_path_at_equal_rmse_vs_truth": speedup("rel_rmse_vs_truth"),
-            "speedup_vs_path_at_equal_block_rmse": speedup("block_rel_rmse"),
-            "surface_seconds_for_that_error": loglog_time_for(surface_rows, final["rel_rmse"]),
-            **{k: rates[k] for k in ("photons_per_s", "gathers_per_s")},
-            "aimed_fraction_on_specular": rates["aimed_fraction_on_specular"],
-        },
-        "path": path_rows,
-        "sppm": sppm_rows,
-        "sppm_rates": rates,
-        "surface": surface_rows,
-        "load_average_after": report.load_average(),
-    }, image
+    res: dict = {"image": list(size), "max_depth": max_depth, "reference_spp": ref_spp,
+                 "reference_rel_rmse": noise["rel_rmse"],
+                 "reference_block_rel_rmse": noise["block_rel_rmse"]}  # fmt: skip
+    images = {}
+    for method in args.methods:
+        if method == "path":
+            res["path"] = mitsuba_curve(scene, args.spps, score, path_integrator(max_depth))
+        elif method == "sppm":
+            res["sppm"], res["sppm_rates"], images["sppm"] = run_sppm(
+                scene, score, seconds, args.photons, max_depth
+            )
+        elif method == "vcm":
+            res["vcm"], res["vcm_rates"], images["vcm"] = run_vcm(scene, score, seconds, max_depth)
+        else:
+            res["surface"] = run_surface(scene, score, args.budgets, max_depth)
+    res["ray_intersect"] = ray_intersect_rate(scene, args.rays)
+    print(f"  ray_intersect: {res['ray_intersect']['ray_intersect_per_s'] / 1e6:.2f} M rays/s",
+          flush=True)  # fmt: skip
+    for method in METHODS:
+        for row in res.get(method, []):
+            row["rel_rmse_vs_truth"] = vs_truth(row["rel_rmse"], noise["rel_rmse"])
+    res["headline"] = scene_headline(res)
+    res["load_average_after"] = report.load_average()
+    return res, images
 
 
-def headline(results: dict, seconds: float, started: float) -> dict:
+NEW_KEYS = (
+    "sppm_speedup_vs_path_at_equal_block_rmse",
+    "vcm_speedup_vs_path_at_equal_block_rmse",
+    "vcm_speedup_vs_sppm_at_equal_block_rmse",
+    "light_paths_per_s",
+    "camera_paths_per_s",
+    "ray_intersect_per_s",
+)
+
+
+def smallest(values: dict):
+    return min((v for v in values.values() if v is not None), default=None)
+
+
+def headline(results: dict, methods, seconds: float, started: float) -> dict:
     def per_scene(key: str) -> dict:
         return {n: r["headline"][key] for n, r in results.items()}
 
     speedups = per_scene("speedup_vs_path_at_equal_rmse")
-    return {
+    out = {
+        "methods": list(methods),
         "sppm_seconds": seconds,
+        "vcm_seconds": seconds,
+        "max_depth": {n: r["max_depth"] for n, r in results.items()},
         "speedup_vs_path_at_equal_rmse": speedups,
-        "min_speedup_vs_path_at_equal_rmse": min(
-            (s for s in speedups.values() if s is not None), default=None
-        ),
+        "min_speedup_vs_path_at_equal_rmse": smallest(speedups),
         "speedup_vs_path_at_equal_rmse_vs_truth": per_scene(
             "speedup_vs_path_at_equal_rmse_vs_truth"
         ),
         "speedup_vs_path_at_equal_block_rmse": per_scene("speedup_vs_path_at_equal_block_rmse"),
         "photons_per_s": per_scene("photons_per_s"),
         "gathers_per_s": per_scene("gathers_per_s"),
-        "runtime_s": time.perf_counter() - started,
     }
+    for key in NEW_KEYS:
+        out[key] = per_scene(key)
+        out["min_" + key] = smallest(out[key])
+    out["runtime_s"] = time.perf_counter() - started
+    return out
 
 
+# ------------------------------------------------------------------------------------ output
 def budget_text(method: str, row: dict) -> str:
     if method == "path":
         return f"{row['spp']} spp"
     if method == "sppm":
         return f"{row['iterations']} iterations, r {row['mean_radius']:.3g}"
+    if method == "vcm":
+        return f"{row['iterations']} iterations, r {report.fmt(row.get('radius'), 3)}"
     return (f"{row['photons']:,} + {row['caustic_photons']:,} paths, {row['fg_rays']} FG, "
             f"{row['spp']} spp")  # fmt: skip
 
@@ -211,7 +441,7 @@ def markdown(out: dict) -> str:
         {"scene": name, "method": method, **r}
         for name, res in out["scenes"].items()
         for method in METHODS
-        for r in res[method]
+        for r in res.get(method, [])
     ]
     table = report.records_table(
         records,
@@ -225,42 +455,77 @@ def markdown(out: dict) -> str:
         ],
     )
     refs = "\n".join(
-        f"- {n}: reference {r['reference_spp']} spp, its own rel. RMSE "
-        f"{r['reference_rel_rmse']:.4f}; load after {r['load_average_after']}"
+        f"- {n}: max_depth {r['max_depth']}, reference {r['reference_spp']} spp, its own rel. "
+        f"RMSE {r['reference_rel_rmse']:.4f} (4×4 blocks {r['reference_block_rel_rmse']:.4f}); "
+        f"Mitsuba ray_intersect {r['ray_intersect']['ray_intersect_per_s'] / 1e6:.2f} M rays/s; "
+        f"load after {r['load_average_after']}"
         for n, r in out["scenes"].items()
     )
     return table + "\n\n" + report.bullets(out["headline"]) + "\n\n" + refs + "\n"
 
 
 def plot(results: dict, path: Path) -> None:
-    with report.figure(path, 1, len(results), size=(4.5 * len(results), 3.8)) as axes:
-        for ax, (name, res) in zip(axes[0], results.items(), strict=True):
-            curves = {"Mitsuba path": res["path"], "sppm": res["sppm"], "surface": res["surface"]}
-            report.loglog_curves(ax, curves, "seconds", "rel_rmse")
-            ax.axhline(res["reference_rel_rmse"], color="grey", lw=0.6, ls=":", label="reference")
-            ax.set(title=name, xlabel="wall time (s)", ylabel="relative RMSE")
+    """Error against time, a panel per scene (four to a row), a colour per method: per-pixel
+    relative RMSE solid, 4×4-block dashed, the reference's own errors dotted grey."""
+    cols = min(4, len(results))
+    rows = -(-len(results) // cols)
+    with report.figure(path, rows, cols, size=(4.6 * cols, 3.9 * rows)) as axes:
+        panels = [ax for row in axes for ax in row]
+        for ax, (name, res) in zip(panels, results.items(), strict=False):
+            for method in METHODS:
+                if res.get(method):
+                    seconds = [r["seconds"] for r in res[method]]
+                    color = COLORS[method]
+                    ax.loglog(seconds, [r["rel_rmse"] for r in res[method]], "o-", color=color,
+                              label=LABELS[method])  # fmt: skip
+                    ax.loglog(seconds, [r["block_rel_rmse"] for r in res[method]], "s--",
+                              color=color, ms=4)  # fmt: skip
+            for key in ("reference_rel_rmse", "reference_block_rel_rmse"):
+                ax.axhline(res[key], color="grey", lw=0.6, ls=":")
+            ax.set(title=f"{name} (max_depth {res['max_depth']})", xlabel="wall time (s)",
+                   ylabel="rel. RMSE: pixels —, 4×4 blocks --")  # fmt: skip
             ax.legend(fontsize=8)
+        for ax in panels[len(results) :]:
+            ax.set_visible(False)
+
+
+def method_list(text: str) -> list[str]:
+    methods = [m for m in text.replace(" ", "").split(",") if m]
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown or not methods:
+        raise SystemExit(f"--methods: unknown {unknown}; choose from {', '.join(METHODS)}")
+    return [m for m in METHODS if m in methods]
 
 
 def main(argv=None) -> dict:
-    parser = report.arguments(__doc__, "tiny images and budgets (smoke)")
-    parser.add_argument("--seconds", type=float, default=30.0, help="SPPM compute time")
+    parser = report.arguments(__doc__, "tiny images, 3 s runs and budgets (smoke)")
+    parser.add_argument("--seconds", type=float, default=30.0,
+                        help="compute time of each progressive method (sppm, vcm)")  # fmt: skip
     parser.add_argument("--photons", type=int, default=100_000, help="SPPM photons/iteration")
     parser.add_argument("--ref-spp", type=int, default=16384, help="path reference spp")
     parser.add_argument("--scenes", default=",".join(SCENES), help="comma-separated subset")
+    parser.add_argument("--methods", default=",".join(METHODS),
+                        help=f"comma-separated subset of {','.join(METHODS)}")  # fmt: skip
     args = parser.parse_args(argv)
+    args.methods = method_list(args.methods)
+    names = [n for n in args.scenes.replace(" ", "").split(",") if n]
+    if unknown := sorted(set(names) - set(SCENES)):
+        raise SystemExit(f"--scenes: unknown {unknown}; choose from {', '.join(SCENES)}")
     seconds = 3.0 if args.quick else args.seconds
     ref_spp = 512 if args.quick else args.ref_spp
     args.spps = [4, 16, 64] if args.quick else [4, 16, 64, 256, 1024, 4096]
     args.budgets = QUICK_BUDGETS if args.quick else BUDGETS
+    args.rays = QUICK_RAYS if args.quick else RAYS
     results, started = {}, time.perf_counter()
-    for name in args.scenes.split(","):
-        size = SCENES[name][2 if args.quick else 1]
+    for name in names:
+        size = SCENES[name].quick_size if args.quick else SCENES[name].size
         print(f"{name} {size[0]}x{size[1]}", flush=True)
-        results[name], image = scene_result(name, size, args, ref_spp, seconds)
-        sppm_image = report.results_stem(args.out_dir, f"caustics_{name}_sppm", args.quick)
-        write_image(str(sppm_image.with_suffix(".png")), image)
-    out = {"machine": report.machine_info(), "headline": headline(results, seconds, started),
+        results[name], images = scene_result(name, size, args, ref_spp, seconds)
+        for method, image in images.items():
+            stem = report.results_stem(args.out_dir, f"caustics_{name}_{method}", args.quick)
+            write_image(str(stem.with_suffix(".png")), image)
+    out = {"machine": report.machine_info(),
+           "headline": headline(results, args.methods, seconds, started),
            "scenes": results, "sppm_photons_per_iteration": args.photons}  # fmt: skip
     stem = report.results_stem(args.out_dir, NAME, args.quick)
     text = markdown(out)

@@ -1,0 +1,143 @@
+"""``benchmarks/caustics_vs_path.py``: the quick run writes the JSON schema the lead's tooling
+reads, with a stand-in for ``photonmap.vcm.VCMPipeline`` (Mitsuba's ``path``, one sample per
+pixel and step, behind the pipeline interface the benchmark drives); the headline is recomputed
+here from the curves; a run without ``vcm`` does not import it. Speed is measured by the
+benchmark itself."""
+
+import json
+import math
+import sys
+import time
+import types
+
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from benchmarks_import import benchmark
+
+SCENES = ["cornell_box", "glass_mesh"]
+
+
+class FakeVCM:
+    """The interface of a progressive pipeline: ``(scene, **params)``, ``step()``, ``image()``,
+    ``iterations``, ``timer.ms``, ``stats`` and a merging ``radius``."""
+
+    def __init__(self, scene, max_depth, seed):
+        self.scene, self.seed, self.iterations = scene, seed, 0
+        self.integrator = mi.load_dict({"type": "path", "max_depth": max_depth})
+        self.total = None
+        self.timer = types.SimpleNamespace(ms={"light pass": 0.0, "camera pass": 0.0})
+        self.stats = {"light_paths": 0, "camera_paths": 0, "light_vertices": 0}
+        self.radius = 0.1
+
+    def step(self):
+        start = time.perf_counter()
+        seed = 1000 * self.seed + self.iterations
+        image = np.array(mi.render(self.scene, integrator=self.integrator, spp=1, seed=seed))
+        ms = 1e3 * (time.perf_counter() - start)
+        self.timer.ms["light pass"] += ms / 2
+        self.timer.ms["camera pass"] += ms / 2
+        pixels = image.shape[0] * image.shape[1]
+        self.stats["light_paths"] += pixels
+        self.stats["camera_paths"] += pixels
+        self.stats["light_vertices"] += 3 * pixels
+        self.total = image if self.total is None else self.total + image
+        self.iterations += 1
+        self.radius = 0.1 * self.iterations ** (-1 / 6)
+
+    def image(self):
+        return self.total / self.iterations
+
+
+@pytest.fixture(scope="module")
+def bench():
+    return benchmark("caustics_vs_path")
+
+
+@pytest.fixture(scope="module")
+def out(tmp_path_factory):
+    return tmp_path_factory.mktemp("caustics_vs_path")
+
+
+@pytest.fixture(scope="module")
+def quick(bench, out):
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setitem(sys.modules, "photonmap.vcm", types.SimpleNamespace(VCMPipeline=FakeVCM))
+        result = bench.main(["--quick", "--scenes", ",".join(SCENES), "--out-dir", str(out)])
+    return result
+
+
+def finite(value) -> bool:
+    return isinstance(value, int | float) and math.isfinite(value)
+
+
+def test_quick_run_writes_schema(bench, quick, out):
+    data = json.loads((out / "caustics_vs_path_quick.json").read_text())
+    assert data == json.loads(json.dumps(quick, default=str))
+    assert (out / "caustics_vs_path_quick.png").stat().st_size > 1000
+    for name in SCENES:
+        for method in ("sppm", "vcm"):
+            assert (out / f"caustics_{name}_{method}_quick.png").is_file()
+    assert list(data["scenes"]) == SCENES
+    headline = data["headline"]
+    assert headline["methods"] == ["path", "sppm", "vcm", "surface"]
+    assert headline["max_depth"] == {"cornell_box": 8, "glass_mesh": 24}
+    for key in bench.NEW_KEYS:
+        assert list(headline[key]) == SCENES
+        assert headline["min_" + key] == min(headline[key].values())
+    for name, scene in data["scenes"].items():
+        assert finite(scene["reference_rel_rmse"]) and finite(scene["reference_block_rel_rmse"])
+        for method in bench.METHODS:
+            assert scene[method] and all(finite(r["seconds"]) for r in scene[method])
+        for row in scene["vcm"]:
+            assert row["iterations"] >= 1 and 0 < row["radius"] <= 0.1
+        h = scene["headline"]
+        for key in ("light_paths_per_s", "camera_paths_per_s", "ray_intersect_per_s"):
+            assert finite(h[key]) and h[key] > 0, (name, key)
+        assert len(scene["ray_intersect"]["samples"]) == 3
+        assert 0 < scene["ray_intersect"]["bounce_rays"] <= scene["ray_intersect"]["camera_rays"]
+    table = (out / "caustics_vs_path_quick.md").read_text()
+    assert "| glass_mesh | vcm |" in table and " iterations, r 0.0" in table
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_headline_is_computed_from_the_curves(bench, quick, name):
+    """The speedups: the other method's time for the last row's error (log-log on its curve,
+    t^−½ past its ends) over the last row's seconds."""
+    from accuracy import loglog_time_for
+
+    scene = quick["scenes"][name]
+    h = scene["headline"]
+
+    def ratio(rows, final, key="block_rel_rmse"):
+        t = loglog_time_for(rows, final[key], key)
+        return None if t is None else t / final["seconds"]
+
+    path, sppm, vcm = scene["path"], scene["sppm"], scene["vcm"]
+    pairs = {
+        "vcm_speedup_vs_path_at_equal_block_rmse": ratio(path, vcm[-1]),
+        "vcm_speedup_vs_sppm_at_equal_block_rmse": ratio(sppm, vcm[-1]),
+        "sppm_speedup_vs_path_at_equal_block_rmse": ratio(path, sppm[-1]),
+        "speedup_vs_path_at_equal_rmse": ratio(path, sppm[-1], "rel_rmse"),
+    }
+    for key, expected in pairs.items():
+        assert h[key] == (None if expected is None else pytest.approx(expected)), key
+    assert h["speedup_vs_path_at_equal_block_rmse"] == h["sppm_speedup_vs_path_at_equal_block_rmse"]
+    rates = scene["vcm_rates"]
+    assert h["light_paths_per_s"] == pytest.approx(
+        rates["stats"]["light_paths"] / (rates["stages_ms"]["light pass"] / 1e3)
+    )
+
+
+def test_a_run_without_vcm_does_not_import_it(bench, out):
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setitem(sys.modules, "photonmap.vcm", None)  # any import of it fails
+        result = bench.main(["--quick", "--scenes", "glass_mesh", "--methods", "path,sppm",
+                             "--out-dir", str(out)])  # fmt: skip
+    scene = result["scenes"]["glass_mesh"]
+    assert "vcm" not in scene and "surface" not in scene and scene["max_depth"] == 24
+    assert scene["headline"]["vcm_speedup_vs_path_at_equal_block_rmse"] is None
+    assert finite(scene["headline"]["sppm_speedup_vs_path_at_equal_block_rmse"])
+    with pytest.raises(SystemExit, match="unknown"):
+        bench.main(["--quick", "--methods", "path,bdpt", "--out-dir", str(out)])
