@@ -221,19 +221,13 @@ def run_sppm(scene, score, seconds: float, photons: int, max_depth: int):
     return rows, rates, image
 
 
-def radius_of(pipe) -> float | None:
-    """The merging radius a VCM pipeline reports (``radius``; its mean if per pixel)."""
-    radius = getattr(pipe, "radius", None)
-    return None if radius is None else float(np.mean(np.asarray(radius, dtype=np.float64)))
-
-
 def run_vcm(scene, score, seconds: float, max_depth: int):
     """VCM for ``seconds``: rows (with the merging radius), rates and the last image."""
     from photonmap.vcm import VCMPipeline
 
     rows, ms, stats, image = run_progressive(
         "vcm", VCMPipeline, scene, score, seconds, {"max_depth": max_depth, "seed": VCM_SEED},
-        extra=lambda pipe: {"radius": radius_of(pipe)},
+        extra=lambda pipe: {"radius": pipe.mean_radius},
     )  # fmt: skip
     rates = {
         "light_paths_per_s": per_second(stats["light_paths"], ms, "light pass"),

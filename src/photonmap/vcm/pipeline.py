@@ -202,7 +202,7 @@ class VCMPipeline(Progressive, Pipeline):
             light = run("light pass", lambda: light_pass(
                 self.scene, self.sensor, light_seed, settings, tech, self.emitters
             ))  # fmt: skip
-        vertices = light.vertices if light is not None else None
+        vertices = light.vertices if light is not None and light.vertices.count else None
         radiance = run("camera pass", lambda: camera_pass(
             self.scene, self.sensor, camera_seed, settings, tech, vertices,
             MergeGrid.build(vertices, tech.radius) if tech.merge and vertices else None,
@@ -211,6 +211,7 @@ class VCMPipeline(Progressive, Pipeline):
         image = np.asarray(radiance, np.float64).T.reshape(h, w, 3)
         if light is not None and tech.light_tracing:
             image += filter_image(light.image, self.sensor.film())
+        if vertices is not None:
             self.stats["light_vertices"] += vertices.count
         if light is not None:
             self.stats["light_paths"] += light.paths
