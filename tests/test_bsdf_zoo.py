@@ -2,7 +2,7 @@
 method that accepts a scene without media: the same brightness as Mitsuba's ``path`` on the same
 scene, or a one-line refusal naming a method that renders it (the volume method needs fog; the
 screen method shades surfaces by their diffuse reflectance and refuses what it would shade wrong;
-sppm cannot weigh photons by the hair BSDF, whose lobe is measured against the fibre).
+sppm and vcm cannot weigh photons by the hair BSDF, whose lobe is measured against the fibre).
 ``polarizer``, ``retarder`` and ``measured_polarized`` exist only in polarized variants and
 ``measured`` needs a measured data file; they are left out."""
 
@@ -46,6 +46,7 @@ SIZE = 24
 SETS = {
     "surface": {"photons": 20000, "caustic_photons": 50000, "fg_rays": 4, "spp": 4},
     "sppm": {"iterations": 8, "photons": 10000},
+    "vcm": {"iterations": 16},
     "screen": {},
     "volume": {},
 }
@@ -71,7 +72,7 @@ def reference(name: str) -> np.ndarray:
     return _references[name]
 
 
-@pytest.mark.parametrize("method", ["surface", "sppm", "screen", "volume"])
+@pytest.mark.parametrize("method", ["surface", "sppm", "vcm", "screen", "volume"])
 @pytest.mark.parametrize("name", list(BSDFS))
 def test_every_bsdf_renders_like_path_or_is_refused(name, method):
     try:
@@ -82,7 +83,7 @@ def test_every_bsdf_renders_like_path_or_is_refused(name, method):
     except PhotonmapError as exc:
         message = str(exc)
         assert "\n" not in message and "--method" in message, message
-        refusals = ("screen", "volume") + (("sppm",) if name == "hair" else ())
+        refusals = ("screen", "volume") + (("sppm", "vcm") if name == "hair" else ())
         assert method in refusals, f"{method} refused {name}: {message}"
         return
     ref = reference(name)

@@ -21,7 +21,7 @@ SCENES = ["cornell_box", "glass_mesh"]
 
 class FakeVCM:
     """The interface of a progressive pipeline: ``(scene, **params)``, ``step()``, ``image()``,
-    ``iterations``, ``timer.ms``, ``stats`` and a merging ``radius``."""
+    ``iterations``, ``timer.ms``, ``stats`` and the merging radius ``mean_radius``."""
 
     def __init__(self, scene, max_depth, seed):
         self.scene, self.seed, self.iterations = scene, seed, 0
@@ -29,7 +29,7 @@ class FakeVCM:
         self.total = None
         self.timer = types.SimpleNamespace(ms={"light pass": 0.0, "camera pass": 0.0})
         self.stats = {"light_paths": 0, "camera_paths": 0, "light_vertices": 0}
-        self.radius = 0.1
+        self.mean_radius = 0.1
 
     def step(self):
         start = time.perf_counter()
@@ -44,7 +44,7 @@ class FakeVCM:
         self.stats["light_vertices"] += 3 * pixels
         self.total = image if self.total is None else self.total + image
         self.iterations += 1
-        self.radius = 0.1 * self.iterations ** (-1 / 6)
+        self.mean_radius = 0.1 * self.iterations ** (-1 / 6)
 
     def image(self):
         return self.total / self.iterations

@@ -28,7 +28,8 @@ command                   appended
                           else the built-in scene's own, else ``sppm``): volume ``grid`` ≤ 32,
                           ``photons`` ≤ 4096, ``pilot_photons`` ≤ 256; surface ``photons``,
                           ``caustic_photons`` ≤ 2000; sppm ``iterations`` ≤ 2,
-                          ``photons`` ≤ 2000; screen ``photons`` ≤ 1024 (a 32 × 32 light G-buffer)
+                          ``photons`` ≤ 2000; vcm ``iterations`` ≤ 2; screen ``photons`` ≤ 1024
+                          (a 32 × 32 light G-buffer)
 ``reference``             ``--width 32 --height 24``, ``--spp`` ≤ 16
 ``analyze bandwidth``     ``--size 64`` (a ``--crop`` window scaled by 64 / the line's size),
                           ``photons``, ``caustic_photons`` ≤ 2000, ``fg_rays`` ≤ 4
@@ -67,6 +68,7 @@ RENDER_CAPS = {
     "volume": {"grid": 32, "photons": 4096, "pilot_photons": 256},
     "surface": {"photons": 2000, "caustic_photons": 2000},
     "sppm": {"iterations": 2, "photons": 2000},
+    "vcm": {"iterations": 2},
     "screen": {"photons": 1024},
 }
 ANALYZE_CAPS = {"photons": 2000, "caustic_photons": 2000, "fg_rays": 4}
@@ -333,6 +335,7 @@ PARAM_PAGES = {
     "volume": (ROOT / "docs/methods/volume.md", {"grid", "grid_bbox"}),
     "surface": (ROOT / "docs/methods/surface.md", set()),
     "sppm": (ROOT / "docs/methods/sppm.md", set()),
+    "vcm": (ROOT / "docs/methods/vcm.md", set()),
     "screen": (ROOT / "docs/methods/screen.md", set()),
 }
 

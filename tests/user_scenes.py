@@ -43,7 +43,7 @@ REPO = Path(__file__).resolve().parent.parent
 SCENES = REPO / "tests" / "scenes"
 ASSETS = SCENES / "assets"
 CACHE = REPO / "benchmarks" / "results" / "cache" / "user_scenes"
-METHODS = ("volume", "surface", "screen", "sppm")
+METHODS = ("volume", "surface", "screen", "sppm", "vcm")
 PASS_SPP = 256  # 48 × 48 × 256 samples ≈ 120 MB in flight on the LLVM backend
 TEST_REF_SPP = 2048  # references of the tests (a cached image with more samples serves)
 
@@ -54,6 +54,7 @@ TEST_SETS = {
     "surface": {"photons": 20000, "caustic_photons": 100000, "fg_rays": 4, "spp": 4},
     "screen": {},
     "sppm": {"iterations": 16, "photons": 10000},
+    "vcm": {"iterations": 16},
 }
 # with media: more photons (the volume photon map's k-NN density estimate is biased bright at a
 # few ten thousand photons: +13 % on the smoke ball at 20k, +2 % at 200k)

@@ -50,8 +50,8 @@ MAX_EVENTS = 1024  # vertices of one camera subpath at most (Russian roulette en
 
 @dataclass
 class MergeGrid:
-    """The light vertices in a hash grid of cell ``r``, with what a merge reads of them in the
-    grid's storage order."""
+    """The light vertices in a hash grid of cell ``2r`` (a merge scans the 2 × 2 × 2 cells its
+    radius can reach), with what a merge reads of them in the grid's storage order."""
 
     grid: HashGrid
     wi: mi.Vector3f  # towards the previous light vertex (world)
@@ -64,7 +64,7 @@ class MergeGrid:
     def build(cls, vertices: LightVertices, radius: float) -> MergeGrid | None:
         if vertices.count == 0:
             return None
-        grid = HashGrid(vertices.si.p, cell_size=radius)
+        grid = HashGrid(vertices.si.p, cell_size=2.0 * radius)  # scanned 2 × 2 × 2
         si = vertices.si
         wi = si.to_world(si.wi)
         order = grid.order
@@ -309,5 +309,5 @@ def _merge(grid: MergeGrid, si, bsdf, t, d_vcm, d_vm, tech: Techniques, limit, a
 
     zero = dr.zeros(mi.Spectrum, dr.width(t))
     radius2 = dr.opaque(mi.Float, tech.radius**2)
-    total = grid.grid.sum_within(si.p, radius2, term, zero, active)
+    total = grid.grid.sum_within(si.p, radius2, term, zero, active, span=2)
     return total * dr.opaque(mi.Float, tech.merge_normalization)

@@ -48,7 +48,7 @@ from .light import CHUNK, Emitters, light_pass
 from .mis import MODES, Techniques
 
 STAGES = ("light pass", "camera pass")
-RADIUS_PIXELS = 2.0  # automatic initial radius, in pixel footprints at the median eye distance
+RADIUS_PIXELS = 1.0  # automatic initial radius, in pixel footprints at the median eye distance
 ALPHA = 0.75
 
 
