@@ -65,6 +65,7 @@ CASES: dict[str, dict[str, Renders | Refuses]] = {
         "surface": Renders(0.060),  # block 0.030, 0.030, 0.026; brightness 0.994, 0.992, 0.993
         "screen": Renders(0.18),  # block 0.085, 0.069, 0.076; brightness 1.028, 1.012, 1.012
         "sppm": Renders(0.14),  # block 0.045, 0.066, 0.053; brightness 0.998, 0.997, 0.998
+        "vcm": Renders(0.56),  # block 0.158, 0.133, 0.276; brightness 0.981, 0.979, 0.986
     },
     "bump_normal": {
         "volume": NO_FOG,
@@ -72,30 +73,35 @@ CASES: dict[str, dict[str, Renders | Refuses]] = {
         # the bump and normal maps are left out (it warns): flat, −4 %
         "screen": Renders(0.34),  # block 0.162, 0.167, 0.168; brightness 0.962, 0.962, 0.956
         "sppm": Renders(0.031),  # block 0.014, 0.015, 0.015; brightness 0.998, 0.999, 1.000
+        "vcm": Renders(0.13),  # block 0.062, 0.064, 0.060; brightness 0.996, 0.999, 0.998
     },
     "crop_plastic_point": {
         "volume": NO_FOG,
         "surface": Renders(0.14),  # block 0.064, 0.061, 0.065; brightness 0.976, 0.978, 0.980
         "screen": Renders(0.26),  # block 0.129, 0.126, 0.125; brightness 0.990, 0.980, 0.983
         "sppm": Renders(0.077),  # block 0.038, 0.036, 0.029; brightness 0.999, 1.001, 0.997
+        "vcm": Renders(0.16),  # block 0.076, 0.061, 0.054; brightness 1.019, 1.001, 1.009
     },
     "fog_null_point": {
         "volume": Renders(0.27),  # block 0.130, 0.129, 0.130; brightness 0.996, 0.999, 0.998
         "surface": Renders(0.24),  # block 0.066, 0.116, 0.089; brightness 0.986, 0.992, 0.983
         "screen": MEDIA,
         "sppm": Renders(0.32),  # block 0.158, 0.140, 0.157; brightness 0.993, 0.997, 1.014
+        "vcm": MEDIA,
     },
     "fog_thindielectric_area": {
         "volume": Renders(0.40),  # block 0.197, 0.190, 0.189; brightness 0.963, 0.966, 0.975
         "surface": Renders(0.63),  # block 0.152, 0.115, 0.312; brightness 0.976, 0.983, 1.002
         "screen": MEDIA,
         "sppm": Renders(0.66),  # block 0.326, 0.259, 0.257; brightness 0.983, 0.971, 0.953
+        "vcm": MEDIA,
     },
     "glass_ball_medium": {
         "volume": Renders(0.52),  # block 0.254, 0.251, 0.260; brightness 1.040, 1.034, 1.033
         "surface": Renders(0.18),  # block 0.054, 0.089, 0.055; brightness 1.003, 0.997, 0.996
         "screen": MEDIA,
         "sppm": Renders(0.26),  # block 0.130, 0.064, 0.092; brightness 0.986, 1.001, 0.988
+        "vcm": MEDIA,
     },
     "glass_slabs_depth24": {
         "volume": NO_FOG,
@@ -106,30 +112,35 @@ CASES: dict[str, dict[str, Renders | Refuses]] = {
             "Yao's splats of glass paths (radius r/8) render as sparse speckle (−45 %)",
         ),
         "sppm": Renders(0.52),  # block 0.258, 0.231, 0.203; brightness 1.010, 0.981, 0.994
+        "vcm": Renders(1.5),  # block 0.346, 0.516, 0.723; brightness 0.990, 0.975, 0.978
     },
     "heterogeneous_smoke": {
         "volume": Renders(0.074),  # block 0.035, 0.032, 0.037; brightness 1.015, 1.012, 1.015
         "surface": Renders(0.14),  # block 0.069, 0.062, 0.062; brightness 1.031, 1.028, 1.032
         "screen": MEDIA,
         "sppm": Renders(0.16),  # block 0.061, 0.077, 0.068; brightness 1.000, 1.002, 1.008
+        "vcm": MEDIA,
     },
     "hide_emitters": {
         "volume": NO_FOG,
         "surface": Renders(0.15),  # block 0.071, 0.074, 0.073; brightness 0.977, 0.983, 0.973
         "screen": Refuses("of the emitted power; render this scene with --method sppm"),
         "sppm": Renders(0.11),  # block 0.040, 0.040, 0.053; brightness 1.000, 1.002, 0.999
+        "vcm": Refuses("area, point and spot lights only"),
     },
     "mask_blend": {
         "volume": NO_FOG,
         "surface": Renders(0.20),  # block 0.098, 0.095, 0.092; brightness 0.983, 0.996, 0.988
         "screen": Refuses("is partly transparent; render this scene with --method sppm"),
         "sppm": Renders(0.14),  # block 0.064, 0.062, 0.065; brightness 0.996, 0.996, 1.001
+        "vcm": Renders(0.2),  # block 0.096, 0.077, 0.080; brightness 1.004, 1.002, 1.005
     },
     "metals": {
         "volume": NO_FOG,
         "surface": Renders(0.13),  # block 0.062, 0.061, 0.057; brightness 1.000, 1.001, 0.990
         "screen": Refuses("has no diffuse lobe; render this scene with --method sppm"),
         "sppm": Renders(0.17),  # block 0.081, 0.063, 0.055; brightness 1.003, 1.000, 0.997
+        "vcm": Renders(0.32),  # block 0.147, 0.159, 0.156; brightness 0.996, 1.000, 1.002
     },
     "nested_aov_volpath": {
         # the voxelized glass ball's rim (grid 48) images the lamp where the ball does not, and
@@ -138,18 +149,21 @@ CASES: dict[str, dict[str, Renders | Refuses]] = {
         "surface": Renders(0.10),  # block 0.045, 0.050, 0.038; brightness 1.000, 0.997, 0.997
         "screen": MEDIA,
         "sppm": Renders(0.27),  # block 0.063, 0.135, 0.055; brightness 0.999, 1.002, 1.000
+        "vcm": MEDIA,
     },
     "roughglass_medium_env": {
         "volume": Refuses("RoughDielectric BSDF; the volume pipeline refracts only"),
         "surface": Renders(0.12),  # block 0.059, 0.049, 0.056; brightness 0.976, 0.982, 0.982
         "screen": MEDIA,
         "sppm": Renders(0.051),  # block 0.024, 0.025, 0.025; brightness 0.997, 1.004, 1.005
+        "vcm": MEDIA,
     },
     "sensor_in_fog": {
         "volume": Refuses("no refractive or medium-bearing shape"),
         "surface": Renders(0.094),  # block 0.038, 0.047, 0.035; brightness 1.013, 0.997, 0.995
         "screen": MEDIA,
         "sppm": Renders(0.92),  # block 0.157, 0.457, 0.177; brightness 1.013, 1.023, 0.987
+        "vcm": MEDIA,
     },
     "spot_gaussian_film": {
         "volume": NO_FOG,
@@ -157,12 +171,14 @@ CASES: dict[str, dict[str, Renders | Refuses]] = {
         # Yao's splat kernel and image-space soft shadows blur the spot's pool and shadow edges
         "screen": Renders(0.97),  # block 0.466, 0.474, 0.481; brightness 1.023, 1.026, 1.026
         "sppm": Renders(0.10),  # block 0.050, 0.045, 0.044; brightness 1.010, 1.001, 0.995
+        "vcm": Renders(0.23),  # block 0.087, 0.111, 0.063; brightness 1.001, 0.998, 1.000
     },
     "thin_rough_glass_envmap": {
         "volume": NO_FOG,
         "surface": Renders(0.16),  # block 0.076, 0.065, 0.071; brightness 1.002, 0.997, 1.004
         "screen": Refuses("has no diffuse lobe; render this scene with --method sppm"),
         "sppm": Renders(0.36),  # block 0.144, 0.175, 0.151; brightness 1.016, 1.023, 1.022
+        "vcm": Refuses("area, point and spot lights only"),
     },
 }
 

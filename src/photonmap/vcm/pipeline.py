@@ -32,7 +32,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.camera import footprint_radius
-from ..core.emission import checked_powers, emitter_name
+from ..core.emission import checked_powers
 from ..core.errors import SceneError
 from ..core.film_filter import filter_image
 from ..core.memory import check_memory, check_once
@@ -84,11 +84,12 @@ def check_scene(scene: mi.Scene, sensor: mi.Sensor) -> None:
     docstring), in one line each."""
     refuse_media(scene, "vcm")
     for emitter in scene.emitters():
-        kind = type(emitter).__name__ if not str(emitter) else str(emitter).split("[")[0]
+        kind = emitter.class_name()
         if kind not in SUPPORTED_EMITTERS:
+            name = f" '{emitter.id()}'" if emitter.id() else ""
             raise SceneError(
-                f"the vcm method starts light subpaths on area, point and spot lights only; "
-                f"{emitter_name(emitter)} is a {kind}: {HINT}"
+                f"the vcm method starts light subpaths on area, point and spot lights only, not "
+                f"on the scene's {kind}{name}: {HINT}"
             )
     kind = str(sensor).split("[")[0]
     if kind != "PerspectiveCamera":
