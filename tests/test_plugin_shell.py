@@ -59,7 +59,8 @@ def test_every_method_is_exported_with_its_stages():
 
     for name, method in photonmap.METHODS.items():
         assert method.params in (photonmap.VolumeParams, photonmap.SurfaceParams,
-                                 photonmap.ScreenParams, photonmap.SPPMParams)  # fmt: skip
+                                 photonmap.ScreenParams, photonmap.SPPMParams,
+                                 photonmap.VCMParams)  # fmt: skip
         assert hasattr(method.pipeline, "stages"), name
     assert photonmap.SurfacePipeline.stages == photonmap.SURFACE_STAGES
 
