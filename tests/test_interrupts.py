@@ -33,6 +33,8 @@ CASES = {  # command lines of a fraction of a second to a second (after the firs
     "screen": ["render", "cornell_ispm", *SIZE],
     "sppm": ["render", "examples/cornell_box.xml", "--method", "sppm", *SIZE, "--time", "1",
              "--preview-every", "0.3", "--set", "photons=20000"],
+    "vcm": ["render", "examples/cornell_box.xml", "--method", "vcm", *SIZE, "--time", "1",
+            "--preview-every", "0.3"],
     "reference": ["reference", "examples/cornell_box.xml", *SIZE, "--spp", "4096", "--time", "1"],
 }  # fmt: skip
 RUNS = 30

@@ -122,3 +122,41 @@ def test_error_falls_with_iterations():
     assert pipe.iterations == 16
     assert late["rel_rmse"] <= 0.8 * early["rel_rmse"], (early["rel_rmse"], late["rel_rmse"])
     assert abs(late["brightness"] - 1) < 0.03, late["brightness"]
+
+
+def light_in_glass() -> mi.Scene:
+    """A small sphere light inside a glass ball over a diffuse floor: every light subpath starts
+    in glass and refracts out (the radiance and importance conventions of Mitsuba's dielectric
+    must agree across the techniques)."""
+    return mi.load_dict({
+        "type": "scene",
+        "floor": {"type": "rectangle", "to_world": T().rotate([1, 0, 0], -90).scale(3),
+                  "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": 0.6}}},
+        "ball": {"type": "sphere", "center": [0, 0.7, 0], "radius": 0.5,
+                 "bsdf": {"type": "dielectric", "int_ior": 1.5}},
+        "lamp": {"type": "sphere", "center": [0, 0.7, 0], "radius": 0.12,
+                 "emitter": {"type": "area", "radiance": {"type": "rgb", "value": 20.0}}},
+        "sensor": {"type": "perspective", "fov": 45,
+                   "to_world": T().look_at(origin=[0, 2.5, 3.5], target=[0, 0.3, 0], up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 32, "height": 24,
+                            "rfilter": {"type": "box"}}},
+    })  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def light_in_glass_refs():
+    scene = light_in_glass()
+    ref = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 12}),
+                             spp=8192, seed=1))  # fmt: skip
+    return scene, ref, ref.max(axis=2) < 1.0
+
+
+@pytest.mark.parametrize("mode", ["vcm", "bpt", "ppm"])
+def test_light_inside_glass(light_in_glass_refs, mode):
+    """Off the light's pixels, within 4 % of ``path`` (measured at 256 iterations, seeds 0, 1:
+    vcm 0.990/0.994, bpt 1.018/0.998, ppm 0.988/0.998; ``pt`` samples this light only by
+    BSDF samples through the glass and is left out: 0.94–1.03 at these budgets). With the light
+    subpaths' throughput scaled by η² at each refraction they came out at 0.46–0.53."""
+    scene, ref, mask = light_in_glass_refs
+    image = np.array(VCMPipeline(scene, mode=mode, max_depth=12).run(iterations=256))
+    assert abs(brightness(image, ref, mask) - 1) < 0.04

@@ -4,11 +4,12 @@ Georgiev 2012, TR §5.3; SmallVCM's ``vertexcm.hxx``, ``GenerateLightSample`` an
 
 **Emission.** A light is picked with Mitsuba's emitter distribution (``scene.sample_emitter``:
 its ``sampling_weight``\\s), a point on it with ``sample_position`` and a direction
-cosine-distributed about its normal (area lights) or uniform on the sphere (point and spot
-lights: positional delta lights, whose intensity is read through ``sample_direction``). The
-subpath's throughput is ``L_e cos θ / p_e`` with ``p_e`` the emission density per area and
-solid angle and the pick probability (``emissionPdfW``), and its MIS quantities start as TR (31)–(33):
-``dVCM = p_direct / p_e``, ``dVC = cos θ / p_e`` (0 for delta lights), ``dVM = dVC / η_VCM``.
+cosine-distributed about its normal (area lights), uniform on the sphere (point lights) or in
+the cone of the cutoff angle (spot lights; a positional delta light's intensity is read through
+``sample_direction``). The subpath's throughput is ``L_e cos θ / p_e`` with ``p_e`` the emission
+density per area and solid angle, the pick included (``emissionPdfW``, :class:`Emitters`), and
+its MIS quantities start as TR (31)–(33): ``dVCM = p_direct / p_e``, ``dVC = cos θ / p_e`` (0
+for delta lights), ``dVM = dVC / η_VCM``.
 
 Next-event estimation samples a point on a sphere light from the cone it subtends, not
 uniformly on its area, so ``p_direct`` depends on the point it lights: the first vertex's
