@@ -302,7 +302,7 @@ def _sorted(records: dict, n: int) -> LightVertices:
 def _chunk(scene, sensor, state: _State, limit, rr_depth, tech, size):
     lanes = state.count
     slots = lanes * CHUNK
-    rec = {k: dr.zeros(t, slots) for k, t in RECORD_FIELDS.items()}
+    rec = {k: dr.empty(t, slots) for k, t in RECORD_FIELDS.items()}  # read where stored only
     stored = dr.zeros(mi.Bool, slots)
 
     def to_camera(si, bsdf, beta, d_vcm, d_vc, active):
