@@ -1,6 +1,7 @@
 """Progressive rendering: the loop that runs a progressive pipeline's iterations for a time or
 iteration budget, with progress reports, previews and Ctrl-C answered between iterations
-(:mod:`.interrupt`). The ``sppm`` and ``vcm`` pipelines are :class:`Progressive`."""
+(:mod:`.interrupt`), and the radius schedule of progressive density estimation (Knaus & Zwicker
+2011: ``r_i = r_1 · i^((α−1)/2)``). The ``sppm`` and ``vcm`` pipelines are :class:`Progressive`."""
 
 from __future__ import annotations
 
@@ -10,13 +11,32 @@ import time
 import mitsuba as mi
 
 from . import interrupt
+from .camera import footprint_radius
 from .errors import ParameterError
 from .params import check_range
 
 
 class Progressive:
     """``run`` and ``render`` for a pipeline with ``step()`` (one iteration), ``image()``,
-    ``reset()``, ``iterations``, ``mean_radius`` and the ``iterations`` parameter."""
+    ``reset()``, ``iterations``, ``mean_radius`` and the ``iterations`` parameter; the radii
+    for one with ``scene``, ``sensor``, the ``radius`` and ``alpha`` parameters and ``_r1``
+    (None until the automatic first radius is found)."""
+
+    radius_pixels: float  # the automatic first radius, in pixel footprints
+
+    def initial_radius(self) -> float:
+        """``r_1``: the ``radius`` parameter, or :attr:`radius_pixels` footprints of a pixel at
+        the median distance of the first surfaces the camera rays meet
+        (:func:`~.camera.footprint_radius`)."""
+        if self.params.radius > 0:
+            return self.params.radius
+        if self._r1 is None:
+            self._r1 = footprint_radius(self.scene, self.sensor, self.radius_pixels)
+        return self._r1
+
+    def radius_at(self, i: int) -> float:
+        """``r_i = r_1 · i^((α−1)/2)`` (Knaus & Zwicker 2011; i = 1, 2, …)."""
+        return self.initial_radius() * i ** ((self.params.alpha - 1.0) / 2.0)
 
     def run(self, seconds=None, iterations=None, progress=None, preview=None, preview_every=10.0):
         """Iterate until ``seconds`` have passed or ``iterations`` more have run (whichever comes

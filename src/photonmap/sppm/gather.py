@@ -184,8 +184,3 @@ def iteration_image(points: VisiblePoints, got: Gathered, radius: float) -> mi.C
     """One memoryless iteration's image ``L_d,i + φ_i / (π r_i²)`` (Knaus & Zwicker 2011)."""
     indirect = got.flux * dr.opaque(mi.Float, 1 / (math.pi * radius**2))
     return mi.Color3f(points.direct) + indirect
-
-
-def memoryless_radius(r1: float, alpha: float, i: int) -> float:
-    """``r_i = r_1 · i^((α − 1)/2)`` (Knaus & Zwicker 2011; i = 1, 2, …)."""
-    return r1 * i ** ((alpha - 1.0) / 2.0)

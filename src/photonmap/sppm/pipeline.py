@@ -46,7 +46,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.bsdf import has_delta_lobes
-from ..core.camera import footprint_radius, scene_bounds
+from ..core.camera import scene_bounds
 from ..core.emission import checked_powers, shape_name
 from ..core.errors import ParameterError, SceneError
 from ..core.eye_trace import Caustics
@@ -60,7 +60,7 @@ from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.stages import StageCache
 from ..core.volume_map import VolumeMap, density_radius
 from . import memory
-from .gather import Gathered, PhotonGrid, PixelState, gather, iteration_image, memoryless_radius
+from .gather import Gathered, PhotonGrid, PixelState, gather, iteration_image
 from .photons import photon_pass
 from .visible import eye_pass
 
@@ -161,7 +161,7 @@ class SPPMPipeline(Progressive, Pipeline):
     """
 
     method, params_type, stages = "sppm", SPPMParams, STAGES
-    progressive = True
+    progressive, radius_pixels = True, RADIUS_PIXELS
 
     def __init__(self, scene, **params):
         from ..scenes import load_with_sensor
@@ -246,19 +246,6 @@ class SPPMPipeline(Progressive, Pipeline):
         return int(np.clip(round(self.params.photons / (w * h)), 1, AUTO_SPP))
 
     # ------------------------------------------------------------------------- radii
-    def initial_radius(self) -> float:
-        """``r_1``: the ``radius`` parameter, or :data:`RADIUS_PIXELS` footprints of a pixel at
-        the median distance of the first surfaces the camera rays meet."""
-        if self.params.radius > 0:
-            return self.params.radius
-        if self._r1 is None:
-            self._r1 = footprint_radius(self.scene, self.sensor, RADIUS_PIXELS)
-        return self._r1
-
-    def radius_at(self, i: int) -> float:
-        """The memoryless radius of iteration ``i``."""
-        return memoryless_radius(self.initial_radius(), self.params.alpha, i)
-
     @property
     def mean_radius(self) -> float:
         """The current mean gather radius (per-pixel radii: their mean)."""

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
-from ..core.camera import footprint_radius
 from ..core.emission import checked_powers
 from ..core.errors import SceneError
 from ..core.film_filter import filter_image
@@ -114,7 +113,7 @@ class VCMPipeline(Progressive, Pipeline):
     """
 
     method, params_type, stages = "vcm", VCMParams, STAGES
-    progressive = True
+    progressive, radius_pixels = True, RADIUS_PIXELS
 
     def __init__(self, scene, **params):
         from ..scenes import load_with_sensor
@@ -163,18 +162,6 @@ class VCMPipeline(Progressive, Pipeline):
         return check_memory("vcm", parts, "lower the image size", entries)
 
     # ------------------------------------------------------------------------- iterations
-    def initial_radius(self) -> float:
-        """``r_1``: the ``radius`` parameter, or :data:`RADIUS_PIXELS` pixel footprints at the
-        median distance of the surfaces the camera sees."""
-        if self.params.radius > 0:
-            return self.params.radius
-        if self._r1 is None:
-            self._r1 = footprint_radius(self.scene, self.sensor, RADIUS_PIXELS)
-        return self._r1
-
-    def radius_at(self, i: int) -> float:
-        return self.initial_radius() * i ** ((self.params.alpha - 1.0) / 2.0)
-
     @property
     def mean_radius(self) -> float:
         return self.radius_at(max(self.iterations, 1))
