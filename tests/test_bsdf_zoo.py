@@ -46,7 +46,7 @@ SIZE = 24
 SETS = {
     "surface": {"photons": 20000, "caustic_photons": 50000, "fg_rays": 4, "spp": 4},
     "sppm": {"iterations": 8, "photons": 10000},
-    "vcm": {"iterations": 16},
+    "vcm": {"iterations": 16, "spp": 1},
     "screen": {},
     "volume": {},
 }

@@ -54,7 +54,7 @@ TEST_SETS = {
     "surface": {"photons": 20000, "caustic_photons": 100000, "fg_rays": 4, "spp": 4},
     "screen": {},
     "sppm": {"iterations": 16, "photons": 10000},
-    "vcm": {"iterations": 16},
+    "vcm": {"iterations": 16, "spp": 1},
 }
 # with media: more photons (the volume photon map's k-NN density estimate is biased bright at a
 # few ten thousand photons: +13 % on the smoke ball at 20k, +2 % at 200k)

@@ -28,6 +28,8 @@ def small_cornell(**film) -> dict:
     ("params", "message"),
     [
         ({"iterations": 0}, "iterations must be >= 1"),
+        ({"spp": -1}, "spp must lie in"),
+        ({"spp": 65}, "spp must lie in"),
         ({"alpha": 1.0}, r"alpha must lie in \(0, 1\)"),
         ({"alpha": 0.0}, r"alpha must lie in \(0, 1\)"),
         ({"radius": -0.1}, "radius must be >= 0"),

@@ -1,4 +1,4 @@
-"""The camera pass of vertex connection and merging: one camera subpath per pixel, and at each of
+"""The camera pass of vertex connection and merging: ``spp`` camera subpaths per pixel, and at each of
 its vertices every technique the mode uses, weighted by multiple importance sampling (Georgiev
 et al. 2012 §5; Georgiev 2012, TR (37)–(45); SmallVCM's ``vertexcm.hxx``, the camera loop).
 
@@ -28,7 +28,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..core.camera import pixel_rays
+from ..core.camera import pixel_means, pixel_rays
 from ..core.hashgrid import HashGrid
 from ..core.sampling import rng
 from ..core.settings import UNBOUNDED, PathSettings
@@ -102,12 +102,13 @@ def camera_pass(
     grid: MergeGrid | None,
     emitters: Emitters,
 ) -> mi.Spectrum:
-    """The radiance of one camera subpath per pixel of the crop (row-major), with every
-    technique of ``tech`` (module docstring)."""
+    """The radiance per pixel of the crop (row-major): the mean of ``tech.spp`` camera subpaths
+    (adjacent lanes; lane ``i`` connects to light subpath ``i``), with every technique of
+    ``tech`` (module docstring)."""
     w, h = (int(c) for c in sensor.film().crop_size())
-    n = w * h
+    n = w * h * tech.spp
     gen = rng(n, seed, 3)
-    pixel = dr.arange(mi.UInt32, n)
+    pixel = dr.arange(mi.UInt32, n) // tech.spp
     ray, weight = pixel_rays(sensor, pixel, mi.Point2f(gen.next_float32(), gen.next_float32()))
     # the camera's density of this direction, per pixel: W_e at a point at unit distance
     at = dr.zeros(mi.Interaction3f, n)
@@ -153,8 +154,7 @@ def camera_pass(
     dr.make_opaque(walk)  # no literal loop state (a literal that the loop changes is refused)
     _loop(scene, walk, gen, limit, dr.opaque(mi.UInt32, settings.rr_depth), tech.mode,
           at_vertex, emission, scatter)  # fmt: skip
-    dr.eval(walk.radiance)
-    return walk.radiance
+    return pixel_means(walk.radiance, tech.spp)
 
 
 @dr.syntax

@@ -2,10 +2,10 @@
 
 .. pluginparameters::
 
- * - iterations, radius, alpha, seed, max_depth, rr_depth, mode
+ * - iterations, spp, radius, alpha, seed, max_depth, rr_depth, mode
    - see :class:`photonmap.vcm.pipeline.VCMParams`
-   - ``iterations`` VCM iterations per ``mi.render`` (each one light and one camera subpath per
-     pixel); ``radius`` 0 = automatic; α = 0.75; ``mode`` ``vcm`` | ``bpt`` | ``ppm`` | ``pt`` |
+   - ``iterations`` VCM iterations per ``mi.render`` (each ``spp`` light and camera subpaths
+     per pixel); ``radius`` 0 = automatic; α = 0.75; ``mode`` ``vcm`` | ``bpt`` | ``ppm`` | ``pt`` |
      ``lt``.
 
 .. code-block:: python

@@ -1,4 +1,4 @@
-"""The light pass of vertex connection and merging: one light subpath per pixel, its vertices
+"""The light pass of vertex connection and merging: ``spp`` light subpaths per pixel, their vertices
 stored, and each vertex connected to the camera (light tracing) (Georgiev et al. 2012 §5;
 Georgiev 2012, TR §5.3; SmallVCM's ``vertexcm.hxx``, ``GenerateLightSample`` and the light loop).
 
@@ -244,7 +244,8 @@ def light_pass(
     emitters: Emitters,
 ) -> LightPass:
     """Trace ``tech.light_paths`` light subpaths (random numbers from ``seed``), store their
-    vertices and, where light tracing is one of the techniques, their splats into the image."""
+    vertices and, where light tracing is one of the techniques, their splats into the image
+    (each splat × ``P / N_L = 1 / spp``: the estimate is the mean over the light subpaths)."""
     n = tech.light_paths
     w, h = (int(c) for c in sensor.film().crop_size())
     limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
@@ -261,6 +262,7 @@ def light_pass(
         splat = np.asarray(records["splat"].numpy(), np.float64).reshape(3, -1)
         for c in range(3):  # a fixed order of summation: deterministic
             image[..., c] = np.bincount(pixel, splat[c], minlength=w * h + 1)[: w * h].reshape(h, w)
+    image /= tech.spp
     return LightPass(_sorted(records, n), image, n)
 
 

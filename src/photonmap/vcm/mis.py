@@ -16,7 +16,10 @@ and reverse densities:
 - ``dVM``: the same for merges (TR (33), (36)).
 
 Merging competes with connection through ``η_VCM = π r² N_L`` (TR (21)): ``N_L`` light subpaths
-(one per pixel) are merged with where one is connected to. The weight of one technique is
+are merged with where one is connected to. An iteration traces ``spp`` camera subpaths per pixel
+and as many light subpaths, ``N_L = spp · P`` for ``P`` pixels (SmallVCM's ``spp = 1``): light
+tracing's density relative to a camera subpath's, ``spp · P · W_e / N_L``, is then the
+sensor importance ``W_e`` whatever ``spp``, and the recursions are unchanged. The weight of one technique is
 ``1 / (w_light + 1 + w_camera)`` (TR (37)) with the partial weights of TR (38)–(47).
 
 **Modes** (SmallVCM's algorithms), which must all converge to the same image:
@@ -48,8 +51,9 @@ class Techniques:
     """Which techniques a mode uses, and the iteration's merging constants."""
 
     mode: str
-    light_paths: int  # N_L, one per pixel
+    light_paths: int  # N_L: spp per pixel, as many as camera subpaths
     radius: float  # the iteration's merging radius r_i (scene units)
+    spp: int = 1  # camera subpaths per pixel (the light subpaths are N_L = spp × pixels)
 
     @property
     def nee(self) -> bool:

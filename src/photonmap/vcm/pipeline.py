@@ -1,9 +1,9 @@
 """``VCMPipeline`` — vertex connection and merging (Georgiev, Křivánek, Davidovič & Slusallek 2012;
 Hachisuka, Pantaleoni & Jensen 2012's unified path sampling is the same estimator).
 
-Iteration ``i`` (1-based) traces one light subpath per pixel (:mod:`.light`: its vertices
-stored, each connected to the camera), puts the vertices in a hash grid of cell ``r_i``, and
-traces one camera subpath per pixel that at each vertex adds the emission met, next-event
+Iteration ``i`` (1-based) traces ``spp`` light subpaths per pixel (:mod:`.light`: their
+vertices stored, each connected to the camera), puts the vertices in a hash grid, and traces
+``spp`` camera subpaths per pixel, each of which at each vertex adds the emission met, next-event
 estimation, connections to its light subpath and merges with the light vertices within ``r_i``,
 every technique weighted by the balance heuristic (:mod:`.camera`, :mod:`.mis`). The image is
 the mean of the iterations' images; the merging radius shrinks as
@@ -47,6 +47,8 @@ from .light import CHUNK, Emitters, light_pass
 from .mis import MODES, Techniques
 
 STAGES = ("light pass", "camera pass")
+WAVEFRONT = 2**17  # automatic spp: about this many subpaths of each kind per iteration
+MAX_SPP = 64
 RADIUS_PIXELS = 1.0  # automatic initial radius, in pixel footprints at the median eye distance
 ALPHA = 0.75
 
@@ -56,6 +58,7 @@ class VCMParams:
     """Parameters of the VCM pipeline (the ``vcm`` plugin and ``--set`` keys)."""
 
     iterations: int = 64  # iterations of render() (run() takes its own budget)
+    spp: int = 0  # camera subpaths per pixel and iteration (as many light subpaths); 0 = automatic
     radius: float = 0.0  # initial merging radius r_1 in scene units; 0 = automatic
     alpha: float = ALPHA  # radius reduction: r_i = r_1 i^((α−1)/2), α in (0, 1)
     seed: int = 0
@@ -67,11 +70,17 @@ class VCMParams:
     def validate(self) -> None:
         check_fields(self)
         check_range("iterations", self.iterations, 1, None, "VCM iterations of render()")
+        check_range("spp", self.spp, 0, MAX_SPP, "camera subpaths per pixel; 0 = automatic")
         check_range("radius", self.radius, 0, None, "the initial merging radius; 0 = automatic")
         check_range("alpha", self.alpha, 0, 1, "the radius reduction α (0.75 is usual)", True,
                     True)  # fmt: skip
         check_path_params(self)
         check_choice("mode", self.mode, MODES, "the techniques: vcm, bpt, ppm, pt or lt")
+
+
+def auto_spp(width: int, height: int) -> int:
+    """The automatic ``spp`` (:attr:`VCMPipeline.spp`)."""
+    return int(np.clip(round(WAVEFRONT / (width * height)), 1, 16))
 
 
 SUPPORTED_EMITTERS = ("AreaLight", "PointLight", "SpotLight")
@@ -99,7 +108,7 @@ def check_scene(scene: mi.Scene, sensor: mi.Sensor) -> None:
     check_gathered_bsdfs(scene)
 
 
-BYTES_PER_PIXEL = 900  # camera subpath state, the light subpath's loop state
+BYTES_PER_PATH = 900  # per camera and light subpath pair: their loop states
 SLOT_BYTES = 330  # per light subpath and slot of a chunk: the vertex slot and its compaction
 VERTEX_BYTES = 400  # per vertex kept: the vertex, its sorted copy and the hash grid's
 
@@ -152,23 +161,31 @@ class VCMPipeline(Progressive, Pipeline):
         chunk's vertex slots and the vertices kept, about 4 per light subpath, measured on
         the Cornell box); return the estimate in bytes."""
         w, h = size or self.size
-        pixels = w * h
+        paths = w * h * ((params or self.params).spp or auto_spp(w, h))
         parts = {
-            "subpaths": pixels * BYTES_PER_PIXEL,
-            "light vertex slots": pixels * CHUNK * SLOT_BYTES,
-            "light vertices": pixels * 4 * VERTEX_BYTES,
+            "subpaths": paths * BYTES_PER_PATH,
+            "light vertex slots": paths * CHUNK * SLOT_BYTES,
+            "light vertices": paths * 4 * VERTEX_BYTES,
         }
-        entries = {"pixels × CHUNK vertex slots": pixels * CHUNK}
-        return check_memory("vcm", parts, "lower the image size", entries)
+        entries = {"subpaths × CHUNK vertex slots": paths * CHUNK}
+        return check_memory("vcm", parts, "lower spp or the image size", entries)
 
     # ------------------------------------------------------------------------- iterations
     @property
     def mean_radius(self) -> float:
         return self.radius_at(max(self.iterations, 1))
 
+    @property
+    def spp(self) -> int:
+        """Camera subpaths per pixel and iteration (and light subpaths as many): ``spp``, or
+        automatically about :data:`WAVEFRONT` of each per iteration, 1 to 16 per pixel (a
+        wavefront that size spends little of its time in the per-iteration work: the loops'
+        tracing, the sort of the light vertices, the hash grid)."""
+        return self.params.spp or auto_spp(*self.size)
+
     def techniques(self, i: int) -> Techniques:
         w, h = self.size
-        return Techniques(self.params.mode, w * h, self.radius_at(i))
+        return Techniques(self.params.mode, w * h * self.spp, self.radius_at(i), self.spp)
 
     def reset(self) -> None:
         self._total = None
@@ -203,7 +220,7 @@ class VCMPipeline(Progressive, Pipeline):
             self.stats["light_vertices"] += vertices.count
         if light is not None:
             self.stats["light_paths"] += light.paths
-        self.stats["camera_paths"] += w * h
+        self.stats["camera_paths"] += w * h * tech.spp
         return image
 
     def step(self) -> None:
