@@ -7,7 +7,7 @@ vertices stored, each connected to the camera), puts the vertices in a hash grid
 estimation, connections to its light subpath and merges with the light vertices within ``r_i``,
 every technique weighted by the balance heuristic (:mod:`.camera`, :mod:`.mis`). The image is
 the mean of the iterations' images; the merging radius shrinks as
-``r_i = r_1 · i^((α−1)/2)`` (α = 0.75, SmallVCM's default), which makes the merges consistent
+``r_i = r_1 · i^((α−1)/2) / √spp`` (α = 0.75, SmallVCM's default), which makes the merges consistent
 (Knaus & Zwicker 2011) while the other techniques are unbiased. An iteration's random numbers
 come from ``(seed, i)`` alone, and memory is one iteration's whatever their number.
 
@@ -26,6 +26,7 @@ lights (area, point and spot lights are supported), sensors other than ``perspec
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mitsuba as mi
@@ -60,7 +61,7 @@ class VCMParams:
     iterations: int = 64  # iterations of render() (run() takes its own budget)
     spp: int = 0  # camera subpaths per pixel and iteration (as many light subpaths); 0 = automatic
     radius: float = 0.0  # initial merging radius r_1 in scene units; 0 = automatic
-    alpha: float = ALPHA  # radius reduction: r_i = r_1 i^((α−1)/2), α in (0, 1)
+    alpha: float = ALPHA  # radius reduction: r_i = r_1 i^((α−1)/2) / √spp, α in (0, 1)
     seed: int = 0
     max_depth: int = 0  # longest path in segments (Mitsuba's); 0 = the scene's, -1 = unbounded
     rr_depth: int = 0  # depth where Russian roulette starts; 0 = the scene's
@@ -171,6 +172,15 @@ class VCMPipeline(Progressive, Pipeline):
         return check_memory("vcm", parts, "lower spp or the image size", entries)
 
     # ------------------------------------------------------------------------- iterations
+    def radius_at(self, i: int) -> float:
+        """``r_1 · i^((α−1)/2) / √spp``: a merge over ``spp`` light subpaths per pixel within
+        a disk ``spp`` times smaller finds as many as SmallVCM's over one, so ``η_VCM = π r² N_L``
+        — the weight of merging against connecting — and the merges' blur are those of one
+        subpath per pixel (measured on ``mi.cornell_box()`` at 16 per pixel, 15 s: 4×4-block
+        error 0.057 with ``r_i`` alone, 0.050 with SmallVCM's schedule at equal subpaths
+        ``r_1 (i·spp)^((α−1)/2)``, 0.041 with this one; one subpath per pixel: 0.042)."""
+        return super().radius_at(i) / math.sqrt(self.spp)
+
     @property
     def mean_radius(self) -> float:
         return self.radius_at(max(self.iterations, 1))
