@@ -159,8 +159,10 @@ class VCMPipeline(Progressive, Pipeline):
 
     def check_memory(self, params: VCMParams | None = None, size=None) -> int:
         """Refuse settings that would not fit in memory (one iteration: the subpaths' state, a
-        chunk's vertex slots and the vertices kept, about 4 per light subpath, measured on
-        the Cornell box); return the estimate in bytes."""
+        chunk's vertex slots and the vertices kept, about 4 per light subpath); return the
+        estimate in bytes. On ``mi.cornell_box()`` at 256² with ``spp=4`` (262k subpaths of each
+        kind, 3.1–3.2 vertices kept per light subpath) it is 1285 MB against a measured peak
+        of 1060 MB (``max_depth`` 8) and 1278 MB (unbounded) above the process's start."""
         w, h = size or self.size
         paths = w * h * ((params or self.params).spp or auto_spp(w, h))
         parts = {
