@@ -62,7 +62,7 @@ def test_block_errors(pipe):
 def test_iteration_seeds_are_distinct():
     """Every (seed, iteration) pair draws its own random numbers, and the eye and photon
     passes of one iteration their own streams."""
-    from photonmap.sppm.pipeline import iteration_seeds
+    from photonmap.core.progressive import iteration_seeds
 
     seeds = [iteration_seeds(s, i) for s in range(4) for i in range(1, 200)]
     flat = [x for pair in seeds for x in pair]

@@ -81,6 +81,15 @@ def brightness(image, ref, mask):
     return image[mask].mean() / ref[mask].mean()
 
 
+def brightness_of(refs, mode, max_depth, spp, iterations):
+    """The brightness of ``mode``'s image of ``refs``' scene against its ``path`` reference
+    (``ptracer``'s for ``lt``), off the light's pixels."""
+    scene, images, mask = refs
+    image = np.array(VCMPipeline(scene, mode=mode, max_depth=max_depth, spp=spp)
+                     .run(iterations=iterations))  # fmt: skip
+    return brightness(image, images["ptracer" if mode == "lt" else "path"], mask)
+
+
 @pytest.mark.parametrize("mode", MODES)
 def test_furnace(mode):
     rho = 0.7
@@ -92,30 +101,21 @@ def test_furnace(mode):
 def test_cornell_box(cornell_refs, mode):
     """Measured brightness (seeds 0, 1): pt 1.003/1.004, lt 1.004/1.000, bpt 1.003/1.004, ppm
     1.006/1.011, vcm 1.006/1.010."""
-    scene, refs, mask = cornell_refs
-    image = np.array(VCMPipeline(scene, mode=mode, max_depth=8, spp=1).run(iterations=256))
-    ref = refs["ptracer" if mode == "lt" else "path"]
-    assert abs(brightness(image, ref, mask) - 1) < 0.02
+    assert abs(brightness_of(cornell_refs, mode, 8, spp=1, iterations=256) - 1) < 0.02
 
 
 @pytest.mark.parametrize("mode", ["vcm", "lt"])
 def test_several_subpaths_per_pixel_and_iteration(cornell_refs, mode):
     """``spp = 4`` subpaths of each kind per pixel and iteration, 64 iterations: the same
     estimate as 256 iterations of one (light tracing's splats are divided by ``spp``)."""
-    scene, refs, mask = cornell_refs
-    image = np.array(VCMPipeline(scene, mode=mode, max_depth=8, spp=4).run(iterations=64))
-    ref = refs["ptracer" if mode == "lt" else "path"]
-    assert abs(brightness(image, ref, mask) - 1) < 0.02
+    assert abs(brightness_of(cornell_refs, mode, 8, spp=4, iterations=64) - 1) < 0.02
 
 
 @pytest.mark.parametrize("mode", MODES)
 def test_glass_sphere(glass_refs, mode):
     """Measured brightness (seeds 0, 1): pt 0.991/1.004, lt 0.996/0.997, bpt 0.995/1.002, ppm
     0.991/0.995, vcm 0.996/0.999."""
-    scene, refs, mask = glass_refs
-    image = np.array(VCMPipeline(scene, mode=mode, max_depth=12, spp=1).run(iterations=256))
-    ref = refs["ptracer" if mode == "lt" else "path"]
-    assert abs(brightness(image, ref, mask) - 1) < 0.02
+    assert abs(brightness_of(glass_refs, mode, 12, spp=1, iterations=256) - 1) < 0.02
 
 
 def test_error_falls_with_iterations():

@@ -2,7 +2,7 @@
 
 In the memoryless form every iteration ``i`` gathers with the global radius
 ``r_i = r_1 · i^((α−1)/2)`` and draws its random numbers from ``(seed, i)`` alone
-(:func:`photonmap.sppm.pipeline.iteration_seeds`), so iterations are independent and the image
+(:func:`photonmap.core.progressive.iteration_seeds`), so iterations are independent and the image
 after ``n`` of them is ``(1/n) Σ_i I_i`` whatever process rendered each ``I_i``. The seed stream
 belongs to the iteration, not to the worker: a block rescheduled after a crash, or run by
 another worker, returns the same sums.

@@ -32,7 +32,7 @@ from .aim import aimable, aimed_emission, specular_spheres
 from .errors import ParameterError, SceneError
 from .media import broadcast, emitter_media
 from .sampling import rng
-from .scene_info import parameter_values
+from .scene_info import parameter_values, shape_name
 
 
 @dataclass
@@ -203,8 +203,3 @@ def emitter_name(emitter: mi.Emitter) -> str:
     if shape is not None:
         return f"the area light of {shape_name(shape)}"
     return f"emitter '{emitter.id()}' ({emitter.class_name()})"
-
-
-def shape_name(shape: mi.Shape) -> str:
-    """``shape 'id'``; Mitsuba's merged meshes have no id."""
-    return f"shape '{shape.id()}'" if shape.id().strip(" +") else f"a merged {shape.class_name()}"

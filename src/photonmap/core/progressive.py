@@ -9,11 +9,19 @@ import math
 import time
 
 import mitsuba as mi
+import numpy as np
 
 from . import interrupt
 from .camera import footprint_radius
 from .errors import ParameterError
 from .params import check_range
+
+
+def iteration_seeds(seed: int, i: int) -> tuple[int, int]:
+    """The two seeds of iteration ``i`` (SPPM's eye and photon passes, VCM's light and camera
+    passes), from ``(seed, i)`` alone: an iteration's work is the same whatever ran before."""
+    state = np.random.SeedSequence([seed, i]).generate_state(2)
+    return int(state[0]), int(state[1])
 
 
 class Progressive:

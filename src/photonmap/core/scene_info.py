@@ -22,6 +22,29 @@ def _name(obj) -> str:
     return f"'{ident}'" if ident else obj.class_name()
 
 
+def shape_name(shape: mi.Shape) -> str:
+    """``shape 'id'``; Mitsuba's merged meshes have no id."""
+    return f"shape '{shape.id()}'" if shape.id().strip(" +") else f"a merged {shape.class_name()}"
+
+
+def check_gathered_bsdfs(scene: mi.Scene, method: str) -> None:
+    """Raise a :class:`SceneError` naming the shapes whose BSDF ``method``'s photon gather
+    (SPPM's gather, VCM's merges) cannot weigh:
+    the gather divides Mitsuba's ``eval`` by the cosine to the surface normal, which is right
+    where ``eval`` carries that cosine; the ``hair`` BSDF's carries the cosine to the fibre
+    instead, and on a hair-shaded sphere the photons' estimate came out 36–41 % too bright
+    against ``path`` (64 and 256 iterations)."""
+    hair = [
+        shape_name(shape) for shape in scene.shapes()
+        if shape.bsdf() is not None and "Hair[" in str(shape.bsdf())  # nested too
+    ]  # fmt: skip
+    if hair:
+        raise SceneError(
+            f"the {method} method cannot gather photons on the hair BSDF of {', '.join(hair)}; "
+            "render this scene with --method surface"
+        )
+
+
 def media(scene: mi.Scene) -> list[str]:
     """One line per participating medium of ``scene``: the medium and where it sits (a shape's
     interior or exterior, the sensor), e.g. ``"HomogeneousMedium 'fog' inside shape 'box'"``."""

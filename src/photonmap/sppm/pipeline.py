@@ -47,15 +47,15 @@ import numpy as np
 
 from ..core.bsdf import has_delta_lobes
 from ..core.camera import scene_bounds
-from ..core.emission import checked_powers, shape_name
+from ..core.emission import checked_powers
 from ..core.errors import ParameterError, SceneError
 from ..core.eye_trace import Caustics
 from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import Renamed, check_choice, check_fields, check_range, updated
 from ..core.pipeline import Pipeline
-from ..core.progressive import Progressive
-from ..core.scene_info import SceneTraits, warn_disagreeing_media
+from ..core.progressive import Progressive, iteration_seeds
+from ..core.scene_info import SceneTraits, check_gathered_bsdfs, warn_disagreeing_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.stages import StageCache
 from ..core.volume_map import VolumeMap, density_radius
@@ -130,28 +130,6 @@ class BlockSums:
         return (self.total / self.iterations).astype(np.float32)
 
 
-def iteration_seeds(seed: int, i: int) -> tuple[int, int]:
-    """The seeds of iteration ``i``'s eye pass and photon pass, from ``(seed, i)`` alone."""
-    state = np.random.SeedSequence([seed, i]).generate_state(2)
-    return int(state[0]), int(state[1])
-
-
-def check_gathered_bsdfs(scene: mi.Scene) -> None:
-    """Raise a :class:`SceneError` naming the shapes whose BSDF the photon gather cannot weigh:
-    the gather divides Mitsuba's ``eval`` by the cosine to the surface normal, which is right
-    where ``eval`` carries that cosine; the ``hair`` BSDF's carries the cosine to the fibre
-    instead, and on a hair-shaded sphere the photons' estimate came out 36–41 % too bright
-    against ``path`` (64 and 256 iterations)."""
-    hair = [
-        shape_name(shape) for shape in scene.shapes()
-        if shape.bsdf() is not None and "Hair[" in str(shape.bsdf())  # nested too
-    ]  # fmt: skip
-    if hair:
-        raise SceneError(
-            f"the sppm method cannot gather photons on the hair BSDF of {', '.join(hair)}; "
-            "render this scene with --method surface"
-        )
-
 class SPPMPipeline(Progressive, Pipeline):
     """Progressive photon mapping of a Mitsuba scene (name, XML path, dict or ``mi.Scene``).
 
@@ -173,7 +151,7 @@ class SPPMPipeline(Progressive, Pipeline):
             warn_disagreeing_media(self.scene, "sppm")
         self.file_settings = PathSettings.of(self.scene, scene)
         self.emitter_media = emitter_media(self.scene)
-        check_gathered_bsdfs(self.scene)
+        check_gathered_bsdfs(self.scene, "sppm")
         self.emitter_powers = checked_powers(self.scene, 0)
         self.delta_lobes = has_delta_lobes(self.scene)  # caustics possible
         self.params = SPPMParams()

@@ -38,11 +38,10 @@ from ..core.film_filter import filter_image
 from ..core.memory import check_memory, check_once
 from ..core.params import check_choice, check_fields, check_range, updated
 from ..core.pipeline import Pipeline
-from ..core.progressive import Progressive
-from ..core.scene_info import refuse_media
+from ..core.progressive import Progressive, iteration_seeds
+from ..core.scene_info import check_gathered_bsdfs, refuse_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.stages import StageCache
-from ..sppm.pipeline import check_gathered_bsdfs, iteration_seeds
 from .camera import MergeGrid, camera_pass
 from .light import CHUNK, Emitters, light_pass
 from .mis import MODES, Techniques
@@ -106,7 +105,7 @@ def check_scene(scene: mi.Scene, sensor: mi.Sensor) -> None:
             f"the vcm method connects light subpaths to a pinhole camera (perspective); the "
             f"scene's sensor is a {kind}: {HINT}"
         )
-    check_gathered_bsdfs(scene)
+    check_gathered_bsdfs(scene, "vcm")
 
 
 BYTES_PER_PATH = 900  # per camera and light subpath pair: their loop states
