@@ -13,7 +13,7 @@ import numpy as np
 
 from . import interrupt
 from .camera import footprint_radius
-from .errors import ParameterError
+from .errors import ParameterError, SceneError
 from .params import check_range
 
 
@@ -31,6 +31,19 @@ class Progressive:
     (None until the automatic first radius is found)."""
 
     radius_pixels: float  # the automatic first radius, in pixel footprints
+
+    def finished(self, image: np.ndarray | None) -> mi.TensorXf:
+        """The image so far as ``image()`` returns it: black before the first iteration,
+        refused when it holds NaN or infinite values."""
+        if image is None:
+            w, h = self.size
+            return mi.TensorXf(np.zeros((h, w, 3), np.float32))
+        if not np.all(np.isfinite(image)):
+            raise SceneError(
+                "the render produced NaN or infinite values; check the scene's textures and "
+                "emitters for NaN"
+            )
+        return mi.TensorXf(np.asarray(image, np.float32))
 
     def initial_radius(self) -> float:
         """``r_1``: the ``radius`` parameter, or :attr:`radius_pixels` footprints of a pixel at

@@ -48,7 +48,7 @@ import numpy as np
 from ..core.bsdf import has_delta_lobes
 from ..core.camera import scene_bounds
 from ..core.emission import checked_powers
-from ..core.errors import ParameterError, SceneError
+from ..core.errors import ParameterError
 from ..core.eye_trace import Caustics
 from ..core.media import emitter_media
 from ..core.memory import check_once
@@ -363,16 +363,7 @@ class SPPMPipeline(Progressive, Pipeline):
 
     def image(self) -> mi.TensorXf:
         """The image of the iterations so far, ``(height, width, 3)`` linear radiance."""
+        if self._state is None or self.memoryless:
+            return self.finished(None if self._state is None else self._state.image())
         w, h = self.size
-        if self._state is None:
-            return mi.TensorXf(np.zeros((h, w, 3), np.float32))
-        if self.memoryless:
-            image = self._state.image()
-        else:
-            image = np.asarray(self._state.image(), np.float32).T.reshape(h, w, 3)
-        if not np.all(np.isfinite(image)):
-            raise SceneError(
-                "the render produced NaN or infinite values; check the scene's textures and "
-                "emitters for NaN"
-            )
-        return mi.TensorXf(image)
+        return self.finished(np.asarray(self._state.image(), np.float32).T.reshape(h, w, 3))

@@ -243,13 +243,4 @@ class VCMPipeline(Progressive, Pipeline):
 
     def image(self) -> mi.TensorXf:
         """The mean of the iterations' images so far, ``(height, width, 3)``."""
-        w, h = self.size
-        if self._total is None:
-            return mi.TensorXf(np.zeros((h, w, 3), np.float32))
-        image = (self._total / self.iterations).astype(np.float32)
-        if not np.all(np.isfinite(image)):
-            raise SceneError(
-                "the render produced NaN or infinite values; check the scene's textures and "
-                "emitters for NaN"
-            )
-        return mi.TensorXf(image)
+        return self.finished(None if self._total is None else self._total / self.iterations)
