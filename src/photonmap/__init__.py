@@ -48,12 +48,14 @@ def set_device(device: str) -> str:
 
 
 def _register_plugins() -> None:
+    from .core.diff_dielectric import register as register_diff_dielectric
     from .screen.integrator import register as register_screen
     from .sppm.integrator import register as register_sppm
     from .surface.integrator import register as register_surface
     from .vcm.integrator import register as register_vcm
     from .volume.integrator import register as register_volume
 
+    register_diff_dielectric()
     register_volume()
     register_surface()
     register_screen()
@@ -67,6 +69,7 @@ with _interrupt.held():
 
 from typing import NamedTuple  # noqa: E402
 
+from .api import render  # noqa: E402
 from .core.image import compare  # noqa: E402
 from .core.reference import render_reference  # noqa: E402
 from .screen.pipeline import STAGES as SCREEN_STAGES  # noqa: E402
@@ -123,6 +126,7 @@ __all__ = [
     "VolumeParams",
     "VolumePipeline",
     "compare",
+    "render",
     "render_reference",
     "dr",
     "mi",

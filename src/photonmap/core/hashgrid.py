@@ -335,7 +335,6 @@ class HashGrid(PhotonSearch):
         return index, d2
 
 
-    @dr.syntax
     def sum_within(self, query: mi.Point3f, radius2: mi.Float, term, zero, active, span: int = 3):
         """``Σ term(j, near)`` over the stored photons ``j`` with ``‖p_j − query‖² < radius2`` in
         the ``span``³ cells around the query — every photon within the radius when the radius is
@@ -346,6 +345,44 @@ class HashGrid(PhotonSearch):
         read from per-photon arrays in storage order (``dr.gather(..., grid.order)``); it is
         traced inside the scan, so the sum fuses into the caller's kernel (callable inside the
         caller's own symbolic loops). Sums are in a fixed photon order: deterministic."""
+
+        def add(j, near, total):
+            return total + dr.select(near, term(j, near), zero)
+
+        return self._scan(query, radius2, add, zero, active, span)
+
+    def pairs_within(
+        self, query: mi.Point3f, radius2: mi.Float, active, span: int = 2
+    ) -> tuple[mi.UInt32, mi.UInt32]:
+        """Every (query, photon) pair with ``‖p − query‖² < radius2`` (the radius bounded by the
+        cell size as in :meth:`sum_within`): ``(query index, original photon index)``, a query's
+        pairs adjacent and in :meth:`sum_within`'s photon order (deterministic). Two scans: the
+        counts, then the pairs written from each query's exclusive prefix sum."""
+        lanes = dr.width(query)
+        one = mi.UInt32(1)
+        counts = self.sum_within(
+            query, radius2, lambda j, near: one, dr.zeros(mi.UInt32, lanes), active, span
+        )
+        offsets = dr.prefix_sum(counts)  # exclusive
+        total = int(dr.sum(counts, axis=None)[0]) if lanes else 0
+        photon, owner = dr.zeros(mi.UInt32, total), dr.zeros(mi.UInt32, total)
+        if total == 0:
+            return owner, photon
+        lane = dr.arange(mi.UInt32, lanes)
+
+        def write(j, near, slot):
+            dr.scatter(photon, dr.gather(mi.UInt32, self.order, j, near), slot, near)
+            dr.scatter(owner, lane, slot, near)
+            return slot + mi.UInt32(near)
+
+        self._scan(query, radius2, write, offsets, active, span)
+        dr.eval(owner, photon)
+        return owner, photon
+
+    @dr.syntax
+    def _scan(self, query: mi.Point3f, radius2: mi.Float, visit, state, active, span: int):
+        """``state ← visit(j, near, state)`` for every stored photon ``j`` of the ``span``³ cells
+        around each query (:meth:`sum_within`), ``near`` where it lies within the radius."""
         if span not in (2, 3):
             raise ValueError(f"span must be 2 or 3, got {span!r}")
         lanes = dr.width(query)
@@ -354,7 +391,6 @@ class HashGrid(PhotonSearch):
             c0 = self._cell(query) - 1
         else:  # not clamped: a query beyond the grid visits no cell
             c0 = mi.Point3i(dr.floor((query - self._origin) * self._inv_cell - 0.5))
-        total = zero
         step = dr.zeros(mi.UInt32, lanes)
         scanning = active & dr.all(dr.isfinite(query)) & dr.full(mi.Bool, True, lanes)
         while scanning & (step < span**3):
@@ -362,20 +398,20 @@ class HashGrid(PhotonSearch):
                 mi.Int32(step % span), mi.Int32(step // span % span), mi.Int32(step // span**2)
             )
             c = c0 + offset
-            visit = scanning & dr.all((c >= 0) & (c < dims))
+            visit_cell = scanning & dr.all((c >= 0) & (c < dims))
             number = self._cell_number(c)
             slot = self._slot(number)
-            j = dr.gather(mi.UInt32, self.cell_start, slot, visit)
-            j_end = dr.gather(mi.UInt32, self.cell_start, slot + 1, visit)
-            while visit & (j < j_end):
+            j = dr.gather(mi.UInt32, self.cell_start, slot, visit_cell)
+            j_end = dr.gather(mi.UInt32, self.cell_start, slot + 1, visit_cell)
+            while visit_cell & (j < j_end):
                 p, _ = read_record(self.record, j)
                 near = squared_distance(p, query) < radius2
                 if dr.hint(self.hashed, mode="scalar"):
                     near &= self._cell_number(self._cell(p)) == number  # slots shared by cells
-                total += dr.select(near, term(j, near), zero)
+                state = visit(j, near, state)
                 j += 1
             step += 1
-        return total
+        return state
 
 
 def _automatic_cell_size(
