@@ -37,42 +37,76 @@ change (no edge sampling or reparameterisation), and the kernel radius is fixed.
 therefore those of the interior of each visibility region; caustics through smooth refractors
 and the light falling on open receivers are what they are built for.
 
-Participating media are refused (:class:`~photonmap.core.errors.SceneError`) here; see
-``docs/methods/differentiable.md``.
+**Homogeneous participating media** (volumetric photon mapping, Jensen & Christensen 1998):
+photons and eye rays sample free-flight distances with detached coefficients (one colour
+channel, the spectral mean as pdf, as ``volpath``) and carry attached weights,
+``σ_s e^{−σ_t t} / p(t)`` at a collision (the eye's without ``σ_s``: the photons hold it) and
+``e^{−σ_t d} / P(d)`` across a segment of length ``d``, so the derivatives with respect to σ_s and
+σ_t are those of the weights (Zeltner et al. 2021's attached weights on detached samples). An
+eye ray's collision is a volume query that ends its path::
+
+    L_s(x, ω_o) ≈ Σ_p K₃(‖x − x_p‖) f_p(ω_o, ω_p) Φ_p,   K₃(d) = 15/(8π ρ³) · (1 − d²/ρ²)
+
+over the volume photons (collisions) within ``ρ``. Heterogeneous media are refused.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from types import SimpleNamespace
 
 import drjit as dr
 import mitsuba as mi
 
+from ..core.bsdf import is_null
 from ..core.camera import footprint_radius, pixel_rays
 from ..core.errors import ParameterError, SceneError
 from ..core.hashgrid import HashGrid
 from ..core.knn import COS_NORMAL
+from ..core.media import broadcast, channel, emitter_media, enter, pick, scene_media
 from ..core.progressive import iteration_seeds
 from ..core.scene_info import SceneTraits, check_gathered_bsdfs
 from ..core.settings import UNBOUNDED, PathSettings, check_path_params, overridden
 
 RADIUS_PIXELS = 2.0  # automatic kernel radius, in pixel footprints at the median eye distance
+VOLUME_RADIUS = 1.0  # automatic volume kernel radius ρ, in surface radii (larger: boundary bias)
 MAX_BOUNCES = 64  # unbounded paths (max_depth −1) are unrolled this far at most
+NULL_CROSSINGS = 16  # extra wavefronts for the null boundaries of media (they add no depth)
 RR_MAX = 0.95  # Russian roulette survives with at most this probability
+FAR = 1e30  # a free flight's length where it meets nothing (finite: no NaN in derivatives)
 
 
 @dataclass
-class Vertices:
-    """Photons (light-path vertices) or visible points (eye-path vertices) on diffuse surfaces,
-    attached to the scene parameters."""
+class Photons:
+    """Light-path vertices on diffuse surfaces or at medium collisions, attached to the scene
+    parameters."""
 
-    si: mi.SurfaceInteraction3f  # the interaction (its ``p``, ``n``, and for eye vertices ``wi``)
-    weight: mi.Spectrum  # photon: its power Φ_p; eye vertex: its throughput over spp
-    depth: mi.UInt32  # segments from the light (photons) or the camera (eye vertices)
-    index: mi.UInt32  # photon: its path; eye vertex: its pixel
-    d: mi.Vector3f  # the direction of travel that reached the vertex
+    p: mi.Point3f  # position
+    n: mi.Normal3f  # the surface's geometric normal (zero in a medium), for the normal test
+    d: mi.Vector3f  # direction of travel that reached it
+    power: mi.Spectrum  # Φ_p (σ_s included at a collision)
+    depth: mi.UInt32  # segments from the light
+
+
+@dataclass
+class SurfacePoints:
+    """Eye-path vertices on diffuse surfaces: where the photons are read."""
+
+    si: mi.SurfaceInteraction3f  # the interaction (``wi`` towards the camera)
+    beta: mi.Spectrum  # throughput from the pixel, over spp
+    pixel: mi.UInt32
+    depth: mi.UInt32  # segments from the camera
+
+
+@dataclass
+class MediumPoints:
+    """Eye-path collisions in media: where the volume photons are read."""
+
+    mei: mi.MediumInteraction3f
+    beta: mi.Spectrum
+    pixel: mi.UInt32
+    depth: mi.UInt32
 
 
 def lane_rng(ids: mi.UInt32, seed: int, stream: int) -> mi.PCG32:
@@ -90,15 +124,42 @@ def _take(values, index: mi.UInt32):
     return dr.gather(type(values), values, index)
 
 
+def _keep(parts: list, cls, mask: mi.Bool, **values) -> None:
+    """Append the lanes of ``mask`` of ``values`` as a ``cls`` to ``parts``."""
+    index = dr.compress(mask)
+    if dr.width(index):
+        parts.append(cls(**{name: _take(v, index) for name, v in values.items()}))
+
+
+def _joined(parts: list, cls):
+    """The records of every wavefront in one ``cls`` (None when there are none)."""
+    if not parts:
+        return None
+    if len(parts) == 1:
+        return parts[0]
+    total = sum(dr.width(part.depth) for part in parts)
+    names = [f.name for f in fields(cls)]
+    joined = cls(**{name: dr.zeros(type(getattr(parts[0], name)), total) for name in names})
+    start = 0
+    for part in parts:
+        count = dr.width(part.depth)
+        at = dr.arange(mi.UInt32, start, start + count)
+        for name in names:
+            dr.scatter(getattr(joined, name), getattr(part, name), at)
+        start += count
+    return joined
+
+
 class DifferentiablePhotonMapper:
     """The differentiable memoryless photon-mapping estimate of ``scene`` seen by ``sensor``
     (module docstring). ``render(seed, iterations)`` returns an image attached to whatever scene
     parameters have gradients enabled.
 
     ``photons``: photon paths per iteration; ``spp``: eye paths per pixel and iteration;
-    ``radius``: the kernel radius in scene units (0: :data:`RADIUS_PIXELS` pixel footprints);
+    ``radius``: the surface kernel's radius in scene units (0: :data:`RADIUS_PIXELS` pixel
+    footprints); ``volume_radius``: the volume kernel's (0: :data:`VOLUME_RADIUS` surface radii);
     ``max_depth``, ``rr_depth``, ``hide_emitters``: the scene file's by default, with Mitsuba's
-    meaning.
+    meaning (``null`` boundaries of media add no depth).
     """
 
     def __init__(
@@ -108,6 +169,7 @@ class DifferentiablePhotonMapper:
         photons: int = 200_000,
         spp: int = 1,
         radius: float = 0.0,
+        volume_radius: float = 0.0,
         max_depth: int = 0,
         rr_depth: int = 0,
         hide_emitters: str = "scene",
@@ -121,36 +183,47 @@ class DifferentiablePhotonMapper:
                     f"{len(scene.sensors())} sensor(s)"
                 )
             sensor = scene.sensors()[sensor]
-        for name, value, low in (("photons", photons, 1), ("spp", spp, 1)):
-            if not (isinstance(value, int) and value >= low):
-                raise ParameterError(f"{name} must be an integer >= {low}, got {value!r}")
-        if not (isinstance(radius, (int, float)) and math.isfinite(radius) and radius >= 0):
-            raise ParameterError(f"radius must be >= 0 (0 = automatic), got {radius!r}")
+        for name, value in (("photons", photons), ("spp", spp)):
+            if not (isinstance(value, int) and value >= 1):
+                raise ParameterError(f"{name} must be an integer >= 1, got {value!r}")
+        for name, value in (("radius", radius), ("volume_radius", volume_radius)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ParameterError(f"{name} must be >= 0 (0 = automatic), got {value!r}")
         if isinstance(hide_emitters, bool):
             hide_emitters = str(hide_emitters).lower()
         check_path_params(SimpleNamespace(
             max_depth=max_depth, rr_depth=rr_depth, hide_emitters=hide_emitters
         ))  # fmt: skip
-        if SceneTraits.of(scene).media:
+        heterogeneous = [m for m in scene_media(scene) if not m.is_homogeneous()]
+        if heterogeneous:
             raise SceneError(
-                "differentiable photon mapping does not support participating media yet; "
-                "remove the media, or differentiate the volume method (photonmap.volume.gradients)"
+                "differentiable photon mapping supports homogeneous media only; the scene has "
+                f"{len(heterogeneous)} heterogeneous medium/media"
             )
         check_gathered_bsdfs(scene, "differentiable sppm")
         if not scene.emitters():
-            raise SceneError("the scene has no emitter: nothing to differentiate")
+            raise SceneError("the scene has no emitter: nothing to render or differentiate")
         self.scene, self.sensor = scene, sensor
         self.photons, self.spp = photons, spp
+        self.traits = SceneTraits.of(scene)
+        self.emitter_media = emitter_media(scene)
         self.settings = overridden(PathSettings.of(scene), max_depth, rr_depth, hide_emitters)
         self.radius = float(radius) or footprint_radius(scene, sensor, RADIUS_PIXELS)
+        self.volume_radius = float(volume_radius) or VOLUME_RADIUS * self.radius
         self.size = tuple(int(c) for c in sensor.film().crop_size())
 
     @property
     def bounces(self) -> int:
-        """The most segments a light or eye path is traced (``max_depth``, or
-        :data:`MAX_BOUNCES` when unbounded)."""
+        """The most segments a path may have (``max_depth``, or :data:`MAX_BOUNCES` when
+        unbounded)."""
         depth = self.settings.max_depth
         return MAX_BOUNCES if depth == UNBOUNDED else depth
+
+    @property
+    def wavefronts(self) -> int:
+        """The most wavefronts a path is traced: one per segment, and more for ``null``
+        boundaries."""
+        return self.bounces + (NULL_CROSSINGS if self.traits.null_shapes else 0)
 
     def render(self, seed: int = 0, iterations: int = 1) -> mi.TensorXf:
         """The mean of ``iterations`` estimates (random numbers from ``(seed, i)``), an image
@@ -172,23 +245,52 @@ class DifferentiablePhotonMapper:
         """One iteration's per-pixel radiance (row-major pixels)."""
         w, h = self.size
         image = dr.zeros(mi.Color3f, w * h)
-        points = self.eye_vertices(eye_seed, image)
-        photons = self.photon_vertices(photon_seed)
-        if dr.width(points.depth) and dr.width(photons.depth):
-            self.gather(points, photons, image)
+        surface_points, medium_points = self.eye_vertices(eye_seed, image)
+        surface_photons, medium_photons = self.photon_vertices(photon_seed)
+        if surface_points is not None and surface_photons is not None:
+            self.gather_surfaces(surface_points, surface_photons, image)
+        if medium_points is not None and medium_photons is not None:
+            self.gather_media(medium_points, medium_photons, image)
         return image
 
-    # ------------------------------------------------------------------ light paths
-    def photon_vertices(self, seed: int) -> Vertices:
-        """Trace ``photons`` paths from the emitters (``scene.sample_emitter_ray``) and keep
-        their vertices on diffuse surfaces, at most ``max_depth − 1`` segments from the light
-        (an eye path needs one more). Each bounce is one wavefront over the paths still alive,
-        so that reverse-mode AD sees plain arrays (symbolic loops would need their own
-        adjoint)."""
+    # ------------------------------------------------------------------ transport
+    def flight(self, ray, si, medium, gen, albedo: bool):
+        """Free flight of ``ray`` in ``medium`` up to the surface ``si``: ``(scattered, mei,
+        weight)`` (module docstring: detached sampling, attached weights; ``albedo``: the
+        collision's weight holds σ_s, as a photon's does)."""
+        n = dr.width(ray.d)
+        inside = medium != None  # noqa: E711 (Dr.Jit pointer test)
+        mei = dr.zeros(mi.MediumInteraction3f, n)
+        mei.p, mei.wi, mei.time = ray.o, -ray.d, ray.time
+        mei.sh_frame = mi.Frame3f(mei.wi)
+        mei.medium = medium
+        sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei, inside)
+        fixed = dr.detach(sigma_t)
+        ch = channel(gen)
+        t = dr.minimum(-dr.log(1.0 - gen.next_float32()) / pick(fixed, ch), FAR)
+        length = dr.select(si.is_valid(), si.t, FAR)
+        scattered = inside & (t < length)
+        pdf_t = dr.mean(fixed * dr.exp(-fixed * t), axis=0)
+        at_collision = dr.exp(-sigma_t * t) / dr.maximum(pdf_t, 1e-30)
+        if albedo:
+            at_collision = at_collision * sigma_s
+        p_length = dr.mean(dr.exp(-fixed * length), axis=0)
+        across = dr.select(p_length > 0, dr.exp(-sigma_t * length) / p_length, 0.0)
+        weight = dr.select(scattered, at_collision, dr.select(inside, across, 1.0))
+        mei.t = dr.select(scattered, t, dr.inf)
+        mei.p = ray(dr.select(scattered, t, 0.0))
+        return scattered, mei, mi.Spectrum(weight)
+
+    def photon_vertices(self, seed: int) -> tuple[Photons | None, Photons | None]:
+        """Trace ``photons`` paths from the emitters (``scene.sample_emitter_ray``); keep
+        their vertices on diffuse surfaces and their collisions in media, at most
+        ``max_depth − 1`` segments from the light (an eye path needs one more). Each segment
+        is one wavefront over the paths still alive, so that reverse-mode AD sees plain arrays
+        (symbolic loops would need their own adjoint)."""
         count = self.photons
         ids = dr.arange(mi.UInt32, count)
         gen = lane_rng(ids, seed, 0)
-        ray, power, _ = self.scene.sample_emitter_ray(
+        ray, power, emitter = self.scene.sample_emitter_ray(
             0.0,
             gen.next_float32(),
             mi.Point2f(gen.next_float32(), gen.next_float32()),
@@ -196,148 +298,171 @@ class DifferentiablePhotonMapper:
             True,
         )
         power = mi.Spectrum(power) / count
-        throughput = dr.ones(mi.Float, count)  # detached max of the BSDF weights' product
+        medium = self.emitter_medium(emitter)
+        depth = dr.zeros(mi.UInt32, count)
+        throughput = dr.ones(mi.Float, count)  # detached max of the weights' product
         ctx = mi.BSDFContext(mi.TransportMode.Importance)
-        kept = []
-        for depth in range(1, self.bounces):
+        phase_ctx = mi.PhaseFunctionContext(None, mi.TransportMode.Importance)
+        limit = self.bounces - 1
+        surface, volume = [], []
+        for step in range(1, self.wavefronts + 1):
+            gen = lane_rng(ids, seed, step)
             si = self.scene.ray_intersect(ray, dr.full(mi.Bool, True, dr.width(ids)))
+            scattered, mei, weight = self.flight(ray, si, medium, gen, albedo=True)
+            power = power * weight
+            on_surface = si.is_valid() & ~scattered
             bsdf = si.bsdf(ray)
-            hit = si.is_valid()
-            diffuse = hit & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
-            stored = dr.compress(diffuse)
-            if dr.width(stored):
-                kept.append(Vertices(
-                    _take(si, stored), _take(power, stored),
-                    dr.full(mi.UInt32, depth, dr.width(stored)), _take(ids, stored),
-                    _take(ray.d, stored),
-                ))  # fmt: skip
-            if depth + 1 >= self.bounces:
-                break
-            gen = lane_rng(ids, seed, depth)
-            bs, value = bsdf.sample(
-                ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
-                hit,
-            )  # fmt: skip
+            crossing = is_null(bsdf, on_surface)
+            depth = depth + dr.select(crossing, 0, 1)
+            diffuse = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
+            _keep(surface, Photons, diffuse & (depth <= limit), p=si.p, n=si.n, d=ray.d,
+                  power=power, depth=depth)  # fmt: skip
+            _keep(volume, Photons, scattered & (depth <= limit), p=mei.p,
+                  n=dr.zeros(mi.Normal3f, dr.width(ids)), d=ray.d, power=power, depth=depth)
+            u1, u2 = gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32())
+            bs, value = bsdf.sample(ctx, si, u1, u2, on_surface)
+            wo = si.to_world(bs.wo)
+            next_ray = si.spawn_ray(wo)
+            going = on_surface & (bs.pdf > 0)
+            if self.traits.media:
+                phase = mei.medium.phase_function()
+                wo_m, value_m, _ = phase.sample(phase_ctx, mei, u1, u2, scattered)
+                value = dr.select(scattered, value_m, value)
+                next_ray = dr.select(scattered, mei.spawn_ray(wo_m), next_ray)
+                medium = enter(si, wo, medium, on_surface)
+                going |= scattered
             power = power * value
             throughput = throughput * dr.max(dr.detach(value))
-            alive = hit & (bs.pdf > 0) & (throughput > 0)
-            if depth >= self.settings.rr_depth:
-                q = dr.minimum(throughput, RR_MAX)
+            alive = going & (throughput > 0) & dr.select(crossing, depth <= limit, depth < limit)
+            if step > 0 and self.settings.rr_depth <= limit:
+                roulette = alive & ~crossing & (depth >= self.settings.rr_depth)
+                q = dr.select(roulette, dr.minimum(throughput, RR_MAX), 1.0)
                 alive &= gen.next_float32() < q
-                power = power / dr.select(alive, q, 1.0)
-                throughput = throughput / dr.select(alive, q, 1.0)
+                power, throughput = power / q, throughput / q
             live = dr.compress(alive)
             if not dr.width(live):
                 break
-            ray = _take(si.spawn_ray(si.to_world(bs.wo)), live)
-            power, ids, throughput = _take(power, live), _take(ids, live), _take(throughput, live)
-        return _joined(kept)
+            ray, power, ids = _take(next_ray, live), _take(power, live), _take(ids, live)
+            medium, depth = _take(medium, live), _take(depth, live)
+            throughput = _take(throughput, live)
+        return _joined(surface, Photons), _joined(volume, Photons)
 
-    # ------------------------------------------------------------------ eye paths
-    def eye_vertices(self, seed: int, image: mi.Color3f) -> Vertices:
-        """Trace ``spp`` jittered eye paths per pixel and keep their vertices on diffuse
-        surfaces; a path goes on through a diffuse vertex's delta lobes (a plastic's coating),
-        sampled alone, and through the whole BSDF of a vertex without a diffuse lobe (mirrors,
-        glass, glossy metals). The emission the paths see is added to ``image`` (emitters seen
-        directly too, unless hidden)."""
+    def emitter_medium(self, emitter: mi.EmitterPtr) -> mi.MediumPtr:
+        """The medium each sampled emitter emits into
+        (:func:`~photonmap.core.media.emitter_media`)."""
+        medium = dr.zeros(mi.MediumPtr, dr.width(emitter))
+        for candidate, surrounding in zip(self.scene.emitters(), self.emitter_media, strict=True):
+            if surrounding is not None:
+                here = emitter == mi.EmitterPtr(candidate)
+                medium = dr.select(here, mi.MediumPtr(surrounding), medium)
+        return medium
+
+    def eye_vertices(self, seed: int, image: mi.Color3f):
+        """Trace ``spp`` jittered eye paths per pixel; keep their vertices on diffuse surfaces
+        and their collisions in media (which end them). A path goes on through a diffuse
+        vertex's delta lobes (a plastic's coating), sampled alone, and through the whole BSDF of
+        a vertex without a diffuse lobe (mirrors, glass, glossy metals). The emission the paths
+        meet is added to ``image`` (emitters seen directly too, unless hidden)."""
         w, h = self.size
         count = w * h * self.spp
         ids = dr.arange(mi.UInt32, count)
         gen = lane_rng(ids, seed, 0)
         pixel = ids // self.spp
-        ray, weight = pixel_rays(self.sensor, pixel, mi.Point2f(gen.next_float32(),
-                                                                gen.next_float32()))
+        jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
+        ray, weight = pixel_rays(self.sensor, pixel, jitter)
         beta = mi.Spectrum(weight) / self.spp
+        medium = broadcast(self.sensor.get_medium(), count)
+        depth = dr.zeros(mi.UInt32, count)
         radiance = mi.BSDFContext(mi.TransportMode.Radiance)
         delta_only = mi.BSDFContext(mi.TransportMode.Radiance)
         delta_only.type_mask = int(mi.BSDFFlags.Delta)
-        kept = []
-        for depth in range(1, self.bounces + 1):
+        surface, volume = [], []
+        for step in range(1, self.wavefronts + 1):
+            gen = lane_rng(ids, seed, step)
             si = self.scene.ray_intersect(ray, dr.full(mi.Bool, True, dr.width(ids)))
-            hit = si.is_valid()
-            seen = si.emitter(self.scene) != None  # noqa: E711 (Dr.Jit pointer test; the sky too)
-            if depth == 1 and self.settings.hide_emitters:
-                seen = dr.zeros(mi.Bool, dr.width(ids))
-            emitted = beta * si.emitter(self.scene).eval(si, seen)
-            dr.scatter_add(image, emitted, pixel, seen)
-            if depth == self.bounces:
-                break
+            scattered, mei, weight = self.flight(ray, si, medium, gen, albedo=False)
+            beta = beta * weight
+            on_surface = si.is_valid() & ~scattered
             bsdf = si.bsdf(ray)
+            crossing = is_null(bsdf, on_surface)
+            depth = depth + dr.select(crossing, 0, 1)
+            seen = ~scattered & (si.emitter(self.scene) != None)  # noqa: E711 (the sky too)
+            if self.settings.hide_emitters:
+                seen &= depth > 1
+            seen &= self.settings.allows(depth)
+            dr.scatter_add(image, beta * si.emitter(self.scene).eval(si, seen), pixel, seen)
+            _keep(volume, MediumPoints, scattered & (depth < self.bounces), mei=mei, beta=beta,
+                  pixel=pixel, depth=depth)  # fmt: skip
             flags = bsdf.flags()
-            diffuse = hit & mi.has_flag(flags, mi.BSDFFlags.Diffuse)
-            stored = dr.compress(diffuse)
-            if dr.width(stored):
-                kept.append(Vertices(
-                    _take(si, stored), _take(beta, stored),
-                    dr.full(mi.UInt32, depth, dr.width(stored)), _take(pixel, stored),
-                    _take(ray.d, stored),
-                ))  # fmt: skip
-            gen = lane_rng(ids, seed, depth)
+            diffuse = on_surface & mi.has_flag(flags, mi.BSDFFlags.Diffuse)
+            _keep(surface, SurfacePoints, diffuse & (depth < self.bounces), si=si, beta=beta,
+                  pixel=pixel, depth=depth)  # fmt: skip
             u1, u2 = gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32())
             through_delta = diffuse & mi.has_flag(flags, mi.BSDFFlags.Delta)
             bs, value = bsdf.sample(delta_only, si, u1, u2, through_delta)
-            other = hit & ~diffuse
+            other = on_surface & ~diffuse
             bs_other, value_other = bsdf.sample(radiance, si, u1, u2, other)
             bs = dr.select(other, bs_other, bs)
-            value = dr.select(other, value_other, value)
-            beta = beta * value
+            beta = beta * dr.select(other, value_other, value)
+            wo = si.to_world(bs.wo)
+            medium = enter(si, wo, medium, on_surface)
             alive = (through_delta | other) & (bs.pdf > 0) & (dr.max(dr.detach(beta)) > 0)
+            alive &= dr.select(crossing, depth <= self.bounces, depth < self.bounces)
             live = dr.compress(alive)
             if not dr.width(live):
                 break
-            ray = _take(si.spawn_ray(si.to_world(bs.wo)), live)
+            ray = _take(si.spawn_ray(wo), live)
             beta, ids, pixel = _take(beta, live), _take(ids, live), _take(pixel, live)
-        return _joined(kept)
+            medium, depth = _take(medium, live), _take(depth, live)
+        return _joined(surface, SurfacePoints), _joined(volume, MediumPoints)
 
-    # ------------------------------------------------------------------ density estimate
-    def gather(self, points: Vertices, photons: Vertices, image: mi.Color3f) -> None:
-        """Add ``Σ_p K(‖x − x_p‖) f(x, ω_o, ω_p) Φ_p`` at every eye vertex to its pixel of
-        ``image``. The pairs within ``r`` are found on detached positions (a hash grid of cell
-        ``2r``); the sum over them is plain differentiable arithmetic. A photon counts where its
-        normal is within 30° of the vertex's (light on the other side of a thin wall does not
-        leak) and the two paths together fit ``max_depth``."""
-        r = self.radius
-        grid = HashGrid(dr.detach(photons.si.p), cell_size=2 * r)
-        query, photon = grid.pairs_within(
-            dr.detach(points.si.p), dr.opaque(mi.Float, r * r), mi.Bool(True), span=2
+    # ------------------------------------------------------------------ density estimates
+    def _pairs(self, query: mi.Point3f, photons: mi.Point3f, radius: float):
+        """The (query, photon) pairs within ``radius``, found on detached positions (a hash
+        grid of cell ``2 radius``)."""
+        grid = HashGrid(dr.detach(photons), cell_size=2 * radius)
+        return grid.pairs_within(
+            dr.detach(query), dr.opaque(mi.Float, radius * radius), mi.Bool(True), span=2
         )
+
+    def _depth_ok(self, eye_depth: mi.UInt32, photon_depth: mi.UInt32) -> mi.Bool:
+        """The two paths together fit ``max_depth``."""
+        return self.settings.allows(eye_depth + photon_depth) | dr.zeros(
+            mi.Bool, dr.width(eye_depth)
+        )
+
+    def gather_surfaces(self, points: SurfacePoints, photons: Photons, image) -> None:
+        """Add ``Σ_p K(‖x − x_p‖) f(x, ω_o, ω_p) Φ_p`` at every surface point to its pixel. The
+        sum over the pairs within ``r`` is plain differentiable arithmetic. A photon counts
+        where its normal is within 30° of the point's (light on the other side of a thin wall
+        does not leak) and the two paths together fit ``max_depth``."""
+        r = self.radius
+        query, photon = self._pairs(points.si.p, photons.p, r)
         if not dr.width(query):
             return
         si = _take(points.si, query)
-        p = _take(photons.si.p, photon)
-        d2 = dr.squared_norm(si.p - p)
+        d2 = dr.squared_norm(si.p - _take(photons.p, photon))
         kernel = dr.maximum(1.0 - d2 / (r * r), 0.0) * (2.0 / (math.pi * r * r))
-        ok = dr.dot(dr.detach(si.n), dr.detach(_take(photons.si.n, photon))) > COS_NORMAL
-        if self.settings.max_depth != UNBOUNDED:
-            depth = _take(points.depth, query) + _take(photons.depth, photon)
-            ok &= depth <= self.settings.max_depth
+        ok = dr.dot(dr.detach(si.n), dr.detach(_take(photons.n, photon))) > COS_NORMAL
+        ok &= self._depth_ok(_take(points.depth, query), _take(photons.depth, photon))
         wo = si.to_local(-_take(photons.d, photon))
         f = si.bsdf().eval(mi.BSDFContext(), si, wo, ok) / dr.maximum(
             dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4
         )
-        share = _take(points.weight, query) * f * kernel * _take(photons.weight, photon)
-        dr.scatter_add(image, share, _take(points.index, query), ok)
+        share = _take(points.beta, query) * f * kernel * _take(photons.power, photon)
+        dr.scatter_add(image, share, _take(points.pixel, query), ok)
 
-
-def _joined(parts: list[Vertices]) -> Vertices:
-    """The vertices of every bounce in one set (empty when there are none)."""
-    if not parts:
-        return Vertices(
-            dr.zeros(mi.SurfaceInteraction3f, 0), dr.zeros(mi.Spectrum, 0),
-            dr.zeros(mi.UInt32, 0), dr.zeros(mi.UInt32, 0), dr.zeros(mi.Vector3f, 0),
-        )  # fmt: skip
-    if len(parts) == 1:
-        return parts[0]
-    total = sum(dr.width(v.depth) for v in parts)
-    joined = Vertices(
-        dr.zeros(mi.SurfaceInteraction3f, total), dr.zeros(mi.Spectrum, total),
-        dr.zeros(mi.UInt32, total), dr.zeros(mi.UInt32, total), dr.zeros(mi.Vector3f, total),
-    )  # fmt: skip
-    start = 0
-    for v in parts:
-        n = dr.width(v.depth)
-        at = dr.arange(mi.UInt32, start, start + n)
-        for name in ("si", "weight", "depth", "index", "d"):
-            dr.scatter(getattr(joined, name), getattr(v, name), at)
-        start += n
-    return joined
+    def gather_media(self, points: MediumPoints, photons: Photons, image) -> None:
+        """Add ``Σ_p K₃(‖x − x_p‖) f_p(ω_o, ω_p) Φ_p`` at every medium point to its pixel."""
+        rho = self.volume_radius
+        query, photon = self._pairs(points.mei.p, photons.p, rho)
+        if not dr.width(query):
+            return
+        mei = _take(points.mei, query)
+        d2 = dr.squared_norm(mei.p - _take(photons.p, photon))
+        kernel = dr.maximum(1.0 - d2 / (rho * rho), 0.0) * (15.0 / (8.0 * math.pi * rho**3))
+        ok = self._depth_ok(_take(points.depth, query), _take(photons.depth, photon))
+        wo = -_take(photons.d, photon)
+        f, _ = mei.medium.phase_function().eval_pdf(mi.PhaseFunctionContext(None), mei, wo, ok)
+        share = _take(points.beta, query) * f * kernel * _take(photons.power, photon)
+        dr.scatter_add(image, share, _take(points.pixel, query), ok)
