@@ -57,8 +57,9 @@ so a finite difference that moves a sample across one sees the mean of two one-s
 gather) run in thread order on the LLVM backend, so sums differ in their last bits from run to
 run with more than one thread. :meth:`DifferentiableVolumeCaustic.value_and_grad` and
 :meth:`~DifferentiableVolumeCaustic.forward_grad` evaluate everything with one Dr.Jit thread and
-are bit-reproducible; :meth:`~DifferentiableVolumeCaustic.render` used directly with
-``dr.backward`` is as accurate but only reproducible to rounding.
+are bit-reproducible, and so is the image of :meth:`~DifferentiableVolumeCaustic.render`;
+derivatives taken with ``dr.backward`` / ``dr.forward`` after :meth:`render` are as accurate but
+reproducible only to rounding (their scatter-adds run on all threads).
 """
 
 from __future__ import annotations
@@ -338,9 +339,7 @@ class DifferentiableVolumeCaustic:
             lo = dr.select(c > 0, i - stride, i)
             hi = dr.select(c < r - 1, i + stride, i)
             span = self.Float(dr.select(c > 0, 1, 0) + dr.select(c < r - 1, 1, 0))
-            grads.append(
-                (dr.gather(self.Float, n, hi) - dr.gather(self.Float, n, lo)) / span
-            )
+            grads.append((dr.gather(self.Float, n, hi) - dr.gather(self.Float, n, lo)) / span)
         return grads
 
     # ---- transport ----------------------------------------------------------------------------
@@ -421,7 +420,10 @@ class DifferentiableVolumeCaustic:
         ``(fluence, x, v, L̃)``: the flat fluence grid φ (R³, the volume caustic) and the final
         photon state; ``record=True`` adds the list of positions before and after every step."""
         n_grids, _, kappa = self._inputs(n, sigma_s, sigma_a)
-        return self._trace(n_grids, kappa, record)
+        with serial():
+            out = self._trace(n_grids, kappa, record)
+            dr.eval(out[:4])
+        return out
 
     def _trace(self, n_grids, kappa, record=False):
         origins, directions, power = self._photons
@@ -451,8 +453,10 @@ class DifferentiableVolumeCaustic:
         splatted into φ, gathered by the camera. Attached to whatever inputs have gradients
         enabled (Dr.Jit AD, reverse or forward)."""
         n_grids, sigma_s, kappa = self._inputs(n, sigma_s, sigma_a)
-        fluence = self._trace(n_grids, kappa)[0]
-        image = self._view(fluence, n_grids, sigma_s, kappa)
+        with serial():  # the primal is bit-reproducible (module docstring, Determinism)
+            fluence = self._trace(n_grids, kappa)[0]
+            image = self._view(fluence, n_grids, sigma_s, kappa)
+            dr.eval(image)
         return self.Tensor(image, shape=(self.camera.height, self.camera.width))
 
     # ---- derivatives, bit-reproducible --------------------------------------------------------
@@ -464,9 +468,7 @@ class DifferentiableVolumeCaustic:
             raise ParameterError("params needs at least 'n' and 'sigma_s'")
         out = {}
         for name, value in params.items():
-            kind, flat = self._grid(
-                name, value, scalar_ok=name != "n", positive=name == "n"
-            )
+            kind, flat = self._grid(name, value, scalar_ok=name != "n", positive=name == "n")
             flat = self.Float(dr.detach(flat))  # a fresh leaf: gradients land here
             out[name] = self.Tensor(flat, shape=(self.R,) * 3) if kind == "grid" else flat
         return out
@@ -483,9 +485,7 @@ class DifferentiableVolumeCaustic:
             value = loss(self.render(**params))
             dr.backward(value)
             grads = {
-                name: np.array(dr.grad(params[name]), np.float64)
-                for name in wrt
-                if name in params
+                name: np.array(dr.grad(params[name]), np.float64) for name in wrt if name in params
             }
             return float(value.array[0] if dr.is_tensor_v(value) else value[0]), grads
 
@@ -501,8 +501,12 @@ class DifferentiableVolumeCaustic:
                 dr.enable_grad(p)
                 tangent = np.asarray(t, np.float64)
                 if dr.is_tensor_v(p):
-                    dr.set_grad(p, self.Tensor(tangent.astype(np.float32 if
-                                self.Float is mi.Float else np.float64)))
+                    dr.set_grad(
+                        p,
+                        self.Tensor(
+                            tangent.astype(np.float32 if self.Float is mi.Float else np.float64)
+                        ),
+                    )
                 else:
                     dr.set_grad(p, self.Float(float(tangent)))
             value = loss(self.render(**params))
