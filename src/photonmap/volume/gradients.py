@@ -459,6 +459,12 @@ class DifferentiableVolumeCaustic:
             dr.eval(image)
         return self.Tensor(image, shape=(self.camera.height, self.camera.width))
 
+    def roughness(self, n):
+        """Σ over voxels of |∇n|² (the central differences that eq 5 reads): a smoothness
+        penalty for fitting n, differentiable like :meth:`render`."""
+        flat = self._grid("n", n, scalar_ok=False, positive=True)[1]
+        return sum(dr.sum(dr.square(g)) for g in self._gradient(flat))
+
     # ---- derivatives, bit-reproducible --------------------------------------------------------
     def _prepared(self, params: Mapping):
         unknown = set(params) - set(PARAMETERS)
