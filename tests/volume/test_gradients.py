@@ -346,5 +346,7 @@ def test_bad_settings_raise_parameter_error():
     model = caustic(photon_steps=2, view_steps=2)
     with pytest.raises(ParameterError, match="unknown parameters"):
         model.value_and_grad(loss, {**PARAMS, "kappa": 0.1})
+    with pytest.raises(ParameterError, match="shape"):
+        model.forward_grad(loss, PARAMS, {"n": np.ones((R, R))})
     with pytest.raises(ParameterError, match="not in params"):
         model.forward_grad(loss, {"n": lens(), "sigma_s": 0.1}, {"sigma_a": 1.0})

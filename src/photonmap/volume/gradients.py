@@ -506,15 +506,14 @@ class DifferentiableVolumeCaustic:
                 p = params[name]
                 dr.enable_grad(p)
                 tangent = np.asarray(t, np.float64)
-                if dr.is_tensor_v(p):
-                    dr.set_grad(
-                        p,
-                        self.Tensor(
-                            tangent.astype(np.float32 if self.Float is mi.Float else np.float64)
-                        ),
+                shape = tuple(p.shape) if dr.is_tensor_v(p) else ()
+                if tangent.shape != shape or not np.all(np.isfinite(tangent)):
+                    raise ParameterError(
+                        f"tangent for {name!r} must be finite with shape {shape}, "
+                        f"got shape {tangent.shape}"
                     )
-                else:
-                    dr.set_grad(p, self.Float(float(tangent)))
+                grad = self.Float(tangent.ravel()) if shape else self.Float(float(tangent))
+                dr.set_grad(p, self.Tensor(grad, shape=shape) if shape else grad)
             value = loss(self.render(**params))
             dr.forward_to(value)
             grad = dr.grad(value)
