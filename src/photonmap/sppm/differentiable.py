@@ -315,6 +315,7 @@ class DifferentiablePhotonMapper:
             crossing = is_null(bsdf, on_surface)
             depth = depth + dr.select(crossing, 0, 1)
             diffuse = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
+            dr.eval(si, scattered, mei, power, depth, crossing, diffuse)  # once, not per gather
             _keep(surface, Photons, diffuse & (depth <= limit), p=si.p, n=si.n, d=ray.d,
                   power=power, depth=depth)  # fmt: skip
             _keep(volume, Photons, scattered & (depth <= limit), p=mei.p,
@@ -334,11 +335,12 @@ class DifferentiablePhotonMapper:
             power = power * value
             throughput = throughput * dr.max(dr.detach(value))
             alive = going & (throughput > 0) & dr.select(crossing, depth <= limit, depth < limit)
-            if step > 0 and self.settings.rr_depth <= limit:
+            if self.settings.rr_depth <= limit:
                 roulette = alive & ~crossing & (depth >= self.settings.rr_depth)
                 q = dr.select(roulette, dr.minimum(throughput, RR_MAX), 1.0)
                 alive &= gen.next_float32() < q
                 power, throughput = power / q, throughput / q
+            dr.eval(next_ray, power, throughput, medium, alive)
             live = dr.compress(alive)
             if not dr.width(live):
                 break
@@ -386,6 +388,7 @@ class DifferentiablePhotonMapper:
             bsdf = si.bsdf(ray)
             crossing = is_null(bsdf, on_surface)
             depth = depth + dr.select(crossing, 0, 1)
+            dr.eval(si, scattered, mei, beta, depth, crossing)  # once, not per gather
             seen = ~scattered & (si.emitter(self.scene) != None)  # noqa: E711 (the sky too)
             if self.settings.hide_emitters:
                 seen &= depth > 1
@@ -408,10 +411,12 @@ class DifferentiablePhotonMapper:
             medium = enter(si, wo, medium, on_surface)
             alive = (through_delta | other) & (bs.pdf > 0) & (dr.max(dr.detach(beta)) > 0)
             alive &= dr.select(crossing, depth <= self.bounces, depth < self.bounces)
+            next_ray = si.spawn_ray(wo)
+            dr.eval(next_ray, beta, medium, alive)
             live = dr.compress(alive)
             if not dr.width(live):
                 break
-            ray = _take(si.spawn_ray(wo), live)
+            ray = _take(next_ray, live)
             beta, ids, pixel = _take(beta, live), _take(ids, live), _take(pixel, live)
             medium, depth = _take(medium, live), _take(depth, live)
         return _joined(surface, SurfacePoints), _joined(volume, MediumPoints)
