@@ -285,6 +285,21 @@ def test_bad_input_is_refused():
         mi.load_dict({"type": "diff_dielectric", "int_ior": -1.0})
 
 
+@pytest.mark.parametrize(
+    "make, key",
+    [(plane_scene, "floor.bsdf.reflectance.value"), (plane_scene, "light.emitter.radiance.value"),
+     (fog_scene, "fog.interior_medium.albedo.value.value")],
+)
+def test_a_nan_parameter_is_refused_not_rendered(make, key):
+    """A NaN albedo or radiance renders black (Mitsuba's BSDFs and photons drop it): refused."""
+    scene = make()
+    params = mi.traverse(scene)
+    params[key] = type(params[key])(float("nan"))
+    params.update()
+    with pytest.raises(SceneError, match="NaN"):
+        photonmap.render(scene, params, photons=1000, radius=RADIUS)
+
+
 def test_heterogeneous_media_and_empty_scenes_are_refused():
     grid = mi.VolumeGrid(np.full((2, 2, 2, 1), 0.5, np.float32))
     d = {"type": "scene", "sensor": {"type": "perspective"},
@@ -294,6 +309,6 @@ def test_heterogeneous_media_and_empty_scenes_are_refused():
                                                                    "grid": grid}}}}  # fmt: skip
     with pytest.raises(SceneError, match="homogeneous"):
         DifferentiablePhotonMapper(mi.load_dict(d))
-    with pytest.raises(SceneError, match="no emitter"):
+    with pytest.raises(SceneError, match="no emitter"):  # checked_powers' message
         DifferentiablePhotonMapper(mi.load_dict({"type": "scene", "sensor": {"type": "perspective"},
                                                  "floor": quad(0.0, 1.0, diffuse(0.5))}))

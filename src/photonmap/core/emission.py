@@ -166,13 +166,13 @@ def checked_powers(scene: mi.Scene, seed: int) -> np.ndarray:
     if not scene.shapes():
         raise SceneError("the scene has no shapes for photons to land on; add some geometry")
     for emitter in emitters:
-        _check_finite(emitter, emitter_name(emitter))
+        check_finite(emitter, emitter_name(emitter))
     checked = set()
     for shape in scene.shapes():
         bsdf = shape.bsdf()
         if bsdf is not None and bsdf.ptr not in checked:
             checked.add(bsdf.ptr)
-            _check_finite(bsdf, f"the BSDF of {shape_name(shape)}")
+            check_finite(bsdf, f"the BSDF of {shape_name(shape)}")
     powers = emitter_powers(scene, seed=seed)
     dark = [emitter_name(e) for e, p in zip(emitters, powers, strict=True) if not np.max(p) > 0]
     if dark:
@@ -183,7 +183,7 @@ def checked_powers(scene: mi.Scene, seed: int) -> np.ndarray:
     return powers
 
 
-def _check_finite(obj, what: str) -> None:
+def check_finite(obj, what: str) -> None:
     for key, value in parameter_values(obj):
         if isinstance(value, float):
             finite = math.isfinite(value)

@@ -61,6 +61,7 @@ import mitsuba as mi
 
 from ..core.bsdf import is_null
 from ..core.camera import footprint_radius, pixel_rays
+from ..core.emission import check_finite, checked_powers
 from ..core.errors import ParameterError, SceneError
 from ..core.hashgrid import HashGrid
 from ..core.knn import COS_NORMAL
@@ -201,8 +202,10 @@ class DifferentiablePhotonMapper:
                 f"{len(heterogeneous)} heterogeneous medium/media"
             )
         check_gathered_bsdfs(scene, "differentiable sppm")
-        if not scene.emitters():
-            raise SceneError("the scene has no emitter: nothing to render or differentiate")
+        with dr.suspend_grad():
+            checked_powers(scene, 0)  # emitters and shapes present, finite, emitting
+            for medium in scene_media(scene):
+                check_finite(medium, f"the medium '{medium.id()}'")
         self.scene, self.sensor = scene, sensor
         self.photons, self.spp = photons, spp
         self.traits = SceneTraits.of(scene)
@@ -239,6 +242,12 @@ class DifferentiablePhotonMapper:
                 eye_seed, photon_seed = iteration_seeds(seed, i)
                 total += self.estimate(eye_seed, photon_seed)
         image = total / iterations
+        dr.eval(image)
+        if not dr.all(dr.isfinite(dr.ravel(image)), axis=None):
+            raise ParameterError(
+                "the differentiable estimate holds NaN or infinite values: a scene parameter is "
+                "NaN or infinite (check the values set through mi.traverse)"
+            )
         return mi.TensorXf(dr.ravel(image), shape=(h, w, 3))
 
     def estimate(self, eye_seed: int, photon_seed: int) -> mi.Color3f:
@@ -267,7 +276,8 @@ class DifferentiablePhotonMapper:
         sigma_s, _, sigma_t = medium.get_scattering_coefficients(mei, inside)
         fixed = dr.detach(sigma_t)
         ch = channel(gen)
-        t = dr.minimum(-dr.log(1.0 - gen.next_float32()) / pick(fixed, ch), FAR)
+        rate = pick(fixed, ch)
+        t = dr.select(rate > 0, dr.minimum(-dr.log(1.0 - gen.next_float32()) / rate, FAR), FAR)
         length = dr.select(si.is_valid(), si.t, FAR)
         scattered = inside & (t < length)
         pdf_t = dr.mean(fixed * dr.exp(-fixed * t), axis=0)
@@ -432,9 +442,9 @@ class DifferentiablePhotonMapper:
 
     def _depth_ok(self, eye_depth: mi.UInt32, photon_depth: mi.UInt32) -> mi.Bool:
         """The two paths together fit ``max_depth``."""
-        return self.settings.allows(eye_depth + photon_depth) | dr.zeros(
-            mi.Bool, dr.width(eye_depth)
-        )
+        if self.settings.max_depth == UNBOUNDED:
+            return dr.full(mi.Bool, True, dr.width(eye_depth))
+        return eye_depth + photon_depth <= self.settings.max_depth
 
     def gather_surfaces(self, points: SurfacePoints, photons: Photons, image) -> None:
         """Add ``Σ_p K(‖x − x_p‖) f(x, ω_o, ω_p) Φ_p`` at every surface point to its pixel. The
