@@ -110,6 +110,21 @@ class MediumPoints:
     depth: mi.UInt32
 
 
+@dataclass
+class Segment:
+    """Where one segment of a wavefront of paths ends: a surface or a medium collision."""
+
+    si: mi.SurfaceInteraction3f
+    bsdf: mi.BSDFPtr
+    mei: mi.MediumInteraction3f
+    scattered: mi.Bool  # a collision in a medium before the surface
+    on_surface: mi.Bool
+    crossing: mi.Bool  # a ``null`` boundary (no depth)
+    depth: mi.UInt32  # the paths' depth after the segment
+    weight: mi.Spectrum  # the free flight's weight (:meth:`DifferentiablePhotonMapper.flight`)
+    gen: mi.PCG32  # the segment's random numbers (two already drawn by the free flight)
+
+
 def lane_rng(ids: mi.UInt32, seed: int, stream: int) -> mi.PCG32:
     """One PCG32 per lane, keyed by the lane's path id ``ids`` and ``(seed, stream)``: a path's
     random numbers at one bounce do not depend on which other paths are still alive."""
@@ -263,6 +278,20 @@ class DifferentiablePhotonMapper:
         return image
 
     # ------------------------------------------------------------------ transport
+    def segment(self, ray, medium, ids, depth, seed: int, step: int, albedo: bool) -> Segment:
+        """Trace wavefront ``step`` of the paths ``ids`` one segment (random numbers from
+        ``(seed, step)`` and each path's id), evaluated once: its surface, or its collision in
+        the medium the path travels in (:meth:`flight`)."""
+        gen = lane_rng(ids, seed, step)
+        si = self.scene.ray_intersect(ray, dr.full(mi.Bool, True, dr.width(ids)))
+        scattered, mei, weight = self.flight(ray, si, medium, gen, albedo)
+        on_surface = si.is_valid() & ~scattered
+        bsdf = si.bsdf(ray)
+        crossing = is_null(bsdf, on_surface)
+        depth = depth + dr.select(crossing, 0, 1)
+        dr.eval(si, scattered, mei, weight, depth, crossing)  # once, not once per gather
+        return Segment(si, bsdf, mei, scattered, on_surface, crossing, depth, weight, gen)
+
     def flight(self, ray, si, medium, gen, albedo: bool):
         """Free flight of ``ray`` in ``medium`` up to the surface ``si``: ``(scattered, mei,
         weight)`` (module docstring: detached sampling, attached weights; ``albedo``: the
@@ -316,16 +345,11 @@ class DifferentiablePhotonMapper:
         limit = self.bounces - 1
         surface, volume = [], []
         for step in range(1, self.wavefronts + 1):
-            gen = lane_rng(ids, seed, step)
-            si = self.scene.ray_intersect(ray, dr.full(mi.Bool, True, dr.width(ids)))
-            scattered, mei, weight = self.flight(ray, si, medium, gen, albedo=True)
-            power = power * weight
-            on_surface = si.is_valid() & ~scattered
-            bsdf = si.bsdf(ray)
-            crossing = is_null(bsdf, on_surface)
-            depth = depth + dr.select(crossing, 0, 1)
+            seg = self.segment(ray, medium, ids, depth, seed, step, albedo=True)
+            si, bsdf, mei, scattered, depth = seg.si, seg.bsdf, seg.mei, seg.scattered, seg.depth
+            on_surface, crossing, gen = seg.on_surface, seg.crossing, seg.gen
+            power = power * seg.weight
             diffuse = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
-            dr.eval(si, scattered, mei, power, depth, crossing, diffuse)  # once, not per gather
             _keep(surface, Photons, diffuse & (depth <= limit), p=si.p, n=si.n, d=ray.d,
                   power=power, depth=depth)  # fmt: skip
             _keep(volume, Photons, scattered & (depth <= limit), p=mei.p,
@@ -390,15 +414,10 @@ class DifferentiablePhotonMapper:
         delta_only.type_mask = int(mi.BSDFFlags.Delta)
         surface, volume = [], []
         for step in range(1, self.wavefronts + 1):
-            gen = lane_rng(ids, seed, step)
-            si = self.scene.ray_intersect(ray, dr.full(mi.Bool, True, dr.width(ids)))
-            scattered, mei, weight = self.flight(ray, si, medium, gen, albedo=False)
-            beta = beta * weight
-            on_surface = si.is_valid() & ~scattered
-            bsdf = si.bsdf(ray)
-            crossing = is_null(bsdf, on_surface)
-            depth = depth + dr.select(crossing, 0, 1)
-            dr.eval(si, scattered, mei, beta, depth, crossing)  # once, not per gather
+            seg = self.segment(ray, medium, ids, depth, seed, step, albedo=False)
+            si, bsdf, mei, scattered, depth = seg.si, seg.bsdf, seg.mei, seg.scattered, seg.depth
+            on_surface, crossing, gen = seg.on_surface, seg.crossing, seg.gen
+            beta = beta * seg.weight
             seen = ~scattered & (si.emitter(self.scene) != None)  # noqa: E711 (the sky too)
             if self.settings.hide_emitters:
                 seen &= depth > 1
