@@ -54,7 +54,6 @@ from photonmap.volume.gradients import (
     DifferentiableVolumeCaustic,
     OrthoCamera,
     ParallelBeam,
-    serial,
 )
 
 dr, mi = photonmap.dr, photonmap.mi
@@ -112,8 +111,7 @@ def main(argv: list[str] | None = None) -> dict:
             views.append(model.render(swapped, sigma_s, sigma_a))
         return views
 
-    with serial():
-        targets = [mi.TensorXf(np.asarray(v)) for v in images(mi.TensorXf(n_true))]
+    targets = [mi.TensorXf(np.asarray(v)) for v in images(mi.TensorXf(n_true))]
     norm = sum(float(dr.sum(dr.square(t.array))[0]) for t in targets)
 
     opt = mi.ad.Adam(lr=args.lr)
@@ -122,21 +120,20 @@ def main(argv: list[str] | None = None) -> dict:
     history, field_errors = [], []
     t0 = time.perf_counter()
     for it in range(iterations):
-        with serial():  # bit-reproducible runs (gradients.py, Determinism)
-            n = opt["n"]
-            data = (
-                sum(
-                    dr.sum(dr.square(v.array - t.array))
-                    for v, t in zip(images(n), targets, strict=True)
-                )
-                / norm
+        n = opt["n"]
+        data = (
+            sum(
+                dr.sum(dr.square(v.array - t.array))
+                for v, t in zip(images(n), targets, strict=True)
             )
-            roughness = model.roughness(n)
-            loss = data + args.smooth * roughness
-            dr.backward(loss)
-            opt.step()
-            opt["n"] = dr.maximum(opt["n"], 1.0)  # n ≥ 1: no index below the fog's
-            dr.eval(opt["n"])
+            / norm
+        )
+        roughness = model.roughness(n)
+        loss = data + args.smooth * roughness
+        dr.backward(loss)
+        opt.step()
+        opt["n"] = dr.maximum(opt["n"], 1.0)  # n ≥ 1: no index below the fog's
+        dr.eval(opt["n"])
         field = np.asarray(opt["n"])
         history.append((float(data[0]), float(loss[0])))
         field_errors.append(float(np.linalg.norm(field - n_true)) / start_error)
@@ -147,9 +144,8 @@ def main(argv: list[str] | None = None) -> dict:
         )
     seconds = time.perf_counter() - t0
 
-    with serial():
-        start_images = [np.asarray(v) for v in images(mi.TensorXf(np.ones((r, r, r), np.float32)))]
-        final_images = [np.asarray(v) for v in images(opt["n"])]
+    start_images = [np.asarray(v) for v in images(mi.TensorXf(np.ones((r, r, r), np.float32)))]
+    final_images = [np.asarray(v) for v in images(opt["n"])]
     start_loss = (
         sum(
             float(np.sum((s - np.asarray(t)) ** 2))

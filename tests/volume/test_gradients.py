@@ -299,14 +299,16 @@ def test_linear_index_bends_the_ray_by_the_catenary():
 
 
 # ---- determinism, bad input ---------------------------------------------------------------------
-def test_same_inputs_give_bit_identical_image_and_gradient():
+def test_same_inputs_give_the_same_image_and_gradient():
+    """Up to the thread order of Dr.Jit's float scatter-adds (module docstring, Determinism)."""
     model = caustic(double=False, photon_steps=12, view_steps=12)
     runs = [model.value_and_grad(loss, PARAMS) for _ in range(2)]
     images = [np.asarray(model.render(mi.TensorXf(PARAMS["n"]), 0.08, 0.02)) for _ in range(2)]
-    assert runs[0][0] == runs[1][0]
+    assert runs[0][0] == pytest.approx(runs[1][0], rel=1e-5)
     for name in PARAMS:
-        assert np.array_equal(runs[0][1][name], runs[1][1][name]), name
-    assert np.array_equal(images[0], images[1])
+        np.testing.assert_allclose(runs[0][1][name], runs[1][1][name], rtol=1e-4,
+                                   atol=1e-6 * np.abs(runs[0][1][name]).max(), err_msg=name)
+    np.testing.assert_allclose(images[0], images[1], rtol=1e-5, atol=1e-9)
 
 
 @pytest.mark.parametrize(
