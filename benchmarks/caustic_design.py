@@ -1,0 +1,356 @@
+"""Caustic design: a glass slab's heightmap optimised so that its caustic matches a target image,
+with gradients of differentiable photon mapping (``photonmap.render``) against the same
+optimisation driven by Mitsuba's ``ptracer`` gradients, at equal compute time, in one run.
+
+The set-up is Mitsuba 3's caustic-design tutorial (``inverse_rendering/caustics_optimization``
+of mitsuba-tutorials), built in code: a ``directionalarea`` light (a 2×2 rectangle at y = 5
+shining down, nearly the sun), a glass slab (ior 1.5, no specular reflection: a flat entry face
+at y = 0.2, and an exit face at y = 0 that is an ``n``×``n`` vertex grid displaced along its
+normal by the heightmap, clipped to ±0.01), a white diffuse receiver at y = −7, and a
+perspective camera at y = −4.65 looking down at the receiver (between slab and receiver, so it
+sees the receiver directly: ``ptracer`` connects receiver hits to the camera, glass would block
+them). ``max_depth`` 4 (light → entry → exit → receiver → camera). The target
+(:func:`target_image`) is a smiley drawn with NumPy at the render resolution; the loss is the
+tutorial's scale-independent L2, ``mean((I / mean(detach(I)) − T / mean(T))²)``.
+
+Both optimisations start from the flat slab and run Adam (``mi.ad.Adam``) on the heightmap, one
+render + backward + step per iteration, each with its own learning rate and sample budget:
+``ptracer`` with ``--pt-spp`` light paths per pixel (``mi.render(scene, params, seed=step)``),
+photon mapping with ``--pm-photons`` photons and kernel radius ``--pm-radius``
+(``photonmap.render(scene, params, method="sppm", seed=step)``), and ``--pm-spp`` eye paths per
+pixel. A warm-up step of each compiles its kernels first. The two runs are interleaved, step by
+step (the one with less compute spent goes next), so that the load of a shared machine falls on
+both alike; each step is timed on its own (``dr.sync_thread`` before and after).
+``dr.JitFlag.OptimizeCalls`` is off for the whole run, both methods (Dr.Jit 1.5 loses
+derivatives through Mitsuba's shape calls with it on), and restored afterwards.
+
+Progress is measured with the clock stopped: at checkpoints (seconds of compute) the current
+heightmap is rendered by Mitsuba's ``ptracer`` at ``--truth-spp`` in two halves of different
+seeds, and the *true loss* is ``mean((A − T)(B − T))`` of the two normalised halves (unbiased
+for the loss of the noise-free image: the halves' noise is independent). Headline:
+``loss_ratio_vs_ptracer_at_equal_time``, ``ptracer``'s true loss over photon mapping's at the
+end of ``--seconds`` each; also each method's steps, median step time and the initial loss.
+
+Writes ``results/caustic_design.json``, ``.md``, ``.png`` (true loss against time) and
+``caustic_design_images.png`` (target | photon-mapping result | ptracer result, each rendered by
+Mitsuba ``ptracer`` at ``--truth-spp``; Mitsuba's ``path`` cannot render this caustic: it would
+have to hit a light that shines in one direction only); ``_quick`` with ``--quick``.
+
+    .venv/bin/python benchmarks/caustic_design.py [--quick] [--seconds 120]
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+import photonmap  # noqa: F401  (selects the variant, finds libLLVM)
+import report
+from photonmap.core.image import encode_image
+from timing import median
+
+NAME = "caustic_design"
+METHODS = ("photonmap", "ptracer")
+LABELS = {"photonmap": "photon mapping (photonmap.render)", "ptracer": "Mitsuba ptracer"}
+MAX_DEPTH = 4
+HEIGHT_LIMIT = 0.01  # the tutorial's clip of the displacement (the receiver is 7 units away)
+CHECKPOINTS = (2, 5, 10, 20, 40, 60, 90, 120, 180, 240)  # seconds of compute
+
+
+# ------------------------------------------------------------------------------------ scene
+def glass() -> dict:
+    """The tutorial's glass: ior 1.5, no specular reflection (all light goes through)."""
+    return {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0,
+            "specular_reflectance": {"type": "spectrum", "value": 0.0}}  # fmt: skip
+
+
+def lens_mesh(n: int) -> mi.Mesh:
+    """The slab's exit face: an ``n``×``n`` vertex grid over [−1, 1]² in the plane y = 0, its
+    normal −y (towards the receiver), vertex normals recomputed whenever the positions change."""
+    u, v = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n), indexing="ij")
+    positions = np.stack([u, np.zeros_like(u), v], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    v00 = (i * n + j).ravel()
+    v01, v10, v11 = v00 + 1, v00 + n, v00 + n + 1
+    faces = np.concatenate([np.stack([v00, v10, v01], 1), np.stack([v01, v10, v11], 1)])
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(glass())
+    mesh = mi.Mesh("lens", n * n, len(faces), props=props, has_vertex_normals=True)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(positions.astype(np.float32).ravel())
+    params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
+    params.update()
+    return mesh
+
+
+def look_at(origin, target) -> mi.ScalarTransform4f:
+    return mi.ScalarTransform4f().look_at(origin=origin, target=target, up=[0, 0, 1])
+
+
+def make_scene(n: int, res: int) -> mi.Scene:
+    """The tutorial's scene (module docstring) with an ``n``×``n`` exit face, ``res``² film."""
+    return mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": MAX_DEPTH},
+        "sensor": {
+            "type": "perspective", "fov": 45, "near_clip": 1, "far_clip": 1000,
+            "to_world": look_at([0, -4.65, 0], [0, -20, 0]),
+            "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb",
+                     "rfilter": {"type": "gaussian"}},
+        },
+        "receiver": {
+            "type": "rectangle", "to_world": look_at([0, -7, 0], [0, 1, 0]).scale([5, 5, 5]),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [1, 1, 1]}},
+        },
+        "entry": {"type": "rectangle", "to_world": look_at([0, 0.2, 0], [0, 1, 0]), "bsdf": glass()},
+        "lens": lens_mesh(n),
+        "light": {
+            "type": "rectangle", "to_world": look_at([0, 5, 0], [0, 0, 0]),
+            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0, 0]}},
+            "emitter": {"type": "directionalarea", "radiance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}},
+        },
+    })  # fmt: skip
+
+
+class Heightmap:
+    """The slab's exit face displaced by ``heights`` (``n``² values, row ``i`` along x): its
+    vertices move along the face normal (−y) by the heights, clipped to ±``HEIGHT_LIMIT``."""
+
+    def __init__(self, scene: mi.Scene, n: int):
+        self.params = mi.traverse(scene)
+        self.params.keep(["lens.vertex_positions"])
+        self.initial = mi.Float(self.params["lens.vertex_positions"])  # a copy, not a view
+        self.index = dr.arange(mi.UInt32, n * n) * 3 + 1  # the y coordinates
+
+    def apply(self, heights: mi.Float) -> None:
+        offset = dr.zeros(mi.Float, dr.width(self.initial))
+        dr.scatter(offset, -dr.clip(heights, -HEIGHT_LIMIT, HEIGHT_LIMIT), self.index)
+        self.params["lens.vertex_positions"] = self.initial + offset
+        self.params.update()
+
+
+def target_image(res: int) -> np.ndarray:
+    """A smiley (face ring, two eyes, a mouth) at ``res``² on a dim background, (res, res, 3),
+    normalised to mean 1."""
+    y, x = (np.mgrid[0:res, 0:res] + 0.5) / res * 2 - 1
+    r = np.hypot(x, y)
+    image = np.full((res, res), 0.2)
+    image[np.abs(r - 0.7) < 0.08] = 1.0
+    for eye in (-0.28, 0.28):
+        image[np.hypot(x - eye, y + 0.25) < 0.12] = 1.0
+    image[(np.abs(np.hypot(x, y + 0.05) - 0.42) < 0.07) & (y > 0.12)] = 1.0
+    image /= image.mean()
+    return np.repeat(image[:, :, None], 3, 2).astype(np.float32)
+
+
+def loss_of(image: mi.TensorXf, target: mi.TensorXf) -> mi.Float:
+    """The tutorial's scale-independent L2 loss (``target`` has mean 1)."""
+    return dr.mean(dr.square(image / dr.mean(dr.detach(image), axis=None) - target), axis=None)
+
+
+# ------------------------------------------------------------------------------ optimisation
+class Run:
+    """One method's optimisation: ``step()`` renders with gradients, backpropagates the loss and
+    takes an Adam step."""
+
+    def __init__(self, method: str, scene: mi.Scene, heightmap: Heightmap, target, settings):
+        self.method, self.scene, self.heightmap, self.target = method, scene, heightmap, target
+        self.settings = settings
+        self.opt = mi.ad.Adam(lr=settings["lr"])
+        self.opt["heights"] = dr.zeros(mi.Float, dr.width(heightmap.index))
+        self.steps = 0
+        self.ptracer = mi.load_dict({"type": "ptracer", "max_depth": MAX_DEPTH})
+
+    def render(self, seed: int) -> mi.TensorXf:
+        params = self.heightmap.params
+        if self.method == "ptracer":
+            return mi.render(self.scene, params, integrator=self.ptracer, seed=seed,
+                             spp=self.settings["spp"])  # fmt: skip
+        return photonmap.render(self.scene, params, method="sppm", seed=seed,
+                                photons=self.settings["photons"], spp=self.settings["spp"],
+                                radius=self.settings["radius"], max_depth=MAX_DEPTH)  # fmt: skip
+
+    def step(self) -> float:
+        self.heightmap.apply(self.opt["heights"])
+        loss = loss_of(self.render(self.steps), self.target)
+        dr.backward(loss)
+        self.opt.step()
+        dr.eval(self.opt["heights"])
+        self.steps += 1
+        return loss.array[0]
+
+    def heights(self) -> mi.Float:
+        return mi.Float(dr.detach(self.opt["heights"]))
+
+
+def truth(scene: mi.Scene, heightmap: Heightmap, heights, target, spp: int, seed: int):
+    """The true loss of ``heights`` (module docstring: two ``ptracer`` halves of ``spp / 2``)
+    and the mean of the halves (the image, normalised to mean 1)."""
+    integrator = mi.load_dict({"type": "ptracer", "max_depth": MAX_DEPTH})
+    with dr.suspend_grad():
+        heightmap.apply(heights)
+        halves = []
+        for k in range(2):
+            image = mi.render(scene, integrator=integrator, spp=spp // 2, seed=seed + k)
+            halves.append(np.array(image / dr.mean(image, axis=None)))
+    t = np.array(target)
+    loss = float(np.mean((halves[0] - t) * (halves[1] - t)))
+    return loss, (halves[0] + halves[1]) / 2
+
+
+def optimise(runs: dict[str, Run], scene, heightmap, target, seconds: float, truth_spp: int):
+    """Run every optimisation of ``runs`` for ``seconds`` of compute each, interleaved (the one
+    that has spent the least goes next, so that a shared machine's load falls on all alike);
+    the true loss of each at its checkpoints (clock stopped). Returns ``{method: result}``."""
+    for method, run in runs.items():  # compile each method's kernels; the result is dropped
+        Run(method, scene, heightmap, target, run.settings).step()
+    initial, _ = truth(scene, heightmap, next(iter(runs.values())).heights(), target,
+                       truth_spp, 7_000_000)  # fmt: skip
+    state = {m: {"spent": 0.0, "times": [], "marks": [c for c in CHECKPOINTS if c < seconds]
+                 + [seconds],
+                 "rows": [{"seconds": 0.0, "steps": 0, "true_loss": initial, "step_loss": None}]}
+             for m in runs}  # fmt: skip
+    while any(st["marks"] for st in state.values()):
+        method = min((m for m in runs if state[m]["marks"]), key=lambda m: state[m]["spent"])
+        run, st = runs[method], state[method]
+        dr.sync_thread()
+        start = time.perf_counter()
+        step_loss = run.step()
+        dr.sync_thread()
+        st["times"].append(time.perf_counter() - start)
+        st["spent"] += st["times"][-1]
+        if st["spent"] >= st["marks"][0]:
+            while st["marks"] and st["spent"] >= st["marks"][0]:
+                st["marks"].pop(0)
+            loss, _ = truth(scene, heightmap, run.heights(), target, truth_spp, 8_000_000)
+            st["rows"].append({"seconds": st["spent"], "steps": run.steps, "true_loss": loss,
+                               "step_loss": float(step_loss)})  # fmt: skip
+            print(f"  {method:9s} {st['spent']:7.1f} s  {run.steps:5d} steps  true loss "
+                  f"{loss:.4f}", flush=True)  # fmt: skip
+    return {m: {"settings": runs[m].settings, "rows": st["rows"], "steps": runs[m].steps,
+                "median_step_s": median(st["times"]), "seconds": st["spent"]}
+            for m, st in state.items()}  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------- outputs
+def headline(results: dict, seconds: float) -> dict:
+    pm, pt = results.get("photonmap"), results.get("ptracer")
+    out = {"seconds_each": seconds}
+    for method, res in results.items():
+        out[f"{method}_final_true_loss"] = res["rows"][-1]["true_loss"]
+        out[f"{method}_steps"] = res["steps"]
+        out[f"{method}_median_step_s"] = res["median_step_s"]
+    out["initial_true_loss"] = next(iter(results.values()))["rows"][0]["true_loss"]
+    ratio = None
+    if pm and pt and pm["rows"][-1]["true_loss"] > 0:
+        ratio = pt["rows"][-1]["true_loss"] / pm["rows"][-1]["true_loss"]
+    out["loss_ratio_vs_ptracer_at_equal_time"] = ratio
+    return out
+
+
+def markdown(out: dict) -> str:
+    lines = [f"# {NAME}", "", report.bullets(out["headline"]), ""]
+    for method, res in out["methods"].items():
+        s = ", ".join(f"{k} {v}" for k, v in res["settings"].items())
+        lines += [f"## {LABELS[method]} ({s})", "",
+                  report.records_table(res["rows"], [("seconds", "seconds", 1),
+                                                     ("steps", "steps", None),
+                                                     ("true loss", "true_loss", 4)]), ""]  # fmt: skip
+    m = out["machine"]
+    lines.append(f"load average {m.get('load_average')} (before), {out['load_average_after']} "
+                 f"(after); {m['cpu_model']}, {m['cores']} cores")  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def plot(out: dict, path: Path) -> None:
+    with report.figure(path, size=(6, 4)) as axes:
+        ax = axes[0][0]
+        for method, res in out["methods"].items():
+            rows = res["rows"]
+            ax.plot([r["seconds"] for r in rows], [r["true_loss"] for r in rows], "o-",
+                    label=f"{LABELS[method]}, {res['steps']} steps")  # fmt: skip
+        ax.set_yscale("log")
+        ax.set_xlabel("compute seconds (clock stopped at checkpoints)")
+        ax.set_ylabel("true loss (ptracer, high spp)")
+        ax.set_title("caustic design: loss against time")
+        ax.legend()
+
+
+def panel(images: list[np.ndarray], path: Path) -> None:
+    """The images side by side, 2-pixel white gaps, each scaled by 1/2 of the target's peak."""
+    h, w, _ = images[0].shape
+    gap = np.ones((h, 2, 3), np.float32) * images[0].max()
+    row = np.concatenate(sum(([im, gap] for im in images[:-1]), []) + [images[-1]], 1)
+    row = np.clip(row / images[0].max(), 0, 1)
+    path.write_bytes(encode_image(np.repeat(np.repeat(row, 2, 0), 2, 1), ".png"))
+
+
+def main(argv=None) -> dict:
+    parser = report.arguments(__doc__, "16×16 heightmap, 32² images, 3 s each (smoke)")
+    parser.add_argument("--seconds", type=float, default=120.0, help="compute time per method")
+    parser.add_argument("--n", type=int, default=64, help="heightmap (exit-face grid) size")
+    parser.add_argument("--res", type=int, default=64, help="render resolution (square)")
+    parser.add_argument("--methods", default=",".join(METHODS))
+    parser.add_argument("--pm-photons", type=int, default=100_000)
+    parser.add_argument("--pm-radius", type=float, default=0.0, help="0: two pixel footprints")
+    parser.add_argument("--pm-spp", type=int, default=4, help="eye paths per pixel")
+    parser.add_argument("--pm-lr", type=float, default=3e-4)
+    parser.add_argument("--pt-spp", type=int, default=32)
+    parser.add_argument("--pt-lr", type=float, default=3e-4)
+    parser.add_argument("--truth-spp", type=int, default=2048)
+    args = parser.parse_args(argv)
+    methods = [m for m in args.methods.split(",") if m]
+    if unknown := sorted(set(methods) - set(METHODS)):
+        raise SystemExit(f"--methods: unknown {unknown}; choose from {', '.join(METHODS)}")
+    if args.quick:
+        args.seconds, args.n, args.res, args.truth_spp = 3.0, 16, 32, 256
+        args.pm_photons, args.pt_spp = 20_000, 8
+    flag = dr.flag(dr.JitFlag.OptimizeCalls)
+    dr.set_flag(dr.JitFlag.OptimizeCalls, False)  # both methods (module docstring)
+    try:
+        return run_all(args, methods)
+    finally:
+        dr.set_flag(dr.JitFlag.OptimizeCalls, flag)
+
+
+def run_all(args, methods: list[str]) -> dict:
+    machine = report.machine_info()
+    scene = make_scene(args.n, args.res)
+    heightmap = Heightmap(scene, args.n)
+    target = mi.TensorXf(target_image(args.res))
+    settings = {
+        "photonmap": {
+            "photons": args.pm_photons,
+            "spp": args.pm_spp,
+            "radius": args.pm_radius,
+            "lr": args.pm_lr,
+        },
+        "ptracer": {"spp": args.pt_spp, "lr": args.pt_lr},
+    }
+    runs = {m: Run(m, scene, heightmap, target, settings[m]) for m in METHODS if m in methods}
+    print(f"{args.seconds:g} s each, interleaved: {settings}", flush=True)
+    results = optimise(runs, scene, heightmap, target, args.seconds, args.truth_spp)
+    images = [np.array(target)]
+    for method, run in runs.items():
+        heights = run.heights()
+        _, image = truth(scene, heightmap, heights, target, 4 * args.truth_spp, 9_000_000)
+        images.append(image)
+        results[method]["final_heights_abs_max"] = float(dr.max(dr.abs(heights)).array[0])
+    out = {"machine": machine, "headline": headline(results, args.seconds),
+           "size": {"heightmap": args.n, "render": args.res, "truth_spp": args.truth_spp,
+                    "max_depth": MAX_DEPTH},
+           "methods": results, "load_average_after": report.load_average(),
+           "optimize_calls": False}  # fmt: skip
+    stem = report.results_stem(args.out_dir, NAME, args.quick)
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    plot(out, stem.with_suffix(".png"))
+    panel(images, stem.with_name(stem.name.replace(NAME, NAME + "_images")).with_suffix(".png"))
+    return report.publish(stem, out, markdown(out))
+
+
+if __name__ == "__main__":
+    main()
