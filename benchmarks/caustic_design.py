@@ -20,7 +20,8 @@ photon mapping with ``--pm-photons`` photons and kernel radius ``--pm-radius``
 (``photonmap.render(scene, params, method="sppm", seed=step)``), and ``--pm-spp`` eye paths per
 pixel. A warm-up step of each compiles its kernels first. The two runs are interleaved, step by
 step (the one with less compute spent goes next), so that the load of a shared machine falls on
-both alike; each step is timed on its own (``dr.sync_thread`` before and after).
+both alike; each step is timed on its own (``dr.sync_thread`` before and after). As in the
+tutorial, the learning rates halve late: at half and at three quarters of ``--seconds``.
 ``dr.JitFlag.OptimizeCalls`` is off for the whole run, both methods (Dr.Jit 1.5 loses
 derivatives through Mitsuba's shape calls with it on), and restored afterwards.
 
@@ -58,6 +59,7 @@ METHODS = ("photonmap", "ptracer")
 LABELS = {"photonmap": "photon mapping (photonmap.render)", "ptracer": "Mitsuba ptracer"}
 MAX_DEPTH = 4
 HEIGHT_LIMIT = 0.01  # the tutorial's clip of the displacement (the receiver is 7 units away)
+DECAYS = (0.5, 0.75)  # the learning rates halve at these fractions of the time budget
 CHECKPOINTS = (2, 5, 10, 20, 40, 60, 90, 120, 180, 240)  # seconds of compute
 
 
@@ -202,17 +204,21 @@ def truth(scene: mi.Scene, heightmap: Heightmap, heights, target, spp: int, seed
     return loss, (halves[0] + halves[1]) / 2
 
 
-def optimise(runs: dict[str, Run], scene, heightmap, target, seconds: float, truth_spp: int):
+def optimise(
+    runs: dict[str, Run], scene, heightmap, target, seconds: float, truth_spp: int, decays=()
+):
     """Run every optimisation of ``runs`` for ``seconds`` of compute each, interleaved (the one
     that has spent the least goes next, so that a shared machine's load falls on all alike);
-    the true loss of each at its checkpoints (clock stopped). Returns ``{method: result}``."""
+    the true loss of each at its checkpoints (clock stopped); each learning rate halves when
+    its run has spent each fraction ``decays`` of ``seconds``. Returns ``{method: result}``."""
     for method, run in runs.items():  # compile each method's kernels; the result is dropped
         Run(method, scene, heightmap, target, run.settings).step()
     initial, _ = truth(scene, heightmap, next(iter(runs.values())).heights(), target,
                        truth_spp, 7_000_000)  # fmt: skip
     state = {m: {"spent": 0.0, "times": [], "marks": [c for c in CHECKPOINTS if c < seconds]
                  + [seconds],
-                 "rows": [{"seconds": 0.0, "steps": 0, "true_loss": initial, "step_loss": None}]}
+                 "rows": [{"seconds": 0.0, "steps": 0, "true_loss": initial, "step_loss": None}],
+                 "decays": [f * seconds for f in decays]}
              for m in runs}  # fmt: skip
     while any(st["marks"] for st in state.values()):
         method = min((m for m in runs if state[m]["marks"]), key=lambda m: state[m]["spent"])
@@ -223,6 +229,9 @@ def optimise(runs: dict[str, Run], scene, heightmap, target, seconds: float, tru
         dr.sync_thread()
         st["times"].append(time.perf_counter() - start)
         st["spent"] += st["times"][-1]
+        while st["decays"] and st["spent"] >= st["decays"][0]:  # as the tutorial does, late
+            st["decays"].pop(0)
+            run.opt.set_learning_rate(0.5 * run.opt.learning_rate())
         if st["spent"] >= st["marks"][0]:
             while st["marks"] and st["spent"] >= st["marks"][0]:
                 st["marks"].pop(0)
@@ -234,6 +243,63 @@ def optimise(runs: dict[str, Run], scene, heightmap, target, seconds: float, tru
     return {m: {"settings": runs[m].settings, "rows": st["rows"], "steps": runs[m].steps,
                 "median_step_s": median(st["times"]), "seconds": st["spent"]}
             for m, st in state.items()}  # fmt: skip
+
+
+# ------------------------------------------------------------------------- gradient check
+def fd_check(seeds: int = 2) -> dict:
+    """Each method's directional derivative (AD: ``dr.backward``, then ``<grad, d>``) against
+    central finite differences with the same seed (``eps`` = 0.05 of ``d``), on a 16² grid and
+    32² film, at a smooth bump ``h0`` along a smooth direction ``d``, for a linear loss
+    (``mean(I · w)``, ``w`` a smooth ramp: no noise term) and the L2 loss to a fixed image.
+    ``ptracer`` renders its gradient with a seed of its own (``mi.render``'s ``seed_grad``), so
+    for the L2 loss its AD and FD differ by the noise covariance too; the linear loss is the
+    clean test."""
+    n, res = 16, 32
+    scene = make_scene(n, res)
+    heightmap = Heightmap(scene, n)
+    y, x = np.mgrid[0:n, 0:n] / (n - 1) * 2 - 1
+    h0 = (0.004 * np.exp(-((x - 0.2) ** 2 + y**2) / 0.2)).ravel().astype(np.float32)
+    d = (0.003 * np.sin(3 * x + 1) * np.cos(2 * y)).ravel().astype(np.float32)
+    ramp = np.sin(np.arange(res) / res * 3.0)[None, :, None] * np.ones((res, 1, 3))
+    weight = mi.TensorXf(ramp.astype(np.float32))
+    fixed = mi.TensorXf(np.random.default_rng(0).uniform(0, 0.5, (res, res, 3)).astype(np.float32))
+    losses = {
+        "linear": lambda image: dr.mean(image * weight, axis=None),
+        "l2": lambda image: dr.mean(dr.square(image - fixed), axis=None),
+    }
+    ptracer = mi.load_dict({"type": "ptracer", "max_depth": MAX_DEPTH})
+
+    def render(method, seed, params):
+        if method == "ptracer":
+            return mi.render(scene, params, integrator=ptracer, spp=1024, seed=seed)
+        return photonmap.render(scene, heightmap.params, method="sppm", photons=400_000,
+                                seed=seed, max_depth=MAX_DEPTH)  # fmt: skip
+
+    out = {}
+    for method in METHODS:
+        for name, loss in losses.items():
+            ad, fd = [], []
+            for seed in range(seeds):
+                heights = mi.Float(h0)
+                dr.enable_grad(heights)
+                heightmap.apply(heights)
+                dr.backward(loss(render(method, seed, heightmap.params)))
+                ad.append(float(dr.sum(dr.grad(heights) * mi.Float(d)).array[0]))
+                eps, values = 0.05, []
+                with dr.suspend_grad():
+                    for sign in (1, -1):
+                        heightmap.apply(mi.Float(h0 + sign * eps * d))
+                        values.append(float(loss(render(method, seed, None)).array[0]))
+                fd.append((values[0] - values[1]) / (2 * eps))
+            out[f"{method}_{name}"] = {
+                "ad": ad,
+                "fd": fd,
+                "ratio": float(np.mean(ad) / np.mean(fd)),
+            }
+            print(
+                f"  {method:9s} {name:6s} AD/FD {out[f'{method}_{name}']['ratio']:.3f}", flush=True
+            )
+    return out
 
 
 # ---------------------------------------------------------------------------------- outputs
@@ -260,6 +326,11 @@ def markdown(out: dict) -> str:
                   report.records_table(res["rows"], [("seconds", "seconds", 1),
                                                      ("steps", "steps", None),
                                                      ("true loss", "true_loss", 4)]), ""]  # fmt: skip
+    if "fd_check" in out:
+        rows = [[k, report.fmt(np.mean(v["ad"]) * 1e4, 3), report.fmt(np.mean(v["fd"]) * 1e4, 3),
+                 report.fmt(v["ratio"], 3)] for k, v in out["fd_check"].items()]  # fmt: skip
+        lines += ["## gradient check (directional derivative ×1e4)", "",
+                  report.markdown_table(["method_loss", "AD", "FD", "AD/FD"], rows), ""]  # fmt: skip
     m = out["machine"]
     lines.append(f"load average {m.get('load_average')} (before), {out['load_average_after']} "
                  f"(after); {m['cpu_model']}, {m['cores']} cores")  # fmt: skip
@@ -302,6 +373,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--pt-spp", type=int, default=32)
     parser.add_argument("--pt-lr", type=float, default=3e-4)
     parser.add_argument("--truth-spp", type=int, default=2048)
+    parser.add_argument("--fd-check", action="store_true",
+                        help="also check both methods' gradients against finite differences")  # fmt: skip
     args = parser.parse_args(argv)
     methods = [m for m in args.methods.split(",") if m]
     if unknown := sorted(set(methods) - set(METHODS)):
@@ -333,7 +406,7 @@ def run_all(args, methods: list[str]) -> dict:
     }
     runs = {m: Run(m, scene, heightmap, target, settings[m]) for m in METHODS if m in methods}
     print(f"{args.seconds:g} s each, interleaved: {settings}", flush=True)
-    results = optimise(runs, scene, heightmap, target, args.seconds, args.truth_spp)
+    results = optimise(runs, scene, heightmap, target, args.seconds, args.truth_spp, DECAYS)
     images = [np.array(target)]
     for method, run in runs.items():
         heights = run.heights()
@@ -345,6 +418,9 @@ def run_all(args, methods: list[str]) -> dict:
                     "max_depth": MAX_DEPTH},
            "methods": results, "load_average_after": report.load_average(),
            "optimize_calls": False}  # fmt: skip
+    if args.fd_check:
+        print("gradient check (AD / central finite differences)", flush=True)
+        out["fd_check"] = fd_check()
     stem = report.results_stem(args.out_dir, NAME, args.quick)
     stem.parent.mkdir(parents=True, exist_ok=True)
     plot(out, stem.with_suffix(".png"))
