@@ -367,7 +367,8 @@ def main(argv=None) -> dict:
     parser.add_argument("--res", type=int, default=64, help="render resolution (square)")
     parser.add_argument("--methods", default=",".join(METHODS))
     parser.add_argument("--pm-photons", type=int, default=100_000)
-    parser.add_argument("--pm-radius", type=float, default=0.0, help="0: two pixel footprints")
+    parser.add_argument("--pm-radius", type=float, default=0.034,
+                        help="kernel radius (scene units; a pixel is 0.03 on the receiver)")  # fmt: skip
     parser.add_argument("--pm-spp", type=int, default=4, help="eye paths per pixel")
     parser.add_argument("--pm-lr", type=float, default=3e-4)
     parser.add_argument("--pt-spp", type=int, default=32)
@@ -381,7 +382,7 @@ def main(argv=None) -> dict:
         raise SystemExit(f"--methods: unknown {unknown}; choose from {', '.join(METHODS)}")
     if args.quick:
         args.seconds, args.n, args.res, args.truth_spp = 3.0, 16, 32, 256
-        args.pm_photons, args.pt_spp = 20_000, 8
+        args.pm_photons, args.pm_radius, args.pt_spp = 20_000, 0.07, 8
     flag = dr.flag(dr.JitFlag.OptimizeCalls)
     dr.set_flag(dr.JitFlag.OptimizeCalls, False)  # both methods (module docstring)
     try:

@@ -57,7 +57,7 @@ def make_scene(n, res):
         "type": "scene",
         # the camera hangs below the slab, looking down at the floor
         "sensor": {"type": "perspective", "fov": 45, "to_world": look_at([0, -4.65, 0], [0, -20, 0]),
-                   "film": {"type": "hdrfilm", "width": res, "height": res,
+                   "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb",
                             "rfilter": {"type": "gaussian"}}},
         "floor": {"type": "rectangle", "bsdf": white,
                   "to_world": look_at([0, -7, 0], [0, 1, 0]).scale([5, 5, 5])},
@@ -88,12 +88,13 @@ def main(argv=None):
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--photons", type=int, default=100_000)
     parser.add_argument("--spp", type=int, default=4, help="eye paths per pixel and step")
+    parser.add_argument("--radius", type=float, default=0.034, help="kernel radius, about a pixel")
     parser.add_argument("--lr", type=float, default=3e-4)
     parser.add_argument("--out", type=Path, default=Path("out/caustic_design"))
     args = parser.parse_args(argv)
     n, res, check_spp = (16, 32, 256) if args.quick else (64, 64, 4096)
     if args.quick:
-        args.steps, args.photons = 15, 20_000
+        args.steps, args.photons, args.radius = 15, 20_000, 0.07
 
     scene = make_scene(n, res)
     target = smiley(res)
@@ -112,11 +113,14 @@ def main(argv=None):
     for step in range(args.steps):
         set_heights(opt["heights"])
         image = photonmap.render(scene, params, method="sppm", photons=args.photons,
-                                 spp=args.spp, max_depth=MAX_DEPTH, seed=step)  # fmt: skip
+                                 spp=args.spp, radius=args.radius, max_depth=MAX_DEPTH,
+                                 seed=step)  # fmt: skip
         # scale-independent L2: the light's brightness does not matter
         loss = dr.mean(dr.square(image / dr.mean(dr.detach(image), axis=None) - target), axis=None)
         dr.backward(loss)
         opt.step()
+        if step in (args.steps // 2, 3 * args.steps // 4):  # finer steps towards the end
+            opt.set_learning_rate(0.5 * opt.learning_rate())
         if step % 25 == 0 or step == args.steps - 1:
             print(f"step {step:4d}  loss {loss.array[0]:.4f}", flush=True)
 
@@ -133,7 +137,7 @@ def main(argv=None):
     gap = np.ones((res, 2, 3), np.float32)
     side = np.concatenate([np.array(target) * scale, gap, np.array(check) * scale], 1)
     mi.util.write_bitmap(str(args.out / "side_by_side.png"), np.clip(side, 0, 1))
-    final = dr.mean(dr.square(check - target), axis=None).array[0]
+    final = dr.mean(dr.square(check - target), axis=None).array[0]  # with the check's noise
     print(f"ptracer check: loss {final:.4f}; images in {args.out}")
     return final
 
