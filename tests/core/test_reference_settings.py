@@ -7,6 +7,7 @@ from pathlib import Path
 
 import mitsuba as mi
 import numpy as np
+import pytest
 from typer.testing import CliRunner
 
 from photonmap.cli import app
@@ -95,3 +96,32 @@ def test_cli_reference_defaults_to_the_file_and_max_depth_overrides(tmp_path):
     truth = _mitsuba(path)
     assert abs(image.mean() / truth.mean() - 1) < 0.03
     assert unbounded.mean() / truth.mean() > 1.08
+
+
+def test_settings_of_an_adjoint_integrator():
+    """Mitsuba's ``ptracer`` is an AdjointIntegrator, which has no ``hide_emitters`` attribute:
+    its settings come from its description (a scene that names it still renders)."""
+    from photonmap.core.settings import PathSettings, integrator_settings
+
+    settings = integrator_settings(mi.load_dict({"type": "ptracer", "max_depth": 4}))
+    assert settings == PathSettings(max_depth=4, rr_depth=5, hide_emitters=False)
+
+
+def test_footprint_radius_is_measured_from_the_camera_not_the_near_plane():
+    """Mitsuba's perspective camera starts its rays on the near clipping plane; the automatic
+    radius must not depend on where that plane is."""
+    from photonmap.core.camera import footprint_radius
+
+    def scene(near):
+        return mi.load_dict({
+            "type": "scene",
+            "sensor": {"type": "perspective", "fov": 45, "near_clip": near,
+                       "to_world": mi.ScalarTransform4f().look_at(
+                           origin=[0, 0, 5], target=[0, 0, 0], up=[0, 1, 0]),
+                       "film": {"type": "hdrfilm", "width": 16, "height": 16}},
+            "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().scale(10)},
+        })  # fmt: skip
+
+    near, far = (footprint_radius(s, s.sensors()[0], 2.0) for s in (scene(0.01), scene(2.0)))
+    assert far == pytest.approx(near, rel=1e-3)
+    assert near == pytest.approx(2 * 5 * 2 * np.tan(np.radians(22.5)) / 16, rel=0.02)

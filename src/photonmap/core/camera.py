@@ -122,16 +122,19 @@ def pixel_means(L: mi.Spectrum, spp: int) -> mi.Spectrum:
 
 
 def footprint_radius(scene: mi.Scene, sensor: mi.Sensor, pixels: float) -> float:
-    """``pixels`` pixel footprints at the median distance of the first surfaces the camera rays
-    through the pixel centres meet (a gather radius that looks the same size in every image);
-    10⁻³ of the scene's diagonal if they meet none."""
+    """``pixels`` pixel footprints at the median distance from the camera of the first surfaces
+    the camera rays through the pixel centres meet (a gather radius that looks the same size in
+    every image; the distance from the camera's position, not the ray's origin, which Mitsuba
+    puts on the near clipping plane); 10⁻³ of the scene's diagonal if they meet none."""
     w, h = (int(c) for c in sensor.film().crop_size())
     pixel = dr.arange(mi.UInt32, w * h)
     ray, _ = pixel_rays(sensor, pixel, mi.Point2f(0.5, 0.5))
     side, _ = pixel_rays(sensor, pixel, mi.Point2f(1.5, 0.5))
     angle = dr.safe_acos(dr.dot(ray.d, side.d))
     si = scene.ray_intersect(ray)
-    footprint = (si.t * angle).numpy()[si.is_valid().numpy()]
+    origin = np.array(sensor.world_transform().matrix, dtype=np.float64)[:3, 3, 0]
+    eye = mi.Point3f(*(float(c) for c in origin))
+    footprint = (dr.norm(si.p - eye) * angle).numpy()[si.is_valid().numpy()]
     if footprint.size:
         return pixels * float(np.median(footprint))
     return 1e-3 * scene_bounds(scene)[1]

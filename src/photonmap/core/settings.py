@@ -62,6 +62,7 @@ class PathSettings:
 
 _DEPTH = re.compile(r"\bmax_depth\s*=\s*(-?\d+)")
 _RR = re.compile(r"\brr_depth\s*=\s*(-?\d+)")
+_HIDE = re.compile(r"\bhide_emitters\s*=\s*(\w+)")
 
 
 def integrator_settings(integrator) -> PathSettings:
@@ -72,11 +73,14 @@ def integrator_settings(integrator) -> PathSettings:
     holds; Python integrators (``prb``, ...) have them as attributes."""
     if integrator is None:
         return PathSettings()
-    hide = integrator.hide_emitters
+    text = str(integrator)
+    hide = getattr(integrator, "hide_emitters", None)  # adjoint integrators (ptracer) have none
+    if hide is None:
+        found = _HIDE.search(text)
+        hide = bool(found) and found.group(1).lower() in ("true", "1")
     hide = bool(hide() if callable(hide) else hide)
     depth = getattr(integrator, "max_depth", None)
     rr = getattr(integrator, "rr_depth", None)
-    text = str(integrator)
     if depth is None:
         found = _DEPTH.search(text)
         if found:
