@@ -228,3 +228,21 @@ def test_nearest_radius_beyond_the_cell_raises(uniform_case):
     points, queries, grid = uniform_case
     with pytest.raises(ParameterError, match="cell size"):
         grid.nearest(to_mi(queries), 2 * grid.cell_size)
+
+
+@pytest.mark.parametrize("span, count, hashed", [(2, 3000, False), (2, 200, True), (3, 3000, True)])
+def test_pairs_within_match_brute_force(span, count, hashed):
+    """Every (query, photon) pair within the radius, each query's pairs adjacent, in a hashed
+    table (more cells than slots) too; queries far outside the grid have none."""
+    points = clustered_points(count, 5)  # hashed: more cells than table slots
+    queries = np.concatenate([clustered_points(300, 6), points[:50], [[9.0, 9.0, 9.0]]])
+    radius = 0.04
+    grid = HashGrid(to_mi(points), cell_size=(2 if span == 2 else 1) * radius)
+    assert grid.hashed == hashed
+    owner, photon = grid.pairs_within(to_mi(queries), mi.Float(radius**2), mi.Bool(True), span)
+    got = list(zip(owner.numpy().tolist(), photon.numpy().tolist(), strict=True))
+    d2 = ((queries[:, None, :].astype(np.float32) - points[None, :, :]) ** 2).sum(-1)
+    expected = set(zip(*np.nonzero(d2 < np.float32(radius**2)), strict=True))
+    assert set(got) == {(int(q), int(p)) for q, p in expected} and len(got) == len(expected)
+    assert np.all(np.diff(owner.numpy().astype(np.int64)) >= 0)  # grouped by query
+    assert len(got) > 50  # the queries on photons find at least themselves
