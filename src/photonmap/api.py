@@ -30,8 +30,8 @@ PLUGINS = {
     "sppm": "sppm",
     "vcm": "vcm",
 }
-DIFFERENTIABLE = ("photons", "spp", "radius", "iterations", "max_depth", "rr_depth",
-                  "hide_emitters")  # fmt: skip
+DIFFERENTIABLE = ("photons", "spp", "radius", "volume_radius", "iterations", "max_depth",
+                  "rr_depth", "hide_emitters")  # fmt: skip
 
 
 def render(
@@ -46,8 +46,8 @@ def render(
     parameters (``photonmap.METHODS[method].params``). With ``params`` (``mi.traverse(scene)``)
     the method must be ``"sppm"``, and ``settings`` are those of the differentiable estimate:
     ``photons`` (per iteration, default 200 000), ``spp`` (eye paths per pixel, 1),
-    ``radius`` (0: two pixel footprints), ``iterations`` (1), ``max_depth``, ``rr_depth``,
-    ``hide_emitters`` (the file's)."""
+    ``radius`` (0: two pixel footprints), ``volume_radius`` (0: ``radius``), ``iterations``
+    (1), ``max_depth``, ``rr_depth``, ``hide_emitters`` (the file's)."""
     if not isinstance(scene, mi.Scene):
         raise ParameterError(
             f"render() takes a loaded mi.Scene, got {type(scene).__name__}; load the file with "

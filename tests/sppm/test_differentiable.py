@@ -234,6 +234,13 @@ def test_plugin_gradient_is_the_estimate_of_the_grad_seed():
     assert np.all(via_plugin > 0)
 
 
+def test_render_takes_the_volume_radius():
+    scene = fog_scene()
+    params = mi.traverse(scene)
+    image = photonmap.render(scene, params, photons=5000, radius=RADIUS, volume_radius=0.3)
+    assert dr.mean(image, axis=None).array[0] > 0
+
+
 def test_render_without_params_runs_the_methods_plugin():
     scene = plane_scene()
     image = photonmap.render(scene, method="vcm", iterations=1)

@@ -10,13 +10,12 @@ with a kernel)::
 (the Epanechnikov kernel, normalised on the disk; ``f`` is the BSDF without its cosine, its
 glossy lobes included where it also has a diffuse one). Eye paths go on through delta lobes (a
 vertex with a diffuse lobe) or by sampling the whole BSDF (glossy and specular vertices); photons
-are kept at diffuse vertices. A box
-kernel — counting the photons within ``r`` — has zero derivative almost everywhere; ``K`` is
-continuous, so the estimate is differentiable in the photon positions ``x_p``, the visible points
-``x`` and the weights ``Φ_p``, and reverse- or forward-mode AD through the photon trace, the eye
-trace and this sum gives its gradient (the smooth-kernel form of Xing, Li, Luan & Xu 2024,
-"Differentiable Photon Mapping using Generalized Path Gradients", without their term for the
-moving merging region: here ``r`` is fixed).
+are kept at diffuse vertices. A box kernel — counting the photons within ``r`` — has zero
+derivative almost everywhere; ``K`` is continuous, so the estimate is differentiable in the photon
+positions ``x_p``, the visible points ``x`` and the weights ``Φ_p``, and reverse- or forward-mode
+AD through the photon trace, the eye trace and this sum gives its gradient (the smooth-kernel
+form of Xing, Li, Luan & Xu 2024, "Differentiable Photon Mapping using Generalized Path
+Gradients", without their term for the moving merging region: here ``r`` is fixed).
 
 What carries derivatives:
 
