@@ -47,8 +47,8 @@ class SPPMIntegrator(PipelineIntegrator):
         """The differentiable estimate with this plugin's settings."""
         p = SPPMParams(**self.params)
         return DifferentiablePhotonMapper(
-            scene, sensor, photons=p.photons, radius=p.radius, max_depth=p.max_depth,
-            rr_depth=p.rr_depth, hide_emitters=p.hide_emitters,
+            scene, sensor, photons=p.photons, radius=p.radius, volume_radius=p.volume_radius,
+            max_depth=p.max_depth, rr_depth=p.rr_depth, hide_emitters=p.hide_emitters,
         )  # fmt: skip
 
     def render_forward(self, scene, params, sensor=0, seed=0, spp=0):
