@@ -3,14 +3,15 @@ with gradients of differentiable photon mapping (``photonmap.render``) against t
 optimisation driven by Mitsuba's ``ptracer`` gradients, at equal compute time, in one run.
 
 The set-up is Mitsuba 3's caustic-design tutorial (``inverse_rendering/caustics_optimization``
-of mitsuba-tutorials), built in code: a ``directionalarea`` light (a 2×2 rectangle at y = 5
+of mitsuba-tutorials), built in code by ``examples/caustic_design.py`` (its ``make_scene``,
+``Heightmap`` and ``smiley``, loaded from there): a ``directionalarea`` light (a 2×2 rectangle at y = 5
 shining down, nearly the sun), a glass slab (ior 1.5, no specular reflection: a flat entry face
 at y = 0.2, and an exit face at y = 0 that is an ``n``×``n`` vertex grid displaced along its
 normal by the heightmap, clipped to ±0.01), a white diffuse receiver at y = −7, and a
 perspective camera at y = −4.65 looking down at the receiver (between slab and receiver, so it
 sees the receiver directly: ``ptracer`` connects receiver hits to the camera, glass would block
 them). ``max_depth`` 4 (light → entry → exit → receiver → camera). The target
-(:func:`target_image`) is a smiley drawn with NumPy at the render resolution; the loss is the
+(``smiley`` of the example) is a smiley drawn with NumPy at the render resolution; the loss is the
 tutorial's scale-independent L2, ``mean((I / mean(detach(I)) − T / mean(T))²)``.
 
 Both optimisations start from the flat slab and run Adam (``mi.ad.Adam``) on the heightmap, one
@@ -42,6 +43,7 @@ have to hit a light that shines in one direction only); ``_quick`` with ``--quic
 
 from __future__ import annotations
 
+import importlib.util
 import time
 from pathlib import Path
 
@@ -57,96 +59,22 @@ from timing import median
 NAME = "caustic_design"
 METHODS = ("photonmap", "ptracer")
 LABELS = {"photonmap": "photon mapping (photonmap.render)", "ptracer": "Mitsuba ptracer"}
-MAX_DEPTH = 4
-HEIGHT_LIMIT = 0.01  # the tutorial's clip of the displacement (the receiver is 7 units away)
 DECAYS = (0.5, 0.75)  # the learning rates halve at these fractions of the time budget
 CHECKPOINTS = (2, 5, 10, 20, 40, 60, 90, 120, 180, 240)  # seconds of compute
 
 
 # ------------------------------------------------------------------------------------ scene
-def glass() -> dict:
-    """The tutorial's glass: ior 1.5, no specular reflection (all light goes through)."""
-    return {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0,
-            "specular_reflectance": {"type": "spectrum", "value": 0.0}}  # fmt: skip
+def _example():
+    """``examples/caustic_design.py``, which builds the scene, the heightmap and the target."""
+    path = Path(__file__).resolve().parents[1] / "examples" / "caustic_design.py"
+    spec = importlib.util.spec_from_file_location("caustic_design_example", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
-def lens_mesh(n: int) -> mi.Mesh:
-    """The slab's exit face: an ``n``×``n`` vertex grid over [−1, 1]² in the plane y = 0, its
-    normal −y (towards the receiver), vertex normals recomputed whenever the positions change."""
-    u, v = np.meshgrid(np.linspace(-1, 1, n), np.linspace(-1, 1, n), indexing="ij")
-    positions = np.stack([u, np.zeros_like(u), v], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
-    v00 = (i * n + j).ravel()
-    v01, v10, v11 = v00 + 1, v00 + n, v00 + n + 1
-    faces = np.concatenate([np.stack([v00, v10, v01], 1), np.stack([v01, v10, v11], 1)])
-    props = mi.Properties()
-    props["bsdf"] = mi.load_dict(glass())
-    mesh = mi.Mesh("lens", n * n, len(faces), props=props, has_vertex_normals=True)
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(positions.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(faces.astype(np.uint32).ravel())
-    params.update()
-    return mesh
-
-
-def look_at(origin, target) -> mi.ScalarTransform4f:
-    return mi.ScalarTransform4f().look_at(origin=origin, target=target, up=[0, 0, 1])
-
-
-def make_scene(n: int, res: int) -> mi.Scene:
-    """The tutorial's scene (module docstring) with an ``n``×``n`` exit face, ``res``² film."""
-    return mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": "path", "max_depth": MAX_DEPTH},
-        "sensor": {
-            "type": "perspective", "fov": 45, "near_clip": 1, "far_clip": 1000,
-            "to_world": look_at([0, -4.65, 0], [0, -20, 0]),
-            "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb",
-                     "rfilter": {"type": "gaussian"}},
-        },
-        "receiver": {
-            "type": "rectangle", "to_world": look_at([0, -7, 0], [0, 1, 0]).scale([5, 5, 5]),
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [1, 1, 1]}},
-        },
-        "entry": {"type": "rectangle", "to_world": look_at([0, 0.2, 0], [0, 1, 0]), "bsdf": glass()},
-        "lens": lens_mesh(n),
-        "light": {
-            "type": "rectangle", "to_world": look_at([0, 5, 0], [0, 0, 0]),
-            "bsdf": {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0, 0]}},
-            "emitter": {"type": "directionalarea", "radiance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}},
-        },
-    })  # fmt: skip
-
-
-class Heightmap:
-    """The slab's exit face displaced by ``heights`` (``n``² values, row ``i`` along x): its
-    vertices move along the face normal (−y) by the heights, clipped to ±``HEIGHT_LIMIT``."""
-
-    def __init__(self, scene: mi.Scene, n: int):
-        self.params = mi.traverse(scene)
-        self.params.keep(["lens.vertex_positions"])
-        self.initial = mi.Float(self.params["lens.vertex_positions"])  # a copy, not a view
-        self.index = dr.arange(mi.UInt32, n * n) * 3 + 1  # the y coordinates
-
-    def apply(self, heights: mi.Float) -> None:
-        offset = dr.zeros(mi.Float, dr.width(self.initial))
-        dr.scatter(offset, -dr.clip(heights, -HEIGHT_LIMIT, HEIGHT_LIMIT), self.index)
-        self.params["lens.vertex_positions"] = self.initial + offset
-        self.params.update()
-
-
-def target_image(res: int) -> np.ndarray:
-    """A smiley (face ring, two eyes, a mouth) at ``res``² on a dim background, (res, res, 3),
-    normalised to mean 1."""
-    y, x = (np.mgrid[0:res, 0:res] + 0.5) / res * 2 - 1
-    r = np.hypot(x, y)
-    image = np.full((res, res), 0.2)
-    image[np.abs(r - 0.7) < 0.08] = 1.0
-    for eye in (-0.28, 0.28):
-        image[np.hypot(x - eye, y + 0.25) < 0.12] = 1.0
-    image[(np.abs(np.hypot(x, y + 0.05) - 0.42) < 0.07) & (y > 0.12)] = 1.0
-    image /= image.mean()
-    return np.repeat(image[:, :, None], 3, 2).astype(np.float32)
+EXAMPLE = _example()
+make_scene, Heightmap, MAX_DEPTH = EXAMPLE.make_scene, EXAMPLE.Heightmap, EXAMPLE.MAX_DEPTH
 
 
 def loss_of(image: mi.TensorXf, target: mi.TensorXf) -> mi.Float:
@@ -163,7 +91,7 @@ class Run:
         self.method, self.scene, self.heightmap, self.target = method, scene, heightmap, target
         self.settings = settings
         self.opt = mi.ad.Adam(lr=settings["lr"])
-        self.opt["heights"] = dr.zeros(mi.Float, dr.width(heightmap.index))
+        self.opt["heights"] = dr.zeros(mi.Float, dr.width(heightmap.y))
         self.steps = 0
         self.ptracer = mi.load_dict({"type": "ptracer", "max_depth": MAX_DEPTH})
 
@@ -395,7 +323,7 @@ def run_all(args, methods: list[str]) -> dict:
     machine = report.machine_info()
     scene = make_scene(args.n, args.res)
     heightmap = Heightmap(scene, args.n)
-    target = mi.TensorXf(target_image(args.res))
+    target = EXAMPLE.smiley(args.res)
     settings = {
         "photonmap": {
             "photons": args.pm_photons,

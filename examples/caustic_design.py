@@ -27,7 +27,8 @@ MAX_DEPTH = 4  # light -> slab entry -> slab exit -> floor -> camera
 
 
 def glass():
-    return {"type": "dielectric", "int_ior": 1.5,
+    """The tutorial's glass: ior 1.5, no specular reflection (all light goes through)."""
+    return {"type": "dielectric", "int_ior": 1.5, "ext_ior": 1.0,
             "specular_reflectance": {"type": "spectrum", "value": 0.0}}  # fmt: skip
 
 
@@ -53,10 +54,13 @@ def make_scene(n, res):
         return mi.ScalarTransform4f().look_at(origin=origin, target=target, up=[0, 0, 1])
 
     white = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [1, 1, 1]}}
+    black = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0, 0, 0]}}
     return mi.load_dict({
         "type": "scene",
+        "integrator": {"type": "path", "max_depth": MAX_DEPTH},
         # the camera hangs below the slab, looking down at the floor
-        "sensor": {"type": "perspective", "fov": 45, "to_world": look_at([0, -4.65, 0], [0, -20, 0]),
+        "sensor": {"type": "perspective", "fov": 45, "near_clip": 1, "far_clip": 1000,
+                   "to_world": look_at([0, -4.65, 0], [0, -20, 0]),
                    "film": {"type": "hdrfilm", "width": res, "height": res, "pixel_format": "rgb",
                             "rfilter": {"type": "gaussian"}}},
         "floor": {"type": "rectangle", "bsdf": white,
@@ -64,10 +68,27 @@ def make_scene(n, res):
         "entry": {"type": "rectangle", "bsdf": glass(), "to_world": look_at([0, 0.2, 0], [0, 1, 0])},
         "lens": exit_face(n),
         # a 2 x 2 light that shines straight down only: nearly the sun
-        "light": {"type": "rectangle", "to_world": look_at([0, 5, 0], [0, 0, 0]),
+        "light": {"type": "rectangle", "to_world": look_at([0, 5, 0], [0, 0, 0]), "bsdf": black,
                   "emitter": {"type": "directionalarea",
                               "radiance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}}},
     })  # fmt: skip
+
+
+class Heightmap:
+    """The exit face's n x n vertices moved down (along the face normal) by heights clipped to
+    +-0.01, as in Mitsuba's tutorial (the floor is 7 units away)."""
+
+    def __init__(self, scene, n):
+        self.params = mi.traverse(scene)
+        self.params.keep(["lens.vertex_positions"])
+        self.flat = mi.Float(self.params["lens.vertex_positions"])  # a copy of the flat grid
+        self.y = dr.arange(mi.UInt32, n * n) * 3 + 1  # index of each vertex's y coordinate
+
+    def apply(self, heights):
+        offset = dr.zeros(mi.Float, dr.width(self.flat))
+        dr.scatter(offset, -dr.clip(heights, -0.01, 0.01), self.y)
+        self.params["lens.vertex_positions"] = self.flat + offset
+        self.params.update()  # also recomputes the vertex normals
 
 
 def smiley(res):
@@ -98,20 +119,13 @@ def main(argv=None):
 
     scene = make_scene(n, res)
     target = smiley(res)
-    params = mi.traverse(scene)
-    flat = mi.Float(params["lens.vertex_positions"])  # a copy of the flat grid
-    y = dr.arange(mi.UInt32, n * n) * 3 + 1  # index of each vertex's y coordinate
-
-    def set_heights(heights):
-        offset = dr.zeros(mi.Float, 3 * n * n)
-        dr.scatter(offset, -dr.clip(heights, -0.01, 0.01), y)  # down, along the face normal
-        params["lens.vertex_positions"] = flat + offset
-        params.update()  # also recomputes the vertex normals
+    heightmap = Heightmap(scene, n)
+    params = heightmap.params
 
     opt = mi.ad.Adam(lr=args.lr)
     opt["heights"] = dr.zeros(mi.Float, n * n)
     for step in range(args.steps):
-        set_heights(opt["heights"])
+        heightmap.apply(opt["heights"])
         image = photonmap.render(scene, params, method="sppm", photons=args.photons,
                                  spp=args.spp, radius=args.radius, max_depth=MAX_DEPTH,
                                  seed=step)  # fmt: skip
@@ -125,7 +139,7 @@ def main(argv=None):
             print(f"step {step:4d}  loss {loss.array[0]:.4f}", flush=True)
 
     with dr.suspend_grad():
-        set_heights(opt["heights"])
+        heightmap.apply(opt["heights"])
         ptracer = mi.load_dict({"type": "ptracer", "max_depth": MAX_DEPTH})
         check = mi.render(scene, integrator=ptracer, spp=check_spp, seed=12345)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -21,15 +21,9 @@ import dataclasses
 import mitsuba as mi
 
 from .core.errors import ParameterError
+from .core.plugin import PipelineIntegrator
 from .sppm.differentiable import DifferentiablePhotonMapper
 
-PLUGINS = {
-    "volume": "volume_photon",
-    "surface": "photon_mapper",
-    "screen": "ispm",
-    "sppm": "sppm",
-    "vcm": "vcm",
-}
 DIFFERENTIABLE = ("photons", "spp", "radius", "volume_radius", "iterations", "max_depth",
                   "rr_depth", "hide_emitters")  # fmt: skip
 
@@ -53,13 +47,14 @@ def render(
             f"render() takes a loaded mi.Scene, got {type(scene).__name__}; load the file with "
             "mi.load_file(path) first"
         )
-    if method not in PLUGINS:
-        raise ParameterError(f"unknown method {method!r}; choose one of {sorted(PLUGINS)}")
+    plugins = {s.pipeline_type.method: s.plugin_name for s in PipelineIntegrator.__subclasses__()}
+    if method not in plugins:
+        raise ParameterError(f"unknown method {method!r}; choose one of {sorted(plugins)}")
     if not isinstance(seed, int) or seed < 0:
         raise ParameterError(f"seed must be a non-negative integer, got {seed!r}")
     if params is None:
         _check_settings(method, settings)
-        integrator = mi.load_dict({"type": PLUGINS[method], **settings})
+        integrator = mi.load_dict({"type": plugins[method], **settings})
         return mi.render(scene, sensor=sensor, integrator=integrator, seed=seed)
     if not isinstance(params, mi.SceneParameters):
         raise ParameterError(

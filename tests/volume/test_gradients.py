@@ -162,38 +162,28 @@ def test_gradient_is_exactly_zero_where_nothing_reaches():
 
 
 # ---- the primal against NumPy -----------------------------------------------------------------
-def np_trilinear(grid, p, zero_outside=False):
-    r = grid.shape[0]
+def np_corners(r, p):
+    """The 8 voxel centres around each point ``p`` of an ``r``³ grid: (weight, index, inside)."""
     u = np.clip(p, -1.0, r + 1.0) - 0.5
     i0 = np.floor(u).astype(int)
     f = u - i0
+    for d in np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T:
+        i = i0 + d
+        yield np.prod(np.where(d == 1, f, 1 - f), axis=1), i, np.all((i >= 0) & (i < r), axis=1)
+
+
+def np_trilinear(grid, p, zero_outside=False):
+    r = grid.shape[0]
     out = np.zeros(len(p))
-    for dz in (0, 1):
-        for dy in (0, 1):
-            for dx in (0, 1):
-                d = np.array([dx, dy, dz])
-                w = np.prod(np.where(d == 1, f, 1 - f), axis=1)
-                i = i0 + d
-                inside = np.all((i >= 0) & (i < r), axis=1)
-                i = np.clip(i, 0, r - 1)
-                value = grid[i[:, 2], i[:, 1], i[:, 0]]
-                out += w * value * (inside if zero_outside else 1.0)
+    for w, i, inside in np_corners(r, p):
+        i = np.clip(i, 0, r - 1)
+        out += w * grid[i[:, 2], i[:, 1], i[:, 0]] * (inside if zero_outside else 1.0)
     return out
 
 
 def np_splat(grid, p, value):
-    r = grid.shape[0]
-    u = np.clip(p, -1.0, r + 1.0) - 0.5
-    i0 = np.floor(u).astype(int)
-    f = u - i0
-    for dz in (0, 1):
-        for dy in (0, 1):
-            for dx in (0, 1):
-                d = np.array([dx, dy, dz])
-                w = np.prod(np.where(d == 1, f, 1 - f), axis=1)
-                i = i0 + d
-                inside = np.all((i >= 0) & (i < r), axis=1)
-                np.add.at(grid, (i[inside, 2], i[inside, 1], i[inside, 0]), (w * value)[inside])
+    for w, i, inside in np_corners(grid.shape[0], p):
+        np.add.at(grid, (i[inside, 2], i[inside, 1], i[inside, 0]), (w * value)[inside])
 
 
 def np_render(model, n, sigma_s, sigma_a, curved=True):
