@@ -32,8 +32,8 @@ import pytest
 from photonmap import ScreenPipeline
 from photonmap.screen.scene_checks import visible_diagonal
 
-# the plain Mitsuba files of ../shared/tools/scenes, beside the repository (CI has them there)
-GLASS_SCENE = str(Path(__file__).resolve().parents[3] / "shared/tools/scenes/glass_sphere_plane.xml")
+# a plain Mitsuba file, as a user writes it (80 × 60, box filter, path max_depth 16)
+GLASS_SCENE = str(Path(__file__).resolve().parents[1] / "data" / "glass_sphere_plane.xml")
 BRIGHTNESS = 0.03  # measured: 0.0001–0.0005 on the box, 0.017 with the mesh light, 0.001 glass
 CASES = {
     # scene: (screen parameters, reference spp, block RMSE bound (≈ 1.6 × measured))

@@ -19,10 +19,10 @@ EXAMPLE = Path(__file__).parents[2] / "examples" / "fog_box_sphere_light.xml"
 
 
 def fog_box_scene(fog: bool) -> mi.Scene:
-    """../shared/tools/scenes/glass_sphere_fog_box.xml's fog box (a null-BSDF cube holding a
-    homogeneous medium) and glass ball, with a diffuse floor inside the box and a spherical area
-    light above it: every light path and shadow ray to the floor crosses the box. Without
-    ``fog`` the box and its medium are left out."""
+    """A fog box (a null-BSDF cube holding a homogeneous medium) around a glass ball, with a
+    diffuse floor inside the box and a spherical area light above it: every light path and
+    shadow ray to the floor crosses the box. Without ``fog`` the box and its medium are left
+    out."""
     scene = {
         "type": "scene",
         "sensor": {

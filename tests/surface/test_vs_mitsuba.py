@@ -1,5 +1,5 @@
 """The surface method against Mitsuba's own integrators on the same scene (spec
-seed-001 §2.1): ``mi.cornell_box()`` and ../shared/tools/scenes/glass_sphere_plane.xml against
+seed-001 §2.1): ``mi.cornell_box()`` and tests/data/glass_sphere_plane.xml against
 ``path`` with the same ``max_depth`` (mean brightness, relative RMSE of 4x4-pixel block means),
 and the power of a glass ball's caustic against ``ptracer``.
 
@@ -20,7 +20,7 @@ from caustic_scene import spot_caustic_scene
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
 
-SCENES = pathlib.Path(__file__).resolve().parents[3] / "shared/tools/scenes"  # beside the repo
+SCENES = pathlib.Path(__file__).resolve().parents[1] / "data"  # plain Mitsuba files
 T = mi.ScalarTransform4f
 
 
