@@ -22,7 +22,10 @@ photon mapping with ``--pm-photons`` photons and kernel radius ``--pm-radius``
 pixel. A warm-up step of each compiles its kernels first. The two runs are interleaved, step by
 step (the one with less compute spent goes next), so that the load of a shared machine falls on
 both alike; each step is timed on its own (``dr.sync_thread`` before and after). As in the
-tutorial, the learning rates halve late: at half and at three quarters of ``--seconds``.
+tutorial, the learning rates halve late: at half and at three quarters of ``--seconds``. With
+``--steps N`` the budget is ``N`` steps each instead of seconds (checkpoints after 1, 2, 4, 8, …
+steps; the learning rates halve at the same fractions of ``N``), so that what a run does is
+fixed whatever the machine's speed: ``--quick`` runs 24 steps each.
 ``dr.JitFlag.OptimizeCalls`` is off for the whole run, both methods (Dr.Jit 1.5 loses
 derivatives through Mitsuba's shape calls with it on), and restored afterwards.
 
@@ -31,14 +34,15 @@ heightmap is rendered by Mitsuba's ``ptracer`` at ``--truth-spp`` in two halves 
 seeds, and the *true loss* is ``mean((A − T)(B − T))`` of the two normalised halves (unbiased
 for the loss of the noise-free image: the halves' noise is independent). Headline:
 ``loss_ratio_vs_ptracer_at_equal_time``, ``ptracer``'s true loss over photon mapping's at the
-end of ``--seconds`` each; also each method's steps, median step time and the initial loss.
+end of ``--seconds`` each (``…_at_equal_steps`` with ``--steps``); also each method's steps,
+median step time and the initial loss.
 
 Writes ``results/caustic_design.json``, ``.md``, ``.png`` (true loss against time) and
 ``caustic_design_images.png`` (target | photon-mapping result | ptracer result, each rendered by
 Mitsuba ``ptracer`` at ``--truth-spp``; Mitsuba's ``path`` cannot render this caustic: it would
 have to hit a light that shines in one direction only); ``_quick`` with ``--quick``.
 
-    .venv/bin/python benchmarks/caustic_design.py [--quick] [--seconds 120]
+    .venv/bin/python benchmarks/caustic_design.py [--quick] [--seconds 120 | --steps N]
 """
 
 from __future__ import annotations
@@ -54,13 +58,14 @@ import numpy as np
 import photonmap  # noqa: F401  (selects the variant, finds libLLVM)
 import report
 from photonmap.core.image import encode_image
-from timing import median
+from timing import STEP_MARKS, Budget, median
 
 NAME = "caustic_design"
 METHODS = ("photonmap", "ptracer")
 LABELS = {"photonmap": "photon mapping (photonmap.render)", "ptracer": "Mitsuba ptracer"}
 DECAYS = (0.5, 0.75)  # the learning rates halve at these fractions of the time budget
 CHECKPOINTS = (2, 5, 10, 20, 40, 60, 90, 120, 180, 240)  # seconds of compute
+QUICK_STEPS = 24  # --quick: steps per method
 
 
 # ------------------------------------------------------------------------------------ scene
@@ -133,23 +138,27 @@ def truth(scene: mi.Scene, heightmap: Heightmap, heights, target, spp: int, seed
 
 
 def optimise(
-    runs: dict[str, Run], scene, heightmap, target, seconds: float, truth_spp: int, decays=()
+    runs: dict[str, Run], scene, heightmap, target, budget: Budget, truth_spp: int, decays=()
 ):
-    """Run every optimisation of ``runs`` for ``seconds`` of compute each, interleaved (the one
-    that has spent the least goes next, so that a shared machine's load falls on all alike);
-    the true loss of each at its checkpoints (clock stopped); each learning rate halves when
-    its run has spent each fraction ``decays`` of ``seconds``. Returns ``{method: result}``."""
+    """Run every optimisation of ``runs`` for ``budget`` each (compute seconds or steps),
+    interleaved (the one that has used the least goes next, so that a shared machine's load
+    falls on all alike); the true loss of each at its checkpoints (clock stopped); each learning
+    rate halves when its run has used each fraction ``decays`` of the budget. Returns
+    ``{method: result}``."""
     for method, run in runs.items():  # compile each method's kernels; the result is dropped
         Run(method, scene, heightmap, target, run.settings).step()
     initial, _ = truth(scene, heightmap, next(iter(runs.values())).heights(), target,
                        truth_spp, 7_000_000)  # fmt: skip
-    state = {m: {"spent": 0.0, "times": [], "marks": [c for c in CHECKPOINTS if c < seconds]
-                 + [seconds],
+    state = {m: {"spent": 0.0, "times": [], "marks": budget.marks(CHECKPOINTS, STEP_MARKS),
                  "rows": [{"seconds": 0.0, "steps": 0, "true_loss": initial, "step_loss": None}],
-                 "decays": [f * seconds for f in decays]}
+                 "decays": [f * budget.each for f in decays]}
              for m in runs}  # fmt: skip
+
+    def used(m: str) -> float:
+        return runs[m].steps if budget.steps else state[m]["spent"]
+
     while any(st["marks"] for st in state.values()):
-        method = min((m for m in runs if state[m]["marks"]), key=lambda m: state[m]["spent"])
+        method = min((m for m in runs if state[m]["marks"]), key=used)
         run, st = runs[method], state[method]
         dr.sync_thread()
         start = time.perf_counter()
@@ -157,11 +166,11 @@ def optimise(
         dr.sync_thread()
         st["times"].append(time.perf_counter() - start)
         st["spent"] += st["times"][-1]
-        while st["decays"] and st["spent"] >= st["decays"][0]:  # as the tutorial does, late
+        while st["decays"] and used(method) >= st["decays"][0]:  # as the tutorial does, late
             st["decays"].pop(0)
             run.opt.set_learning_rate(0.5 * run.opt.learning_rate())
-        if st["spent"] >= st["marks"][0]:
-            while st["marks"] and st["spent"] >= st["marks"][0]:
+        if used(method) >= st["marks"][0]:
+            while st["marks"] and used(method) >= st["marks"][0]:
                 st["marks"].pop(0)
             loss, _ = truth(scene, heightmap, run.heights(), target, truth_spp, 8_000_000)
             st["rows"].append({"seconds": st["spent"], "steps": run.steps, "true_loss": loss,
@@ -231,9 +240,9 @@ def fd_check(seeds: int = 2) -> dict:
 
 
 # ---------------------------------------------------------------------------------- outputs
-def headline(results: dict, seconds: float) -> dict:
+def headline(results: dict, budget: Budget) -> dict:
     pm, pt = results.get("photonmap"), results.get("ptracer")
-    out = {"seconds_each": seconds}
+    out = {"steps_each" if budget.steps else "seconds_each": budget.each}
     for method, res in results.items():
         out[f"{method}_final_true_loss"] = res["rows"][-1]["true_loss"]
         out[f"{method}_steps"] = res["steps"]
@@ -242,7 +251,7 @@ def headline(results: dict, seconds: float) -> dict:
     ratio = None
     if pm and pt and pm["rows"][-1]["true_loss"] > 0:
         ratio = pt["rows"][-1]["true_loss"] / pm["rows"][-1]["true_loss"]
-    out["loss_ratio_vs_ptracer_at_equal_time"] = ratio
+    out[f"loss_ratio_vs_ptracer_at_equal_{'steps' if budget.steps else 'time'}"] = ratio
     return out
 
 
@@ -289,8 +298,10 @@ def panel(images: list[np.ndarray], path: Path) -> None:
 
 
 def main(argv=None) -> dict:
-    parser = report.arguments(__doc__, "16×16 heightmap, 32² images, 3 s each (smoke)")
+    parser = report.arguments(__doc__, f"16×16 heightmap, 32² images, {QUICK_STEPS} steps each")
     parser.add_argument("--seconds", type=float, default=120.0, help="compute time per method")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="a budget of steps per method instead of --seconds")  # fmt: skip
     parser.add_argument("--n", type=int, default=64, help="heightmap (exit-face grid) size")
     parser.add_argument("--res", type=int, default=64, help="render resolution (square)")
     parser.add_argument("--methods", default=",".join(METHODS))
@@ -308,8 +319,10 @@ def main(argv=None) -> dict:
     methods = [m for m in args.methods.split(",") if m]
     if unknown := sorted(set(methods) - set(METHODS)):
         raise SystemExit(f"--methods: unknown {unknown}; choose from {', '.join(METHODS)}")
+    if args.steps is not None and args.steps < 1:
+        raise SystemExit("--steps must be at least 1")
     if args.quick:
-        args.seconds, args.n, args.res, args.truth_spp = 3.0, 16, 32, 256
+        args.steps, args.n, args.res, args.truth_spp = QUICK_STEPS, 16, 32, 256
         args.pm_photons, args.pm_radius, args.pt_spp = 20_000, 0.07, 8
     flag = dr.flag(dr.JitFlag.OptimizeCalls)
     dr.set_flag(dr.JitFlag.OptimizeCalls, False)  # both methods (module docstring)
@@ -334,15 +347,16 @@ def run_all(args, methods: list[str]) -> dict:
         "ptracer": {"spp": args.pt_spp, "lr": args.pt_lr},
     }
     runs = {m: Run(m, scene, heightmap, target, settings[m]) for m in METHODS if m in methods}
-    print(f"{args.seconds:g} s each, interleaved: {settings}", flush=True)
-    results = optimise(runs, scene, heightmap, target, args.seconds, args.truth_spp, DECAYS)
+    budget = Budget(args.steps, steps=True) if args.steps else Budget(args.seconds)
+    print(f"{budget.describe()}, interleaved: {settings}", flush=True)
+    results = optimise(runs, scene, heightmap, target, budget, args.truth_spp, DECAYS)
     images = [np.array(target)]
     for method, run in runs.items():
         heights = run.heights()
         _, image = truth(scene, heightmap, heights, target, 4 * args.truth_spp, 9_000_000)
         images.append(image)
         results[method]["final_heights_abs_max"] = float(dr.max(dr.abs(heights)).array[0])
-    out = {"machine": machine, "headline": headline(results, args.seconds),
+    out = {"machine": machine, "headline": headline(results, budget),
            "size": {"heightmap": args.n, "render": args.res, "truth_spp": args.truth_spp,
                     "max_depth": MAX_DEPTH},
            "methods": results, "load_average_after": report.load_average(),

@@ -63,9 +63,11 @@ each over the scenes.
 Writes ``results/caustics_vs_path.json``, ``.md`` (every row; budgets: spp, iterations and
 radius, photon paths), ``.png`` (error against time, a panel per scene, a colour per method:
 per-pixel relative RMSE solid, 4×4-block dashed) and each scene's last progressive images
-``caustics_<scene>_<sppm|vcm>.png`` (``_quick`` with ``--quick``: tiny images, 3 s runs).
+``caustics_<scene>_<sppm|vcm>.png`` (``_quick`` with ``--quick``: tiny images, 8 iterations
+each). ``--iterations N`` gives each progressive method ``N`` iterations instead of
+``--seconds`` (errors after 1, 2, 4, 8, … of them).
 
-    .venv/bin/python benchmarks/caustics_vs_path.py [--quick] [--seconds 30] \\
+    .venv/bin/python benchmarks/caustics_vs_path.py [--quick] [--seconds 30 | --iterations N] \\
         [--methods path,sppm,vcm,surface] [--scenes glass_mesh,veach_lamp]
 """
 
@@ -95,7 +97,7 @@ from photonmap.core.image import write_image
 from photonmap.core.sampling import rng
 from photonmap.core.settings import UNBOUNDED, PathSettings
 from photonmap.scenes import load_scene
-from timing import checkpoints, median, timed
+from timing import Budget, checkpoints, median, timed
 
 NAME = "caustics_vs_path"
 EXAMPLES = report.REPO / "examples"
@@ -125,6 +127,7 @@ SCENES = {
 }
 DEFAULT_MAX_DEPTH = 12
 CHECKPOINTS = (1, 2, 4, 8, 15, 30, 60, 120)  # seconds of compute at which errors are taken
+QUICK_ITERATIONS = 8  # --quick: iterations of each progressive method (a count, not seconds)
 # surface budgets: (global photon paths, caustic photon paths, final-gather rays, spp)
 BUDGETS = [(50_000, 300_000, 4, 2), (100_000, 1_000_000, 8, 4), (200_000, 2_000_000, 8, 8)]
 QUICK_BUDGETS = [(20_000, 50_000, 2, 1)]
@@ -175,19 +178,20 @@ def reference(name, scene, size, spp, max_depth, cache: Path) -> list[np.ndarray
 
 
 # ----------------------------------------------------------------------------------- methods
-def run_progressive(label: str, cls, scene, score, seconds: float, params: dict,
+def run_progressive(label: str, cls, scene, score, budget: Budget, params: dict,
                     warmup: dict | None = None, extra: Callable | None = None):  # fmt: skip
-    """One run of the progressive pipeline ``cls(scene, **params)`` for ``seconds`` of compute
-    (calls of ``step()``), after a warm-up run of two steps with ``params`` updated by
-    ``warmup`` (kernel compilation). At each of :data:`CHECKPOINTS` the clock stops and a row
-    is taken: ``iterations``, ``seconds``, ``extra(pipe)`` and ``score(image)``. Returns the
-    rows, the run's ``timer.ms`` and ``stats`` and its last image."""
+    """One run of the progressive pipeline ``cls(scene, **params)`` for ``budget`` (seconds of
+    compute in calls of ``step()``, or a number of them), after a warm-up run of two steps with
+    ``params`` updated by ``warmup`` (kernel compilation). At each checkpoint (of
+    :data:`CHECKPOINTS`, or after 1, 2, 4, … steps) the clock stops and a row is taken:
+    ``iterations``, ``seconds``, ``extra(pipe)`` and ``score(image)``. Returns the rows, the
+    run's ``timer.ms`` and ``stats`` and its last image."""
     warm = cls(scene, **{**params, **(warmup or {})})
     warm.step()
     warm.step()
     pipe = cls(scene, **params)
     rows = []
-    for spent in checkpoints(pipe.step, seconds, CHECKPOINTS):
+    for spent in checkpoints(pipe.step, budget, CHECKPOINTS):
         image = np.array(pipe.image())
         rows.append({"iterations": pipe.iterations, "seconds": spent,
                      **(extra(pipe) if extra else {}), **score(image)})  # fmt: skip
@@ -201,12 +205,12 @@ def per_second(count, ms: dict, stage: str):
     return count / (ms[stage] / 1e3) if ms.get(stage) else None
 
 
-def run_sppm(scene, score, seconds: float, photons: int, max_depth: int):
-    """SPPM for ``seconds``: rows (with the mean gather radius), rates and the last image."""
+def run_sppm(scene, score, budget: Budget, photons: int, max_depth: int):
+    """SPPM for ``budget``: rows (with the mean gather radius), rates and the last image."""
     from photonmap.sppm import SPPMPipeline
 
     rows, ms, stats, image = run_progressive(
-        "sppm", SPPMPipeline, scene, score, seconds,
+        "sppm", SPPMPipeline, scene, score, budget,
         {"photons": photons, "max_depth": max_depth}, warmup={"photons": 1000},
         extra=lambda pipe: {"mean_radius": pipe.mean_radius},
     )  # fmt: skip
@@ -223,12 +227,12 @@ def run_sppm(scene, score, seconds: float, photons: int, max_depth: int):
     return rows, rates, image
 
 
-def run_vcm(scene, score, seconds: float, max_depth: int):
-    """VCM for ``seconds``: rows (with the merging radius), rates and the last image."""
+def run_vcm(scene, score, budget: Budget, max_depth: int):
+    """VCM for ``budget``: rows (with the merging radius), rates and the last image."""
     from photonmap.vcm import VCMPipeline
 
     rows, ms, stats, image = run_progressive(
-        "vcm", VCMPipeline, scene, score, seconds, {"max_depth": max_depth, "seed": VCM_SEED},
+        "vcm", VCMPipeline, scene, score, budget, {"max_depth": max_depth, "seed": VCM_SEED},
         extra=lambda pipe: {"radius": pipe.mean_radius},
     )  # fmt: skip
     rates = {
@@ -346,7 +350,7 @@ def scene_headline(res: dict) -> dict:
     }
 
 
-def scene_result(name: str, size, args, ref_spp: int, seconds: float) -> tuple[dict, dict]:
+def scene_result(name: str, size, args, ref_spp: int, budget: Budget) -> tuple[dict, dict]:
     """The curves of the methods ``args.methods`` on one scene, its headline and the last
     images of the progressive methods."""
     scene = load(name, size)
@@ -369,10 +373,10 @@ def scene_result(name: str, size, args, ref_spp: int, seconds: float) -> tuple[d
             res["path"] = mitsuba_curve(scene, args.spps, score, path_integrator(max_depth))
         elif method == "sppm":
             res["sppm"], res["sppm_rates"], images["sppm"] = run_sppm(
-                scene, score, seconds, args.photons, max_depth
+                scene, score, budget, args.photons, max_depth
             )
         elif method == "vcm":
-            res["vcm"], res["vcm_rates"], images["vcm"] = run_vcm(scene, score, seconds, max_depth)
+            res["vcm"], res["vcm_rates"], images["vcm"] = run_vcm(scene, score, budget, max_depth)
         else:
             res["surface"] = run_surface(scene, score, args.budgets, max_depth)
     res["ray_intersect"] = ray_intersect_rate(scene, args.rays)
@@ -404,15 +408,15 @@ def smallest(values: dict):
     return min((v for v in values.values() if v is not None), default=None)
 
 
-def headline(results: dict, methods, seconds: float, started: float) -> dict:
+def headline(results: dict, methods, budget: Budget, started: float) -> dict:
     def per_scene(key: str) -> dict:
         return {n: r["headline"][key] for n, r in results.items()}
 
     speedups = per_scene("speedup_vs_path_at_equal_rmse")
     out = {
         "methods": list(methods),
-        "sppm_seconds": seconds,
-        "vcm_seconds": seconds,
+        **{f"{m}_{'iterations' if budget.steps else 'seconds'}": budget.each
+           for m in ("sppm", "vcm")},
         "max_depth": {n: r["max_depth"] for n, r in results.items()},
         "speedup_vs_path_at_equal_rmse": speedups,
         "min_speedup_vs_path_at_equal_rmse": smallest(speedups),
@@ -504,9 +508,11 @@ def method_list(text: str) -> list[str]:
 
 
 def main(argv=None) -> dict:
-    parser = report.arguments(__doc__, "tiny images, 3 s runs and budgets (smoke)")
+    parser = report.arguments(__doc__, f"tiny images, {QUICK_ITERATIONS} iterations (smoke)")
     parser.add_argument("--seconds", type=float, default=30.0,
                         help="compute time of each progressive method (sppm, vcm)")  # fmt: skip
+    parser.add_argument("--iterations", type=int, default=None,
+                        help="a budget of iterations of each progressive method instead")  # fmt: skip
     parser.add_argument("--photons", type=int, default=100_000, help="SPPM photons/iteration")
     parser.add_argument("--ref-spp", type=int, default=16384, help="path reference spp")
     parser.add_argument("--scenes", default=",".join(SCENES), help="comma-separated subset")
@@ -517,7 +523,10 @@ def main(argv=None) -> dict:
     names = [n for n in args.scenes.replace(" ", "").split(",") if n]
     if unknown := sorted(set(names) - set(SCENES)):
         raise SystemExit(f"--scenes: unknown {unknown}; choose from {', '.join(SCENES)}")
-    seconds = 3.0 if args.quick else args.seconds
+    if args.iterations is not None and args.iterations < 1:
+        raise SystemExit("--iterations must be at least 1")
+    iterations = QUICK_ITERATIONS if args.quick else args.iterations
+    budget = Budget(iterations, steps=True) if iterations else Budget(args.seconds)
     ref_spp = 512 if args.quick else args.ref_spp
     args.spps = [4, 16, 64] if args.quick else [4, 16, 64, 256, 1024, 4096]
     args.budgets = QUICK_BUDGETS if args.quick else BUDGETS
@@ -526,12 +535,12 @@ def main(argv=None) -> dict:
     for name in names:
         size = SCENES[name].quick_size if args.quick else SCENES[name].size
         print(f"{name} {size[0]}x{size[1]}", flush=True)
-        results[name], images = scene_result(name, size, args, ref_spp, seconds)
+        results[name], images = scene_result(name, size, args, ref_spp, budget)
         for method, image in images.items():
             stem = report.results_stem(args.out_dir, f"caustics_{name}_{method}", args.quick)
             write_image(str(stem.with_suffix(".png")), image)
     out = {"machine": report.machine_info(),
-           "headline": headline(results, args.methods, seconds, started),
+           "headline": headline(results, args.methods, budget, started),
            "scenes": results, "sppm_photons_per_iteration": args.photons}  # fmt: skip
     stem = report.results_stem(args.out_dir, NAME, args.quick)
     text = markdown(out)

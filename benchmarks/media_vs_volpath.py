@@ -43,7 +43,7 @@ from accuracy import (
     vs_truth,
 )
 from photonmap.sppm import SPPMPipeline
-from timing import checkpoints
+from timing import Budget, checkpoints
 
 NAME = "media_vs_volpath"
 SCENE = report.REPO / "examples" / "lamp_in_fog.xml"
@@ -68,7 +68,7 @@ def run_sppm(path: str, score, seconds: float):
     pipe.run(iterations=2)  # compile every kernel of the run
     pipe.reset()
     rows = []
-    for spent in checkpoints(pipe.step, seconds, CHECKPOINTS):
+    for spent in checkpoints(pipe.step, Budget(seconds), CHECKPOINTS):
         rows.append({"iterations": pipe.iterations, "seconds": spent,
                      **score(np.array(pipe.image()))})  # fmt: skip
         print(f"  sppm {pipe.iterations} it: {spent:.1f} s, "

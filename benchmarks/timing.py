@@ -1,7 +1,7 @@
 """How the benchmarks time: medians of repeated runs, wall-clock timing that waits for Dr.Jit's
 queue (kernels run asynchronously, so a clock stopped before ``dr.sync_thread()`` measures only
-the launch), budgets of compute time with the clock stopped at checkpoints, and a per-stage
-profile of the Dr.Jit kernels a render launches.
+the launch), budgets of compute time (or of steps) with the clock stopped at checkpoints, and a
+per-stage profile of the Dr.Jit kernels a render launches.
 """
 
 from __future__ import annotations
@@ -11,6 +11,7 @@ import statistics
 import time
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
+from dataclasses import dataclass
 
 
 # ------------------------------------------------------------------------------------ medians
@@ -61,17 +62,40 @@ def timed(fn: Callable, *args, **kwargs) -> tuple[float, object]:
     return time.perf_counter() - start, result
 
 
-def checkpoints(step: Callable[[], object], seconds: float, marks: Sequence[float]) -> Iterator:
-    """Call ``step()`` until it has taken ``seconds`` of compute (each call :func:`timed`);
-    yields the seconds spent each time that total first passes one of ``marks`` below
-    ``seconds``, and at ``seconds``. Between the calls the clock is stopped, so the caller can
-    measure the image at each yield without it counting."""
-    spent = 0.0
-    left = [m for m in marks if m < seconds] + [seconds]
+@dataclass(frozen=True)
+class Budget:
+    """What one run gets: ``each`` seconds of compute, or ``each`` steps (iterations) with
+    ``steps``. Benchmarks compare methods at equal time; the tests run them with a count, which
+    does the same work on any machine, however fast or loaded."""
+
+    each: float
+    steps: bool = False
+
+    def marks(self, seconds: Sequence[float], steps: Sequence[float]) -> list[float]:
+        """The checkpoints below the budget (``seconds`` or ``steps``, by its unit), then the
+        budget itself."""
+        return [m for m in (steps if self.steps else seconds) if m < self.each] + [self.each]
+
+    def describe(self) -> str:
+        return f"{self.each:g} {'steps' if self.steps else 's'} each"
+
+
+STEP_MARKS = tuple(2**k for k in range(20))  # checkpoints of a budget of steps: 1, 2, 4, 8, …
+
+
+def checkpoints(step: Callable[[], object], budget: Budget, marks: Sequence[float]) -> Iterator:
+    """Call ``step()`` until it has used ``budget`` (each call :func:`timed`); yields the
+    seconds spent each time the seconds (or, for a budget of steps, the calls) first pass one of
+    ``budget.marks(marks, STEP_MARKS)``. Between the calls the clock is stopped, so the caller
+    can measure the image at each yield without it counting."""
+    spent, calls = 0.0, 0
+    left = budget.marks(marks, STEP_MARKS)
     while left:
         spent += timed(step)[0]
-        if spent >= left[0]:
-            while left and spent >= left[0]:
+        calls += 1
+        used = calls if budget.steps else spent
+        if used >= left[0]:
+            while left and used >= left[0]:
                 left.pop(0)
             yield spent
 

@@ -1,6 +1,7 @@
 """``benchmarks/caustic_design.py`` and ``examples/caustic_design.py`` in their quick modes: the
-benchmark writes its JSON schema and the photon-mapping optimisation lowers the true loss; the
-example runs end to end and writes its pictures. Speed is measured by the benchmark itself."""
+benchmark writes its JSON schema and the photon-mapping optimisation lowers the true loss within
+the quick run's budget of steps (a count: the same run on any machine); the example runs end to
+end and writes its pictures. Speed is measured by the benchmark itself."""
 
 import importlib.util
 import json
@@ -23,27 +24,30 @@ def finite(value) -> bool:
 def quick(tmp_path_factory):
     out = tmp_path_factory.mktemp("caustic_design")
     flag = dr.flag(dr.JitFlag.OptimizeCalls)
-    result = benchmark("caustic_design").main(["--quick", "--out-dir", str(out)])
+    bench = benchmark("caustic_design")
+    result = bench.main(["--quick", "--out-dir", str(out)])
     assert dr.flag(dr.JitFlag.OptimizeCalls) == flag  # restored for the tests that follow
-    return out, result
+    return out, result, bench.QUICK_STEPS
 
 
 def test_quick_benchmark_writes_schema(quick):
-    out, result = quick
+    out, result, steps = quick
     data = json.loads((out / "caustic_design_quick.json").read_text())
     assert data == json.loads(json.dumps(result, default=str))
     for name in ("caustic_design_quick.png", "caustic_design_images_quick.png"):
         assert (out / name).stat().st_size > 500
     assert "| seconds | steps | true loss |" in (out / "caustic_design_quick.md").read_text()
     headline = data["headline"]
-    assert finite(headline["loss_ratio_vs_ptracer_at_equal_time"])
-    assert headline["loss_ratio_vs_ptracer_at_equal_time"] == pytest.approx(
+    assert headline["steps_each"] == steps >= 2
+    assert finite(headline["loss_ratio_vs_ptracer_at_equal_steps"])
+    assert headline["loss_ratio_vs_ptracer_at_equal_steps"] == pytest.approx(
         headline["ptracer_final_true_loss"] / headline["photonmap_final_true_loss"]
     )
     for method in ("photonmap", "ptracer"):
         res = data["methods"][method]
-        assert res["steps"] >= 2 and finite(res["median_step_s"])
-        assert res["seconds"] >= 3.0 and res["rows"][-1]["seconds"] == res["seconds"]
+        assert res["steps"] == steps and finite(res["median_step_s"])
+        assert res["rows"][-1]["steps"] == steps and res["rows"][-1]["seconds"] == res["seconds"]
+        assert [r["steps"] for r in res["rows"]] == sorted({r["steps"] for r in res["rows"]})
         assert all(finite(r["true_loss"]) for r in res["rows"])
         assert headline[f"{method}_steps"] == res["steps"]
     assert len(data["machine"]["load_average"]) == 3 and len(data["load_average_after"]) == 3

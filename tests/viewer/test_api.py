@@ -280,7 +280,7 @@ def test_progressive_method_refines_and_restarts(monkeypatch):
         metas = []
         worker.subscribe(lambda meta, frame: metas.append(meta))
         worker.wait_frame()
-        deadline = time.monotonic() + 60
+        deadline = time.monotonic() + 300  # a guard against a hang, not a speed bound
         while worker.frame.passes < 3 and time.monotonic() < deadline:
             time.sleep(0.05)
         renders = [
