@@ -145,12 +145,12 @@ def main(argv=None):
     args.out.mkdir(parents=True, exist_ok=True)
     check = check / dr.mean(check, axis=None)
     image = image / dr.mean(dr.detach(image), axis=None)
-    scale = 1 / np.array(target).max()
+    scale = 1 / np.array(target).max()  # written before returning: not Mitsuba's async default
     for name, picture in (("target", target), ("estimate", image), ("ptracer", check)):
-        mi.util.write_bitmap(str(args.out / f"{name}.png"), picture * scale)
+        mi.util.write_bitmap(str(args.out / f"{name}.png"), picture * scale, write_async=False)
     gap = np.ones((res, 2, 3), np.float32)
     side = np.concatenate([np.array(target) * scale, gap, np.array(check) * scale], 1)
-    mi.util.write_bitmap(str(args.out / "side_by_side.png"), np.clip(side, 0, 1))
+    mi.util.write_bitmap(str(args.out / "side_by_side.png"), np.clip(side, 0, 1), write_async=False)
     final = dr.mean(dr.square(check - target), axis=None).array[0]  # with the check's noise
     print(f"ptracer check: loss {final:.4f}; images in {args.out}")
     return final

@@ -114,12 +114,21 @@ def test_sigint_at_random_times_in_process(tmp_path, quiet_sigint):
     assert interrupted >= RUNS // 3  # most interrupts landed mid-command
 
 
-def run_process(args, delay, **kwargs):
-    """The real ``photonmap`` process (``python -m photonmap``), SIGINT after ``delay`` s."""
+def photonmap_process(args) -> subprocess.Popen:
+    """The real ``photonmap`` process (``python -m photonmap``) with Ctrl-C's default action:
+    a test session started in the background (``cmd &``, ``nohup``) ignores SIGINT, and a child
+    inherits an ignored signal, which would make every interrupt here a no-op."""
     env = {**os.environ, "PYTHONPATH": os.path.join(ROOT, "src")}
-    proc = subprocess.Popen([sys.executable, "-m", "photonmap", *args], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            **kwargs)  # fmt: skip
+    return subprocess.Popen(
+        [sys.executable, "-m", "photonmap", *args], cwd=ROOT, env=env, stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+
+
+def run_process(args, delay):
+    """:func:`photonmap_process`, SIGINT after ``delay`` s."""
+    proc = photonmap_process(args)
     time.sleep(delay)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=120)
@@ -147,12 +156,8 @@ def test_sigint_stops_the_viewer(tmp_path):
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
-    env = {**os.environ, "PYTHONPATH": os.path.join(ROOT, "src")}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "photonmap", "view", "glass_sphere_fog", "--no-browser", "--port",
-         str(port), "--width", "32", "--set", "grid=16", "--set", "photons=1024"],
-        cwd=ROOT, env=env, stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-    )  # fmt: skip
+    proc = photonmap_process(["view", "glass_sphere_fog", "--no-browser", "--port", str(port),
+                              "--width", "32", "--set", "grid=16", "--set", "photons=1024"])  # fmt: skip
     try:
         first = proc.stderr.readline()
         while first and not first.startswith("photonmap view:"):
@@ -185,9 +190,7 @@ def test_sigint_twice(tmp_path):
     out = tmp_path / "y.exr"
     args = [*CASES["sppm"][:-6], "--time", "30", "--set", "photons=500000",
             "-o", str(out)]  # fmt: skip
-    env = {**os.environ, "PYTHONPATH": os.path.join(ROOT, "src")}
-    proc = subprocess.Popen([sys.executable, "-m", "photonmap", *args], cwd=ROOT, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = photonmap_process(args)
     time.sleep(3.0)
     proc.send_signal(signal.SIGINT)
     time.sleep(0.05)
