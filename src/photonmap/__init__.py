@@ -65,6 +65,8 @@ def _register_plugins() -> None:
 
 with _interrupt.held():
     set_device(os.environ.get("PHOTONMAP_DEVICE", "cpu"))
+    if dr.thread_count() < 2:  # one core: Mitsuba's OpenEXR writer waits forever on one thread
+        dr.set_thread_count(2)
     dr.eval(dr.sum(dr.arange(mi.Float, 1 << 22)))  # a parallel job: every worker thread starts
 
 from typing import NamedTuple  # noqa: E402

@@ -127,3 +127,22 @@ def test_a_path_the_user_can_fix_is_exit_2(tmp_path, monkeypatch):
     with pytest.raises(OutputError, match="Permission denied; choose another path"):
         write_image(str(tmp_path / "x.png"), _image(0.5))
     assert OutputError("x").exit_code == 2 and WriteError("x").exit_code == 1
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs Linux CPU affinity")
+def test_an_exr_is_written_on_one_core(tmp_path):
+    """On a machine (or container) with one core, Dr.Jit starts one worker thread, and Mitsuba's
+    OpenEXR writer then waits forever for a second one: photonmap gives Dr.Jit at least two."""
+    code = (
+        "import sys\n"
+        "import numpy as np\n"
+        "from photonmap.core.image import read_image, write_image\n"
+        "write_image(sys.argv[1], np.full((8, 8, 3), 0.5, np.float32))\n"
+        "print(read_image(sys.argv[1]).mean())\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.path.join(ROOT, "src")}
+    one = min(os.sched_getaffinity(0))
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "a.exr")], env=env,
+                         capture_output=True, text=True, timeout=120,
+                         preexec_fn=lambda: os.sched_setaffinity(0, {one}))  # fmt: skip
+    assert out.returncode == 0 and float(out.stdout) == 0.5, out.stderr
