@@ -115,8 +115,8 @@ def gradient_check(name: str) -> tuple[np.ndarray, np.ndarray]:
         dr.backward(value(x, seed))
         ad.append(float(dr.grad(x)[0]))
         with dr.suspend_grad():
-            up = float(value(mi.Float(x0 + eps), seed).array[0])
-            down = float(value(mi.Float(x0 - eps), seed).array[0])
+            up = float(value(dr.opaque(mi.Float, x0 + eps), seed).array[0])
+            down = float(value(dr.opaque(mi.Float, x0 - eps), seed).array[0])
         fd.append((up - down) / (2 * eps))
     return np.array(ad), np.array(fd)
 

@@ -28,6 +28,7 @@ from functools import cached_property
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import to_numpy
 from ..core.errors import ParameterError
 from ..core.knn import COS_NORMAL, squared_radius
 from ..surface.gather_batch import GatherBatch, OrderParams, gather_order
@@ -61,7 +62,7 @@ class KDRecords:
         order = tree.order.numpy()
 
         def heap(v):
-            return np.ascontiguousarray(mi.Vector3f(v).numpy().reshape(3, -1)[:, order].T)
+            return np.ascontiguousarray(to_numpy(mi.Vector3f(v))[:, order].T)
 
         return cls(
             np.ascontiguousarray(record, np.float32),

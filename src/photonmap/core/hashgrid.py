@@ -61,6 +61,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .arrays import to_numpy
 from .errors import ParameterError
 from .knn import (
     COS_NORMAL,
@@ -105,7 +106,7 @@ class HashGrid(PhotonSearch):
             raise ParameterError(f"cell_size must be positive and finite, got {cell_size!r}")
         if not photons_per_cell > 0:
             raise ParameterError(f"photons_per_cell must be positive, got {photons_per_cell!r}")
-        points = positions.numpy().reshape(3, count).T
+        points = to_numpy(positions).reshape(3, count).T
         if not np.all(np.isfinite(points)):
             raise ParameterError("photon positions must be finite")
         lo = points.min(axis=0) if count else np.zeros(3, np.float32)

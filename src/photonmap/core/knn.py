@@ -43,6 +43,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .arrays import to_numpy
 from .errors import ParameterError
 
 COS_NORMAL = math.cos(math.radians(30.0))
@@ -312,7 +313,7 @@ class PhotonSearch:
         if key not in self._stored_cache:
             if len(self._stored_cache) >= 4:
                 self._stored_cache.clear()
-            records = pack_records(photon_data.numpy().reshape(3, -1)[:, self.order.numpy()])
+            records = pack_records(to_numpy(photon_data)[:, self.order.numpy()])
             self._stored_cache[key] = (photon_data, records)  # keeps the variables alive
         return self._stored_cache[key][1]
 

@@ -49,6 +49,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .arrays import concat
 from .bsdf import intersect_visible, is_rough_glass, is_specular
 from .emission import LightPaths, emit
 from .errors import SceneError
@@ -241,18 +242,8 @@ class _PathState:
 
 
 def _concat(chunks: list, width: int) -> list:
-    """The chunks' fields one after the other (``width`` fields each; ``dr.concat`` refuses empty
-    arrays)."""
-    out = []
-    for i in range(width):
-        values = [c[i] for c in chunks if dr.width(c[i])] or [chunks[0][i]]
-        if len(values) == 1:
-            out.append(values[0])
-        elif dr.size_v(values[0]) == 3:
-            out.append(type(values[0])(*(dr.concat([v[c] for v in values]) for c in range(3))))
-        else:
-            out.append(dr.concat(values))
-    return out
+    """The chunks' fields one after the other (``width`` fields each)."""
+    return [concat([c[i] for c in chunks]) for i in range(width)]
 
 
 def _slots(names_types: dict, count: int) -> dict:

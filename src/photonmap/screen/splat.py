@@ -34,6 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import to_numpy
 from ..core.errors import ParameterError
 from .gbuffer import GBuffer
 from .light_photons import ScreenPhotons
@@ -100,7 +101,7 @@ def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mod
     if dr.width(keep_idx) == 0:
         return zero, zero
     pos, nrm, power = (
-        dr.gather(type(a), a, keep_idx).numpy().reshape(3, -1).T
+        to_numpy(dr.gather(type(a), a, keep_idx)).T
         for a in (mi.Point3f(photons.pos), mi.Vector3f(photons.nrm), mi.Color3f(photons.power))
     )
     r_p = dr.gather(mi.Float, r_p, keep_idx).numpy()

@@ -58,6 +58,7 @@ from types import SimpleNamespace
 import drjit as dr
 import mitsuba as mi
 
+from ..core.arrays import concat
 from ..core.bsdf import is_null
 from ..core.camera import footprint_radius, pixel_rays
 from ..core.emission import check_finite, checked_powers
@@ -150,19 +151,14 @@ def _joined(parts: list, cls):
     """The records of every wavefront in one ``cls`` (None when there are none)."""
     if not parts:
         return None
-    if len(parts) == 1:
-        return parts[0]
-    total = sum(dr.width(part.depth) for part in parts)
     names = [f.name for f in fields(cls)]
-    joined = cls(**{name: dr.zeros(type(getattr(parts[0], name)), total) for name in names})
-    start = 0
-    for part in parts:
-        count = dr.width(part.depth)
-        at = dr.arange(mi.UInt32, start, start + count)
-        for name in names:
-            dr.scatter(getattr(joined, name), getattr(part, name), at)
-        start += count
-    return joined
+    return cls(**{name: concat([getattr(part, name) for part in parts]) for name in names})
+
+
+def _epanechnikov(d2: mi.Float, r2: float, norm: float) -> mi.Float:
+    """``norm · max(1 − d²/r², 0)``, with ``r²`` and ``norm`` as opaque values: one compiled
+    kernel serves every radius."""
+    return dr.maximum(1.0 - d2 / dr.opaque(mi.Float, r2), 0.0) * dr.opaque(mi.Float, norm)
 
 
 class DifferentiablePhotonMapper:
@@ -475,7 +471,7 @@ class DifferentiablePhotonMapper:
             return
         si = _take(points.si, query)
         d2 = dr.squared_norm(si.p - _take(photons.p, photon))
-        kernel = dr.maximum(1.0 - d2 / (r * r), 0.0) * (2.0 / (math.pi * r * r))
+        kernel = _epanechnikov(d2, r * r, 2.0 / (math.pi * r * r))
         ok = dr.dot(dr.detach(si.n), dr.detach(_take(photons.n, photon))) > COS_NORMAL
         ok &= self._depth_ok(_take(points.depth, query), _take(photons.depth, photon))
         wo = si.to_local(-_take(photons.d, photon))
@@ -493,7 +489,7 @@ class DifferentiablePhotonMapper:
             return
         mei = _take(points.mei, query)
         d2 = dr.squared_norm(mei.p - _take(photons.p, photon))
-        kernel = dr.maximum(1.0 - d2 / (rho * rho), 0.0) * (15.0 / (8.0 * math.pi * rho**3))
+        kernel = _epanechnikov(d2, rho * rho, 15.0 / (8.0 * math.pi * rho**3))
         ok = self._depth_ok(_take(points.depth, query), _take(photons.depth, photon))
         wo = -_take(photons.d, photon)
         f, _ = mei.medium.phase_function().eval_pdf(mi.PhaseFunctionContext(None), mei, wo, ok)

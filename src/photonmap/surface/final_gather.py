@@ -32,6 +32,7 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 
+from ..core.arrays import to_numpy
 from ..core.eye_trace import trace_eye_paths
 from ..core.media import enter
 from ..core.sampling import rng, rotated_hammersley
@@ -148,9 +149,9 @@ def _ordered_lookup(lookup, layout: RequestLayout, si_y, found, query, i, direct
     batch = layout.batch(
         query.numpy()[host],
         i.numpy()[host],
-        si_y.p.numpy().reshape(3, -1).T[host],
-        si_y.sh_frame.n.numpy().reshape(3, -1).T[host],
-        direction.numpy().reshape(3, -1).T[host],
+        to_numpy(si_y.p).T[host],
+        to_numpy(si_y.sh_frame.n).T[host],
+        to_numpy(direction).T[host],
     )
     if layout.keep:
         layout.batches.append(batch)

@@ -50,6 +50,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import to_numpy
 from ..core.errors import ParameterError
 from ..core.knn import (
     COS_NORMAL,
@@ -131,7 +132,7 @@ class KDTree(PhotonSearch):
         count = dr.width(positions)
         if count > MAX_PHOTONS:
             raise ParameterError(f"a kd-tree holds at most {MAX_PHOTONS} photons, got {count}")
-        points = positions.numpy().reshape(3, count).T
+        points = to_numpy(positions).T
         if not np.all(np.isfinite(points)):
             raise ParameterError("photon positions must be finite")
         order, axis = left_balanced_order(points)

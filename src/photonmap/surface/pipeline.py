@@ -47,6 +47,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import to_numpy
 from ..core.bsdf import diffuse_albedo, has_glossy_shapes
 from ..core.camera import pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
@@ -381,8 +382,8 @@ class SurfacePipeline(Pipeline):
         )
         order, cache = cache_order(p.irradiance_cache, *size, p.spp)
         plan = plan_cache(
-            si.p.numpy().reshape(3, -1).T.astype(np.float64),
-            normal.numpy().reshape(3, -1).T.astype(np.float64),
+            to_numpy(si.p).T.astype(np.float64),
+            to_numpy(normal).T.astype(np.float64),
             R.numpy().astype(np.float64),
             lambertian.numpy(),
             found.numpy(),

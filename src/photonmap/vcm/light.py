@@ -41,6 +41,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import concat, to_numpy
 from ..core.sampling import rng
 from ..core.settings import UNBOUNDED, PathSettings
 from . import mis
@@ -255,28 +256,15 @@ def light_pass(
         rec, state = _chunk(scene, sensor, state, limit, settings.rr_depth, tech, (w, h))
         chunks.append(rec)
         steps += CHUNK
-    records = {k: _concat([c[k] for c in chunks]) for k in RECORD_FIELDS}
+    records = {k: concat([c[k] for c in chunks]) for k in RECORD_FIELDS}
     image = np.zeros((h, w, 3))
     if tech.light_tracing and dr.width(records["pixel"]):
         pixel = records["pixel"].numpy()
-        splat = np.asarray(records["splat"].numpy(), np.float64).reshape(3, -1)
+        splat = to_numpy(records["splat"]).astype(np.float64)
         for c in range(3):  # a fixed order of summation: deterministic
             image[..., c] = np.bincount(pixel, splat[c], minlength=w * h + 1)[: w * h].reshape(h, w)
     image /= tech.spp
     return LightPass(_sorted(records, n), image, n)
-
-
-def _concat(values: list):
-    """The chunks' values one after the other (arrays and Mitsuba structs alike)."""
-    values = [v for v in values if dr.width(v)] or values[:1]
-    if len(values) == 1:
-        return values[0]
-    out = dr.zeros(type(values[0]), sum(dr.width(v) for v in values))
-    offset = 0
-    for v in values:
-        dr.scatter(out, v, dr.arange(mi.UInt32, dr.width(v)) + offset)
-        offset += dr.width(v)
-    return out
 
 
 def _sorted(records: dict, n: int) -> LightVertices:
@@ -287,7 +275,7 @@ def _sorted(records: dict, n: int) -> LightVertices:
     if count:
         dr.scatter_reduce(dr.ReduceOp.Add, counts, 1, records["path"])
     start = dr.prefix_sum(counts)  # exclusive
-    start = dr.concat([start, mi.UInt32(count)]) if n else mi.UInt32([0])
+    start = concat([start, dr.opaque(mi.UInt32, count)]) if n else mi.UInt32([0])
     keys = ("si", "throughput", "depth", "d_vcm", "d_vc", "d_vm")
     if not count:
         return LightVertices(*(records[k] for k in keys), start)

@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import to_numpy
 from ..core.emission import checked_powers
 from ..core.errors import SceneError
 from ..core.film_filter import filter_image
@@ -224,7 +225,7 @@ class VCMPipeline(Progressive, Pipeline):
             MergeGrid.build(vertices, tech.radius) if tech.merge and vertices else None,
             self.emitters,
         ))  # fmt: skip
-        image = np.asarray(radiance, np.float64).T.reshape(h, w, 3)
+        image = to_numpy(radiance).astype(np.float64).T.reshape(h, w, 3)
         if light is not None and tech.light_tracing:
             image += filter_image(light.image, self.sensor.film())
         if vertices is not None:

@@ -54,7 +54,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core import sampling
+from ..core import arrays, sampling
 from ..core.errors import SceneError
 from ..core.grid import GridBox, grid_dims, grid_extent
 from .scene import EMITTER_KINDS, Light
@@ -460,8 +460,7 @@ def concat(batches: list[Photons]) -> Photons:
         return batches[0]
 
     def cat(cls, field):
-        parts = [getattr(b, field) for b in batches]
-        return cls(*[dr.concat([part[i] for part in parts]) for i in range(3)])
+        return cls(arrays.concat([getattr(b, field) for b in batches]))
 
     return Photons(
         origin=cat(mi.Point3f, "origin"),

@@ -69,6 +69,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import concat
 from ..core.errors import ParameterError
 from ..core.grid import flat_index, grid_shape, trilinear_packed, voxel_count, voxel_of
 
@@ -218,8 +219,8 @@ def build_pyramid(
         fields.append(_interleave([rgb[0] + rgb[1] + rgb[2], cnt, w, zero]))
         colors.append(_interleave([*rgb, zero]))
         dr.eval(fields[-1], colors[-1])
-    fields = dr.concat(fields) if fields else dr.zeros(mi.Float, 4)
-    colors = dr.concat(colors) if colors else dr.zeros(mi.Float, 4)
+    fields = concat(fields) if fields else dr.zeros(mi.Float, 4)
+    colors = concat(colors) if colors else dr.zeros(mi.Float, 4)
     dr.eval(fields, colors)
     return Pyramid(C, D, count, weight, fields, colors, offsets[: len(sizes)], sizes)
 

@@ -12,8 +12,7 @@ opaque surfaces and the counters of :attr:`VolumePipeline.stats`.
 
 from __future__ import annotations
 
-import drjit as dr
-
+from ..core.arrays import concat
 from ..core.grid import filter_separable
 from ..core.stages import StageCache, cache_key
 from . import adaptive, emit, march, mipmap, pilot
@@ -90,7 +89,7 @@ def adaptive_photons(
             adaptive.emit_importance(li, box, smp, count, p.sampler, p.seed, p.fidelity)
             for li, smp in zip(lights, samplers, strict=True)
         ]
-        return emit.concat([b[0] for b in batches]), dr.concat([b[1] for b in batches])
+        return emit.concat([b[0] for b in batches]), concat([b[1] for b in batches])
 
     photons, weights = cache.stage("photon generation", gen_key, generate)
     march_key = (gen_key, octree_key, kappa_key, p.ds_min, scatter_key)

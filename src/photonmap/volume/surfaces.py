@@ -36,6 +36,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import concat
 from ..core.bsdf import pass_through
 from ..core.grid import GridBox
 from ..core.hashgrid import HashGrid
@@ -207,7 +208,7 @@ class SurfacePhotons:
             return SurfacePhotons(zero, mi.Vector3f(zero), mi.Color3f(zero), mi.Vector3f(zero))
 
         def cat(cls, name):
-            return cls(*[dr.concat([getattr(b, name)[i] for b in batches]) for i in range(3)])
+            return cls(concat([getattr(b, name) for b in batches]))
 
         out = SurfacePhotons(
             cat(mi.Point3f, "position"),

@@ -1,0 +1,39 @@
+"""Joining Dr.Jit arrays and copying them to NumPy without compiling a kernel per width.
+
+Dr.Jit turns a Python number used in a kernel into a literal of its code, so a kernel that
+depends on a width — ``dr.concat`` (each part's offset), ``.numpy()`` of a ``Point3f`` or
+``Color3f`` (the components' offsets), ``dr.arange(n) + offset`` — is compiled anew for every
+width a render produces: photon counts, compacted wavefronts, the chunks of a path loop. These
+helpers pass the offsets as opaque values (``dr.opaque``) or copy component by component, so one
+compiled kernel serves every width.
+"""
+
+from __future__ import annotations
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+
+
+def concat(parts: list):
+    """The arrays (or Mitsuba structs) of ``parts`` one after the other, as ``dr.concat``."""
+    parts = [p for p in parts if dr.width(p)] or parts[:1]
+    if len(parts) == 1:
+        return parts[0]
+    out = dr.zeros(type(parts[0]), sum(dr.width(p) for p in parts))
+    offset = 0
+    for part in parts:
+        width = dr.width(part)
+        dr.scatter(out, part, dr.arange(mi.UInt32, width) + dr.opaque(mi.UInt32, offset))
+        offset += width
+    return out
+
+
+def to_numpy(value) -> np.ndarray:
+    """``value`` as NumPy: shape ``(n,)`` for a flat array, ``(components, n)`` for a nested one
+    (``Point3f``, ``Color3f``, …), the layout of ``value.numpy()``."""
+    if not dr.depth_v(value) > 1:
+        return np.array(value)
+    dr.eval(value)
+    n = dr.width(value)
+    return np.stack([np.broadcast_to(np.array(value[i]), (n,)) for i in range(len(value))])

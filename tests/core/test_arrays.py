@@ -1,0 +1,66 @@
+"""``photonmap.core.arrays``: ``concat`` and ``to_numpy`` give what ``dr.concat`` and ``.numpy()``
+give, and launch the same kernels (the same hashes) whatever the widths — where Dr.Jit's own
+launch a kernel per width, which the same check shows."""
+
+import drjit as dr
+import mitsuba as mi
+import numpy as np
+import pytest
+
+from photonmap.core.arrays import concat, to_numpy
+
+WIDTHS = [(5, 3), (17, 9), (100, 2)]  # (a part of width 1 is a scalar to Dr.Jit: other code)
+
+
+def kernels(fn) -> tuple:
+    """The hashes of the kernels ``fn()`` launches."""
+    dr.eval()
+    with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+        dr.kernel_history()
+        fn()
+        return tuple(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
+
+
+def parts(n: int, m: int) -> list:
+    a, b = dr.arange(mi.Float, n), 0.5 * dr.arange(mi.Float, m) + 1000
+    dr.eval(a, b)
+    return [a, b]
+
+
+def point(n: int) -> mi.Point3f:
+    i = dr.arange(mi.Float, n)
+    p = mi.Point3f(i, 2 * i, -i)
+    dr.eval(p)
+    return p
+
+
+def test_concat_matches_dr_concat():
+    a, b = parts(7, 4)
+    np.testing.assert_array_equal(np.array(concat([a, b])), np.array(dr.concat([a, b])))
+    empty = dr.zeros(mi.Float, 0)
+    np.testing.assert_array_equal(np.array(concat([empty, a, empty])), np.array(a))
+    p, q = point(3), point(2)
+    np.testing.assert_array_equal(to_numpy(concat([p, q])), np.concatenate([p.numpy(), q.numpy()], 1))
+    si = concat([dr.zeros(mi.SurfaceInteraction3f, 3), dr.zeros(mi.SurfaceInteraction3f, 2)])
+    assert dr.width(si) == 5
+
+
+def test_to_numpy_matches_numpy():
+    p = point(6)
+    np.testing.assert_array_equal(to_numpy(p), p.numpy())
+    np.testing.assert_array_equal(to_numpy(mi.Color3f(p)), mi.Color3f(p).numpy())
+    np.testing.assert_array_equal(to_numpy(dr.arange(mi.UInt32, 4)), [0, 1, 2, 3])
+    assert to_numpy(mi.Point3f(1, 2, dr.arange(mi.Float, 3))).shape == (3, 3)  # broadcast
+
+
+@pytest.mark.parametrize(
+    "ours, theirs",
+    [
+        (lambda n, m: dr.eval(concat(parts(n, m))), lambda n, m: dr.eval(dr.concat(parts(n, m)))),
+        (lambda n, m: to_numpy(point(n + m)), lambda n, m: point(n + m).numpy()),
+    ],
+    ids=["concat", "to_numpy"],
+)
+def test_one_kernel_for_every_width(ours, theirs):
+    assert len({kernels(lambda n=n, m=m: ours(n, m)) for n, m in WIDTHS}) == 1
+    assert len({kernels(lambda n=n, m=m: theirs(n, m)) for n, m in WIDTHS}) == len(WIDTHS)
