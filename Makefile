@@ -1,27 +1,34 @@
 # photonmap — set-up, demo, tests and benchmarks. Everything installs into .venv from scratch.
+# The demo needs libLLVM and the package; the tests add their tools, Ray and Chromium (for the
+# viewer's browser tests).
 PYTHON ?= python3
 VENV   := .venv
 PY     := $(VENV)/bin/python
-STAMP  := $(VENV)/.installed
+BASE   := $(VENV)/.installed
+DEV    := $(VENV)/.installed-dev
 
 .PHONY: demo test bench lint clean
 
-$(STAMP): pyproject.toml scripts/ensure-llvm.sh scripts/ensure-chromium.sh
+$(BASE): pyproject.toml scripts/ensure-llvm.sh
 	bash scripts/ensure-llvm.sh
-	bash scripts/ensure-chromium.sh
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[dev,cluster]"
-	touch $(STAMP)
+	$(PY) -m pip install -q -e .
+	touch $(BASE)
 
-demo: $(STAMP)
+$(DEV): $(BASE) scripts/ensure-chromium.sh
+	bash scripts/ensure-chromium.sh
+	$(PY) -m pip install -q -e ".[dev,cluster]"
+	touch $(DEV)
+
+demo: $(BASE)
 	mkdir -p out
 	$(VENV)/bin/photonmap render glass_sphere_fog -o out/demo.png -o out/demo.exr --timings
 
-test: $(STAMP)
-	$(PY) -m pytest -q
+test: $(DEV)
+	$(PY) scripts/test_suite.py
 
-bench: $(STAMP)
+bench: $(DEV)
 	$(PY) benchmarks/volume_table1.py
 	$(PY) benchmarks/adaptive_vs_reference.py
 	$(PY) benchmarks/surface_vs_path.py
@@ -37,9 +44,10 @@ bench: $(STAMP)
 	$(PY) benchmarks/steinhurst_o17_study.py
 	$(PY) benchmarks/volume_box_grid.py
 	$(PY) benchmarks/user_scenes.py
+	$(PY) benchmarks/first_render.py
 
-lint: $(STAMP)
-	$(VENV)/bin/ruff check src tests benchmarks
+lint: $(DEV)
+	$(VENV)/bin/ruff check src tests benchmarks examples
 
 clean:
 	rm -rf $(VENV) out
