@@ -1,5 +1,5 @@
-"""``photonmap.core.arrays``: ``concat`` and ``to_numpy`` give what ``dr.concat`` and ``.numpy()``
-give, and launch the same kernels (the same hashes) whatever the widths — where Dr.Jit's own
+"""``photonmap.core.arrays``: ``concat``, ``to_numpy`` and ``channel_mean`` give what ``dr.concat``,
+``.numpy()`` and ``dr.mean(…, axis=0)`` give, and launch the same kernels (the same hashes) whatever the widths — where Dr.Jit's own
 launch a kernel per width, which the same check shows."""
 
 import drjit as dr
@@ -7,7 +7,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from photonmap.core.arrays import concat, to_numpy
+from photonmap.core.arrays import channel_mean, concat, to_numpy
 
 WIDTHS = [(5, 3), (17, 9), (100, 2)]  # (a part of width 1 is a scalar to Dr.Jit: other code)
 
@@ -53,13 +53,26 @@ def test_to_numpy_matches_numpy():
     assert to_numpy(mi.Point3f(1, 2, dr.arange(mi.Float, 3))).shape == (3, 3)  # broadcast
 
 
+def test_channel_mean_matches_dr_mean():
+    c = mi.Color3f(point(9)) * 0.37 + 1.0
+    np.testing.assert_allclose(np.array(channel_mean(c)), np.array(dr.mean(c, axis=0)), rtol=1e-6)
+    assert dr.width(channel_mean(mi.Color3f(1, 2, dr.arange(mi.Float, 4)))) == 4
+
+
+def colour_mean(mean, n: int) -> None:
+    c = mi.Color3f(point(n))
+    dr.eval(mean(c))
+
+
 @pytest.mark.parametrize(
     "ours, theirs",
     [
         (lambda n, m: dr.eval(concat(parts(n, m))), lambda n, m: dr.eval(dr.concat(parts(n, m)))),
         (lambda n, m: to_numpy(point(n + m)), lambda n, m: point(n + m).numpy()),
+        (lambda n, m: colour_mean(channel_mean, n + m),
+         lambda n, m: colour_mean(lambda c: dr.mean(c, axis=0), n + m)),
     ],
-    ids=["concat", "to_numpy"],
+    ids=["concat", "to_numpy", "channel_mean"],
 )
 def test_one_kernel_for_every_width(ours, theirs):
     assert len({kernels(lambda n=n, m=m: ours(n, m)) for n, m in WIDTHS}) == 1

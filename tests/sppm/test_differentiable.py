@@ -22,7 +22,7 @@ import pytest
 
 import photonmap
 from photonmap import ParameterError, SceneError
-from photonmap.sppm.differentiable import DifferentiablePhotonMapper
+from photonmap.sppm.differentiable import DifferentiablePhotonMapper, _take
 
 from .diff_scenes import (
     PHOTONS,
@@ -319,3 +319,25 @@ def test_heterogeneous_media_and_empty_scenes_are_refused():
     with pytest.raises(SceneError, match="no emitter"):  # checked_powers' message
         DifferentiablePhotonMapper(mi.load_dict({"type": "scene", "sensor": {"type": "perspective"},
                                                  "floor": quad(0.0, 1.0, diffuse(0.5))}))
+
+
+def test_a_gathers_derivative_compiles_one_kernel_for_every_width():
+    """The reverse-mode derivative of a gather scatters into an array as wide as the gathered
+    one (photon counts, wavefronts: a new width every render). Dr.Jit's default mode on the CPU
+    compiles that width into the kernel; ``_take``'s does not."""
+
+    def backward_kernels(gather, n: int) -> tuple:
+        x = dr.arange(mi.Float, n)
+        dr.enable_grad(x)
+        y = gather(x, dr.arange(mi.UInt32, 7) * 3)
+        dr.eval()
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            dr.backward(dr.sum(y * y))
+            dr.eval(dr.grad(x))
+            return tuple(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
+
+    widths = (40, 57, 90)
+    assert len({backward_kernels(_take, n) for n in widths}) == 1
+    default = lambda x, i: dr.gather(mi.Float, x, i)  # noqa: E731
+    assert len({backward_kernels(default, n) for n in widths}) == len(widths)

@@ -2,10 +2,11 @@
 
 Dr.Jit turns a Python number used in a kernel into a literal of its code, so a kernel that
 depends on a width — ``dr.concat`` (each part's offset), ``.numpy()`` of a ``Point3f`` or
-``Color3f`` (the components' offsets), ``dr.arange(n) + offset`` — is compiled anew for every
-width a render produces: photon counts, compacted wavefronts, the chunks of a path loop. These
-helpers pass the offsets as opaque values (``dr.opaque``) or copy component by component, so one
-compiled kernel serves every width.
+``Color3f`` (the components' offsets), ``dr.arange(n) + offset``, ``dr.mean(colour, axis=0)``
+(it multiplies by the width and divides by three times it) — is compiled anew for every width a
+render produces: photon counts, compacted wavefronts, the chunks of a path loop. These helpers
+pass the offsets as opaque values (``dr.opaque``), copy component by component or average without
+the width, so one compiled kernel serves every width.
 """
 
 from __future__ import annotations
@@ -27,6 +28,12 @@ def concat(parts: list):
         dr.scatter(out, part, dr.arange(mi.UInt32, width) + dr.opaque(mi.UInt32, offset))
         offset += width
     return out
+
+
+def channel_mean(value):
+    """The mean of a colour's channels (``Color3f``, ``Spectrum``), lane by lane: what
+    ``dr.mean(value, axis=0)`` computes, without its width literal."""
+    return dr.sum(value, axis=0) / len(value)
 
 
 def to_numpy(value) -> np.ndarray:

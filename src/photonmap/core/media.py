@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
+from .arrays import channel_mean
 from .bsdf import beyond, is_null
 from .sampling import rng
 
@@ -118,7 +119,7 @@ def escape_length(
     _, _, sigma_t = medium.get_scattering_coefficients(
         interaction(ray.o, ray.d, 0.0, medium), active
     )
-    further = ESCAPE_FREE_PATHS / dr.maximum(dr.mean(sigma_t, axis=0), 1e-6)
+    further = ESCAPE_FREE_PATHS / dr.maximum(channel_mean(sigma_t), 1e-6)
     return dr.select(dr.isfinite(medium_exit), medium_exit, scene_exit + further)
 
 
@@ -257,7 +258,7 @@ def collide(
         tr, pdf = medium.transmittance_eval_pdf(m, end, going)
         p_ch = pick(pdf, ch)
         weight[going] *= dr.select(p_ch > 0, tr / p_ch, 0.0)
-        real_p = dr.select(hit, dr.mean(m.sigma_t / dr.maximum(m.combined_extinction, 1e-30), axis=0), 1.0)
+        real_p = dr.select(hit, channel_mean(m.sigma_t / dr.maximum(m.combined_extinction, 1e-30)), 1.0)
         real = hit & (gen.next_float32() < real_p)
         null_hit = hit & ~real
         weight[null_hit] *= m.sigma_n / dr.maximum(1.0 - real_p, 1e-30)

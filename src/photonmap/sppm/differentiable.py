@@ -58,7 +58,7 @@ from types import SimpleNamespace
 import drjit as dr
 import mitsuba as mi
 
-from ..core.arrays import concat
+from ..core.arrays import channel_mean, concat
 from ..core.bsdf import is_null
 from ..core.camera import footprint_radius, pixel_rays
 from ..core.emission import check_finite, checked_powers
@@ -136,8 +136,11 @@ def lane_rng(ids: mi.UInt32, seed: int, stream: int) -> mi.PCG32:
 
 
 def _take(values, index: mi.UInt32):
-    """``values`` (an array or a Mitsuba struct) at ``index``: a differentiable gather."""
-    return dr.gather(type(values), values, index)
+    """``values`` (an array or a Mitsuba struct) at ``index``: a differentiable gather. Its
+    reverse-mode derivative is a scatter-add into an array as wide as ``values`` (a photon
+    count, a wavefront); reduced locally, not in Dr.Jit's default expanded mode on the CPU,
+    whose kernel holds that width as a literal and is compiled anew for every width."""
+    return dr.gather(type(values), values, index, mode=dr.ReduceMode.Local)
 
 
 def _keep(parts: list, cls, mask: mi.Bool, **values) -> None:
@@ -304,11 +307,11 @@ class DifferentiablePhotonMapper:
         t = dr.select(rate > 0, dr.minimum(-dr.log(1.0 - gen.next_float32()) / rate, FAR), FAR)
         length = dr.select(si.is_valid(), si.t, FAR)
         scattered = inside & (t < length)
-        pdf_t = dr.mean(fixed * dr.exp(-fixed * t), axis=0)
+        pdf_t = channel_mean(fixed * dr.exp(-fixed * t))
         at_collision = dr.exp(-sigma_t * t) / dr.maximum(pdf_t, 1e-30)
         if albedo:
             at_collision = at_collision * sigma_s
-        p_length = dr.mean(dr.exp(-fixed * length), axis=0)
+        p_length = channel_mean(dr.exp(-fixed * length))
         across = dr.select(p_length > 0, dr.exp(-sigma_t * length) / p_length, 0.0)
         weight = dr.select(scattered, at_collision, dr.select(inside, across, 1.0))
         mei.t = dr.select(scattered, t, dr.inf)

@@ -33,6 +33,7 @@ import math
 import drjit as dr
 import mitsuba as mi
 
+from ..core.arrays import channel_mean
 from .photon_map import PhotonMap
 
 CELLS_U, CELLS_V = 4, 8  # Jensen's 4 × 8 table (Steinhurst 2007 Table 7.1, C_J)
@@ -82,7 +83,7 @@ def photon_table(
     # computed separately; the final gather finds nothing in those directions)
     depth = dr.gather(mi.UInt32, pmap.photons.depth, index, ok)
     ok &= (local.z > 0) & (depth > 1) & ~dr.gather(mi.Bool, pmap.photons.caustic, index, ok)
-    energy = dr.mean(dr.gather(mi.Color3f, pmap.photons.power, index, ok), axis=0)
+    energy = channel_mean(dr.gather(mi.Color3f, pmap.photons.power, index, ok))
     dr.scatter_reduce(dr.ReduceOp.Add, table, energy, query * CELLS + cell_of(local), ok)
     dr.eval(table)
     return table
@@ -99,7 +100,7 @@ def brdf_table(si: mi.SurfaceInteraction3f, active: mi.Bool) -> mi.Float:
     wo = cell_direction(lane % CELLS, dr.full(mi.Float, 0.5, count * CELLS), 0.5)
     ctx = mi.BSDFContext(mi.TransportMode.Radiance, mi.BSDFFlags.Smooth)
     f = x.bsdf().eval(ctx, x, wo, ok) / wo.z  # Mitsuba's eval includes the cosine
-    table = dr.select(ok, dr.maximum(dr.mean(f, axis=0), 0.0), 0.0)
+    table = dr.select(ok, dr.maximum(channel_mean(f), 0.0), 0.0)
     dr.eval(table)
     return table
 
