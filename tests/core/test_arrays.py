@@ -1,6 +1,7 @@
-"""``photonmap.core.arrays``: ``concat``, ``to_numpy`` and ``channel_mean`` give what ``dr.concat``,
-``.numpy()`` and ``dr.mean(…, axis=0)`` give, and launch the same kernels (the same hashes) whatever the widths — where Dr.Jit's own
-launch a kernel per width, which the same check shows."""
+"""``photonmap.core.arrays``: ``concat``, ``to_numpy`` and ``channel_mean`` give what
+``dr.concat``, ``.numpy()`` and ``dr.mean(…, axis=0)`` give, and launch the same kernels (the same
+hashes) whatever the widths — where Dr.Jit's own launch a kernel per width, which the same check
+shows."""
 
 import drjit as dr
 import mitsuba as mi
