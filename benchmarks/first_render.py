@@ -3,10 +3,11 @@ against the same command once the cache holds its kernels, per stage, with the k
 stage compiled.
 
 Each run is a fresh process (as a user's ``photonmap render`` is) running the command's own code
-(``photonmap.cli``'s ``render``, from this checkout's ``src/``) with ``DRJIT_CACHE_DIR`` set: a new empty folder for the *cold*
-run, the folder that cold run filled for the *warm* run after it. Kernel history is on in both
-(Dr.Jit's ``JitFlag.KernelHistory``), and every pipeline's stage timer records the kernels each
-stage launched: a kernel counts as compiled when it was neither in memory nor on disk. Per run:
+(``photonmap.cli``'s ``render``, from this checkout's ``src/``) with ``DRJIT_CACHE_DIR`` set: a
+new empty folder for the *cold* run, the folder that cold run filled for the *warm* run after it.
+Kernel history is on in both (Dr.Jit's ``JitFlag.KernelHistory``), and every pipeline's stage
+timer records the kernels each stage launched: a kernel counts as compiled when it was neither in
+memory nor on disk. Per run:
 the seconds of ``import photonmap`` (which starts Dr.Jit and compiles one kernel), of the command
 (scene loading, pipeline set-up, the render, writing the images) and of the render itself (the
 sum of its stage times, what ``--timings`` prints), the stages' milliseconds, kernels compiled
