@@ -331,3 +331,32 @@ def test_a_change_the_pipeline_refuses_is_undone_and_reported(viewer, monkeypatc
     frame = worker.wait_frame()
     assert frame.error is None
     np.testing.assert_array_equal(frame.pixels, direct(lambda p: p.set_camera(**camera)))
+
+
+def test_a_closed_viewer_leaves_nothing_in_later_kernels():
+    """FastAPI caches the routes of every application it served, and they hold the viewer. A
+    closed viewer must not hold its scene: the scene's BSDFs, shapes and emitters would stay in
+    Dr.Jit's registry, where every later symbolic call traces them too — a render of another
+    scene would compile a new kernel (and trace ever more slowly) after each viewer."""
+    import drjit as dr
+    import mitsuba as mi
+    from fastapi.testclient import TestClient
+
+    from photonmap.viewer import Viewer, create_app
+
+    other = mi.load_dict(mi.cornell_box())
+
+    def kernels() -> tuple:
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            np.array(mi.render(other, spp=1))
+            return tuple(k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT)
+
+    before = kernels()
+    viewer = Viewer(SCENE, "volume", dict(OVERRIDES), SIZE)
+    with TestClient(create_app(viewer), base_url="http://127.0.0.1",
+                    headers={"X-Photonmap-Token": viewer.token}) as client:  # fmt: skip
+        assert client.get("/api/frame.png").status_code == 200
+        assert kernels() != before  # the open viewer's scene is in the calls: the check can fail
+    viewer.close()
+    assert kernels() == before

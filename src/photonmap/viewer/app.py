@@ -83,7 +83,13 @@ class Viewer:
         return self.worker.update(update)[1]
 
     def close(self) -> None:
-        self.worker.stop()
+        """Stop the render thread and let go of the pipeline and its scene. FastAPI keeps the
+        routes of every application it has served in a cache of its own, and those routes hold
+        this viewer: a closed viewer holding its scene would keep the scene's BSDFs, shapes and
+        emitters in Dr.Jit's registry, where every later symbolic call in the process traces
+        them too (a new kernel, and tracing that grows with each viewer ever opened)."""
+        if self.worker.stop():
+            self.adapter = self.worker.adapter = None
 
 
 def short(text: str, limit: int = MAX_DETAIL) -> str:

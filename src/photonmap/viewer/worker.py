@@ -177,11 +177,14 @@ class RenderWorker:
         with self._cond:
             self._listeners.remove(listener)
 
-    def stop(self) -> None:
+    def stop(self) -> bool:
+        """Stop the render thread after its current frame; whether it has ended (it is given
+        30 s)."""
         with self._cond:
             self._stop = True
             self._cond.notify_all()
         self._thread.join(timeout=30)
+        return not self._thread.is_alive()
 
     # ---------------------------------------------------------------- the render thread
     def _next(self):
