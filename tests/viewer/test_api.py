@@ -216,6 +216,18 @@ def test_updates_coalesce_newest_wins(viewer):
     np.testing.assert_array_equal(frame.pixels, direct(lambda p: p.set_light(0, intensity=50)))
 
 
+def test_a_frame_reaches_the_listeners_before_wait_frame_returns(viewer):
+    """A subscriber (the page's stream, a script) has seen every frame ``wait_frame`` returns,
+    however slow it is."""
+    worker = viewer.worker
+    worker.wait_frame()
+    seen = []
+    worker.subscribe(lambda meta, frame: (time.sleep(0.2), seen.append(meta["version"])))
+    _, version = worker.update({"lights": [{"intensity": 20}]})
+    assert worker.wait_frame(version).version == version
+    assert seen and seen[-1] == version
+
+
 def test_preview_then_full_resolution(viewer):
     worker = viewer.worker
     worker.wait_frame()

@@ -261,13 +261,14 @@ class RenderWorker:
             )  # fmt: skip
             with self._cond:
                 frame.error, self.error = self.error, None  # the failure this frame undid
+                listeners = list(self._listeners)
+            for listener in listeners:  # first: a frame wait_frame returns has reached them
+                listener(frame.meta(), frame)
+            with self._cond:
                 self.frame = frame
                 self._rendered = max(self._rendered, version)
                 self._last_preview, self._last_time = preview, now
-                listeners = list(self._listeners)
                 self._cond.notify_all()
-            for listener in listeners:
-                listener(frame.meta(), frame)
 
     def _roll_back(self, snapshot: dict, applied: dict, good: dict | None):
         """After the change to ``snapshot`` failed: give the pipeline ``good`` again (the state of
