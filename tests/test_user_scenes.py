@@ -262,6 +262,56 @@ def test_ends_cleanly(name, method):
     assert result.returncode == 2 and len(errors) == 1, result.error
 
 
+GUARD_BRIGHTER = 10.0  # a 4 × 4 block may be at most this × the reference's, plus its mean
+
+
+def guard_failures(image: np.ndarray, ref: np.ndarray) -> list[str]:
+    """What makes an image wrong beyond noise, whatever a pair's bound: a NaN; a 4 × 4 block
+    brighter than :data:`GUARD_BRIGHTER` × the reference's block plus the reference's mean (a
+    firefly cluster, a misplaced caustic); a black block where the reference's block holds a
+    tenth of its mean or more (a lost light)."""
+    if not np.all(np.isfinite(image)):
+        return ["NaN or infinite values"]
+    from photonmap.core.image import block_means
+
+    mean = ref.mean()
+    img, rb = block_means(image).mean(-1), block_means(ref).mean(-1)
+    out = []
+    wild = img > GUARD_BRIGHTER * rb + mean
+    if wild.any():
+        at = np.unravel_index(np.argmax(img - GUARD_BRIGHTER * rb), img.shape)
+        out.append(f"{wild.sum()} blocks brighter than 10 × the reference's (at block {at}: "
+                   f"{img[at]:.3g} against {rb[at]:.3g})")  # fmt: skip
+    black = (img <= 1e-6 * mean) & (rb >= 0.1 * mean)
+    if black.any():
+        out.append(f"{black.sum()} black blocks where the reference is lit")
+    return out
+
+
+def test_guard_catches_what_it_should():
+    ref = np.full((8, 8, 3), 0.5)
+    assert guard_failures(ref + 0.01, ref) == []
+    firefly = ref.copy()
+    firefly[:4, :4] = 100.0
+    assert "brighter than 10" in guard_failures(firefly, ref)[0]
+    dark = ref.copy()
+    dark[4:, 4:] = 0.0
+    assert "black blocks" in guard_failures(dark, ref)[0]
+    assert guard_failures(np.full_like(ref, np.nan), ref) == ["NaN or infinite values"]
+
+
+@pytest.mark.parametrize(
+    ("name", "method"),
+    [_param(n, m, lambda c: []) for n, m in PAIRS if isinstance(CASES[n][m], Renders)],
+)
+def test_no_wild_blocks(name, method):
+    """The guard against the class of wrong images with exit status 0 (:func:`guard_failures`),
+    on every pair that renders."""
+    result = run(name, method)
+    assert result.returncode == 0, f"{method} on {name}: {result.error}"
+    assert guard_failures(result.image, reference(name)) == []
+
+
 def test_benchmark_script_writes_its_table(tmp_path):
     """``benchmarks/user_scenes.py`` end to end on one file and one method (a refusal: no
     render), with a cheap reference."""

@@ -27,6 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from .bsdf import instanced_shapes
 from .sampling import rng
 
 _LOBES = int(mi.BSDFFlags.All)
@@ -39,21 +40,18 @@ def specular_spheres(scene: mi.Scene, rough_glass: bool = False) -> list[tuple[n
     of every rough glass shape: centred on the shape's
     bounding box, through its farthest vertex (meshes) or 1% beyond the farthest of
     :data:`SURFACE_SAMPLES` points on it (spheres, disks, ...: their extremes are smooth, so the
-    margin covers what the samples miss) — tighter than the box's own sphere."""
+    margin covers what the samples miss) — tighter than the box's own sphere. An ``instance``
+    whose group holds such a shape is aimed at as a whole: the sphere of its box."""
     spheres = []
+    groups = {id(i): shapes for i, shapes in instanced_shapes(scene)}
     for shape in scene.shapes():
-        bsdf = shape.bsdf()
-        if bsdf is None or shape.is_emitter():
+        if id(shape) in groups:  # an instance: aimed at as a whole if its group holds glass
+            if any(_aimed(s, rough_glass) for s in groups[id(shape)]):
+                box = shape.bbox()
+                lo, hi = (np.array(c, dtype=np.float64).ravel() for c in (box.min, box.max))
+                spheres.append(((lo + hi) / 2, 0.5001 * float(np.linalg.norm(hi - lo))))
             continue
-        flags = bsdf.flags()
-        rough = (
-            rough_glass
-            and flags & int(mi.BSDFFlags.GlossyTransmission)
-            and not flags & int(mi.BSDFFlags.Diffuse)
-        )
-        if (flags & int(mi.BSDFFlags.Smooth) and not rough) or flags & _LOBES == int(
-            mi.BSDFFlags.Null
-        ):
+        if not _aimed(shape, rough_glass):
             continue
         box = shape.bbox()
         lo, hi = (np.array(c, dtype=np.float64).ravel() for c in (box.min, box.max))
@@ -69,6 +67,21 @@ def specular_spheres(scene: mi.Scene, rough_glass: bool = False) -> list[tuple[n
         radius = margin * float(np.sqrt(((points - centre) ** 2).sum(axis=1).max()))
         spheres.append((centre, min(radius, 0.5001 * float(np.linalg.norm(hi - lo)))))
     return spheres
+
+
+def _aimed(shape: mi.Shape, rough_glass: bool) -> bool:
+    """Whether photons are aimed at ``shape`` (:func:`specular_spheres`)."""
+    bsdf = shape.bsdf()
+    if bsdf is None or shape.is_emitter():
+        return False
+    flags = bsdf.flags()
+    rough = (
+        rough_glass
+        and flags & int(mi.BSDFFlags.GlossyTransmission)
+        and not flags & int(mi.BSDFFlags.Diffuse)
+    )
+    null = flags & _LOBES == int(mi.BSDFFlags.Null)
+    return not ((flags & int(mi.BSDFFlags.Smooth) and not rough) or null)
 
 
 def aimable(scene: mi.Scene) -> np.ndarray:

@@ -15,6 +15,8 @@
 
 from __future__ import annotations
 
+import re
+
 import drjit as dr
 import mitsuba as mi
 
@@ -64,13 +66,42 @@ def diffuse_albedo(bsdf: mi.BSDFPtr, si: mi.SurfaceInteraction3f, active) -> mi.
     return dr.pi * bsdf.eval(DIFFUSE, si, normal, active)
 
 
+_GROUP_NAME = re.compile(r'ShapeGroup\[\s*name = "([^"]*)"')
+
+
+def instanced_shapes(scene: mi.Scene) -> list[tuple[mi.Shape, list[mi.Shape]]]:
+    """``(instance, shapes)`` per ``instance`` of ``scene``: the shapes of its ``shapegroup``
+    (placed in the group's space). Mitsuba lists an instance among ``scene.shapes()`` as one shape
+    whose ``bsdf()`` is a default diffuse one; its group's shapes, with their own BSDFs, are
+    reachable only through the scene's parameter tree (``mi.traverse``) — what a ray meets."""
+    instances = [s for s in scene.shapes() if s.class_name() == "Instance"]
+    if not instances:
+        return []
+    members: dict[str, list[mi.Shape]] = {}
+    for node, (parent, _) in mi.traverse(scene).hierarchy.items():
+        if isinstance(node, mi.Shape) and isinstance(parent, mi.Shape):
+            members.setdefault(parent.id(), []).append(node)
+    out = []
+    for instance in instances:
+        name = _GROUP_NAME.search(str(instance))
+        out.append((instance, members.get(name.group(1), []) if name else []))
+    return out
+
+
+def surface_shapes(scene: mi.Scene) -> list[mi.Shape]:
+    """Every shape a ray can meet: ``scene.shapes()`` with each instance replaced by the shapes
+    of its group (:func:`instanced_shapes`) — the list to read BSDFs from."""
+    groups = dict((id(i), shapes) for i, shapes in instanced_shapes(scene))
+    return [t for s in scene.shapes() for t in groups.get(id(s), [s])]
+
+
 def has_null_shapes(scene: mi.Scene) -> bool:
     """Whether any shape of ``scene`` has a ``null`` BSDF and no emitter (an invisible boundary)."""
     return any(
         s.bsdf() is not None
         and s.bsdf().flags() & _LOBES == int(mi.BSDFFlags.Null)
         and not s.is_emitter()
-        for s in scene.shapes()
+        for s in surface_shapes(scene)
     )
 
 
@@ -79,7 +110,8 @@ def has_null_lobes(scene: mi.Scene) -> bool:
     lobe: ``null``, ``mask``, ``thindielectric``): shadow rays then need its
     ``eval_null_transmission`` (:func:`photonmap.core.media.transmittance`)."""
     return any(
-        s.bsdf() is not None and s.bsdf().flags() & int(mi.BSDFFlags.Null) for s in scene.shapes()
+        s.bsdf() is not None and s.bsdf().flags() & int(mi.BSDFFlags.Null)
+        for s in surface_shapes(scene)
     )
 
 
@@ -90,7 +122,8 @@ def has_delta_lobes(scene: mi.Scene) -> bool:
     """Whether any shape's BSDF has a delta lobe that turns light (mirror reflection or
     refraction; Mitsuba's ``Delta`` flag also holds ``Null``): caustics are possible."""
     return any(
-        s.bsdf() is not None and s.bsdf().flags() & MIRROR_OR_REFRACTION for s in scene.shapes()
+        s.bsdf() is not None and s.bsdf().flags() & MIRROR_OR_REFRACTION
+        for s in surface_shapes(scene)
     )
 
 
@@ -98,7 +131,17 @@ def has_glossy_shapes(scene: mi.Scene) -> bool:
     """Whether any shape of ``scene`` has a BSDF with a glossy lobe (rough conductors and
     dielectrics, plastics): radiance leaving such a surface depends on the direction."""
     return any(
-        s.bsdf() is not None and s.bsdf().flags() & int(mi.BSDFFlags.Glossy) for s in scene.shapes()
+        s.bsdf() is not None and s.bsdf().flags() & int(mi.BSDFFlags.Glossy)
+        for s in surface_shapes(scene)
+    )
+
+
+def has_rough_glass(scene: mi.Scene) -> bool:
+    """Whether any shape of ``scene`` is rough glass (:func:`is_rough_glass`)."""
+    glossy, diffuse = int(mi.BSDFFlags.GlossyTransmission), int(mi.BSDFFlags.Diffuse)
+    return any(
+        s.bsdf() is not None and s.bsdf().flags() & glossy and not s.bsdf().flags() & diffuse
+        for s in surface_shapes(scene)
     )
 
 

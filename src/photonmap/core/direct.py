@@ -28,6 +28,7 @@ from .media import (
 from .scene_info import SceneTraits
 
 CONTEXT = mi.BSDFContext()
+GOLDEN = 0.6180339887  # shifts u_light.y between the emitter samples of one vertex
 
 
 def power_heuristic(a, b):
@@ -52,14 +53,27 @@ def direct_lighting(
     active: mi.Bool,
     traits: SceneTraits,
     medium: mi.MediumPtr | None = None,
+    samples: int = 1,
 ) -> mi.Spectrum:
     """Radiance the smooth lobes at ``si`` reflect towards ``si.wi`` from light arriving straight
     from emitters; ``u_light`` picks the point on the emitters (stratified by the caller),
-    ``gen`` draws the BSDF sample; ``medium``: the medium the eye path reached ``si`` in."""
+    ``gen`` draws the BSDF sample; ``medium``: the medium the eye path reached ``si`` in.
+    ``samples`` emitter samples (one BSDF sample) stratify the emitter pick: sample ``i`` takes
+    ``u_light.x`` into ``[i, i + 1) / samples``, so that with as many samples as lights of equal
+    weight each light is sampled once, and a pixel's direct light carries no noise of which
+    light was picked (Veach 1997 §9.2: multi-sample MIS, the emitter density counted
+    ``samples`` times in the power heuristic)."""
     bsdf = si.bsdf()
     lanes = dr.width(si.p)
     medium = dr.zeros(mi.MediumPtr, lanes) if medium is None else medium
-    L = emitter_sampled(scene, si, u_light, gen, active, traits, medium)
+    L = dr.zeros(mi.Spectrum, lanes)
+    for i in range(samples):  # a loop over the samples, not over lanes
+        u = u_light
+        if samples > 1:
+            y = u_light.y + i * GOLDEN
+            u = mi.Point2f((i + u_light.x) / samples, y - dr.floor(y))
+        L += emitter_sampled(scene, si, u, gen, active, traits, medium, samples)
+    L /= samples
 
     # BSDF sampling towards emitters: a sample of a delta or Null lobe counts nothing here (the
     # eye path follows those lobes), which leaves an unbiased estimate of the smooth lobes'
@@ -75,14 +89,17 @@ def direct_lighting(
     hits_light = sampled & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
     ds_e = mi.DirectionSample3f(scene, si_e, si)
     pdf_em = scene.pdf_emitter_direction(si, ds_e, hits_light)
-    w_bsdf = power_heuristic(bsdf.pdf(CONTEXT, si, bs.wo, hits_light), pdf_em)
+    w_bsdf = power_heuristic(bsdf.pdf(CONTEXT, si, bs.wo, hits_light), samples * pdf_em)
     L += dr.select(hits_light, w_bsdf * bsdf_weight * T * emitter.eval(si_e, hits_light), 0.0)
     return L
 
 
-def emitter_sampled(scene, si, u_light, gen, active, traits: SceneTraits, medium) -> mi.Spectrum:
+def emitter_sampled(
+    scene, si, u_light, gen, active, traits: SceneTraits, medium, samples: int = 1
+) -> mi.Spectrum:
     """The emitter-sampling half of :func:`direct_lighting` (a shadow ray with transmittance),
-    MIS-weighted against sampling ``si``'s BSDF (power heuristic) — also the next-event
+    MIS-weighted against sampling ``si``'s BSDF (power heuristic; the emitter density counted
+    ``samples`` times where that many emitter samples are taken) — also the next-event
     estimation of a path that goes on by sampling the BSDF (its emitter hits take the other
     weight)."""
     bsdf = si.bsdf()
@@ -91,7 +108,7 @@ def emitter_sampled(scene, si, u_light, gen, active, traits: SceneTraits, medium
     shadow = si.spawn_ray_to(ds.p)
     em_weight *= shadow_transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, lit, traits)
     bsdf_val, bsdf_pdf = bsdf.eval_pdf(CONTEXT, si, si.to_local(ds.d), lit)  # smooth lobes only
-    w_em = dr.select(ds.delta, 1.0, power_heuristic(ds.pdf, bsdf_pdf))
+    w_em = dr.select(ds.delta, 1.0, power_heuristic(samples * ds.pdf, bsdf_pdf))
     return dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
 
 

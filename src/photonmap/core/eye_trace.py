@@ -21,6 +21,11 @@ lobes: a delta lobe evaluates to zero):
 With ``rough_glass`` (the surface method) rough glass is followed as glass is, whatever lobe its
 sample picks (:func:`~photonmap.core.bsdf.is_rough_glass`: a visible point there would need a
 photon density estimate of its near-specular transmission, which blurs what lies behind it).
+Unlike glass, rough glass scatters light from every direction towards the path: with
+``emission`` each rough-glass vertex adds next-event estimation of its glossy lobes, weighted
+against the BSDF sample's later emitter hits by MIS, as at a smooth vertex of ``"continue"`` —
+without it a point, spot or directional light seen through rough glass, or its highlight on it,
+is never found (BSDF sampling cannot hit a delta light).
 
 A ``Null`` lobe passes the ray straight on and is no interaction (``volpath``: it adds no depth).
 Medium is optional state (vacuum is the case without one). In a medium the flight is one of:
@@ -238,6 +243,7 @@ class _Rules:
     hide: bool  # hide emitters on the first segment
     photons_carry: bool  # caustics are given: photons carry the light after a delta chain
     rough_glass: bool
+    rough_nee: bool  # next-event estimation at rough-glass vertices (rough_glass and emission)
     max_pieces: int
 
 
@@ -260,6 +266,7 @@ def _follow(scene, ray, beta, medium, gen, *, settings, traits, emission, media_
         hide=settings.hide_emitters and isinstance(start_depth, int) and start_depth == 0,
         photons_carry=caustics is not None,
         rough_glass=rough_glass,
+        rough_nee=rough_glass and emission and surfaces == "stop" and traits.rough_glass,
         max_pieces=max_pieces,
     )
     caustics = caustics or Caustics()
@@ -353,7 +360,7 @@ def _emission_met(scene, walk: _Walk, si, scattered, arrived, rules: _Rules):
     if rules.photons_carry:
         shown &= walk.origin != THROUGH_DELTA
     w_em = dr.ones(mi.Float, dr.width(active))
-    if rules.continuing:
+    if rules.continuing or rules.rough_nee:
         after = shown & (walk.origin == FROM_SURFACE)
         ds = mi.DirectionSample3f(scene, si, walk.prev_it)
         pdf_em = scene.pdf_emitter_direction(walk.prev_it, ds, after)
@@ -411,6 +418,12 @@ def _surface_vertex(scene, walk: _Walk, si, surface, emitter, arrived, max_depth
     if rules.rough_glass and not rules.continuing:
         whole = is_rough_glass(bsdf, surface)
         smooth &= ~whole
+    if rules.rough_nee:
+        lit = whole & ~skip & (arrived < max_depth)
+        u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
+        walk.radiance[lit] += walk.beta * emitter_sampled(
+            scene, si, u_light, gen, lit, traits, walk.medium
+        )
     followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
     if rules.continuing:
         here = surface & ~skip & smooth & (arrived < max_depth)
@@ -447,6 +460,11 @@ def _surface_vertex(scene, walk: _Walk, si, surface, emitter, arrived, max_depth
     walk.bounces[delta] += 1
     walk.depth[bounced] = arrived
     walk.origin[delta & (walk.origin != FROM_CAMERA)] = THROUGH_DELTA
+    if rules.rough_nee:  # its emitter hits take BSDF sampling's MIS weight
+        glossy = bounced & whole
+        walk.prev_it[glossy] = mi.Interaction3f(si)
+        walk.prev_pdf[glossy] = bsdf.pdf(ctx, si, bs.wo, glossy)
+        walk.origin[glossy] = FROM_SURFACE
     walk.medium = enter(si, d, walk.medium, go_on)
     walk.ray[go_on] = si.spawn_ray(d)
     walk.active &= ~surface | (go_on & ((arrived < max_depth) | passed))

@@ -11,9 +11,10 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass
 
+import drjit as dr
 import mitsuba as mi
 
-from .bsdf import has_null_lobes, has_null_shapes
+from .bsdf import has_null_lobes, has_null_shapes, has_rough_glass, surface_shapes
 from .errors import PhotonmapWarning, SceneError
 
 
@@ -23,8 +24,9 @@ def _name(obj) -> str:
 
 
 def shape_name(shape: mi.Shape) -> str:
-    """``shape 'id'``; Mitsuba's merged meshes have no id."""
-    return f"shape '{shape.id()}'" if shape.id().strip(" +") else f"a merged {shape.class_name()}"
+    """``shape 'id'``; a shape without one (Mitsuba's merged meshes, a shape the file names
+    not) by its kind."""
+    return f"shape '{shape.id()}'" if shape.id().strip(" +") else f"a {shape.class_name()} shape"
 
 
 def check_gathered_bsdfs(scene: mi.Scene, method: str) -> None:
@@ -35,7 +37,7 @@ def check_gathered_bsdfs(scene: mi.Scene, method: str) -> None:
     instead, and on a hair-shaded sphere the photons' estimate came out 36–41 % too bright
     against ``path`` (64 and 256 iterations)."""
     hair = [
-        shape_name(shape) for shape in scene.shapes()
+        shape_name(shape) for shape in surface_shapes(scene)
         if shape.bsdf() is not None and "Hair[" in str(shape.bsdf())  # nested too
     ]  # fmt: skip
     if hair:
@@ -43,6 +45,36 @@ def check_gathered_bsdfs(scene: mi.Scene, method: str) -> None:
             f"the {method} method cannot gather photons on the hair BSDF of {', '.join(hair)}; "
             "render this scene with --method surface"
         )
+
+
+def check_bsdfs_evaluate(scene: mi.Scene) -> None:
+    """Raise a :class:`SceneError` naming the first shape whose BSDF Mitsuba cannot sample or
+    evaluate — a part it leaves unimplemented, such as a ``bumpmap`` over a texture without
+    derivatives (``checkerboard``: ``Texture::eval_1_grad(): not implemented``), which Mitsuba's
+    own integrators refuse as well. Each distinct BSDF is traced once on one lane (no kernel
+    runs): the error comes here, in one line, rather than from inside a method's loop."""
+    seen = set()
+    for shape in surface_shapes(scene):
+        bsdf = shape.bsdf()
+        if bsdf is None or id(bsdf) in seen:
+            continue
+        seen.add(id(bsdf))
+        si = dr.zeros(mi.SurfaceInteraction3f, 1)
+        si.n = mi.Normal3f(0, 0, 1)
+        si.sh_frame = mi.Frame3f(si.n)
+        si.wi = mi.Vector3f(0, 0, 1)
+        try:
+            bsdf.sample(mi.BSDFContext(), si, 0.5, mi.Point2f(0.5))
+            bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(0, 0, 1))
+        except RuntimeError as exc:
+            hint = (
+                "; a bumpmap needs a texture Mitsuba can differentiate, such as a bitmap"
+                if "eval_1_grad" in str(exc) else ""
+            )  # fmt: skip
+            raise SceneError(
+                f"Mitsuba cannot evaluate the {bsdf.class_name()} BSDF of {shape_name(shape)} "
+                f"({str(exc).strip()}){hint}"
+            ) from None
 
 
 def media(scene: mi.Scene) -> list[str]:
@@ -87,16 +119,21 @@ class SceneTraits:
     """What the transport loops need to know about a scene once, to leave out the work it does
     not need (the same code path either way): ``media`` — it holds participating media;
     ``null_shapes`` — shapes with a ``null`` BSDF that rays cross unchanged; ``null_lobes`` —
-    BSDFs that let shadow rays through in part (``null``, ``mask``, ``thindielectric``). (Not a
-    frozen dataclass: Dr.Jit's symbolic loops write back every object they are passed.)"""
+    BSDFs that let shadow rays through in part (``null``, ``mask``, ``thindielectric``);
+    ``rough_glass`` — rough glass, which eye paths of the surface method follow (not a
+    frozen dataclass: Dr.Jit's symbolic loops write back every object they are passed)."""
 
     media: bool
     null_shapes: bool
     null_lobes: bool
+    rough_glass: bool
 
     @classmethod
     def of(cls, scene: mi.Scene) -> SceneTraits:
-        return cls(has_media(scene), has_null_shapes(scene), has_null_lobes(scene))
+        return cls(
+            has_media(scene), has_null_shapes(scene), has_null_lobes(scene),
+            has_rough_glass(scene),
+        )  # fmt: skip
 
 
 def pick_method(scene: mi.Scene) -> str:

@@ -16,6 +16,7 @@ import mitsuba as mi
 
 from ..core.errors import ParameterError, SceneError
 from ..core.params import parameter_names
+from ..core.scene_info import check_bsdfs_evaluate
 from . import bushes, cornell, ispm, volume_scenes
 
 
@@ -128,8 +129,15 @@ def load_scene(scene, **params) -> tuple[mi.Scene, dict]:
 
     ``scene`` is a built-in name, an XML path, a Mitsuba scene dict or an ``mi.Scene``. For a
     built-in, ``params`` named like one of its defaults override that default and the others go
-    to its ``build``; for an XML file they fill its ``$name`` parameters.
+    to its ``build``; for an XML file they fill its ``$name`` parameters. A scene whose BSDFs
+    Mitsuba cannot evaluate is refused (:func:`~photonmap.core.scene_info.check_bsdfs_evaluate`).
     """
+    loaded, defaults = _scene_and_defaults(scene, **params)
+    check_bsdfs_evaluate(loaded)
+    return loaded, defaults
+
+
+def _scene_and_defaults(scene, **params) -> tuple[mi.Scene, dict]:
     if isinstance(scene, mi.Scene | dict):
         if params:
             raise ParameterError(

@@ -66,7 +66,12 @@ from .direct import direct_light
 from .gbuffer import GBuffer, eye_gbuffer
 from .light_gbuffer import check_light_outside, find_light, light_gbuffer
 from .light_photons import GLOSSY_MODES, ScreenPhotons, random_map, trace_photons
-from .scene_checks import check_dielectrics, check_shading, visible_diagonal
+from .scene_checks import (
+    check_dielectrics,
+    check_shading,
+    visible_diagonal,
+    warn_sharp_caustics,
+)
 from .soft_shadow import MODES, soft_visibility
 
 SPLATS = ("quad", "icosahedron")
@@ -74,6 +79,7 @@ SHADOWS = (*MODES, "sampled")
 """Shadow modes: those of :mod:`.soft_shadow` and ``"sampled"`` (area lights: each light sample's
 own shadow ray, :mod:`.direct`; spot and point lights: the hard shadow)."""
 RADIUS = 0.045  # the automatic splat radius, × the scene diagonal
+SHARP_DENSITY = 4.0  # path density from which photons splat at full resolution (_indirect_stages)
 MAX_BOUNCES = 8  # recorded bounces at most (a file's unbounded max_depth gets these)
 STAGES = (
     "eye G-buffer",
@@ -231,6 +237,7 @@ class ScreenPipeline(Pipeline):
         self.diagonal = visible_diagonal(self.scene)
         if not self.diagonal > 0:
             raise SceneError("the scene has no geometry (empty bounding box)")
+        warn_sharp_caustics(self.scene, self.light.radius, self.splat_radius)
 
     # ------------------------------------------------------------------------------- changes
     def set_params(self, **params) -> None:
@@ -413,17 +420,32 @@ class ScreenPipeline(Pipeline):
 
     def _indirect_stages(self, gbuf: GBuffer, cam_key, photons, photon_key):
         """The subsampled G-buffer, the photons splatted on it (L_ind, E_ind) and L_ind
-        upsampled to every pixel (Yao §3.3, Eq 1); the splats' stage key."""
+        upsampled to every pixel (Yao §3.3, Eq 1); the splats' stage key. With ``subsample``
+        > 1 the *sharp* photons — path density ρ ≥ :data:`SHARP_DENSITY`, splats of at most
+        r/2 (a mirror or glass bounce on the way: caustics) — are splatted at full resolution
+        instead and added after upsampling: one low sample per s × s block point-samples a
+        caustic narrower than the block, and the upsampler moves what it catches to the
+        neighbours of like geometry (a glass ball's caustic came out missing where it lies
+        and as a block of light beside it: 4 × 4-block error 0.29, against 0.07 at s = 1)."""
         from .upsample import subsample, upsample
 
         p = self.params
         low_key = (cam_key, p.subsample)
         low = self.cache.stage("subsample", low_key, lambda: subsample(gbuf, p.subsample))
         splat_key = (low_key, photon_key, p.splat, p.radius, p.compression)
-        L_low, E_low = self.cache.stage("splatting", splat_key, lambda: self._splat(photons, low))
-        indirect = self.cache.stage(
-            "upsampling", splat_key, lambda: upsample(L_low, low, gbuf, p.subsample)
-        )
+        smooth, sharp = photons, None
+        if photons is not None and p.subsample > 1:
+            is_sharp = photons.valid & (photons.density >= SHARP_DENSITY)
+            if dr.any(is_sharp):
+                smooth = dataclasses.replace(photons, valid=photons.valid & ~is_sharp)
+                sharp = dataclasses.replace(photons, valid=is_sharp)
+        L_low, E_low = self.cache.stage("splatting", splat_key, lambda: self._splat(smooth, low))
+
+        def upsampled():
+            L = upsample(L_low, low, gbuf, p.subsample)
+            return L if sharp is None else L + self._splat(sharp, gbuf)[0]
+
+        indirect = self.cache.stage("upsampling", splat_key, upsampled)
         return low, L_low, E_low, indirect, splat_key
 
     def _splat(self, photons: ScreenPhotons | None, points: GBuffer, cull: bool = True):

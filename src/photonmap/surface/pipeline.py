@@ -9,7 +9,8 @@ non-specular surface x, where
 
 - ``L_e``: emitters met on the way (the lights and their images in mirrors and glass), with
   ``emitter_spp`` extra samples in the pixels that show them (:func:`light_images`);
-- ``L_direct``: emitter sampling and BSDF sampling with MIS (:mod:`.direct`);
+- ``L_direct``: emitter sampling and BSDF sampling with MIS (:mod:`.direct`), ``light_samples``
+  emitter samples with a stratified pick of the light (automatic: one per emitter, at most 8);
 - ``L_caustic``: direct visualisation of the caustic map, k-NN radiance estimate (Eq 2.6), once per
   pixel where all its samples see one surface directly (:func:`caustic_radiance`);
 - ``L_indirect``: final gather of ``fg_rays`` rays (:mod:`.final_gather`; directions by
@@ -96,6 +97,7 @@ STAGES = (
 CAUSTIC_RADIUS = 0.05  # automatic caustic gather radius, × scene diagonal (radii(): ours)
 GLOBAL_RADIUS = 0.1  # automatic global gather radius, × scene diagonal (radii(): ours)
 VOLUME_RADIUS = 0.1  # automatic volume gather radius, × scene diagonal
+LIGHT_SAMPLES = 8  # automatic emitter samples of the direct light: one per emitter, at most
 
 
 @dataclasses.dataclass
@@ -121,6 +123,7 @@ class SurfaceParams:
     irradiance_every: int = 4  # precompute irradiance at every m-th photon (Christensen 1999)
     spp: int = 1  # eye rays per pixel
     emitter_spp: int = 64  # extra samples of the lights' direct and specular images (0 = none)
+    light_samples: int = 0  # emitter samples of the direct light per eye-path end; 0 = automatic
     volume_k: int = 50  # volume photons per in-scattering estimate (scenes with media)
     volume_radius: float = 0.0  # maximum volume gather radius; 0 = automatic
     march_step: float = 0.0  # ray-marching step in media; 0 = half the median k-NN radius
@@ -144,6 +147,7 @@ class SurfaceParams:
             check_range(key, getattr(self, key), 1, None, hint)
         check_range("caustic_photons", self.caustic_photons, 0, None, "0 = no caustic map")
         check_range("emitter_spp", self.emitter_spp, 0, None, "0 = no extra light samples")
+        check_range("light_samples", self.light_samples, 0, None, "0 = automatic")
         check_range("radius", self.radius, 0, None, "the gather radius, scene units; 0 = automatic")
         check_range("volume_radius", self.volume_radius, 0, None, "0 = automatic")
         check_range("march_step", self.march_step, 0, None, "0 = automatic")
@@ -428,7 +432,8 @@ class SurfacePipeline(Pipeline):
         si, beta, found, bounces = eye.si, eye.beta, eye.found, eye.bounces
         bsdf = si.bsdf()
         L = run("direct lighting", lambda: _added(L, lambda: beta * direct_lighting(
-            self.scene, si, u_light, gen, found, self.traits, eye.medium)))  # fmt: skip
+            self.scene, si, u_light, gen, found, self.traits, eye.medium,
+            self.light_samples())))  # fmt: skip
         L = run("caustics", lambda: _added(L, lambda: beta * caustic_radiance(
             caustic_map, si, found, bounces, p.spp, p.k, r_caustic)))  # fmt: skip
 
@@ -453,6 +458,15 @@ class SurfacePipeline(Pipeline):
                 "textures and emitters for NaN"
             )
         return image
+
+    def light_samples(self) -> int:
+        """Emitter samples of the direct light at each eye-path end: ``light_samples``, or
+        automatically one per emitter up to :data:`LIGHT_SAMPLES` — the final gather smooths
+        the indirect light, and at one sample per pixel the pick of one light among several
+        would leave the direct light noisy (a few samples cost little beside ``fg_rays``)."""
+        if self.params.light_samples > 0:
+            return self.params.light_samples
+        return max(1, min(len(self.scene.emitters()), LIGHT_SAMPLES))
 
     def _lookup(self, global_map, extra, r_global):
         """The radiance a final-gather ray finds at its hit ``(si_y, bsdf_y, active)``: the

@@ -87,38 +87,51 @@ class Emitters:
     """What the emission densities need of a scene's emitters: the sum of their sampling weights
     (Mitsuba picks emitter ``e`` with ``w_e / Σ w``) and, per positional delta light, the density
     of its light subpaths' directions: uniform on the sphere (point lights) or in the cone of
-    the cutoff angle (spot lights, as Mitsuba's ``sample_ray`` samples them)."""
+    the cutoff angle (spot lights, as Mitsuba's ``sample_ray`` samples them); per area light,
+    the density of its positions, ``1 / area`` (Mitsuba's shapes sample positions uniformly by
+    area). Both are tables of constants, one entry per light: a call through a shape pointer
+    (``pdf_position``) would trace every shape of the scene, and a ``shapegroup`` implements
+    none."""
 
     total_weight: float
     cones: tuple  # (mi.EmitterPtr, direction density) per point or spot light
+    areas: tuple  # (mi.EmitterPtr, 1 / area) per area light
 
     @classmethod
     def of(cls, scene: mi.Scene) -> Emitters:
-        cones = []
+        cones, areas = [], []
         for emitter in scene.emitters():
+            if emitter.get_shape() is not None:
+                areas.append((mi.EmitterPtr(emitter), 1.0 / emitter.get_shape().surface_area()[0]))
             if not mi.has_flag(emitter.flags(), mi.EmitterFlags.DeltaPosition):
                 continue
             cutoff = mi.traverse(emitter).get("cutoff_angle")
             cos_max = -1.0 if cutoff is None else math.cos(math.radians(float(cutoff[0])))
             cones.append((mi.EmitterPtr(emitter), 1.0 / (2.0 * math.pi * (1.0 - cos_max))))
-        return cls(sum(e.sampling_weight() for e in scene.emitters()), tuple(cones))
+        weight = sum(e.sampling_weight() for e in scene.emitters())
+        return cls(weight, tuple(cones), tuple(areas))
 
     def pick(self, emitter: mi.EmitterPtr) -> mi.Float:
         """The probability that ``scene.sample_emitter`` picks ``emitter``."""
         return emitter.sampling_weight() / self.total_weight
 
+    @staticmethod
+    def _lookup(table: tuple, emitter: mi.EmitterPtr) -> mi.Float:
+        """The value of ``emitter`` in ``table`` (0 for an emitter not in it)."""
+        value = dr.zeros(mi.Float, dr.width(emitter))
+        for ptr, entry in table:  # a loop over the lights, not over lanes
+            value = dr.select(emitter == ptr, entry, value)
+        return value
+
     def cone(self, emitter: mi.EmitterPtr) -> mi.Float:
         """A delta light's direction density (0 for other emitters)."""
-        density = dr.zeros(mi.Float, dr.width(emitter))
-        for ptr, value in self.cones:  # a loop over the delta lights, not over lanes
-            density = dr.select(emitter == ptr, value, density)
-        return density
+        return self._lookup(self.cones, emitter)
 
     def emitted(self, si_or_ds, emitter, cos_light, delta) -> mi.Float:
         """``p_e``: the density with which a light subpath starts at the point of ``si_or_ds``
         (a position sample on ``emitter``) towards a direction at ``cos_light`` from its normal,
         per area and solid angle (per solid angle for delta lights), the pick included."""
-        area = emitter.get_shape().pdf_position(mi.PositionSample3f(si_or_ds), ~delta)
+        area = self._lookup(self.areas, emitter)
         per_direction = dr.select(delta, self.cone(emitter), area * cos_light / math.pi)
         return self.pick(emitter) * per_direction
 
