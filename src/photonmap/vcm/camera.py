@@ -23,6 +23,8 @@ In ``lt`` mode the camera subpaths only add the emission they see directly.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import drjit as dr
@@ -90,6 +92,7 @@ class _Walk:
     radiance: mi.Spectrum
     active: mi.Bool
     events: mi.UInt32
+    offset: mi.Float  # the camera's centre to the ray's origin (the near clip plane); then 0
 
 
 def camera_pass(
@@ -110,17 +113,25 @@ def camera_pass(
     gen = rng(n, seed, 3)
     pixel = dr.arange(mi.UInt32, n) // tech.spp
     ray, weight = pixel_rays(sensor, pixel, mi.Point2f(gen.next_float32(), gen.next_float32()))
-    # the camera's density of this direction, per pixel: W_e at a point at unit distance
+    # the camera's density of this direction, per pixel: W_e at a point at unit distance,
+    # read at a point between the clip planes (Mitsuba's importance is 0 outside them; at unit
+    # distance an oblique ray is nearer than a near clip of 1) and scaled by its distance²
+    params = mi.traverse(sensor)
+    depth = math.sqrt(float(params["near_clip"]) * float(params["far_clip"]))
+    local_z = (sensor.world_transform().inverse() @ ray.d).z
+    distance = depth / dr.maximum(local_z, 1e-6)
+    centre = mi.Point3f(sensor.world_transform().translation())
     at = dr.zeros(mi.Interaction3f, n)
-    at.p = ray.o + ray.d
+    at.p = centre + ray.d * distance
     _, importance = sensor.sample_direction(at, mi.Point2f(0.5, 0.5))
-    d_vcm = dr.select(importance.x > 0, dr.rcp(importance.x), 0.0)
+    importance = importance.x * dr.square(distance)
+    d_vcm = dr.select(importance > 0, dr.rcp(importance), 0.0)
     zero = dr.zeros(mi.Float, n)
     walk = _Walk(
         ray, mi.Spectrum(weight), dr.maximum(dr.max(dr.abs(mi.Spectrum(weight))), 1e-30), d_vcm,
         zero, zero, dr.zeros(mi.UInt32, n), zero + 1, dr.full(mi.Bool, True, n),
         dr.zeros(mi.Interaction3f, n), dr.zeros(mi.Spectrum, n), dr.full(mi.Bool, True, n),
-        dr.zeros(mi.UInt32, n),
+        dr.zeros(mi.UInt32, n), dr.norm(ray.o - centre),  # Mitsuba starts at the near plane
     )  # fmt: skip
     limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
     if tech.mode == "lt":  # the camera subpaths add the emission they see and stop
@@ -162,6 +173,7 @@ def _loop(scene, walk: _Walk, gen, limit, rr_depth, mode: str, at_vertex, emissi
     """The camera subpaths' loop (module docstring); updates ``walk`` in place."""
     while walk.active & (walk.events < MAX_EVENTS):
         si = scene.ray_intersect(walk.ray, walk.active)
+        si.t += walk.offset  # the first segment's length from the camera's centre
         hit = walk.active & si.is_valid()
         t = walk.depth + 1
         d_vcm, d_vc, d_vm = update_at_hit(si, walk.d_vcm, walk.d_vc, walk.d_vm)
@@ -188,6 +200,7 @@ def _loop(scene, walk: _Walk, gen, limit, rr_depth, mode: str, at_vertex, emissi
         walk.d_vc[go_on] = d_vc
         walk.d_vm[go_on] = d_vm
         walk.ray[go_on] = si.spawn_ray(si.to_world(bs.wo))
+        walk.offset[go_on] = 0.0
         walk.depth[go_on] = t
         walk.active = go_on
         walk.events += 1
