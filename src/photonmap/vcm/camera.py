@@ -24,7 +24,6 @@ In ``lt`` mode the camera subpaths only add the emission they see directly.
 from __future__ import annotations
 
 import math
-
 from dataclasses import dataclass
 
 import drjit as dr
