@@ -127,6 +127,18 @@ FILES = {
     </shape>
 </scene>
 """,
+    # rough metal balls as instances of one shape group
+    "rough_metal_instances": head() + sphere_light(0.5, 3, 0.5, 0.3, 30) + FLOOR + """
+    <shape type="shapegroup" id="ball">
+        <shape type="sphere">
+            <float name="radius" value="0.5"/>
+            <bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf>
+        </shape>
+    </shape>
+    <shape type="instance"><ref id="ball"/>
+        <transform name="to_world"><translate x="-0.7" y="0.5"/></transform></shape>
+</scene>
+""",
     # a bump map over a checkerboard, a texture Mitsuba cannot differentiate
     "bump_checkerboard": head() + sphere_light(1, 3, 1, 0.3, 30) + """
     <shape type="sphere">
@@ -247,6 +259,14 @@ def test_instanced_glass_is_aimed_at(files):
     assert spheres[0][1] >= 0.5 * np.sqrt(3) - 1e-3  # around the instance's box
     diffuse = mi.load_file(str(files["diffuse_instances"]))
     assert specular_spheres(diffuse) == [] and not has_delta_lobes(diffuse)
+
+
+def test_screen_reads_instanced_surfaces(files):
+    """The screen method shades by diffuse reflectance and refuses a BSDF without a diffuse
+    lobe; an instanced rough metal ball passed as the default diffuse BSDF Mitsuba reports for
+    an instance."""
+    run = us.render_inprocess(files["rough_metal_instances"], "screen")
+    assert run.returncode == 2 and "(RoughConductor) has no diffuse lobe" in run.error, run.error
 
 
 @pytest.mark.parametrize("method", ["volume", "surface", "screen", "sppm", "vcm"])
