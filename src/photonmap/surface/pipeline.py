@@ -42,6 +42,7 @@ The scene file's ``max_depth``, ``rr_depth`` and ``hide_emitters`` are the defau
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from typing import ClassVar
 
 import drjit as dr
@@ -52,7 +53,7 @@ from ..core.arrays import to_numpy
 from ..core.bsdf import diffuse_albedo, has_glossy_shapes
 from ..core.camera import pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
-from ..core.errors import SceneError
+from ..core.errors import PhotonmapWarning, SceneError
 from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
 from ..core.memory import check_once
@@ -122,7 +123,7 @@ class SurfaceParams:
     ic_error: float = 0.05  # the irradiance cache's ε_max
     irradiance_every: int = 4  # precompute irradiance at every m-th photon (Christensen 1999)
     spp: int = 1  # eye rays per pixel
-    emitter_spp: int = 64  # extra samples of the lights' direct and specular images (0 = none)
+    emitter_spp: int = 256  # extra samples of the lights' direct and specular images (0 = none)
     light_samples: int = 0  # emitter samples of the direct light per eye-path end; 0 = automatic
     volume_k: int = 50  # volume photons per in-scattering estimate (scenes with media)
     volume_radius: float = 0.0  # maximum volume gather radius; 0 = automatic
@@ -409,6 +410,14 @@ class SurfacePipeline(Pipeline):
         pass, direct lighting, caustics, final gather and light images run every frame."""
         p = self.params
         check_once(self, p, self.size, self.check_memory)
+        if self.traits.media and p.spp == 1 and not getattr(self, "_warned_spp", False):
+            self._warned_spp = True
+            warnings.warn(
+                "one eye ray per pixel leaves the light the fog scatters noisy (each ray "
+                "marches the fog once): raise --set spp (or --spp), e.g. to 4",
+                PhotonmapWarning,
+                stacklevel=2,
+            )
         self.cache.new_frame(progress)
         global_map, caustic_map, extra = self.photon_maps()
         volume = self._traced_maps()[2]
