@@ -47,6 +47,23 @@ def sphere_light(x, y, z, radius, radiance) -> str:
 """
 
 
+def instanced_balls(bsdf: str) -> str:
+    """Two balls of ``bsdf`` as instances of one shape group (one moved, one also scaled) on
+    the floor, under a sphere light."""
+    return head() + sphere_light(0.5, 3, 0.5, 0.3, 30) + FLOOR + f"""
+    <shape type="shapegroup" id="ball">
+        <shape type="sphere"><float name="radius" value="0.5"/>{bsdf}</shape>
+    </shape>
+    <shape type="instance"><ref id="ball"/>
+        <transform name="to_world"><translate x="-0.7" y="0.5"/></transform></shape>
+    <shape type="instance"><ref id="ball"/>
+        <transform name="to_world">
+            <scale value="0.6"/><translate x="0.8" y="0.3" z="0.4"/></transform>
+        </shape>
+</scene>
+"""
+
+
 FILES = {
     # a spot light behind two frosted balls of milk, nothing else: all the light reaches the
     # camera through rough glass (Mitsuba's own participating-media test scene is built so)
@@ -88,37 +105,11 @@ FILES = {
 </scene>
 """,
     # glass balls as instances of one shape group
-    "glass_instances": head() + sphere_light(0.5, 3, 0.5, 0.3, 30) + FLOOR + """
-    <shape type="shapegroup" id="ball">
-        <shape type="sphere">
-            <float name="radius" value="0.5"/>
-            <bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>
-        </shape>
-    </shape>
-    <shape type="instance"><ref id="ball"/>
-        <transform name="to_world"><translate x="-0.7" y="0.5"/></transform></shape>
-    <shape type="instance"><ref id="ball"/>
-        <transform name="to_world">
-            <scale value="0.6"/><translate x="0.8" y="0.3" z="0.4"/></transform>
-        </shape>
-</scene>
-""",
+    "glass_instances": instanced_balls('<bsdf type="dielectric"><float name="int_ior" value="1.5"/></bsdf>'),
     # diffuse balls as instances, lit by an area light (vcm's light subpaths start on it)
-    "diffuse_instances": head() + sphere_light(0.5, 3, 0.5, 0.3, 30) + FLOOR + """
-    <shape type="shapegroup" id="ball">
-        <shape type="sphere">
-            <float name="radius" value="0.5"/>
-            <bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.4, 0.3"/></bsdf>
-        </shape>
-    </shape>
-    <shape type="instance"><ref id="ball"/>
-        <transform name="to_world"><translate x="-0.7" y="0.5"/></transform></shape>
-    <shape type="instance"><ref id="ball"/>
-        <transform name="to_world">
-            <scale value="0.6"/><translate x="0.8" y="0.3" z="0.4"/></transform>
-        </shape>
-</scene>
-""",
+    "diffuse_instances": instanced_balls(
+        '<bsdf type="diffuse"><rgb name="reflectance" value="0.7, 0.4, 0.3"/></bsdf>'
+    ),
     # direct light only, a camera whose near clip plane is at 1 (Mitsuba's instancing test)
     "near_clip": head("path", 2, near_clip=1) + sphere_light(0.5, 3, 0.5, 0.3, 30) + FLOOR + """
     <shape type="sphere">
@@ -128,17 +119,9 @@ FILES = {
 </scene>
 """,
     # rough metal balls as instances of one shape group
-    "rough_metal_instances": head() + sphere_light(0.5, 3, 0.5, 0.3, 30) + FLOOR + """
-    <shape type="shapegroup" id="ball">
-        <shape type="sphere">
-            <float name="radius" value="0.5"/>
-            <bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf>
-        </shape>
-    </shape>
-    <shape type="instance"><ref id="ball"/>
-        <transform name="to_world"><translate x="-0.7" y="0.5"/></transform></shape>
-</scene>
-""",
+    "rough_metal_instances": instanced_balls(
+        '<bsdf type="roughconductor"><float name="alpha" value="0.2"/></bsdf>'
+    ),
     # a bump map over a checkerboard, a texture Mitsuba cannot differentiate
     "bump_checkerboard": head() + sphere_light(1, 3, 1, 0.3, 30) + """
     <shape type="sphere">
