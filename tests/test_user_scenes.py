@@ -160,7 +160,7 @@ CASES: dict[str, dict[str, Renders | Refuses]] = {
     },
     "sensor_in_fog": {
         "volume": Refuses("no refractive or medium-bearing shape"),
-        "surface": Renders(0.094),  # block 0.038, 0.047, 0.035; brightness 1.013, 0.997, 0.995
+        "surface": Renders(0.094),  # block 0.049, 0.055, 0.046; brightness 1.006, 0.994, 0.996
         "screen": MEDIA,
         "sppm": Renders(0.92),  # block 0.157, 0.457, 0.177; brightness 1.013, 1.023, 0.987
         "vcm": MEDIA,
