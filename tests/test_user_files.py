@@ -14,6 +14,8 @@ import pytest
 import user_scenes as us
 
 REF_SPP = 512
+# small budgets where a case is not about the defaults (the tests' own, ``user_scenes.TEST_SETS``)
+SMALL = us.TEST_SETS
 
 HEAD = """<scene version="3.0.0">
     <integrator type="{integrator}"><integer name="max_depth" value="{depth}"/></integrator>
@@ -201,7 +203,7 @@ def test_surface_lights_through_rough_glass(files):
     0.000; its eye paths follow rough glass as glass, and nothing sampled the light at the
     rough vertices). The same root left out a point light seen through a frosted pane."""
     for name, bound in (("spot_behind_rough_balls", 0.3), ("point_behind_frosted_pane", 0.3)):
-        run, errors = compared(files[name], "surface")
+        run, errors = compared(files[name], "surface", SMALL["surface"])
         assert abs(errors["brightness"] - 1) < 0.06, (name, errors)
         assert errors["block_rel_rmse"] < bound, (name, errors)
 
@@ -213,7 +215,7 @@ def test_instances(files, method):
     aimed no photon at instanced glass (an instance's ``bsdf()`` is a default diffuse one)."""
     names = ["diffuse_instances"] + (["glass_instances"] if method != "vcm" else [])
     for name in names:
-        run, errors = compared(files[name], method, {"iterations": 16} if method != "surface" else None)
+        run, errors = compared(files[name], method, SMALL[method])
         assert abs(errors["brightness"] - 1) < 0.05, (name, errors)
         assert errors["block_rel_rmse"] < 0.25, (name, errors)
 
@@ -222,7 +224,7 @@ def test_vcm_with_a_near_clip_plane(files):
     """A near clip plane at 1: ``vcm`` read the camera's importance at unit distance, where
     Mitsuba's is 0 for every oblique ray (nearer than the plane), and its MIS weights came out
     5 % dark over the whole image."""
-    run, errors = compared(files["near_clip"], "vcm", {"iterations": 16})
+    run, errors = compared(files["near_clip"], "vcm", SMALL["vcm"])
     assert abs(errors["brightness"] - 1) < 0.02, errors
     assert errors["block_rel_rmse"] < 0.1, errors
 
