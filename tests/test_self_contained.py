@@ -107,3 +107,11 @@ def test_nothing_reads_outside_the_repository():
             rel = PurePosixPath(path.relative_to(ROOT).as_posix())
             found += [f"{rel}: {what}" for what in escapes(rel, path.read_text(errors="replace"))]
     assert not found, "paths outside the repository:\n" + "\n".join(found)
+
+
+def test_the_modules_run_first_exist():
+    """``conftest.LONGEST_FIRST`` names test modules that exist (a renamed one would silently
+    lose its place at the front)."""
+    from conftest import LONGEST_FIRST
+
+    assert [p for p in LONGEST_FIRST if not (ROOT / p).is_file()] == []
