@@ -112,6 +112,7 @@ def test_nothing_reads_outside_the_repository():
 def test_the_modules_run_first_exist():
     """``conftest.LONGEST_FIRST`` names test modules that exist (a renamed one would silently
     lose its place at the front)."""
-    from conftest import LONGEST_FIRST
-
-    assert [p for p in LONGEST_FIRST if not (ROOT / p).is_file()] == []
+    text = (ROOT / "tests" / "conftest.py").read_text()
+    listed = re.search(r"LONGEST_FIRST = \((.*?)\n\)", text, re.S).group(1)
+    paths = re.findall(r'"([^"]+)"', listed)
+    assert len(paths) >= 5 and [p for p in paths if not (ROOT / p).is_file()] == []
