@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .bsdf import instanced_shapes
+from .bsdf import instanced_shapes, rough_glass_flags
 from .sampling import rng
 
 _LOBES = int(mi.BSDFFlags.All)
@@ -43,10 +43,10 @@ def specular_spheres(scene: mi.Scene, rough_glass: bool = False) -> list[tuple[n
     margin covers what the samples miss) — tighter than the box's own sphere. An ``instance``
     whose group holds such a shape is aimed at as a whole: the sphere of its box."""
     spheres = []
-    groups = {id(i): shapes for i, shapes in instanced_shapes(scene)}
+    groups = {instance.ptr: shapes for instance, shapes in instanced_shapes(scene)}
     for shape in scene.shapes():
-        if id(shape) in groups:  # an instance: aimed at as a whole if its group holds glass
-            if any(_aimed(s, rough_glass) for s in groups[id(shape)]):
+        if shape.ptr in groups:  # an instance: aimed at as a whole if its group holds glass
+            if any(_aimed(s, rough_glass) for s in groups[shape.ptr]):
                 box = shape.bbox()
                 lo, hi = (np.array(c, dtype=np.float64).ravel() for c in (box.min, box.max))
                 spheres.append(((lo + hi) / 2, 0.5001 * float(np.linalg.norm(hi - lo))))
@@ -75,11 +75,7 @@ def _aimed(shape: mi.Shape, rough_glass: bool) -> bool:
     if bsdf is None or shape.is_emitter():
         return False
     flags = bsdf.flags()
-    rough = (
-        rough_glass
-        and flags & int(mi.BSDFFlags.GlossyTransmission)
-        and not flags & int(mi.BSDFFlags.Diffuse)
-    )
+    rough = rough_glass and rough_glass_flags(flags)
     null = flags & _LOBES == int(mi.BSDFFlags.Null)
     return not ((flags & int(mi.BSDFFlags.Smooth) and not rough) or null)
 

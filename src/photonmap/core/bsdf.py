@@ -91,8 +91,8 @@ def instanced_shapes(scene: mi.Scene) -> list[tuple[mi.Shape, list[mi.Shape]]]:
 def surface_shapes(scene: mi.Scene) -> list[mi.Shape]:
     """Every shape a ray can meet: ``scene.shapes()`` with each instance replaced by the shapes
     of its group (:func:`instanced_shapes`) — the list to read BSDFs from."""
-    groups = dict((id(i), shapes) for i, shapes in instanced_shapes(scene))
-    return [t for s in scene.shapes() for t in groups.get(id(s), [s])]
+    groups = {instance.ptr: shapes for instance, shapes in instanced_shapes(scene)}
+    return [t for s in scene.shapes() for t in groups.get(s.ptr, [s])]
 
 
 def has_null_shapes(scene: mi.Scene) -> bool:
@@ -136,11 +136,17 @@ def has_glossy_shapes(scene: mi.Scene) -> bool:
     )
 
 
+def rough_glass_flags(flags: int) -> bool:
+    """:func:`is_rough_glass` of one BSDF's flags (a Python int)."""
+    return bool(flags & int(mi.BSDFFlags.GlossyTransmission)) and not flags & int(
+        mi.BSDFFlags.Diffuse
+    )
+
+
 def has_rough_glass(scene: mi.Scene) -> bool:
     """Whether any shape of ``scene`` is rough glass (:func:`is_rough_glass`)."""
-    glossy, diffuse = int(mi.BSDFFlags.GlossyTransmission), int(mi.BSDFFlags.Diffuse)
     return any(
-        s.bsdf() is not None and s.bsdf().flags() & glossy and not s.bsdf().flags() & diffuse
+        s.bsdf() is not None and rough_glass_flags(s.bsdf().flags())
         for s in surface_shapes(scene)
     )
 

@@ -56,9 +56,9 @@ def check_bsdfs_evaluate(scene: mi.Scene) -> None:
     seen = set()
     for shape in surface_shapes(scene):
         bsdf = shape.bsdf()
-        if bsdf is None or id(bsdf) in seen:
+        if bsdf is None or bsdf.ptr in seen:
             continue
-        seen.add(id(bsdf))
+        seen.add(bsdf.ptr)
         si = dr.zeros(mi.SurfaceInteraction3f, 1)
         si.n = mi.Normal3f(0, 0, 1)
         si.sh_frame = mi.Frame3f(si.n)

@@ -12,7 +12,7 @@ import warnings
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import is_null, surface_shapes
+from ..core.bsdf import MIRROR_OR_REFRACTION, is_null, surface_shapes
 from ..core.errors import PhotonmapWarning, SceneError
 from ..core.scene_info import shape_name, warn_unmodelled
 
@@ -79,12 +79,11 @@ def warn_sharp_caustics(scene: mi.Scene, light_radius: float, splat_radius: floa
     ``--method sppm`` renders them converged."""
     if light_radius >= splat_radius:
         return
-    turning = int(mi.BSDFFlags.DeltaReflection | mi.BSDFFlags.DeltaTransmission)
     names = [
         f"{shape_name(shape)} ({shape.bsdf().class_name()})"
         for shape in surface_shapes(scene)
         if shape.bsdf() is not None and not shape.is_emitter()
-        and int(shape.bsdf().flags()) & turning
+        and int(shape.bsdf().flags()) & MIRROR_OR_REFRACTION
         and not int(shape.bsdf().flags()) & int(mi.BSDFFlags.Diffuse)
     ]  # fmt: skip
     if names:

@@ -186,6 +186,7 @@ class SurfacePipeline(Pipeline):
         self.stats: dict[str, float] = {}
         self.kept_requests: list | None = None  # a list: keep the k-NN final-gather batches
         self.requests_only = False  # with kept_requests: keep them without gathering
+        self._warned_spp = False  # the warning about one eye ray per pixel in fog, given once
 
     def set_params(self, **params) -> None:
         """Change pipeline parameters (:class:`SurfaceParams` fields); settings that would not
@@ -410,7 +411,7 @@ class SurfacePipeline(Pipeline):
         pass, direct lighting, caustics, final gather and light images run every frame."""
         p = self.params
         check_once(self, p, self.size, self.check_memory)
-        if self.traits.media and p.spp == 1 and not getattr(self, "_warned_spp", False):
+        if self.traits.media and p.spp == 1 and not self._warned_spp:
             self._warned_spp = True
             warnings.warn(
                 "one eye ray per pixel leaves the light the fog scatters noisy (each ray "

@@ -115,11 +115,13 @@ def camera_pass(
     # the camera's density of this direction, per pixel: W_e at a point at unit distance,
     # read at a point between the clip planes (Mitsuba's importance is 0 outside them; at unit
     # distance an oblique ray is nearer than a near clip of 1) and scaled by its distance²
+    # (opaque: a literal would compile a new kernel for every camera)
     params = mi.traverse(sensor)
-    depth = math.sqrt(float(params["near_clip"]) * float(params["far_clip"]))
+    depth = dr.opaque(mi.Float, math.sqrt(float(params["near_clip"]) * float(params["far_clip"])))
     local_z = (sensor.world_transform().inverse() @ ray.d).z
     distance = depth / dr.maximum(local_z, 1e-6)
     centre = mi.Point3f(sensor.world_transform().translation())
+    dr.make_opaque(centre)
     at = dr.zeros(mi.Interaction3f, n)
     at.p = centre + ray.d * distance
     _, importance = sensor.sample_direction(at, mi.Point2f(0.5, 0.5))
