@@ -53,7 +53,7 @@ TEST_SETS = {
     "volume": {"grid": 48, "photons": 131072},
     "surface": {"photons": 20000, "caustic_photons": 100000, "fg_rays": 4, "spp": 4},
     "screen": {},
-    "sppm": {"iterations": 16, "photons": 10000},
+    "sppm": {"iterations": 16, "photons": 10000, "spp": 1},
     "vcm": {"iterations": 16, "spp": 1},
 }
 # with media: more photons (the volume photon map's k-NN density estimate is biased bright at a

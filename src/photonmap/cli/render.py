@@ -43,8 +43,9 @@ def render(  # over 80 lines with its option declarations; the body is shorter
     ] = None,
     height: Annotated[int | None, typer.Option(help="image height, 1…16384")] = None,
     spp: Annotated[
-        int, typer.Option(help="camera samples per pixel (volume, surface; screen casts 1)")
-    ] = 1,
+        int | None,
+        typer.Option(help="camera samples per pixel (default: the method's own; screen casts 1)"),
+    ] = None,
     seed: Annotated[int, typer.Option(help="random seed, 0 … 2³²−1")] = 0,
     set_: Annotated[
         list[str] | None,
@@ -90,7 +91,7 @@ def render(  # over 80 lines with its option declarations; the body is shorter
             check_output(out)
         check_side("--width", width)
         check_side("--height", height)
-        if spp < 1:
+        if spp is not None and spp < 1:
             raise PhotonmapError(f"--spp must be at least 1, got {spp}")
         if method is not None and method not in METHODS:
             raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
@@ -138,13 +139,16 @@ def render(  # over 80 lines with its option declarations; the body is shorter
             )
 
 
-def _method_params(method: str, sets: dict, builtin, spp: int, seed: int) -> dict:
+def _method_params(method: str, sets: dict, builtin, spp: int | None, seed: int) -> dict:
     """The ``--set`` values as the method's (and the built-in scene's) parameters, with ``--spp``
-    and ``--seed``; ``--spp`` other than 1 for a method without ``spp`` is refused."""
+    (when given; else the method's own default) and ``--seed``; ``--spp`` other than 1 for a
+    method without ``spp`` is refused."""
     from .. import METHODS, PhotonmapError
 
     params = typed_params(method, sets, builtin)
-    if "spp" in {f.name for f in dataclasses.fields(METHODS[method].params)}:
+    if spp is None:
+        pass
+    elif "spp" in {f.name for f in dataclasses.fields(METHODS[method].params)}:
         params.setdefault("spp", spp)
     elif spp != 1:
         raise PhotonmapError(
