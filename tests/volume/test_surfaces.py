@@ -244,8 +244,9 @@ def plate_in_fog(**plate_bsdf) -> dict:
 def test_photons_stop_at_an_opaque_plate(scattering):
     """Nothing below the plate is lit by photons: no fluence in the voxels below it (beyond the
     3×3×3 smoothing's reach) and no photon recorded under it; with multiple scattering photons
-    are recorded on its top (the fog scatters light onto it)."""
-    pipe = VolumePipeline(plate_in_fog(), grid=32, photons=128**2, scattering=scattering)
+    are recorded on its top (the fog scatters light onto it), and nothing is left out (``spp``
+    4: one ray per pixel centre would be named as aliasing the plate's edges)."""
+    pipe = VolumePipeline(plate_in_fog(), grid=32, photons=128**2, scattering=scattering, spp=4)
     with pytest.warns(PhotonmapWarning) if scattering == "single" else _no_warning():
         pipe.render()
     C = pipe.grids["C"]  # (z, y, x, 3): the plate is at y = 0, voxel 16

@@ -6,6 +6,9 @@ keeps the photons across camera moves)."""
 
 from __future__ import annotations
 
+import warnings
+
+from ..core.errors import PhotonmapWarning
 from ..core.scene_info import warn_unmodelled
 from ..core.stages import cache_key
 from .params import VolumeParams
@@ -64,6 +67,14 @@ def warn_settings(s: VolumeScene, p: VolumeParams, warned: set) -> None:
     # light reflected by the lamps' own shapes alone is too little to mention
     if s.surfaces is None or len(s.surfaces.names) == s.surfaces.lamps:
         return
+    if p.spp == 1 and "spp" not in warned:
+        warned.add("spp")
+        warnings.warn(
+            "one camera ray through each pixel centre aliases the surfaces' edges, which the "
+            "film's filter averages over the pixel: raise --set spp (or --spp), e.g. to 4",
+            PhotonmapWarning,
+            stacklevel=4,
+        )
     parts = []
     if p.scattering == "single":
         parts.append(
