@@ -302,6 +302,9 @@ class PhotonSearch:
             self._stored(directions),
             dr.opaque(mi.Float, cos_normal),
         )
+        # one kernel for all three: ``index`` is scattered, so a read of it runs the search,
+        # and a lazy ``count``/``radius2`` read later would run the whole search again
+        dr.eval(index, count, found_radius2)
         return Neighbours(index, count, found_radius2, k)
 
     def _stored(self, photon_data: mi.Vector3f | None) -> mi.Float | None:

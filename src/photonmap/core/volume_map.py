@@ -104,14 +104,16 @@ class VolumeMap:
         return total * dr.opaque(mi.Float, 1.0 / ((4.0 / 3.0) * math.pi * radius**3))
 
 
-def density_radius(position: mi.Point3f, k: int, bound: float, samples: int = 4096) -> float:
+def density_radius(
+    position: mi.Point3f, k: int, bound: float, samples: int = 4096, grid: HashGrid | None = None
+) -> float:
     """The radius of a sphere that holds about ``k`` of the points ``position``: the median
     distance of the ``k``-th nearest over up to ``samples`` of them (``bound`` where fewer lie
-    within it, and at most)."""
+    within it, and at most). ``grid``: a hash grid over ``position`` to search, if one exists."""
     count = dr.width(position)
     if count == 0:
         return bound
-    grid = HashGrid(position)
+    grid = grid or HashGrid(position)
     at = dr.gather(mi.Point3f, position, dr.arange(mi.UInt32, 0, count, max(1, count // samples)))
     found = grid.knn(at, k=min(k, count), max_radius=bound)
     r2 = dr.select(found.count < min(k, count), bound**2, found.radius2)
@@ -165,14 +167,20 @@ class ScatteredDensity:
 
     @classmethod
     def build(cls, vmap: VolumeMap, every: int, k: int, max_radius: float) -> ScatteredDensity:
+        """The density at every ``every``-th photon from its ``k`` nearest within ``max_radius``.
+        The queries lie where the photons are densest, so they search a grid whose cell edge is
+        the typical ``k``-NN radius there (:func:`density_radius`), not the map's (sized for
+        the mean occupied cell: on a room of fog lit by one lamp, 6× slower)."""
         index = dr.arange(mi.UInt32, 0, vmap.size, every)
         position = dr.gather(mi.Point3f, vmap.photons.position, index)
         dr.eval(position)
+        cell = density_radius(vmap.photons.position, k, max_radius, grid=vmap.grid)
+        grid = HashGrid(vmap.photons.position, cell_size=cell)
         density = dr.zeros(mi.Color3f, dr.width(index))
         for first in range(0, dr.width(index), CHUNK):
             chunk = dr.arange(mi.UInt32, first, min(dr.width(index), first + CHUNK))
             at = dr.gather(mi.Point3f, position, chunk)
-            nb = vmap.grid.knn(at, k=k, max_radius=max_radius)
+            nb = grid.knn(at, k=k, max_radius=max_radius)
             dr.scatter(density, _power_sum(vmap, nb, k, max_radius), chunk)
             dr.eval(density)
         return cls(position, density, HashGrid(position))
