@@ -152,9 +152,12 @@ def test_a_self_refining_method_steps_while_idle_and_restarts(monkeypatch):
             renders.append(np.asarray(ref.render()))
         np.testing.assert_allclose(np.asarray(pipe.image()), np.mean(renders, axis=0), rtol=1e-5,
                                    atol=1e-6)  # fmt: skip
+        shown = []  # every frame from now on (the render thread may refine past the first
+        worker.subscribe(lambda _meta, frame: frame and shown.append(frame))  # before we look)
         worker.update({"camera": {"origin": [0.3, 0.3, -0.7]}})
         frame = worker.wait_frame()
-        assert frame.passes == 1 and pipe.iterations >= 1  # restarted, refining again
+        first = next(f for f in shown if f.version == frame.version and not f.preview)
+        assert first.passes == 1 and pipe.iterations >= 1  # restarted, refining again
     finally:
         viewer.close()
 
