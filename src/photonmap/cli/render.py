@@ -146,11 +146,9 @@ def _method_params(method: str, sets: dict, builtin, spp: int | None, seed: int)
     from .. import METHODS, PhotonmapError
 
     params = typed_params(method, sets, builtin)
-    if spp is None:
-        pass
-    elif "spp" in {f.name for f in dataclasses.fields(METHODS[method].params)}:
+    if spp is not None and "spp" in {f.name for f in dataclasses.fields(METHODS[method].params)}:
         params.setdefault("spp", spp)
-    elif spp != 1:
+    elif spp not in (None, 1):
         raise PhotonmapError(
             f"--spp does not apply to the {method} method: it casts one primary ray per "
             f"pixel centre (got --spp {spp})"
