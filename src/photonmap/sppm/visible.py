@@ -114,18 +114,15 @@ def _may_see_emission(scene, sensor, eye, spp: int) -> np.ndarray:
     scene with an environment light, and the pixels within the film filter's reach of them
     (the emission-seen paths are jittered over it). Elsewhere every such path ends on the
     diffuse surface the eye paths found, with no emission."""
+    from scipy.ndimage import binary_dilation
+
     w, h = (int(c) for c in sensor.film().crop_size())
-    met = eye.found & (eye.si.emitter(scene) != None) | (eye.depth > 1)  # noqa: E711
+    met = (eye.found & (eye.si.emitter(scene) != None)) | (eye.depth > 1)  # noqa: E711
     if scene.environment() is not None:
         met |= ~eye.found
     near = met.numpy().reshape(h, w, spp).any(axis=2)
     reach = int(np.ceil(sensor.film().rfilter().radius())) + 1
-    grown = near.copy()
-    for dy in range(-reach, reach + 1):
-        for dx in range(-reach, reach + 1):
-            grown[max(dy, 0) : h + min(dy, 0), max(dx, 0) : w + min(dx, 0)] |= near[
-                max(-dy, 0) : h + min(-dy, 0), max(-dx, 0) : w + min(-dx, 0)
-            ]
+    grown = binary_dilation(near, np.ones((2 * reach + 1, 2 * reach + 1), bool))
     return np.flatnonzero(grown).astype(np.uint32)
 
 
