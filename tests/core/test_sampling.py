@@ -79,19 +79,3 @@ def test_bad_sampler_input():
         sampling.points("grid", 1000)
     with pytest.raises(ParameterError, match="at least 1"):
         sampling.points("hammersley", 0)
-
-
-def test_rng_of_some_lanes_is_theirs_in_the_whole_wavefront():
-    """``rng(count, seed, stream, lanes)`` gives each listed lane the generator it has in
-    ``rng(N, seed, stream)`` (Dr.Jit's PCG32 adds each lane's position to its state and
-    sequence; without the shift every compacted lane drew other numbers)."""
-    import drjit as dr
-    import mitsuba as mi
-
-    whole = sampling.rng(1000, 5, 2)
-    full = np.array([np.array(whole.next_float32()) for _ in range(3)])
-    lanes = np.array([3, 4, 500, 999, 0], dtype=np.uint32)
-    some = sampling.rng(len(lanes), 5, 2, mi.UInt32(lanes))
-    part = np.array([np.array(some.next_float32()) for _ in range(3)])
-    np.testing.assert_array_equal(part, full[:, lanes])
-    assert dr.width(some.state) == len(lanes)

@@ -22,21 +22,14 @@ from .order import morton_cells, morton_order
 SAMPLERS = ("hammersley", "halton", "grid", "jittered", "random")
 
 
-def rng(count: int, seed: int, stream: int, lanes: mi.UInt32 | None = None) -> mi.PCG32:
+def rng(count: int, seed: int, stream: int) -> mi.PCG32:
     """``count`` PCG32 generators, one per lane, decorrelated by hashing (seed, stream) and then
     (key, lane) with TEA: distinct (seed, stream) pairs give unrelated sequences. The key is
-    opaque, so new seeds and streams reuse compiled kernels. ``lanes``: the lane numbers
-    (``count`` of them) when only some lanes of a wavefront are traced; each gets the
-    generator it has in the whole wavefront."""
+    opaque, so new seeds and streams reuse compiled kernels."""
     v0, v1 = (mi.UInt32(x & 0xFFFFFFFF) for x in (seed, stream))
     key = dr.opaque(mi.UInt32, mi.sample_tea_32(v0, v1, 8)[0][0])
-    position = dr.arange(mi.UInt32, count)
-    state, sequence = mi.sample_tea_32(key, position if lanes is None else lanes)
-    state, sequence = mi.UInt64(state), mi.UInt64(sequence)
-    if lanes is not None:  # PCG32 adds each lane's position to both: give it the lane's own
-        shift = mi.UInt64(lanes) - mi.UInt64(position)
-        state, sequence = state + shift, sequence + shift
-    return mi.PCG32(count, state, sequence)
+    state, sequence = mi.sample_tea_32(key, dr.arange(mi.UInt32, count))
+    return mi.PCG32(count, mi.UInt64(state), mi.UInt64(sequence))
 
 
 def radical_inverse_2(i: mi.UInt32) -> mi.Float:

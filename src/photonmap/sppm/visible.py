@@ -30,7 +30,6 @@ from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
-import numpy as np
 
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
@@ -102,54 +101,23 @@ def eye_pass(
     dr.eval(L, eye.si, eye.beta, eye.found, eye.depth)  # one kernel: read lazily, the loop reran
     direct = pixel_means(L, spp)
     if not seen_here:
-        pixels = None if surfaces != "stop" else _may_see_emission(scene, sensor, eye, spp)
-        direct += emission_seen(scene, sensor, seed, settings, traits, w * h, pixels)
+        direct += emission_seen(scene, sensor, seed, settings, traits, w * h)
     dr.eval(direct)
     return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct, spp)
 
 
-def _may_see_emission(scene, sensor, eye, spp: int) -> np.ndarray:
-    """The pixels whose emission-seen paths can find a light: where an eye path of this pass
-    met an emitter's surface, went on through a mirror or glass (depth above 1) or left the
-    scene with an environment light, and the pixels within the film filter's reach of them
-    (the emission-seen paths are jittered over it). Elsewhere every such path ends on the
-    diffuse surface the eye paths found, with no emission."""
-    from scipy.ndimage import binary_dilation
-
-    w, h = (int(c) for c in sensor.film().crop_size())
-    met = (eye.found & (eye.si.emitter(scene) != None)) | (eye.depth > 1)  # noqa: E711
-    if scene.environment() is not None:
-        met |= ~eye.found
-    near = met.numpy().reshape(h, w, spp).any(axis=2)
-    reach = int(np.ceil(sensor.film().rfilter().radius())) + 1
-    grown = binary_dilation(near, np.ones((2 * reach + 1, 2 * reach + 1), bool))
-    return np.flatnonzero(grown).astype(np.uint32)
-
-
-def emission_seen(
-    scene, sensor, seed: int, settings, traits, pixels: int, only: np.ndarray | None = None
-) -> mi.Spectrum:
+def emission_seen(scene, sensor, seed: int, settings, traits, pixels: int) -> mi.Spectrum:
     """Per pixel, the mean emission of :data:`LIGHT_SPP` jittered paths that only follow
-    mirrors, glass and the media's transmittance; ``only``: the pixels to trace (the others
-    are 0), each with the random numbers it has when all are traced."""
-    if only is None:
-        lanes = dr.arange(mi.UInt32, pixels * LIGHT_SPP)
-    else:
-        lanes = mi.UInt32((only[:, None] * LIGHT_SPP + np.arange(LIGHT_SPP)).ravel())
-    many = dr.width(lanes)
-    if many == 0:
-        return dr.zeros(mi.Spectrum, pixels)
-    gen = rng(many, seed, 1, lanes)
+    mirrors, glass and the media's transmittance."""
+    many = pixels * LIGHT_SPP
+    gen = rng(many, seed, 1)
     ray, weight = pixel_rays(
-        sensor, lanes // LIGHT_SPP, mi.Point2f(gen.next_float32(), gen.next_float32())
+        sensor,
+        dr.arange(mi.UInt32, many) // LIGHT_SPP,
+        mi.Point2f(gen.next_float32(), gen.next_float32()),
     )
     seen = trace_eye_paths(
         scene, ray, weight, broadcast(sensor.get_medium(), many), gen, settings, traits,
         emission=True, media_mode="transmit",
     )  # fmt: skip
-    means = pixel_means(seen.radiance, LIGHT_SPP)
-    if only is None:
-        return means
-    out = dr.zeros(mi.Spectrum, pixels)
-    dr.scatter(out, means, mi.UInt32(only))
-    return out
+    return pixel_means(seen.radiance, LIGHT_SPP)
