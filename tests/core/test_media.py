@@ -141,6 +141,30 @@ def test_free_flights_scatter_in_the_slab_with_its_probability_and_albedo():
     assert abs((z + HALF).mean() - mean) < 2.5e-3  # measured within 1.3e-3 (seeds 1-3)
 
 
+def test_free_flights_in_a_coloured_medium_are_unbiased_with_bounded_weights():
+    """Spectral MIS (one-sample, balance heuristic over the channels): each distance is drawn in
+    one channel but weighted by the channels' mean pdf, so the weight of a flight across the slab
+    is ``T / mean(T_c) <= 3`` and of a collision ``σ_s T / mean(σ_c T_c) <= 3 × albedo``. One
+    channel's ``T / p_c`` (``volpath``'s) reaches ``e^1.5 = 4.5`` across this slab, and grows
+    exponentially with the distance in thicker media. The estimates stay ``e^(-σ_t)`` and
+    ``albedo (1 − e^(-σ_t))`` per channel."""
+    scene = slab(homogeneous())  # σ_t = (0.5, 1, 2), albedo 0.5, one unit thick
+    n = 400_000
+    gen = rng(n, 2, 0)
+    flight = free_flight(
+        scene, rays_through(n, 1.0), broadcast(None, n), gen, channel(gen), dr.ones(mi.Bool, n)
+    )
+    scattered = np.array(flight.scattered)
+    weight = np.array(flight.weight)  # (3, n)
+    sigma = np.array(SIGMA)
+    assert weight[:, ~scattered].max() <= 3.0 + 1e-5
+    assert weight[:, scattered].max() <= 3.0 * 0.5 + 1e-5
+    across = (weight * ~scattered).mean(axis=1)
+    collided = (weight * scattered).mean(axis=1)
+    assert np.allclose(across, np.exp(-sigma), rtol=6e-3)
+    assert np.allclose(collided, 0.5 * (1 - np.exp(-sigma)), rtol=6e-3)
+
+
 def closed_fog_box(albedo: float, walls: float, light_medium: bool = True) -> mi.Scene:
     """A 2 x 2 x 2 box of fog (σ_t = 1) inside diffuse walls of reflectance ``walls``, with a
     point light (1 W/sr) inside the fog: no light leaves the box. ``light_medium``: the light

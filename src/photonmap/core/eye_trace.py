@@ -335,7 +335,7 @@ def _fly(scene, walk: _Walk, gen, ch, max_depth, rules: _Rules, null_shapes, rec
         length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
         lit = in_medium & (walk.depth + 2 <= max_depth)
         walk.radiance[lit] += walk.beta * piece_direct(scene, ray, length, medium, gen, ch, lit)
-        scattered, mei, weight = collide(ray, length, medium, gen, ch, in_medium)
+        scattered, mei, weight = collide(ray, length, medium, gen, in_medium)
         walk.beta[in_medium] *= weight
     else:
         flight = free_flight(scene, ray, medium, gen, ch, active, rules.media_mode == "end")

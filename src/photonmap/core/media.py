@@ -10,10 +10,14 @@ medium: the ray goes on unchanged. A photon starts in its emitter's medium: the 
 file gives the emitter, else the medium found around it (:func:`emitter_media`) — ``volpath``'s
 image never depends on an emitter's medium, so a file may leave it out.
 
-**Free flight** (:func:`free_flight`): distances sampled by ``medium.sample_interaction`` in one
-colour channel (chosen per lane, as ``volpath`` does), weighted by ``T / p`` from
-``medium.transmittance_eval_pdf``; heterogeneous media sample against their majorant and reject
-null collisions with probability ``σ_n / σ̄`` (delta tracking), so homogeneous and
+**Free flight** (:func:`free_flight`): distances sampled by ``medium.sample_interaction`` in a
+colour channel drawn afresh for each sample, weighted by ``T / p̄`` with ``p̄`` the mean of the
+channels' pdfs from ``medium.transmittance_eval_pdf`` — one-sample MIS over the channels with the
+balance heuristic (spectral MIS, Miller, Georgiev & Jarosz 2019; Mitsuba's ``volpathmis``), so
+that the weight stays below 3 where ``volpath``'s ``T / p_c`` of one channel grows as
+``exp((σ_c − σ_k) t)`` in the other channels of a coloured medium. Heterogeneous media sample
+against their (grey) majorant and reject null collisions with probability ``σ_n / σ̄`` (delta
+tracking), so homogeneous and
 ``heterogeneous`` grid media take the same path. At a real collision the weight holds
 ``σ_s / p``: the scattering albedo ``σ_s / σ_t`` for a grey medium.
 
@@ -55,7 +59,7 @@ def scene_media(scene: mi.Scene) -> list:
 
 
 def channel(gen: mi.PCG32) -> mi.UInt32:
-    """The colour channel that samples each lane's free-flight distances (``volpath``)."""
+    """A colour channel drawn uniformly per lane: the one that samples a distance (``volpath``)."""
     n = dr.size_v(mi.Spectrum)
     return dr.minimum(mi.UInt32(gen.next_float32() * n), n - 1)
 
@@ -234,13 +238,13 @@ def collide(
     length: mi.Float,
     medium: mi.MediumPtr,
     gen: mi.PCG32,
-    ch: mi.UInt32,
     active: mi.Bool,
 ) -> tuple[mi.Bool, mi.MediumInteraction3f, mi.Spectrum]:
     """Sample a real collision of ``ray`` (unit direction) in ``medium`` within ``[0, length]``
-    (no surface on the way): ``(scattered, mei, weight)``, ``weight`` = ``T/p`` to the end of the
-    piece or ``σ_s T / p`` at the collision (module docstring: delta tracking against the
-    majorant in channel ``ch``); nothing happens in vacuum (``medium`` None)."""
+    (no surface on the way): ``(scattered, mei, weight)``, ``weight`` = ``T/p̄`` to the end of
+    the piece or ``σ_s T / p̄`` at the collision (module docstring: delta tracking against the
+    majorant, each distance in a fresh channel, ``p̄`` the channels' mean pdf); nothing happens
+    in vacuum (``medium`` None)."""
     n = dr.width(active)
     ray = full_width(ray, n)
     ray.maxt = mi.Float(length) + dr.zeros(mi.Float, n)
@@ -250,14 +254,14 @@ def collide(
     going = active & (medium != None)  # noqa: E711 (Dr.Jit pointer test)
     events = dr.zeros(mi.UInt32, n)
     while going & (events < MAX_EVENTS):
-        m = medium.sample_interaction(ray, gen.next_float32(), ch, going)
+        m = medium.sample_interaction(ray, gen.next_float32(), channel(gen), going)
         hit = going & m.is_valid() & (m.t < ray.maxt)
         m.t = dr.select(hit, m.t, dr.inf)
         end = dr.zeros(mi.SurfaceInteraction3f, n)
         end.t = ray.maxt
         tr, pdf = medium.transmittance_eval_pdf(m, end, going)
-        p_ch = pick(pdf, ch)
-        weight[going] *= dr.select(p_ch > 0, tr / p_ch, 0.0)
+        p_mean = channel_mean(pdf)
+        weight[going] *= dr.select(p_mean > 0, tr / p_mean, 0.0)
         real_p = dr.select(hit, channel_mean(m.sigma_t / dr.maximum(m.combined_extinction, 1e-30)), 1.0)
         real = hit & (gen.next_float32() < real_p)
         null_hit = hit & ~real
@@ -301,7 +305,7 @@ def free_flight(
         si[going] = si_next
         length = dr.minimum(ray.maxt, si.t)
         if dr.hint(collisions, mode="scalar"):
-            real, m, w = collide(ray, length, medium, gen, ch, going)
+            real, m, w = collide(ray, length, medium, gen, going)
             weight[going] *= w
             scattered |= real
             mei[real] = m
