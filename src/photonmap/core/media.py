@@ -17,9 +17,8 @@ balance heuristic (spectral MIS, Miller, Georgiev & Jarosz 2019; Mitsuba's ``vol
 that the weight stays below 3 where ``volpath``'s ``T / p_c`` of one channel grows as
 ``exp((σ_c − σ_k) t)`` in the other channels of a coloured medium. Heterogeneous media sample
 against their (grey) majorant and reject null collisions with probability ``σ_n / σ̄`` (delta
-tracking), so homogeneous and
-``heterogeneous`` grid media take the same path. At a real collision the weight holds
-``σ_s / p``: the scattering albedo ``σ_s / σ_t`` for a grey medium.
+tracking), so homogeneous and ``heterogeneous`` grid media take the same path. At a real
+collision the weight holds ``σ_s / p̄``: the scattering albedo ``σ_s / σ_t`` for a grey medium.
 
 **Transmittance of a shadow ray** (:func:`transmittance`): the product of the media's
 transmittances between the surfaces on the ray (``exp(−σ_t d)`` in closed form in homogeneous
