@@ -18,7 +18,8 @@ def test_reads_the_timings_the_cli_prints(bench, tmp_path, monkeypatch):
     monkeypatch.setenv("COLUMNS", "1000")  # as the script runs it: lines unwrapped
     args = ["render", "examples/cornell_box.xml", "--method", "sppm", "-o",
             str(tmp_path / "a.exr"), "--width", "16", "--height", "16",
-            "--set", "iterations=2", "--set", "photons=1000", "--timings"]  # fmt: skip
+            "--set", "iterations=2", "--set", "photons=1000", "--set", "transport=photons",
+            "--timings"]  # fmt: skip
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     stages, counters = bench.parse_timings(result.stdout)

@@ -53,12 +53,12 @@ TEST_SETS = {
     "volume": {"grid": 48, "photons": 131072},
     "surface": {"photons": 20000, "caustic_photons": 100000, "fg_rays": 4, "spp": 4},
     "screen": {},
-    "sppm": {"iterations": 16, "photons": 10000, "spp": 1},
+    "sppm": {"iterations": 16, "photons": 10000, "spp": 4},
     "vcm": {"iterations": 16, "spp": 1},
 }
 # with media: more photons (the volume photon map's k-NN density estimate is biased bright at a
 # few ten thousand photons: +13 % on the smoke ball at 20k, +2 % at 200k)
-TEST_SETS_MEDIA = {"surface": {"photons": 200000}, "sppm": {"photons": 40000}}
+TEST_SETS_MEDIA = {"surface": {"photons": 200000}, "sppm": {"photons": 40000, "spp": 1}}
 # per file: where the budgets above cost too much (sppm's eye pass through the fog filling a room)
 TEST_SETS_FOR = {
     ("sensor_in_fog", "sppm"): {"iterations": 4, "photons": 20000},

@@ -21,15 +21,23 @@ distance of the surfaces the camera sees; in ``sppm`` mode the first iteration t
 pixel's radius to hold about :data:`FIRST_PHOTONS` photons (:meth:`.gather.PixelState.updated`:
 small radii where photons are dense, in caustics). A given ``radius`` is every pixel's start.
 
-**Participating media** (Jensen & Christensen 1998; Mitsuba's ``volpath``): in a scene with
-media the eye paths are volumetric path tracing throughout (:mod:`.visible`) and the photon pass
-traces the caustic photons alone (:mod:`.photons`: light that reached a surface or a medium
-through mirrors and glass only, which no eye path finds; no photon pass without delta lobes),
-read at every vertex of the eye paths: on surfaces within the iteration's global radius ``r_i``,
-in the media within ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates:
-the variance of one estimate grows as ``1/ρ³``). The iterations are then memoryless in both
-modes. ``ρ_1``: ``volume_radius``, or the sphere that holds about :data:`FIRST_PHOTONS` of
-iteration 1's caustic volume photons (at most :data:`VOLUME_RADIUS` × the scene diagonal).
+**Path tracing with caustic photons** (``transport``; Jensen 1996's split of the light into
+what path tracing samples well and the caustics, used progressively): with ``"paths"`` the eye
+paths are path tracing throughout, as Mitsuba's ``path`` and ``volpath`` (:mod:`.visible`:
+next-event estimation and BSDF samples under MIS, on through media) and the photon pass traces
+the caustic photons alone (:mod:`.photons`: light that reached a surface or a medium through
+mirrors and glass only, which no eye path finds; no photon pass without delta lobes), read at
+every vertex of the eye paths: on surfaces within the iteration's global radius ``r_i``, in the
+media within ``ρ_i = ρ_1 · i^((α−1)/3)`` (Knaus & Zwicker 2011's rule for 3-D estimates: the
+variance of one estimate grows as ``1/ρ³``). The iterations are then memoryless in both modes.
+``ρ_1``: ``volume_radius``, or the sphere that holds about :data:`FIRST_PHOTONS` of iteration 1's
+caustic volume photons (at most :data:`VOLUME_RADIUS` × the scene diagonal). ``"auto"`` (the
+default) path traces the scenes with participating media (visible points hold no medium) and
+those without mirrors and glass: there no photon carries light that path tracing does not find,
+and the method is exactly path tracing. ``"photons"``, and ``"auto"`` in every other scene:
+visible points and photons (caustic photons read at a path's diffuse vertices with one radius
+per iteration blur a sharp caustic that SPPM's per-pixel radii resolve: on the glass sphere over
+a plane, 10 s of ``"paths"`` reach the 4×4 error that ``"photons"`` reach in 0.2 s).
 
 **The scene file's settings**: ``max_depth``, ``rr_depth`` and ``hide_emitters`` default to the
 file's ``<integrator>`` (:class:`~photonmap.core.settings.PathSettings`), with Mitsuba's meaning;
@@ -65,6 +73,7 @@ from .photons import photon_pass
 from .visible import eye_pass
 
 MODES = ("sppm", "memoryless")
+TRANSPORTS = ("auto", "photons", "paths")
 STAGES = ("photon pass", "eye pass", "gather")
 RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
 FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
@@ -81,7 +90,7 @@ class SPPMParams:
 
     iterations: int = 64  # iterations of render() (run() takes its own budget)
     photons: int = 200_000  # photon paths traced per iteration (M)
-    spp: int = 0  # eye paths per pixel and iteration; 0 = automatic (1; in media up to 16)
+    spp: int = 0  # eye paths per pixel and iteration; 0 = automatic (1; path tracing up to 16)
     radius: float = 0.0  # initial gather radius r_1 in scene units; 0 = automatic
     alpha: float = 2.0 / 3.0  # fraction of new photons kept (SPPM α), in (0, 1)
     seed: int = 0
@@ -91,6 +100,7 @@ class SPPMParams:
     mode: str = "sppm"  # "sppm" (per-pixel radii) | "memoryless" (Knaus & Zwicker 2011)
     aim: float = 0.5  # fraction of the area lights' photons aimed at specular shapes (0 = none)
     volume_radius: float = 0.0  # scenes with media: first volume radius ρ_1; 0 = automatic
+    transport: str = "auto"  # "photons" (visible points) | "paths" (path tracing) | "auto"
 
     def validate(self) -> None:
         """Types (:func:`~photonmap.core.params.check_fields`), then ranges and choices."""
@@ -105,6 +115,8 @@ class SPPMParams:
                     hi_open=True)
         check_choice("mode", self.mode, MODES, "progressive per-pixel radii or memoryless")
         check_range("volume_radius", self.volume_radius, 0, None, "the first volume radius; 0 = auto")
+        check_choice("transport", self.transport, TRANSPORTS,
+                     "visible points and photons, or path tracing with caustic photons")
 
 
 @dataclass
@@ -165,6 +177,11 @@ class SPPMPipeline(Progressive, Pipeline):
         """Change parameters (:class:`SPPMParams` fields); the progressive state restarts.
         Settings that would not fit in memory are refused (:meth:`check_memory`)."""
         new = updated(self.params, params, "sppm")
+        if self.traits.media and new.transport == "photons":
+            raise ParameterError(
+                "transport='photons' cannot render participating media: their light is carried "
+                "by path-traced eye paths; use transport='auto' (or 'paths')"
+            )
         self.check_memory(new)
         self.params = new
         self._r1 = self._rho1 = None
@@ -184,7 +201,7 @@ class SPPMPipeline(Progressive, Pipeline):
         depth = overridden(self.file_settings, p.max_depth, p.rr_depth, p.hide_emitters).max_depth
         spp = p.spp or (  # as eye_spp, for these parameters and this size
             int(np.clip(round(p.photons / (w * h)), 1, AUTO_SPP))
-            if self.traits.media else 1
+            if self.traces_paths(p) else 1
         )
         return memory.check(p, w, h, depth, spp, self.traits.media)
 
@@ -206,19 +223,31 @@ class SPPMPipeline(Progressive, Pipeline):
 
     @property
     def memoryless(self) -> bool:
-        """Whether the iterations are memoryless: ``mode``, or a scene with media, whose eye
-        paths read the caustic photons at every vertex with one radius per iteration."""
-        return self.params.mode == "memoryless" or self.traits.media
+        """Whether the iterations are memoryless: ``mode``, or path-traced eye paths, which read
+        the caustic photons at every vertex with one radius per iteration."""
+        return self.params.mode == "memoryless" or self.path_traced
+
+    @property
+    def path_traced(self) -> bool:
+        """Whether the eye paths are path tracing that reads the caustic photons (module
+        docstring, :meth:`traces_paths`)."""
+        return self.traces_paths(self.params)
+
+    def traces_paths(self, p: SPPMParams) -> bool:
+        """Path tracing under ``p``: ``transport="paths"``, and ``"auto"`` in a scene with media
+        or without mirrors and glass (where no caustic photon exists: no photon pass at all)."""
+        return p.transport == "paths" or p.transport == "auto" and (
+            self.traits.media or not self.delta_lobes
+        )
 
     @property
     def eye_spp(self) -> int:
-        """Eye paths per pixel and iteration: ``spp``, or automatically one — and in a scene with
-        participating media, whose light the eye paths carry themselves (volumetric path
-        tracing), about as many eye paths as photon paths (pbrt's balance of SPPM's two passes),
-        1 to :data:`AUTO_SPP`, which the iteration's photons serve."""
+        """Eye paths per pixel and iteration: ``spp``, or automatically one — and where the eye
+        paths are path tracing, which carries the light itself, about as many eye paths as
+        photon paths (pbrt's balance of SPPM's two passes), 1 to :data:`AUTO_SPP`."""
         if self.params.spp:
             return self.params.spp
-        if not self.traits.media:
+        if not self.path_traced:
             return 1
         w, h = self.size
         return int(np.clip(round(self.params.photons / (w * h)), 1, AUTO_SPP))
@@ -235,20 +264,20 @@ class SPPMPipeline(Progressive, Pipeline):
 
     # ------------------------------------------------------------------------- one iteration
     def _photon_pass(self, i: int):
-        """Iteration ``i``'s photon pass (random numbers from ``(seed, i)``): in a scene with
-        media the caustic photons alone (module docstring), none without delta lobes."""
+        """Iteration ``i``'s photon pass (random numbers from ``(seed, i)``): under path tracing
+        the caustic photons alone (module docstring), none without delta lobes."""
         p = self.params
-        if self.traits.media and not self.delta_lobes:
+        if self.path_traced and not self.delta_lobes:
             return None
         return photon_pass(
             self.scene, p.photons, iteration_seeds(p.seed, i)[1], self.settings,
             p.aim, self.traits, self.emitter_media, self.emitter_powers,
-            caustics_only=self.traits.media,
+            caustics_only=self.path_traced,
         )  # fmt: skip
 
     def _iteration(self, i: int, radius):
         """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one);
-        in a scene with media the eye paths read the caustic photons at ``radius`` themselves and
+        path-traced eye paths read the caustic photons at ``radius`` themselves and
         no gather follows (the result's flux and count are zero)."""
         p, settings = self.params, self.settings
         check_once(self, p, self.size, self.check_memory)
@@ -258,9 +287,9 @@ class SPPMPipeline(Progressive, Pipeline):
         points = run("eye pass", lambda: eye_pass(
             self.scene, self.sensor, eye_seed, settings, self.traits,
             self.caustics(photons, i, radius), self.eye_spp,
-            "continue" if self.traits.media else "stop",
+            "continue" if self.path_traced else "stop", self.delta_lobes,
         ))  # fmt: skip
-        if self.traits.media:  # the eye paths read the caustic photons themselves
+        if self.path_traced:  # the eye paths read the caustic photons themselves
             w, h = self.size
             got = Gathered(dr.zeros(mi.Color3f, w * h), dr.zeros(mi.Float, w * h))
         else:
@@ -274,10 +303,10 @@ class SPPMPipeline(Progressive, Pipeline):
         return points, got
 
     def caustics(self, photons, i: int, radius) -> Caustics | None:
-        """Iteration ``i``'s caustic photons as the eye paths read them in a scene with media
+        """Iteration ``i``'s caustic photons as path-traced eye paths read them
         (:class:`~photonmap.core.eye_trace.Caustics`): at surfaces within ``radius``, in the
-        media within ``ρ_i``; None without media or photons."""
-        if not self.traits.media or photons is None:
+        media within ``ρ_i``; None under visible points or without photons."""
+        if not self.path_traced or photons is None:
             return None
         surface = None
         if photons.count:

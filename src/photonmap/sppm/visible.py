@@ -69,13 +69,15 @@ def eye_pass(
     caustics: Caustics | None = None,
     spp: int = 1,
     surfaces: str = "stop",
+    mirrors: bool = True,
 ) -> VisiblePoints:
     """Trace ``spp`` jittered eye paths per pixel of ``sensor``'s film crop (random numbers from
     ``seed``, the iteration's seed) to their visible points; evaluated before returning. The
     emission seen is estimated from at least :data:`LIGHT_SPP` paths per pixel: the lights'
     images in mirrors and glass are bright and small, and one sample per iteration leaves a pixel
     that catches one a spike of the light's radiance over the iteration count — with fewer eye
-    paths, further paths of their own that only follow mirrors and glass (cheap).
+    paths, further paths of their own that only follow mirrors and glass (cheap); in a scene
+    without them (``mirrors`` False) the eye paths see the lights themselves.
     ``caustics``: the iteration's caustic photons read along the paths; ``surfaces``:
     ``"continue"`` traces the paths on through smooth surfaces (module docstring), which leaves
     no visible points."""
@@ -88,7 +90,7 @@ def eye_pass(
         mi.Point2f(gen.next_float32(), gen.next_float32()),
     )
     start = broadcast(sensor.get_medium(), lanes)
-    seen_here = spp >= LIGHT_SPP
+    seen_here = spp >= LIGHT_SPP or not mirrors
     eye = trace_eye_paths(
         scene, ray, weight, start, gen, settings, traits, emission=seen_here,
         media_mode="continue", surfaces=surfaces, caustics=caustics,
