@@ -34,6 +34,7 @@ import mitsuba as mi
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
 from ..core.eye_trace import Caustics, trace_eye_paths
+from ..core.film_filter import splat_means
 from ..core.media import broadcast
 from ..core.sampling import rng
 from ..core.scene_info import SceneTraits
@@ -80,15 +81,14 @@ def eye_pass(
     without them (``mirrors`` False) the eye paths see the lights themselves.
     ``caustics``: the iteration's caustic photons read along the paths; ``surfaces``:
     ``"continue"`` traces the paths on through smooth surfaces (module docstring), which leaves
-    no visible points."""
+    no visible points: each path is then a whole estimate of its pixel, and the paths are
+    splatted through the film's filter as Mitsuba's film splats them (:func:`splatted`)."""
     w, h = (int(c) for c in sensor.film().crop_size())
     lanes = w * h * spp
     gen = rng(lanes, seed, 0)
-    ray, weight = pixel_rays(
-        sensor,
-        dr.arange(mi.UInt32, lanes) // spp,
-        mi.Point2f(gen.next_float32(), gen.next_float32()),
-    )
+    splat = surfaces == "continue" and splatted(sensor.film())
+    jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
+    ray, weight = pixel_rays(sensor, dr.arange(mi.UInt32, lanes) // spp, jitter, not splat)
     start = broadcast(sensor.get_medium(), lanes)
     seen_here = spp >= LIGHT_SPP or not mirrors
     eye = trace_eye_paths(
@@ -101,25 +101,34 @@ def eye_pass(
         lit = eye.found & settings.allows(eye.depth + 1)
         L += eye.beta * direct_lighting(scene, eye.si, u_light, gen, lit, traits, eye.medium)
     dr.eval(L, eye.si, eye.beta, eye.found, eye.depth)  # one kernel: read lazily, the loop reran
-    direct = pixel_means(L, spp)
+    direct = splat_means(sensor.film(), jitter, L, spp) if splat else pixel_means(L, spp)
     if not seen_here:
-        direct += emission_seen(scene, sensor, seed, settings, traits, w * h)
+        direct += emission_seen(scene, sensor, seed, settings, traits, w * h, splat)
     dr.eval(direct)
     return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct, spp)
 
 
-def emission_seen(scene, sensor, seed: int, settings, traits, pixels: int) -> mi.Spectrum:
+def splatted(film: mi.Film) -> bool:
+    """Whether whole-path samples are splatted (:func:`~photonmap.core.film_filter.splat_means`)
+    rather than placed by filter importance sampling: a filter wider than the pixel, with
+    samples inside the crop only (without ``sample_border``, Mitsuba's default)."""
+    return not film.rfilter().is_box_filter() and not film.sample_border()
+
+
+def emission_seen(
+    scene, sensor, seed: int, settings, traits, pixels: int, splat: bool = False
+) -> mi.Spectrum:
     """Per pixel, the mean emission of :data:`LIGHT_SPP` jittered paths that only follow
-    mirrors, glass and the media's transmittance."""
+    mirrors, glass and the media's transmittance (``splat``: splatted through the film's
+    filter)."""
     many = pixels * LIGHT_SPP
     gen = rng(many, seed, 1)
-    ray, weight = pixel_rays(
-        sensor,
-        dr.arange(mi.UInt32, many) // LIGHT_SPP,
-        mi.Point2f(gen.next_float32(), gen.next_float32()),
-    )
+    jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
+    ray, weight = pixel_rays(sensor, dr.arange(mi.UInt32, many) // LIGHT_SPP, jitter, not splat)
     seen = trace_eye_paths(
         scene, ray, weight, broadcast(sensor.get_medium(), many), gen, settings, traits,
         emission=True, media_mode="transmit",
     )  # fmt: skip
+    if splat:
+        return splat_means(sensor.film(), jitter, seen.radiance, LIGHT_SPP)
     return pixel_means(seen.radiance, LIGHT_SPP)
