@@ -331,3 +331,13 @@ def test_volume_warns_of_one_ray_per_pixel_centre():
     one = said(1)
     assert len(one) == 1 and "raise --set spp (or --spp), e.g. to 4" in one[0], one
     assert said(4) == []
+
+
+def test_volume_says_what_spp_a_small_light_seen_through_glass_needs():
+    """A lamp in a fog box seen through a glass ball (``tests/scenes/nested_aov_volpath.xml``):
+    one ray through each pixel centre sees the lamp's small image through the ball whole or not
+    at all — a pixel of 23 against the reference's 2.9, a 4×4 error of 0.69; 0.75 with ``spp``
+    4 and 0.17 with 64. The warning names the spp such a scene needs."""
+    run = us.render_inprocess(us.scene_path("nested_aov_volpath"), "volume", SMALL["volume"])
+    said = [w for w in run.warnings if "one camera ray through each pixel centre" in w]
+    assert len(said) == 1 and "64 where a small light is seen through glass" in said[0], said

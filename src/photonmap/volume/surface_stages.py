@@ -70,8 +70,9 @@ def warn_settings(s: VolumeScene, p: VolumeParams, warned: set) -> None:
     if p.spp == 1 and "spp" not in warned:
         warned.add("spp")
         warnings.warn(
-            "one camera ray through each pixel centre aliases the surfaces' edges, which the "
-            "film's filter averages over the pixel: raise --set spp (or --spp), e.g. to 4",
+            "one camera ray through each pixel centre aliases the surfaces' edges and the small "
+            "images of lights in glass, which the film's filter averages over the pixel: raise "
+            "--set spp (or --spp), e.g. to 4 (64 where a small light is seen through glass)",
             PhotonmapWarning,
             stacklevel=4,
         )
