@@ -22,14 +22,20 @@ from .order import morton_cells, morton_order
 SAMPLERS = ("hammersley", "halton", "grid", "jittered", "random")
 
 
-def rng(count: int, seed: int, stream: int) -> mi.PCG32:
+def rng(count: int, seed: int, stream: int, lanes: mi.UInt32 | None = None) -> mi.PCG32:
     """``count`` PCG32 generators, one per lane, decorrelated by hashing (seed, stream) and then
     (key, lane) with TEA: distinct (seed, stream) pairs give unrelated sequences. The key is
-    opaque, so new seeds and streams reuse compiled kernels."""
+    opaque, so new seeds and streams reuse compiled kernels. ``lanes``: the generators of these
+    lanes of the ``count`` only (the same sequences as theirs in the whole wavefront)."""
     v0, v1 = (mi.UInt32(x & 0xFFFFFFFF) for x in (seed, stream))
     key = dr.opaque(mi.UInt32, mi.sample_tea_32(v0, v1, 8)[0][0])
-    state, sequence = mi.sample_tea_32(key, dr.arange(mi.UInt32, count))
-    return mi.PCG32(count, mi.UInt64(state), mi.UInt64(sequence))
+    if lanes is None:
+        state, sequence = mi.sample_tea_32(key, dr.arange(mi.UInt32, count))
+        return mi.PCG32(count, mi.UInt64(state), mi.UInt64(sequence))
+    state, sequence = mi.sample_tea_32(key, lanes)
+    # PCG32 adds each generator's index in the array to its state and sequence: the lane's own
+    shift = mi.UInt64(lanes) - mi.UInt64(dr.arange(mi.UInt32, dr.width(lanes)))
+    return mi.PCG32(dr.width(lanes), mi.UInt64(state) + shift, mi.UInt64(sequence) + shift)
 
 
 def radical_inverse_2(i: mi.UInt32) -> mi.Float:

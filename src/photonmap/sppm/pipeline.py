@@ -70,7 +70,7 @@ from ..core.volume_map import VolumeMap, density_radius
 from . import memory
 from .gather import Gathered, PhotonGrid, PixelState, gather, iteration_image
 from .photons import photon_pass
-from .visible import eye_pass
+from .visible import eye_pass, mirror_pixels
 
 MODES = ("sppm", "memoryless")
 TRANSPORTS = ("auto", "photons", "paths")
@@ -214,6 +214,7 @@ class SPPMPipeline(Progressive, Pipeline):
     def reset(self) -> None:
         """Forget all iterations (the next :meth:`step` is iteration 1)."""
         self._state = None  # PixelState (sppm) or BlockSums (memoryless)
+        self._mirrors = None  # the pixels that may show a light in mirrors and glass, once found
         self.iterations = 0
         self.stats = {
             "photons": 0, "photon_records": 0, "gathers": 0, "aimed_photons": 0,
@@ -287,7 +288,7 @@ class SPPMPipeline(Progressive, Pipeline):
         points = run("eye pass", lambda: eye_pass(
             self.scene, self.sensor, eye_seed, settings, self.traits,
             self.caustics(photons, i, radius), self.eye_spp,
-            "continue" if self.path_traced else "stop", self.delta_lobes,
+            "continue" if self.path_traced else "stop", self.mirror_pixels(),
         ))  # fmt: skip
         if self.path_traced:  # the eye paths read the caustic photons themselves
             w, h = self.size
@@ -301,6 +302,16 @@ class SPPMPipeline(Progressive, Pipeline):
             self.stats["aimed_on_specular"] += photons.caustic_fraction * photons.aimed
         self.stats["gathers"] += dr.width(points.found)
         return points, got
+
+    def mirror_pixels(self) -> mi.UInt32 | None:
+        """The pixels where the eye pass traces the lights' images in mirrors and glass
+        (:func:`.visible.mirror_pixels`, found once per camera and :meth:`reset`); None in a
+        scene without mirrors and glass."""
+        if not self.delta_lobes:
+            return None
+        if self._mirrors is None:
+            self._mirrors = mirror_pixels(self.scene, self.sensor)
+        return self._mirrors
 
     def caustics(self, photons, i: int, radius) -> Caustics | None:
         """Iteration ``i``'s caustic photons as path-traced eye paths read them

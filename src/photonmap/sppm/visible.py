@@ -26,10 +26,12 @@ is small (none without mirrors and glass).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
@@ -70,15 +72,16 @@ def eye_pass(
     caustics: Caustics | None = None,
     spp: int = 1,
     surfaces: str = "stop",
-    mirrors: bool = True,
+    mirrors: mi.UInt32 | None = None,
 ) -> VisiblePoints:
     """Trace ``spp`` jittered eye paths per pixel of ``sensor``'s film crop (random numbers from
     ``seed``, the iteration's seed) to their visible points; evaluated before returning. The
     emission seen is estimated from at least :data:`LIGHT_SPP` paths per pixel: the lights'
     images in mirrors and glass are bright and small, and one sample per iteration leaves a pixel
     that catches one a spike of the light's radiance over the iteration count — with fewer eye
-    paths, further paths of their own that only follow mirrors and glass (cheap); in a scene
-    without them (``mirrors`` False) the eye paths see the lights themselves.
+    paths, further paths of their own that only follow mirrors and glass, traced in the pixels
+    ``mirrors`` (:func:`mirror_pixels`); in a scene without mirrors and glass (``mirrors`` None)
+    the eye paths see the lights themselves.
     ``caustics``: the iteration's caustic photons read along the paths; ``surfaces``:
     ``"continue"`` traces the paths on through smooth surfaces (module docstring), which leaves
     no visible points: each path is then a whole estimate of its pixel, and the paths are
@@ -90,7 +93,7 @@ def eye_pass(
     jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
     ray, weight = pixel_rays(sensor, dr.arange(mi.UInt32, lanes) // spp, jitter, not splat)
     start = broadcast(sensor.get_medium(), lanes)
-    seen_here = spp >= LIGHT_SPP or not mirrors
+    seen_here = spp >= LIGHT_SPP or mirrors is None
     eye = trace_eye_paths(
         scene, ray, weight, start, gen, settings, traits, emission=seen_here,
         media_mode="continue", surfaces=surfaces, caustics=caustics,
@@ -103,7 +106,7 @@ def eye_pass(
     dr.eval(L, eye.si, eye.beta, eye.found, eye.depth)  # one kernel: read lazily, the loop reran
     direct = splat_means(sensor.film(), jitter, L, spp) if splat else pixel_means(L, spp)
     if not seen_here:
-        direct += emission_seen(scene, sensor, seed, settings, traits, w * h, splat)
+        direct += emission_seen(scene, sensor, seed, settings, traits, mirrors, splat)
     dr.eval(direct)
     return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct, spp)
 
@@ -116,19 +119,65 @@ def splatted(film: mi.Film) -> bool:
 
 
 def emission_seen(
-    scene, sensor, seed: int, settings, traits, pixels: int, splat: bool = False
+    scene, sensor, seed: int, settings, traits, pixels: mi.UInt32, splat: bool = False
 ) -> mi.Spectrum:
     """Per pixel, the mean emission of :data:`LIGHT_SPP` jittered paths that only follow
     mirrors, glass and the media's transmittance (``splat``: splatted through the film's
-    filter)."""
-    many = pixels * LIGHT_SPP
-    gen = rng(many, seed, 1)
+    filter), traced in ``pixels`` alone (:func:`mirror_pixels`: elsewhere such paths meet a
+    surface that ends them with no light first). A path's random numbers are those of its lane
+    in the whole film's wavefront, so the image is the one tracing every pixel gives."""
+    w, h = (int(c) for c in sensor.film().crop_size())
+    many = w * h * LIGHT_SPP
+    traced = dr.arange(mi.UInt32, dr.width(pixels) * LIGHT_SPP)
+    lanes = dr.gather(mi.UInt32, pixels, traced // LIGHT_SPP) * LIGHT_SPP + traced % LIGHT_SPP
+    gen = rng(many, seed, 1, lanes)
     jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
-    ray, weight = pixel_rays(sensor, dr.arange(mi.UInt32, many) // LIGHT_SPP, jitter, not splat)
+    ray, weight = pixel_rays(sensor, lanes // LIGHT_SPP, jitter, not splat)
     seen = trace_eye_paths(
-        scene, ray, weight, broadcast(sensor.get_medium(), many), gen, settings, traits,
-        emission=True, media_mode="transmit",
+        scene, ray, weight, broadcast(sensor.get_medium(), dr.width(lanes)), gen, settings,
+        traits, emission=True, media_mode="transmit",
     )  # fmt: skip
-    if splat:
-        return splat_means(sensor.film(), jitter, seen.radiance, LIGHT_SPP)
-    return pixel_means(seen.radiance, LIGHT_SPP)
+    if splat:  # the splats reach the neighbours: the whole film's samples, zero where untraced
+        radiance, positions = dr.zeros(mi.Spectrum, many), dr.zeros(mi.Point2f, many)
+        dr.scatter(radiance, seen.radiance, lanes)
+        dr.scatter(positions, jitter, lanes)
+        return splat_means(sensor.film(), positions, radiance, LIGHT_SPP)
+    means = dr.zeros(mi.Spectrum, w * h)
+    dr.scatter(means, pixel_means(seen.radiance, LIGHT_SPP), pixels)
+    return means
+
+
+SUBPIXELS = 4  # rays per pixel side that find the pixels a light may show in (mirror_pixels)
+
+
+def mirror_pixels(scene: mi.Scene, sensor: mi.Sensor) -> mi.UInt32:
+    """The pixels of ``sensor``'s crop where a path that only follows mirrors, glass and media
+    can meet emission: those whose first surface, seen by a ``SUBPIXELS``² grid of rays over
+    each pixel, is an emitter, a mirror, glass or a ``null`` boundary (or nothing, under an
+    environment light), grown by the film filter's reach and one pixel, so that filter-sampled
+    rays, which leave their pixel by up to the filter's radius, stay inside. Anywhere else such
+    a path ends at its first surface with no light, and :func:`emission_seen` leaves it out.
+    A mirror or an emitter narrower than a quarter pixel over three pixels can be missed."""
+    film = sensor.film()
+    w, h = (int(c) for c in film.crop_size())
+    n = SUBPIXELS * SUBPIXELS
+    lane = dr.arange(mi.UInt32, w * h * n)
+    sub = lane % n
+    jitter = mi.Point2f(
+        (mi.Float(sub % SUBPIXELS) + 0.5) / SUBPIXELS,
+        (mi.Float(sub // SUBPIXELS) + 0.5) / SUBPIXELS,
+    )
+    ray, _ = pixel_rays(sensor, lane // n, jitter, filtered=False)
+    si = scene.ray_intersect(ray)
+    lobes = mi.BSDFFlags.Delta | mi.BSDFFlags.Null
+    shows = (si.emitter(scene) != None) | mi.has_flag(si.bsdf().flags(), lobes)  # noqa: E711
+    if scene.environment() is not None:
+        shows |= ~si.is_valid()
+    hit = np.array(dr.block_reduce(dr.ReduceOp.Add, mi.UInt32(shows), n)).reshape(h, w) > 0
+    grow = math.ceil(float(film.rfilter().radius())) + 1
+    padded = np.pad(hit, grow)
+    near = np.zeros_like(hit)
+    for dy in range(2 * grow + 1):  # a loop over the window's offsets, not over pixels
+        for dx in range(2 * grow + 1):
+            near |= padded[dy : dy + h, dx : dx + w]
+    return mi.UInt32(np.flatnonzero(near).astype(np.uint32))
