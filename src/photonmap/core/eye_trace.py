@@ -162,9 +162,9 @@ def trace_eye_paths(
         medium = dr.gather(mi.MediumPtr, mi.MediumPtr(medium), dr.zeros(mi.UInt32, n))
     marching = media_mode == "march" and traits.media
     slots = n * segments if marching else 1
-    buffers = Segments(  # slot = piece · n + lane
-        dr.zeros(mi.Point3f, slots), dr.zeros(mi.Vector3f, slots), dr.zeros(mi.Float, slots),
-        dr.zeros(mi.MediumPtr, slots), dr.zeros(mi.Spectrum, slots), dr.zeros(mi.UInt32, slots),
+    buffers = Segments(  # slot = piece · n + lane; read where stored only: not cleared
+        dr.empty(mi.Point3f, slots), dr.empty(mi.Vector3f, slots), dr.empty(mi.Float, slots),
+        dr.empty(mi.MediumPtr, slots), dr.empty(mi.Spectrum, slots), dr.empty(mi.UInt32, slots),
     )  # fmt: skip
     stored = dr.zeros(mi.Bool, slots)
     vertices = _follow(

@@ -247,7 +247,9 @@ def _concat(chunks: list, width: int) -> list:
 
 
 def _slots(names_types: dict, count: int) -> dict:
-    return {name: dr.zeros(kind, count) for name, kind in names_types.items()}
+    """Record slots, read where stored only: not cleared (clearing them was a quarter of the
+    photon pass)."""
+    return {name: dr.empty(kind, count) for name, kind in names_types.items()}
 
 
 SURFACE_FIELDS = {
