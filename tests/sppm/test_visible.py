@@ -62,3 +62,18 @@ def test_the_mirror_pixels_hold_the_lights_and_the_glass():
     glass = np.array(mi.has_flag(si.bsdf().flags(), mi.BSDFFlags.Delta)).reshape(48, 48)
     assert glass.sum() > 20 and mask[glass].all()  # the pixel centres that see the ball
     assert mask.mean() < 0.5
+
+
+def test_a_view_without_lights_mirrors_or_glass_has_no_mirror_pixels():
+    """The glass ball behind the camera, the camera looking down at the floor: no pixel can show
+    a light, and the iterations render (they once failed on the empty set)."""
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=16, height=16)
+    d["sensor"]["to_world"] = mi.ScalarTransform4f().look_at(origin=[0, 0.5, 3.9],
+                                                            target=[0, -1, 0], up=[0, 1, 0])
+    d["ball"] = {"type": "sphere", "center": [0.0, 0.0, 5.0], "radius": 0.2,
+                 "bsdf": {"type": "dielectric"}}  # fmt: skip
+    pipe = SPPMPipeline(mi.load_dict(d), seed=1, photons=5000)
+    assert dr.width(pipe.mirror_pixels()) == 0
+    image = np.array(pipe.run(iterations=2))
+    assert np.isfinite(image).all() and image.mean() > 0

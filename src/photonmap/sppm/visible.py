@@ -127,6 +127,8 @@ def emission_seen(
     surface that ends them with no light first). A path's random numbers are those of its lane
     in the whole film's wavefront, so the image is the one tracing every pixel gives."""
     w, h = (int(c) for c in sensor.film().crop_size())
+    if not dr.width(pixels):  # no light and no mirror or glass in view
+        return dr.zeros(mi.Spectrum, w * h)
     many = w * h * LIGHT_SPP
     traced = dr.arange(mi.UInt32, dr.width(pixels) * LIGHT_SPP)
     lanes = dr.gather(mi.UInt32, pixels, traced // LIGHT_SPP) * LIGHT_SPP + traced % LIGHT_SPP
