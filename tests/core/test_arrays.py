@@ -1,14 +1,15 @@
 """``photonmap.core.arrays``: ``concat``, ``to_numpy`` and ``channel_mean`` give what
 ``dr.concat``, ``.numpy()`` and ``dr.mean(…, axis=0)`` give, and launch the same kernels (the same
 hashes) whatever the widths — where Dr.Jit's own launch a kernel per width, which the same check
-shows."""
+shows; ``aligned`` NumPy arrays launch the same kernel wherever NumPy put them, where a misaligned
+one launches another."""
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
-from photonmap.core.arrays import channel_mean, concat, to_numpy
+from photonmap.core.arrays import ALIGNMENT, aligned, channel_mean, concat, to_numpy
 
 WIDTHS = [(5, 3), (17, 9), (100, 2)]  # (a part of width 1 is a scalar to Dr.Jit: other code)
 
@@ -78,3 +79,33 @@ def colour_mean(mean, n: int) -> None:
 def test_one_kernel_for_every_width(ours, theirs):
     assert len({kernels(lambda n=n, m=m: ours(n, m)) for n, m in WIDTHS}) == 1
     assert len({kernels(lambda n=n, m=m: theirs(n, m)) for n, m in WIDTHS}) == len(WIDTHS)
+
+
+def misaligned(values: np.ndarray, offset: int) -> np.ndarray:
+    """``values`` copied ``offset`` bytes past a :data:`ALIGNMENT`-byte boundary."""
+    buffer = np.zeros(values.nbytes + 2 * ALIGNMENT, np.uint8)
+    start = -buffer.ctypes.data % ALIGNMENT + offset
+    out = buffer[start : start + values.nbytes].view(values.dtype)
+    out[...] = values
+    return out
+
+
+def test_aligned_arrays_launch_one_kernel_wherever_numpy_put_them():
+    values = np.arange(40, dtype=np.float32) * 0.5
+    homes = [misaligned(values, offset) for offset in (0, 4, 16, 32)]
+    assert [h.ctypes.data % ALIGNMENT for h in homes] == [0, 4, 16, 32]
+
+    def launch(array):
+        return lambda: dr.eval(mi.Float(array) * 3.0 + 1.0)
+
+    assert len({kernels(launch(h)) for h in homes}) > 1  # Dr.Jit's own: a kernel per alignment
+    copies = [aligned(h) for h in homes]
+    assert all(c.ctypes.data % ALIGNMENT == 0 for c in copies)
+    assert len({kernels(launch(c)) for c in copies}) == 1
+    for c in copies:
+        np.testing.assert_array_equal(c, values)
+        np.testing.assert_array_equal(np.array(mi.Float(c)), values)
+    assert aligned(copies[0]) is copies[0]  # already aligned: no copy
+    grid = aligned(misaligned(np.arange(24, dtype=np.uint32), 8).reshape(2, 3, 4)[:, ::2])
+    assert grid.flags.c_contiguous and grid.ctypes.data % ALIGNMENT == 0
+    np.testing.assert_array_equal(grid, np.arange(24).reshape(2, 3, 4)[:, ::2])

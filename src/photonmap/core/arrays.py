@@ -1,4 +1,5 @@
-"""Joining Dr.Jit arrays and copying them to NumPy without compiling a kernel per width.
+"""Joining Dr.Jit arrays, copying them to NumPy and making them from NumPy without compiling a
+kernel per width or per allocation.
 
 Dr.Jit turns a Python number used in a kernel into a literal of its code, so a kernel that
 depends on a width — ``dr.concat`` (each part's offset), ``.numpy()`` of a ``Point3f`` or
@@ -7,6 +8,11 @@ depends on a width — ``dr.concat`` (each part's offset), ``.numpy()`` of a ``P
 render produces: photon counts, compacted wavefronts, the chunks of a path loop. These helpers
 pass the offsets as opaque values (``dr.opaque``), copy component by component or average without
 the width, so one compiled kernel serves every width.
+
+Dr.Jit also maps a NumPy array's memory without copying it (``mi.Float(array)``), and reads a
+buffer that is not aligned to its vector width (64 bytes: 16 float32 lanes) with unaligned loads:
+another kernel, with another hash, chosen by where ``malloc`` happened to put the array, so a
+warm kernel cache missed it on the next run. :func:`aligned` gives such arrays an aligned home.
 """
 
 from __future__ import annotations
@@ -14,6 +20,22 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+
+ALIGNMENT = 64  # bytes: Dr.Jit's widest vector load (16 lanes of 4 bytes)
+
+
+def aligned(array) -> np.ndarray:
+    """``array`` as a C-contiguous NumPy array whose memory starts on a :data:`ALIGNMENT`-byte
+    boundary (itself when it already does): what a NumPy array handed to Dr.Jit
+    (``mi.Float(aligned(a))``) should be, so that its kernels do not depend on ``malloc``."""
+    array = np.ascontiguousarray(array)
+    if array.ctypes.data % ALIGNMENT == 0:
+        return array
+    buffer = np.empty(array.nbytes + ALIGNMENT, np.uint8)
+    start = -buffer.ctypes.data % ALIGNMENT
+    out = buffer[start : start + array.nbytes].view(array.dtype).reshape(array.shape)
+    out[...] = array
+    return out
 
 
 def concat(parts: list):

@@ -12,6 +12,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import interrupt
+from .arrays import aligned
 from .camera import footprint_radius
 from .errors import ParameterError, SceneError
 from .params import check_range
@@ -37,13 +38,13 @@ class Progressive:
         refused when it holds NaN or infinite values."""
         if image is None:
             w, h = self.size
-            return mi.TensorXf(np.zeros((h, w, 3), np.float32))
+            return mi.TensorXf(aligned(np.zeros((h, w, 3), np.float32)))
         if not np.all(np.isfinite(image)):
             raise SceneError(
                 "the render produced NaN or infinite values; check the scene's textures and "
                 "emitters for NaN"
             )
-        return mi.TensorXf(np.asarray(image, np.float32))
+        return mi.TensorXf(aligned(np.asarray(image, np.float32)))
 
     def initial_radius(self) -> float:
         """``r_1``: the ``radius`` parameter, or :attr:`radius_pixels` footprints of a pixel at
