@@ -71,6 +71,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import aligned
 from ..core.errors import ParameterError
 
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
@@ -252,7 +253,7 @@ class DifferentiableVolumeCaustic:
         elif isinstance(value, np.ndarray):
             if value.shape != (r, r, r):
                 raise ParameterError(f"{name} has shape {value.shape}; it must be ({r}, {r}, {r})")
-            kind, flat = "grid", self.Float(np.ascontiguousarray(value, np.float64).ravel())
+            kind, flat = "grid", self.Float(aligned(np.asarray(value, np.float64).ravel()))
         elif dr.is_array_v(value) and dr.depth_v(value) == 1 and dr.width(value) == 1:
             if not scalar_ok:
                 raise ParameterError(f"{name} must be a grid of shape ({r}, {r}, {r})")
@@ -342,9 +343,9 @@ class DifferentiableVolumeCaustic:
         return dr.sqrt(dr.square(b[0] - a[0]) + dr.square(b[1] - a[1]) + dr.square(b[2] - a[2]))
 
     def _start(self, origins, directions, n_grids):
-        x = tuple(self.Float(origins[:, k]) for k in range(3))
+        x = tuple(self.Float(aligned(origins[:, k])) for k in range(3))
         n0 = self._sample(self._corners(x), n_grids[:1])[0]
-        v = tuple(n0 * self.Float(directions[:, k]) for k in range(3))
+        v = tuple(n0 * self.Float(aligned(directions[:, k])) for k in range(3))
         return x, v
 
     def _inputs(self, n, sigma_s, sigma_a):
@@ -426,8 +427,8 @@ class DifferentiableVolumeCaustic:
         if self.curved_view:
             x, v = self._start(origins, directions, n_grids)
         else:
-            x = tuple(self.Float(origins[:, k]) for k in range(3))
-            v = tuple(self.Float(directions[:, k]) for k in range(3))
+            x = tuple(self.Float(aligned(origins[:, k])) for k in range(3))
+            v = tuple(self.Float(aligned(directions[:, k])) for k in range(3))
         count = len(origins)
         state = (x, v, dr.full(self.Float, 1.0, count), dr.zeros(self.Float, count))
         params = (n_grids, fluence, sigma_s, kappa)
@@ -492,7 +493,7 @@ class DifferentiableVolumeCaustic:
                     f"tangent for {name!r} must be finite with shape {shape}, "
                     f"got shape {tangent.shape}"
                 )
-            grad = self.Float(tangent.ravel()) if shape else self.Float(float(tangent))
+            grad = self.Float(aligned(tangent.ravel())) if shape else self.Float(float(tangent))
             dr.set_grad(p, self.Tensor(grad, shape=shape) if shape else grad)
         value = loss(self.render(**params))
         dr.forward_to(value)
