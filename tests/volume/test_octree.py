@@ -145,3 +145,25 @@ def test_tolerance_is_strict():
     values[0, 0, 0] = 1.25
     assert np.all(levels(values, 0.25)[0][:2, :2, :2] == 0)
     assert np.all(levels(values, 0.2500001)[0] == 3)
+
+
+def test_one_kernel_serves_every_level_of_every_grid():
+    """The node ranges of each level come from the same compiled kernel whatever the level,
+    the grid's size and its channel count (the sizes are opaque: literals made one per level)."""
+    import drjit as dr
+
+    from photonmap.volume.octree import _range_pyramid
+
+    def reductions(values: np.ndarray) -> set:
+        dr.eval()
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            ranges = _range_pyramid(mi.TensorXf(values), 16)
+            history = [k for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+        assert len(ranges) == 5 and len(history) == 4 and float(dr.max(ranges[-1])[0]) > 0
+        # the first level's kernel also pads the grid; a level of one value is a scalar to Dr.Jit
+        return {k["hash"] for k in history[1:] if k["size"] > 1}
+
+    one = reductions(field("sphere", 16)[..., None])  # levels of 8³ and 4³ nodes: one kernel
+    assert len(one) == 1
+    assert reductions(np.repeat(field("smooth", 12)[..., None], 3, axis=3)) == one

@@ -190,13 +190,14 @@ def gaussian_taps(radius: int, sigma: float) -> np.ndarray:
 def filter_axis(t: mi.TensorXf, taps, axis: int) -> mi.TensorXf:
     """Convolve a grid tensor (nz, ny, nx, c) along ``axis`` (0 = z, 1 = y, 2 = x) with ``taps``
     centred on the middle tap, clamping indices at the edges (neither paper states the boundary
-    rule: clamp-to-edge, as the trilinear lookups)."""
+    rule: clamp-to-edge, as the trilinear lookups). The stride and extent are opaque: one kernel
+    serves every axis and grid size."""
     shape = tuple(t.shape)
     taps = np.asarray(taps, dtype=np.float64)
     r = (len(taps) - 1) // 2
     size = int(np.prod(shape))
-    stride = int(np.prod(shape[axis + 1 :]))
-    extent = shape[axis]
+    stride = dr.opaque(mi.UInt32, int(np.prod(shape[axis + 1 :])))
+    extent = dr.opaque(mi.Int32, shape[axis])
     idx = dr.arange(mi.UInt32, size)
     coord = mi.Int32((idx // stride) % extent)
     base = idx - mi.UInt32(coord) * stride

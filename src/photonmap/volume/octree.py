@@ -66,17 +66,18 @@ def _range_pyramid(values: mi.TensorXf, size: int) -> list[mi.Float]:
     x, y, z = (dr.minimum(a, e - 1) for a, e in zip(voxel_of(cell, size), dims, strict=True))
     lo = hi = dr.gather(mi.Float, values.array, flat_index(x, y, z, dims) * c + channel)
     ranges = [dr.zeros(mi.Float, dr.width(index))]
+    channels = dr.opaque(mi.UInt32, c)
     while size > 1:
         size //= 2
         index = dr.arange(mi.UInt32, size**3 * c)
-        cell, channel = index // c, index % c
-        x, y, z = 2 * (cell % size), 2 * ((cell // size) % size), 2 * (cell // size**2)
+        m = dr.opaque(mi.UInt32, size)  # one kernel for every level (literals would make one each)
+        cell, channel = index // channels, index % channels
+        x, y, z = 2 * (cell % m), 2 * ((cell // m) % m), 2 * (cell // (m * m))
         children = [
-            ((z + (i >> 2)) * 2 * size + y + ((i >> 1) & 1)) * 2 * size + x + (i & 1)
-            for i in range(8)
+            ((z + (i >> 2)) * 2 * m + y + ((i >> 1) & 1)) * 2 * m + x + (i & 1) for i in range(8)
         ]
-        lo = reduce(dr.minimum, [dr.gather(mi.Float, lo, j * c + channel) for j in children])
-        hi = reduce(dr.maximum, [dr.gather(mi.Float, hi, j * c + channel) for j in children])
+        lo = reduce(dr.minimum, [dr.gather(mi.Float, lo, j * channels + channel) for j in children])
+        hi = reduce(dr.maximum, [dr.gather(mi.Float, hi, j * channels + channel) for j in children])
         ranges.append(hi - lo)
         dr.eval(lo, hi, ranges[-1])
     return ranges
