@@ -169,6 +169,7 @@ class Wavefront:
         """The emitted photons at ``x`` with ``v`` (or ``d``) and power ``L``."""
         count = dr.width(L)
         rng = mi.PCG32(count, dr.opaque(mi.UInt64, seed), dr.arange(mi.UInt64, count))
+        dr.make_opaque(rng)  # in memory, as after a compaction: every later order, one kernel
         final = [mi.Point3f(x), mi.Vector3f(v), mi.Color3f(L), dr.zeros(mi.UInt32, count)]
         return Wavefront(dr.arange(mi.UInt32, count), dr.max(L), rng, tally, final)
 
