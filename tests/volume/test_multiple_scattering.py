@@ -38,6 +38,7 @@ import pytest
 from scipy.stats import qmc
 
 from photonmap import VolumePipeline
+from photonmap.core.arrays import aligned
 from photonmap.core.errors import ParameterError, PhotonmapError
 from photonmap.core.grid import GridBox
 from photonmap.core.image import block_means
@@ -109,7 +110,8 @@ def lambertian_photons(count: int, seed: int) -> Photons:
         o[m, axis] = np.where(inward > 0, 0.0, N)
         o[m, b], o[m, c] = s[m, 1] * N, s[m, 2] * N
         d[m, axis], d[m, b], d[m, c] = inward * local[m, 2], local[m, 0], local[m, 1]
-    return Photons(mi.Point3f(*o.T), mi.Vector3f(*d.T), mi.Color3f(*np.ones((3, count))), count)
+    o, d, power = ([aligned(c) for c in a.astype(np.float32)] for a in (o.T, d.T, np.ones((3, count))))
+    return Photons(mi.Point3f(*o), mi.Vector3f(*d), mi.Color3f(*power), count)
 
 
 def uniform_grids(n, sigma_s, kappa, ior=None, level=5):
@@ -434,3 +436,24 @@ def test_a_corrupted_accumulator_is_refused_not_rendered(monkeypatch):
     pipe = VolumePipeline("glass_sphere_fog", grid=24, photons=1024, width=16, height=12)
     with pytest.raises(PhotonmapError, match="negative energy"):
         pipe.render()
+
+
+def test_more_scattering_orders_compile_no_more_kernels():
+    """Every order after the first marches, rolls the roulette and compacts with the kernels of
+    the orders before it (the order is opaque, the state is evaluated once before the
+    compaction's gathers): a fog twice as dense scatters twice as often with the same kernels.
+    Before, the kernels grew with the orders (57 and 143 distinct for these two fogs)."""
+
+    def kernels(sigma: float) -> tuple[set, int]:
+        photons, grids = lambertian_photons(2**12, 0), uniform_grids(N, sigma, sigma)
+        dr.eval()
+        with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
+            dr.kernel_history()
+            result = march(photons, grids, scattering=Scattering(phase_k=0.3, seed=1))
+            launched = [k["hash"] for k in dr.kernel_history() if k["type"] == dr.KernelType.JIT]
+        return set(launched), result.scatterings
+
+    thin, thin_events = kernels(0.25)
+    dense, dense_events = kernels(0.5)
+    assert dense_events > 1.8 * thin_events
+    assert dense == thin and len(thin) < 40

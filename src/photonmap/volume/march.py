@@ -342,7 +342,9 @@ def _march_multiple(
         omega = scatter.schlick_direction(
             k, collision.direction, mi.Point2f(rng.next_float32(), rng.next_float32())
         )
-        alive = dr.compress(collision.found & survives & (dr.max(W) > 0))  # not absorbed
+        going = collision.found & survives & (dr.max(W) > 0)  # not absorbed
+        dr.eval(going, W, omega, rng)  # one kernel: the compaction gathers them per channel
+        alive = dr.compress(going)
         if dr.width(alive) == 0:
             break
         x, omega, L = photons.compact(alive, collision.x, omega, W, medium.n)

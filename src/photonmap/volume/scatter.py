@@ -75,10 +75,12 @@ def collision_weight(sigma_s: mi.Color3f, kappa: mi.Color3f, depth: mi.Color3f) 
     return dr.select(pdf > 0, sigma_s * T / dr.maximum(pdf, 1e-30), 0.0)
 
 
-def roulette(weight: mi.Color3f, start: mi.Float, order: mi.UInt32, xi: mi.Float):
+def roulette(weight: mi.Color3f, start: mi.Float, order: int, xi: mi.Float):
     """Russian roulette after :data:`RR_DEPTH` scattering events: survive with
-    ``q = min(1, max weight / start)`` and return ``(survives, weight / q)``."""
-    q = dr.select(order >= RR_DEPTH, dr.minimum(dr.max(weight) / start, 1.0), 1.0)
+    ``q = min(1, max weight / start)`` and return ``(survives, weight / q)``. The order is opaque
+    to the kernel: one kernel serves every order."""
+    late = dr.opaque(mi.UInt32, order) >= RR_DEPTH
+    q = dr.select(late, dr.minimum(dr.max(weight) / start, 1.0), 1.0)
     return (xi < q) & (q > 0), weight / dr.maximum(q, 1e-30)
 
 
