@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import time
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 
@@ -38,7 +39,7 @@ class Progressive:
         refused when it holds NaN or infinite values."""
         if image is None:
             w, h = self.size
-            return mi.TensorXf(aligned(np.zeros((h, w, 3), np.float32)))
+            return dr.zeros(mi.TensorXf, (h, w, 3))
         if not np.all(np.isfinite(image)):
             raise SceneError(
                 "the render produced NaN or infinite values; check the scene's textures and "
