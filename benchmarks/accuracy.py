@@ -113,15 +113,16 @@ def vs_truth(error: float, reference_error: float) -> float:
     return math.sqrt(max(error**2 - reference_error**2, 0.0))
 
 
-def mitsuba_curve(scene, spps: Sequence[int], score, integrator=None, label="path") -> list:
-    """Mitsuba's ``integrator`` (None: the scene's own) at each of ``spps``, after a 1-spp
-    warm-up (kernel compilation): rows of ``spp``, ``seconds`` (Dr.Jit synchronised) and the
-    errors ``score(image)``."""
-    mi.render(scene, integrator=integrator, spp=1, seed=7)
+def mitsuba_curve(scene, spps: Sequence[int], score, integrator=None, label="path",
+                  seed: int = 7) -> list:  # fmt: skip
+    """Mitsuba's ``integrator`` (None: the scene's own) at each of ``spps`` (``seed``), after a
+    1-spp warm-up (kernel compilation): rows of ``spp``, ``seconds`` (Dr.Jit synchronised) and
+    the errors ``score(image)``."""
+    mi.render(scene, integrator=integrator, spp=1, seed=seed)
     rows = []
     for spp in spps:
         t, image = timed(
-            lambda s=spp: np.array(mi.render(scene, integrator=integrator, spp=s, seed=7))
+            lambda s=spp: np.array(mi.render(scene, integrator=integrator, spp=s, seed=seed))
         )
         rows.append({"spp": spp, "seconds": t, **score(image)})
         print(f"  {label} {spp} spp: {t:.2f} s, rel RMSE {rows[-1]['rel_rmse']:.4f}", flush=True)

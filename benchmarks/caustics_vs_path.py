@@ -20,6 +20,10 @@ here):
   fixed at 24.
 - ``veach_lamp`` (examples/veach_lamp.xml): a room lit off the ceiling by a sphere light hidden
   in an aluminium bowl, a glass egg on a table; 32.
+- ``pool`` (examples/pool.xml): a wavy water surface over a diffuse pool floor seen from above,
+  a small sphere light: the caustic on the floor is seen through the water (L S D S E); 12.
+- ``diffuse_room`` (examples/diffuse_room.xml): a diffuse room and furniture under a large
+  ceiling light, no mirror or glass; 8.
 
 References: ``path`` at ``--ref-spp`` samples per pixel in two halves of different seeds,
 cached in ``results/cache/`` (not in git; the file name holds the scene, size, max_depth and
@@ -29,13 +33,16 @@ spp); the halves' difference estimates the reference's own error, reported as
 Methods (``--methods``, default ``path,sppm,vcm,surface``): ``path`` at 4 … 4096 spp (timed
 renders); ``sppm`` and ``vcm`` for ``--seconds`` each, one run of the progressive pipeline each
 (:func:`run_progressive`: a class made as ``cls(scene, **params)`` with ``step()``,
-``image()``, ``iterations``, ``timer.ms`` and ``stats``; a warm-up run first compiles the
-kernels), their errors measured at checkpoints with the clock stopped; ``surface`` at a few
-budgets. ``vcm`` is ``photonmap.vcm.VCMPipeline(scene, max_depth=…, seed=…)``, imported only
-when it is asked for. Errors: relative RMSE per pixel and of 4×4-pixel block means, over the
-pixels that do not see a light directly or through mirrors and glass
-(:func:`accuracy.light_image_mask`: a light's image is antialiasing noise of the eye samples,
-the same for every method); whole-image values are kept.
+``image()``, ``iterations``, ``timer.ms`` and ``stats``; a warm-up run with the same parameters
+first compiles the kernels), their errors measured at checkpoints with the clock stopped;
+``surface`` at a few budgets. Each scene is run ``--runs`` times (default 3) after its
+reference, the methods interleaved (run 1 of each, then run 2 of each, …; seeds differ per
+run); a scene's headline is the median of its runs' headlines. ``vcm`` is
+``photonmap.vcm.VCMPipeline(scene, max_depth=…, seed=…)``, imported only when it is asked for.
+Errors: relative RMSE per pixel and of 4×4-pixel block means, over the pixels that do not see
+a light directly or through mirrors and glass (:func:`accuracy.light_image_mask`: a light's
+image is antialiasing noise of the eye samples, the same for every method); whole-image values
+are kept.
 
 Headline per scene (keys whose methods did not run are None):
 
@@ -55,7 +62,19 @@ Headline per scene (keys whose methods did not run are None):
 - rates: ``photons_per_s`` and ``gathers_per_s`` of the SPPM run; ``light_paths_per_s`` and
   ``camera_paths_per_s`` of the VCM run (its ``stats`` over its ``"light pass"`` and
   ``"camera pass"`` stage times); ``ray_intersect_per_s``, Mitsuba's own ray casting on the
-  scene (:func:`ray_intersect_rate`), the yardstick for both.
+  scene (:func:`ray_intersect_rate`, measured in the same run), the yardstick for both;
+- against that limit: ``photon_pass_ray_fraction`` and ``eye_pass_ray_fraction``, the rays the
+  SPPM passes cast per second of their stage (path segments and shadow rays, the pipeline's
+  ``photon_rays`` and ``eye_rays``) over ``ray_intersect_per_s``; ``photons_seen``, the share of
+  an iteration's photon records within some visible point's gather radius
+  (``SPPMPipeline.photons_seen``, at the run's final radii; None where the eye paths are path
+  tracing); ``sppm_/vcm_kernels_compiled_per_iteration``, the kernels the warm-up pipeline's
+  iterations 2 to :data:`PROBE_STEPS` + 1 traced anew, per iteration (target 0);
+- ``reference_ok``: the reference's own 4×4-block error at most a third of the smallest 4×4
+  error compared (the progressive methods' final ones, over the runs); where it is not, the
+  scene's speedups are None — no reportable ratio, a missed goal. ``goal`` and ``goal_met``:
+  5× ``path`` where the scene has mirrors or glass, 0.9× on the plain ones (:data:`PLAIN`), for
+  the faster of ``sppm`` and ``vcm`` (``best_speedup_vs_path_at_equal_block_rmse``).
 
 The top-level headline holds the per-scene values of the speedups and rates and the minimum of
 each over the scenes.
@@ -97,7 +116,7 @@ from photonmap.core.image import write_image
 from photonmap.core.sampling import rng
 from photonmap.core.settings import UNBOUNDED, PathSettings
 from photonmap.scenes import load_scene
-from timing import Budget, checkpoints, median, timed
+from timing import Budget, checkpoints, kernel_history, median, timed
 
 NAME = "caustics_vs_path"
 EXAMPLES = report.REPO / "examples"
@@ -124,7 +143,13 @@ SCENES = {
     # its glints need paths of more than 8 segments: never below 24
     "glass_mesh": Scene(str(EXAMPLES / "glass_mesh_glints.xml"), (160, 120), (48, 36), 24),
     "veach_lamp": Scene(str(EXAMPLES / "veach_lamp.xml"), (160, 120), (48, 36)),
+    "pool": Scene(str(EXAMPLES / "pool.xml"), (160, 120), (48, 36)),
+    "diffuse_room": Scene(str(EXAMPLES / "diffuse_room.xml"), (160, 120), (48, 36)),
 }
+PLAIN = ("cornell_box", "diffuse_room")  # no mirror or glass: par with path is the goal
+GOAL_SPECULAR, GOAL_PLAIN = 5.0, 0.9  # speedup against path at equal 4×4-block error
+REFERENCE_SHARE = 1 / 3  # the reference's own 4×4 error, at most this share of the smallest
+PROBE_STEPS = 3  # warm-up iterations whose new kernels are counted
 DEFAULT_MAX_DEPTH = 12
 CHECKPOINTS = (1, 2, 4, 8, 15, 30, 60, 120)  # seconds of compute at which errors are taken
 QUICK_ITERATIONS = 8  # --quick: iterations of each progressive method (a count, not seconds)
@@ -178,17 +203,29 @@ def reference(name, scene, size, spp, max_depth, cache: Path) -> list[np.ndarray
 
 
 # ----------------------------------------------------------------------------------- methods
+def compiled_per_iteration(pipe, steps: int = PROBE_STEPS) -> float:
+    """The kernels ``steps`` more iterations of ``pipe`` trace anew (not in memory: compiled, or
+    loaded from Dr.Jit's disk cache), per iteration."""
+    with kernel_history() as launches:
+        for _ in range(steps):
+            pipe.step()
+    return sum(k["type"] == "JIT" and not k.get("in_memory", True) for k in launches) / steps
+
+
 def run_progressive(label: str, cls, scene, score, budget: Budget, params: dict,
-                    warmup: dict | None = None, extra: Callable | None = None):  # fmt: skip
+                    extra: Callable | None = None):  # fmt: skip
     """One run of the progressive pipeline ``cls(scene, **params)`` for ``budget`` (seconds of
-    compute in calls of ``step()``, or a number of them), after a warm-up run of two steps with
-    ``params`` updated by ``warmup`` (kernel compilation). At each checkpoint (of
+    compute in calls of ``step()``, or a number of them), after a warm-up pipeline with the same
+    parameters: its first step compiles the kernels, its next :data:`PROBE_STEPS` count the
+    kernels an iteration traces anew (:func:`compiled_per_iteration`). At each checkpoint (of
     :data:`CHECKPOINTS`, or after 1, 2, 4, … steps) the clock stops and a row is taken:
     ``iterations``, ``seconds``, ``extra(pipe)`` and ``score(image)``. Returns the rows, the
-    run's ``timer.ms`` and ``stats`` and its last image."""
-    warm = cls(scene, **{**params, **(warmup or {})})
+    run's ``timer.ms`` and ``stats`` (with ``kernels_compiled_per_iteration``), the pipeline and
+    its last image."""
+    warm = cls(scene, **params)
     warm.step()
-    warm.step()
+    compiled = compiled_per_iteration(warm)
+    del warm
     pipe = cls(scene, **params)
     rows = []
     for spent in checkpoints(pipe.step, budget, CHECKPOINTS):
@@ -197,7 +234,8 @@ def run_progressive(label: str, cls, scene, score, budget: Budget, params: dict,
                      **(extra(pipe) if extra else {}), **score(image)})  # fmt: skip
         print(f"  {label} {pipe.iterations} it: {spent:.1f} s, rel RMSE "
               f"{rows[-1]['rel_rmse']:.4f}", flush=True)  # fmt: skip
-    return rows, dict(pipe.timer.ms), dict(pipe.stats), image
+    stats = {**pipe.stats, "kernels_compiled_per_iteration": compiled}
+    return rows, dict(pipe.timer.ms), stats, pipe, image
 
 
 def per_second(count, ms: dict, stage: str):
@@ -205,19 +243,28 @@ def per_second(count, ms: dict, stage: str):
     return count / (ms[stage] / 1e3) if ms.get(stage) else None
 
 
-def run_sppm(scene, score, budget: Budget, photons: int, max_depth: int):
-    """SPPM for ``budget``: rows (with the mean gather radius), rates and the last image."""
+def run_sppm(scene, score, budget: Budget, photons: int, max_depth: int, seed: int, rays: float):
+    """SPPM for ``budget``: rows (with the mean gather radius), rates (the passes' ray rates as
+    fractions of ``rays``, Mitsuba's ray casting per second) and the last image."""
     from photonmap.sppm import SPPMPipeline
 
-    rows, ms, stats, image = run_progressive(
+    rows, ms, stats, pipe, image = run_progressive(
         "sppm", SPPMPipeline, scene, score, budget,
-        {"photons": photons, "max_depth": max_depth}, warmup={"photons": 1000},
+        {"photons": photons, "max_depth": max_depth, "seed": seed},
         extra=lambda pipe: {"mean_radius": pipe.mean_radius},
     )  # fmt: skip
+    photon_rays = per_second(stats["photon_rays"], ms, "photon pass") if stats["photons"] else None
+    eye_rays = per_second(stats["eye_rays"], ms, "eye pass")
     rates = {
         "photons_per_s": per_second(stats["photons"], ms, "photon pass"),
         "gathers_per_s": per_second(stats["gathers"], ms, "gather"),
         "eye_paths_per_s": per_second(stats["gathers"], ms, "eye pass"),
+        "photon_rays_per_s": photon_rays,
+        "eye_rays_per_s": eye_rays,
+        "photon_pass_ray_fraction": photon_rays and photon_rays / rays,
+        "eye_pass_ray_fraction": eye_rays and eye_rays / rays,
+        "photons_seen": pipe.photons_seen(),
+        "kernels_compiled_per_iteration": stats["kernels_compiled_per_iteration"],
         "aimed_fraction_on_specular": (
             stats["aimed_on_specular"] / stats["aimed_photons"] if stats["aimed_photons"] else None
         ),
@@ -227,15 +274,16 @@ def run_sppm(scene, score, budget: Budget, photons: int, max_depth: int):
     return rows, rates, image
 
 
-def run_vcm(scene, score, budget: Budget, max_depth: int):
+def run_vcm(scene, score, budget: Budget, max_depth: int, seed: int):
     """VCM for ``budget``: rows (with the merging radius), rates and the last image."""
     from photonmap.vcm import VCMPipeline
 
-    rows, ms, stats, image = run_progressive(
-        "vcm", VCMPipeline, scene, score, budget, {"max_depth": max_depth, "seed": VCM_SEED},
+    rows, ms, stats, _, image = run_progressive(
+        "vcm", VCMPipeline, scene, score, budget, {"max_depth": max_depth, "seed": seed},
         extra=lambda pipe: {"radius": pipe.mean_radius},
     )  # fmt: skip
     rates = {
+        "kernels_compiled_per_iteration": stats["kernels_compiled_per_iteration"],
         "light_paths_per_s": per_second(stats["light_paths"], ms, "light pass"),
         "camera_paths_per_s": per_second(stats["camera_paths"], ms, "camera pass"),
         "light_vertices_per_light_path": (
@@ -341,18 +389,92 @@ def scene_headline(res: dict) -> dict:
         "vcm_speedup_vs_path_at_equal_block_rmse_vs_truth": time_ratio(
             path, v_final, "block_rel_rmse_vs_truth"
         ),
+        "best_speedup_vs_path_at_equal_block_rmse": max(
+            (r for r in (sppm_block, time_ratio(path, v_final)) if r is not None), default=None
+        ),
         "photons_per_s": s_rates.get("photons_per_s"),
         "gathers_per_s": s_rates.get("gathers_per_s"),
         "aimed_fraction_on_specular": s_rates.get("aimed_fraction_on_specular"),
+        "photon_pass_ray_fraction": s_rates.get("photon_pass_ray_fraction"),
+        "eye_pass_ray_fraction": s_rates.get("eye_pass_ray_fraction"),
+        "photons_seen": s_rates.get("photons_seen"),
+        "sppm_kernels_compiled_per_iteration": s_rates.get("kernels_compiled_per_iteration"),
+        "vcm_kernels_compiled_per_iteration": v_rates.get("kernels_compiled_per_iteration"),
         "light_paths_per_s": v_rates.get("light_paths_per_s"),
         "camera_paths_per_s": v_rates.get("camera_paths_per_s"),
         "ray_intersect_per_s": res["ray_intersect"]["ray_intersect_per_s"],
     }
 
 
+SPEEDUPS = (
+    "speedup_vs_path_at_equal_rmse", "speedup_vs_path_at_equal_rmse_vs_truth",
+    "speedup_vs_path_at_equal_block_rmse", "sppm_speedup_vs_path_at_equal_block_rmse",
+    "vcm_speedup_vs_path_at_equal_block_rmse", "vcm_speedup_vs_sppm_at_equal_block_rmse",
+    "sppm_speedup_vs_path_at_equal_block_rmse_vs_truth",
+    "vcm_speedup_vs_path_at_equal_block_rmse_vs_truth", "best_speedup_vs_path_at_equal_block_rmse",
+)  # fmt: skip
+
+
+def median_headline(runs: list[dict]) -> dict:
+    """Each key's median over the runs' headlines (over the runs where it is not None; None
+    where it is None in all)."""
+    out = {}
+    for key in runs[0]:
+        values = [r[key] for r in runs if r[key] is not None]
+        out[key] = float(np.median(values)) if values else None
+    return out
+
+
+def reference_check(name: str, res: dict) -> dict:
+    """``reference_ok``, ``goal`` and ``goal_met`` of scene ``name`` (module docstring); where
+    the reference is too noisy to judge, the headline's speedups become None."""
+    finals = [r[m][-1]["block_rel_rmse"] for r in res["runs"] for m in ("sppm", "vcm") if r.get(m)]
+    smallest = min(finals, default=None)
+    ok = smallest is None or res["reference_block_rel_rmse"] <= REFERENCE_SHARE * smallest
+    h = res["headline"]
+    if not ok:
+        h.update({key: None for key in SPEEDUPS})
+    goal = GOAL_PLAIN if name in PLAIN else GOAL_SPECULAR
+    best = h["best_speedup_vs_path_at_equal_block_rmse"]
+    return {"reference_ok": ok, "smallest_block_rel_rmse": smallest, "goal": goal,
+            "goal_met": best is not None and best >= goal}  # fmt: skip
+
+
+def one_run(scene, run: int, args, budget: Budget, max_depth: int, score, noise) -> tuple:
+    """Run ``run`` (0, 1, …: its seeds) of the methods ``args.methods`` on one scene: their
+    curves, rates and headline, and the last images of the progressive methods."""
+    res: dict = {"ray_intersect": ray_intersect_rate(scene, args.rays, seed=run)}
+    rays = res["ray_intersect"]["ray_intersect_per_s"]
+    print(f"  run {run + 1}: ray_intersect {rays / 1e6:.2f} M rays/s", flush=True)
+    images = {}
+    for method in args.methods:
+        if method == "path":
+            res["path"] = mitsuba_curve(
+                scene, args.spps, score, path_integrator(max_depth), seed=7 + run
+            )
+        elif method == "sppm":
+            res["sppm"], res["sppm_rates"], images["sppm"] = run_sppm(
+                scene, score, budget, args.photons, max_depth, run, rays
+            )
+        elif method == "vcm":
+            res["vcm"], res["vcm_rates"], images["vcm"] = run_vcm(
+                scene, score, budget, max_depth, VCM_SEED + run
+            )
+        else:
+            res["surface"] = run_surface(scene, score, args.budgets, max_depth)
+    for method in METHODS:
+        for row in res.get(method, []):
+            row["rel_rmse_vs_truth"] = vs_truth(row["rel_rmse"], noise["rel_rmse"])
+            row["block_rel_rmse_vs_truth"] = vs_truth(row["block_rel_rmse"],
+                                                      noise["block_rel_rmse"])  # fmt: skip
+    res["headline"] = scene_headline(res)
+    res["load_average_after"] = report.load_average()
+    return res, images
+
+
 def scene_result(name: str, size, args, ref_spp: int, budget: Budget) -> tuple[dict, dict]:
-    """The curves of the methods ``args.methods`` on one scene, its headline and the last
-    images of the progressive methods."""
+    """The reference of one scene and ``args.runs`` runs of the methods on it (the methods
+    interleaved), the median headline and the last run's images of the progressive methods."""
     scene = load(name, size)
     max_depth = max_depth_of(name, scene)
     a, b = reference(name, scene, size, ref_spp, max_depth, args.out_dir / "cache")
@@ -366,28 +488,15 @@ def scene_result(name: str, size, args, ref_spp: int, budget: Budget) -> tuple[d
 
     res: dict = {"image": list(size), "max_depth": max_depth, "reference_spp": ref_spp,
                  "reference_rel_rmse": noise["rel_rmse"],
-                 "reference_block_rel_rmse": noise["block_rel_rmse"]}  # fmt: skip
-    images = {}
-    for method in args.methods:
-        if method == "path":
-            res["path"] = mitsuba_curve(scene, args.spps, score, path_integrator(max_depth))
-        elif method == "sppm":
-            res["sppm"], res["sppm_rates"], images["sppm"] = run_sppm(
-                scene, score, budget, args.photons, max_depth
-            )
-        elif method == "vcm":
-            res["vcm"], res["vcm_rates"], images["vcm"] = run_vcm(scene, score, budget, max_depth)
-        else:
-            res["surface"] = run_surface(scene, score, args.budgets, max_depth)
-    res["ray_intersect"] = ray_intersect_rate(scene, args.rays)
-    print(f"  ray_intersect: {res['ray_intersect']['ray_intersect_per_s'] / 1e6:.2f} M rays/s",
-          flush=True)  # fmt: skip
-    for method in METHODS:
-        for row in res.get(method, []):
-            row["rel_rmse_vs_truth"] = vs_truth(row["rel_rmse"], noise["rel_rmse"])
-            row["block_rel_rmse_vs_truth"] = vs_truth(row["block_rel_rmse"],
-                                                      noise["block_rel_rmse"])  # fmt: skip
-    res["headline"] = scene_headline(res)
+                 "reference_block_rel_rmse": noise["block_rel_rmse"], "runs": []}  # fmt: skip
+    for run in range(args.runs):
+        result, images = one_run(scene, run, args, budget, max_depth, score, noise)
+        res["runs"].append(result)
+    res["headline"] = median_headline([r["headline"] for r in res["runs"]])
+    res.update(reference_check(name, res))
+    if not res["reference_ok"]:
+        print(f"  the reference's 4×4 error {noise['block_rel_rmse']:.4f} is more than a third "
+              f"of {res['smallest_block_rel_rmse']:.4f}: no ratio reported", flush=True)  # fmt: skip
     res["load_average_after"] = report.load_average()
     return res, images
 
@@ -401,6 +510,12 @@ NEW_KEYS = (
     "light_paths_per_s",
     "camera_paths_per_s",
     "ray_intersect_per_s",
+    "best_speedup_vs_path_at_equal_block_rmse",
+    "photon_pass_ray_fraction",
+    "eye_pass_ray_fraction",
+    "photons_seen",
+    "sppm_kernels_compiled_per_iteration",
+    "vcm_kernels_compiled_per_iteration",
 )
 
 
@@ -430,6 +545,10 @@ def headline(results: dict, methods, budget: Budget, started: float) -> dict:
     for key in NEW_KEYS:
         out[key] = per_scene(key)
         out["min_" + key] = smallest(out[key])
+    out["runs"] = len(next(iter(results.values()))["runs"]) if results else 0
+    out["reference_ok"] = {n: r["reference_ok"] for n, r in results.items()}
+    out["goal"] = {n: r["goal"] for n, r in results.items()}
+    out["goal_met"] = {n: r["goal_met"] for n, r in results.items()}
     out["runtime_s"] = time.perf_counter() - started
     return out
 
@@ -448,16 +567,18 @@ def budget_text(method: str, row: dict) -> str:
 
 def markdown(out: dict) -> str:
     records = [
-        {"scene": name, "method": method, **r}
+        {"scene": name, "method": method, "run": i + 1, **r}
         for name, res in out["scenes"].items()
+        for i, run in enumerate(res["runs"])
         for method in METHODS
-        for r in res.get(method, [])
+        for r in run.get(method, [])
     ]
     table = report.records_table(
         records,
         [
             ("scene", "scene", None),
             ("method", "method", None),
+            ("run", "run", None),
             ("budget", lambda r: budget_text(r["method"], r), None),
             ("seconds", "seconds", 2),
             ("rel. RMSE", "rel_rmse", 4),
@@ -467,8 +588,8 @@ def markdown(out: dict) -> str:
     refs = "\n".join(
         f"- {n}: max_depth {r['max_depth']}, reference {r['reference_spp']} spp, its own rel. "
         f"RMSE {r['reference_rel_rmse']:.4f} (4×4 blocks {r['reference_block_rel_rmse']:.4f}); "
-        f"Mitsuba ray_intersect {r['ray_intersect']['ray_intersect_per_s'] / 1e6:.2f} M rays/s; "
-        f"load after {r['load_average_after']}"
+        f"Mitsuba ray_intersect {r['headline']['ray_intersect_per_s'] / 1e6:.2f} M rays/s "
+        f"(median); reference ok: {r['reference_ok']}; load after {r['load_average_after']}"
         for n, r in out["scenes"].items()
     )
     return table + "\n\n" + report.bullets(out["headline"]) + "\n\n" + refs + "\n"
@@ -476,19 +597,21 @@ def markdown(out: dict) -> str:
 
 def plot(results: dict, path: Path) -> None:
     """Error against time, a panel per scene (four to a row), a colour per method: per-pixel
-    relative RMSE solid, 4×4-block dashed, the reference's own errors dotted grey."""
+    relative RMSE solid, 4×4-block dashed (the first run), the reference's own errors dotted
+    grey."""
     cols = min(4, len(results))
     rows = -(-len(results) // cols)
     with report.figure(path, rows, cols, size=(4.6 * cols, 3.9 * rows)) as axes:
         panels = [ax for row in axes for ax in row]
         for ax, (name, res) in zip(panels, results.items(), strict=False):
+            run = res["runs"][0]
             for method in METHODS:
-                if res.get(method):
-                    seconds = [r["seconds"] for r in res[method]]
+                if run.get(method):
+                    seconds = [r["seconds"] for r in run[method]]
                     color = COLORS[method]
-                    ax.loglog(seconds, [r["rel_rmse"] for r in res[method]], "o-", color=color,
+                    ax.loglog(seconds, [r["rel_rmse"] for r in run[method]], "o-", color=color,
                               label=LABELS[method])  # fmt: skip
-                    ax.loglog(seconds, [r["block_rel_rmse"] for r in res[method]], "s--",
+                    ax.loglog(seconds, [r["block_rel_rmse"] for r in run[method]], "s--",
                               color=color, ms=4)  # fmt: skip
             for key in ("reference_rel_rmse", "reference_block_rel_rmse"):
                 ax.axhline(res[key], color="grey", lw=0.6, ls=":")
@@ -515,6 +638,8 @@ def main(argv=None) -> dict:
                         help="a budget of iterations of each progressive method instead")  # fmt: skip
     parser.add_argument("--photons", type=int, default=100_000, help="SPPM photons/iteration")
     parser.add_argument("--ref-spp", type=int, default=16384, help="path reference spp")
+    parser.add_argument("--runs", type=int, default=None,
+                        help="interleaved runs per scene (default 3; 1 with --quick)")  # fmt: skip
     parser.add_argument("--scenes", default=",".join(SCENES), help="comma-separated subset")
     parser.add_argument("--methods", default=",".join(METHODS),
                         help=f"comma-separated subset of {','.join(METHODS)}")  # fmt: skip
@@ -525,6 +650,9 @@ def main(argv=None) -> dict:
         raise SystemExit(f"--scenes: unknown {unknown}; choose from {', '.join(SCENES)}")
     if args.iterations is not None and args.iterations < 1:
         raise SystemExit("--iterations must be at least 1")
+    args.runs = args.runs if args.runs is not None else 1 if args.quick else 3
+    if args.runs < 1:
+        raise SystemExit("--runs must be at least 1")
     iterations = QUICK_ITERATIONS if args.quick else args.iterations
     budget = Budget(iterations, steps=True) if iterations else Budget(args.seconds)
     ref_spp = 512 if args.quick else args.ref_spp

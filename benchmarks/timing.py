@@ -128,7 +128,8 @@ def kernel_summary(entry: dict) -> dict:
     for key in ("execution_time", "codegen_time", "backend_time"):
         if key in entry:
             out[key + "_ms"] = float(entry[key])
-    if "cache_hit" in entry:
+    if "cache_hit" in entry:  # in memory; else loaded from the disk cache, or compiled
+        out["in_memory"] = bool(entry["cache_hit"])
         out["compiled"] = not (bool(entry["cache_hit"]) or bool(entry.get("cache_disk", False)))
     return out
 

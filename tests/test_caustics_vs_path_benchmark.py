@@ -1,8 +1,8 @@
 """``benchmarks/caustics_vs_path.py``: the quick run writes the JSON schema the lead's tooling
 reads, with a stand-in for ``photonmap.vcm.VCMPipeline`` (Mitsuba's ``path``, one sample per
 pixel and step, behind the pipeline interface the benchmark drives); the headline is recomputed
-here from the curves; a run without ``vcm`` does not import it. Speed is measured by the
-benchmark itself."""
+here from the curves; the medians over runs and the reference check against synthetic runs; a
+run without ``vcm`` does not import it. Speed is measured by the benchmark itself."""
 
 import json
 import math
@@ -85,18 +85,29 @@ def test_quick_run_writes_schema(bench, quick, out):
     assert headline["max_depth"] == {"cornell_box": 8, "glass_mesh": 24}
     for key in bench.NEW_KEYS:
         assert list(headline[key]) == SCENES
-        assert headline["min_" + key] == min(headline[key].values())
+        values = [v for v in headline[key].values() if v is not None]
+        assert headline["min_" + key] == (min(values) if values else None)
+    assert headline["runs"] == 1 and headline["goal"] == {"cornell_box": 0.9, "glass_mesh": 5.0}
     for name, scene in data["scenes"].items():
         assert finite(scene["reference_rel_rmse"]) and finite(scene["reference_block_rel_rmse"])
+        assert isinstance(scene["reference_ok"], bool) and len(scene["runs"]) == 1
+        run = scene["runs"][0]
         for method in bench.METHODS:
-            assert scene[method] and all(finite(r["seconds"]) for r in scene[method])
-        for row in scene["vcm"]:
+            assert run[method] and all(finite(r["seconds"]) for r in run[method])
+        for row in run["vcm"]:
             assert row["iterations"] >= 1 and 0 < row["radius"] <= 0.1
         h = scene["headline"]
-        for key in ("light_paths_per_s", "camera_paths_per_s", "ray_intersect_per_s"):
+        for key in ("light_paths_per_s", "camera_paths_per_s", "ray_intersect_per_s",
+                    "photon_pass_ray_fraction", "eye_pass_ray_fraction"):  # fmt: skip
+            if key == "photon_pass_ray_fraction" and name == "cornell_box":
+                assert h[key] is None  # no mirror or glass: path tracing, no photon pass
+                continue
             assert finite(h[key]) and h[key] > 0, (name, key)
-        assert len(scene["ray_intersect"]["samples"]) == 3
-        assert 0 < scene["ray_intersect"]["bounce_rays"] <= scene["ray_intersect"]["camera_rays"]
+        assert h["sppm_kernels_compiled_per_iteration"] == 0  # iterations reuse their kernels
+        seen = h["photons_seen"]
+        assert seen is None if name == "cornell_box" else 0 < seen <= 1
+        assert len(run["ray_intersect"]["samples"]) == 3
+        assert 0 < run["ray_intersect"]["bounce_rays"] <= run["ray_intersect"]["camera_rays"]
     table = (out / "caustics_vs_path_quick.md").read_text()
     assert "| glass_mesh | vcm |" in table and " iterations, r 0.0" in table
 
@@ -107,7 +118,7 @@ def test_headline_is_computed_from_the_curves(bench, quick, name):
     t^−½ past its ends) over the last row's seconds."""
     from accuracy import loglog_time_for
 
-    scene = quick["scenes"][name]
+    scene = quick["scenes"][name]["runs"][0]
     h = scene["headline"]
 
     def ratio(rows, final, key="block_rel_rmse"):
@@ -136,8 +147,30 @@ def test_a_run_without_vcm_does_not_import_it(bench, out):
         result = bench.main(["--quick", "--scenes", "glass_mesh", "--methods", "path,sppm",
                              "--out-dir", str(out)])  # fmt: skip
     scene = result["scenes"]["glass_mesh"]
-    assert "vcm" not in scene and "surface" not in scene and scene["max_depth"] == 24
-    assert scene["headline"]["vcm_speedup_vs_path_at_equal_block_rmse"] is None
-    assert finite(scene["headline"]["sppm_speedup_vs_path_at_equal_block_rmse"])
+    run = scene["runs"][0]
+    assert "vcm" not in run and "surface" not in run and scene["max_depth"] == 24
+    assert run["headline"]["vcm_speedup_vs_path_at_equal_block_rmse"] is None
+    assert finite(run["headline"]["sppm_speedup_vs_path_at_equal_block_rmse"])
     with pytest.raises(SystemExit, match="unknown"):
         bench.main(["--quick", "--methods", "path,bdpt", "--out-dir", str(out)])
+
+
+def test_a_scene_headline_is_the_median_of_its_runs(bench):
+    runs = [{"a": 1.0, "b": None, "c": None}, {"a": 3.0, "b": 2.0, "c": None},
+            {"a": 2.0, "b": 4.0, "c": None}]  # fmt: skip
+    assert bench.median_headline(runs) == {"a": 2.0, "b": 3.0, "c": None}
+
+
+@pytest.mark.parametrize(("reference", "ok"), [(0.01, True), (0.02, False)])
+def test_a_noisy_reference_reports_no_ratio(bench, reference, ok):
+    """The reference's 4×4 error must be at most a third of the smallest compared (0.05 here)."""
+    finals = [{"sppm": [{"block_rel_rmse": 0.09}], "vcm": [{"block_rel_rmse": e}]}
+              for e in (0.05, 0.07)]  # fmt: skip
+    headline = {key: 6.0 for key in bench.SPEEDUPS}
+    res = {"runs": finals, "reference_block_rel_rmse": reference, "headline": headline}
+    check = bench.reference_check("pool", res)
+    assert check["reference_ok"] is ok and check["smallest_block_rel_rmse"] == 0.05
+    assert check["goal"] == 5.0 and check["goal_met"] is ok
+    assert all((headline[key] == 6.0) is ok for key in bench.SPEEDUPS)
+    assert bench.reference_check("diffuse_room", {**res, "headline": {
+        key: 0.95 for key in bench.SPEEDUPS}})["goal"] == 0.9  # fmt: skip

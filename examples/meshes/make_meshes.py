@@ -11,6 +11,11 @@ y = 0.
 
 ``lamp_shade.ply``: an open hemispherical bowl (radius 1, centre at the origin, opening upward:
 y ≤ 0), a single surface, for a two-sided metal reflector around a light.
+
+``pool_water.ply`` (pool.xml): a water surface, the heightfield of a few travelling waves over
+the square [−1.5, 1.5]² about y = 0 (peak height 0.067), 64 × 64 cells, faces counter-clockwise
+seen from above (normals up, into the air); no normals in the file, so Mitsuba interpolates its
+vertex normals and the surface refracts smoothly.
 """
 
 from __future__ import annotations
@@ -94,6 +99,27 @@ def bowl(rings: int = 16, sides: int = 48) -> tuple[np.ndarray, np.ndarray]:
     return vertices, faces
 
 
+def water(cells: int = 64, half: float = 1.5) -> tuple[np.ndarray, np.ndarray]:
+    """The heightfield ``y = h(x, z)`` of three waves (wavelengths 1.1, 0.7 and 0.45, amplitudes
+    0.03, 0.025 and 0.012: curvatures up to about 6, so the waves focus light about 1 below) on
+    a ``cells`` × ``cells`` grid over ``[−half, half]²``, two triangles a cell, counter-clockwise
+    seen from above."""
+    t = np.linspace(-half, half, cells + 1)
+    x, z = np.meshgrid(t, t, indexing="xy")
+    y = np.zeros_like(x)
+    waves = (((0.8, 0.6), 1.1, 0.03, 0.0), ((-0.3, 0.95), 0.7, 0.025, 1.3),
+             ((0.95, -0.3), 0.45, 0.012, 2.1))  # (direction, wavelength, amplitude, phase)
+    for (kx, kz), wavelength, amplitude, phase in waves:
+        y += amplitude * np.sin(2 * np.pi * (kx * x + kz * z) / wavelength + phase)
+    vertices = np.stack([x, y, z], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(cells), np.arange(cells), indexing="xy")
+    a = (j * (cells + 1) + i).ravel()  # the cell's corner at (x_i, z_j)
+    b, c, d = a + 1, a + cells + 1, a + cells + 2  # (x_i+1, z_j), (x_i, z_j+1), (x_i+1, z_j+1)
+    # seen from above (+y) with x right and z down, counter-clockwise is a → c → b
+    faces = np.concatenate([np.stack([a, c, b], -1), np.stack([b, c, d], -1)])
+    return vertices, faces
+
+
 def write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
     """A binary little-endian PLY of float32 positions and triangles."""
     header = (
@@ -112,7 +138,8 @@ def write_ply(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
 
 
 def main() -> None:
-    for name, (vertices, faces) in {"gem.ply": gem(), "lamp_shade.ply": bowl()}.items():
+    for name, (vertices, faces) in {"gem.ply": gem(), "lamp_shade.ply": bowl(),
+                                 "pool_water.ply": water()}.items():
         write_ply(HERE / name, vertices, faces)
         print(f"{name}: {len(vertices)} vertices, {len(faces)} triangles")
 

@@ -119,6 +119,7 @@ class EyeVertices:
     depth: mi.UInt32  # segments from the camera to the vertex
     medium: mi.MediumPtr  # the medium the path arrived in
     bounces: mi.UInt32  # followed (delta) bounces on the way
+    rays: mi.UInt32  # rays the path cast: one per segment, one per shadow ray
     segments: Segments | None = None  # the pieces in media ("march" mode)
 
     @property
@@ -201,6 +202,7 @@ class _Walk:
     pieces: mi.UInt32  # pieces recorded in media ("march" mode)
     active: mi.Bool
     events: mi.UInt32  # loop iterations so far
+    rays: mi.UInt32  # rays cast so far: segments and shadow rays
     # ---- where the paths ended
     si_end: mi.SurfaceInteraction3f
     mei_end: mi.MediumInteraction3f
@@ -218,7 +220,7 @@ class _Walk:
             mi.UInt32(start_depth) + dr.zeros(mi.UInt32, n), dr.zeros(mi.Spectrum, n),
             dr.ones(mi.Float, n), dr.zeros(mi.UInt32, n), dr.full(mi.UInt32, FROM_CAMERA, n),
             dr.zeros(mi.Interaction3f, n), dr.zeros(mi.Float, n), dr.zeros(mi.UInt32, n),
-            active, dr.zeros(mi.UInt32, n),
+            active, dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n),
             dr.zeros(mi.SurfaceInteraction3f, n), dr.zeros(mi.MediumInteraction3f, n),
             dr.zeros(mi.Spectrum, n), dr.zeros(mi.MediumPtr, n), dr.zeros(mi.Bool, n),
             dr.zeros(mi.Bool, n),
@@ -227,7 +229,7 @@ class _Walk:
     def vertices(self) -> EyeVertices:
         return EyeVertices(
             self.si_end, self.mei_end, self.beta_end, self.radiance, self.found, self.in_medium,
-            self.depth, self.medium_end, self.bounces,
+            self.depth, self.medium_end, self.bounces, self.rays,
         )  # fmt: skip
 
 
@@ -296,6 +298,7 @@ def _follow(scene, ray, beta, medium, gen, *, settings, traits, emission, media_
         walk.active &= ~rolled | (gen.next_float32() < survive)
         walk.active &= dr.any(walk.beta != 0.0)
         walk.events += 1
+        walk.rays += 1  # the segment's ray (shadow rays are counted where they are cast)
     return walk.vertices()
 
 
@@ -335,6 +338,7 @@ def _fly(scene, walk: _Walk, gen, ch, max_depth, rules: _Rules, null_shapes, rec
         length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
         lit = in_medium & (walk.depth + 2 <= max_depth)
         walk.radiance[lit] += walk.beta * piece_direct(scene, ray, length, medium, gen, ch, lit)
+        walk.rays[lit] += 1
         scattered, mei, weight = collide(ray, length, medium, gen, in_medium)
         walk.beta[in_medium] *= weight
     else:
@@ -424,6 +428,7 @@ def _surface_vertex(scene, walk: _Walk, si, surface, emitter, arrived, max_depth
         walk.radiance[lit] += walk.beta * emitter_sampled(
             scene, si, u_light, gen, lit, traits, walk.medium
         )
+        walk.rays[lit] += 1
     followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
     if rules.continuing:
         here = surface & ~skip & smooth & (arrived < max_depth)
@@ -431,6 +436,7 @@ def _surface_vertex(scene, walk: _Walk, si, surface, emitter, arrived, max_depth
         walk.radiance[here] += walk.beta * emitter_sampled(
             scene, si, u_light, gen, here, traits, walk.medium
         )
+        walk.rays[here] += 1
         if surface_light is not None:
             walk.radiance[here] += walk.beta * surface_light(si, max_depth - arrived, here)
         go_on = skip | (surface & (bs.pdf > 0))

@@ -79,6 +79,7 @@ class PhotonRecords:
     glossy: mi.UInt32  # glossy bounces before the hit
     paths: int  # photon paths emitted
     emitted_power: np.ndarray  # Σ of the initial power of all paths (RGB, W)
+    rays: int = 0  # rays the paths cast (one per segment)
 
     @property
     def count(self) -> int:
@@ -87,12 +88,13 @@ class PhotonRecords:
 
     def select(self, mask: mi.Bool) -> PhotonRecords:
         """The records where ``mask`` holds (e.g. ``records.select(records.caustic)`` is the
-        caustic map); ``paths`` and ``emitted_power`` are kept."""
+        caustic map); ``paths``, ``emitted_power`` and ``rays`` are kept."""
         index = dr.compress(mi.Bool(mask))
         return PhotonRecords(
             *(dr.gather(type(f), f, index) for f in self._arrays()),
             self.paths,
             self.emitted_power,
+            self.rays,
         )
 
     def after_first(self) -> PhotonRecords:
@@ -102,7 +104,7 @@ class PhotonRecords:
         return self.select(self.depth > 1) if self.count else self
 
     def _arrays(self) -> list:
-        return [getattr(self, f.name) for f in fields(self)][:-2]
+        return [getattr(self, f.name) for f in fields(self)][:-3]
 
 
 @dataclass
@@ -183,16 +185,17 @@ def trace_light_paths(
     n = light.count
     state = _PathState.start(light, gen, first_depth)
     surface, volume = [], []
-    steps = 0
+    steps = rays = 0
     while state.count and steps < MAX_STEPS:
-        rec, vrec, state = _chunk(
+        rec, vrec, state, cast = _chunk(
             scene, state, limit, settings.rr_depth, traits, caustics_only, roulette, redirect,
             rough_glass,
         )  # fmt: skip
         surface.append(rec)
         volume.append(vrec)
         steps += CHUNK
-    records = PhotonRecords(*_concat(surface, 9), n, light.emitted_power)
+        rays += cast
+    records = PhotonRecords(*_concat(surface, 9), n, light.emitted_power, rays)
     _check_power(records)
     if not traits.media:
         return records, None
@@ -265,22 +268,22 @@ VOLUME_FIELDS = {
 
 def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redirect,
            rough_glass):  # fmt: skip
-    """One chunk of the loop: the records it stored (compacted, as field lists) and the state of
-    the paths still alive."""
+    """One chunk of the loop: the records it stored (compacted, as field lists), the state of
+    the paths still alive and the rays the chunk cast."""
     lanes = state.count
     slots = lanes * CHUNK
     rec = _slots(SURFACE_FIELDS, slots)
     vrec = _slots(VOLUME_FIELDS, slots if traits.media else 1)
     stored = dr.zeros(mi.Bool, slots)
     vstored = dr.zeros(mi.Bool, dr.width(vrec["depth"]))
-    alive = _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits,
-                  caustics_only, roulette, redirect, rough_glass)  # fmt: skip
-    dr.eval(rec, vrec, stored, vstored, alive, *vars(state).values())
+    alive, steps = _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits,
+                         caustics_only, roulette, redirect, rough_glass)  # fmt: skip
+    dr.eval(rec, vrec, stored, vstored, alive, steps, *vars(state).values())
     out = []
     for fields_, mask in ((rec, stored), (vrec, vstored)):
         index = dr.compress(mask)
         out.append([dr.gather(type(v), v, index) for v in fields_.values()])
-    return out[0], out[1], state.kept(alive)
+    return out[0], out[1], state.kept(alive), int(np.asarray(steps, np.int64).sum())
 
 
 @dr.syntax
@@ -290,7 +293,8 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
     returns which paths are still alive. One iteration flies to the next interaction
     (:func:`_fly`), applies the partition of aimed emission (:mod:`.emission`) at the first one,
     stores a volume photon or a surface record, samples the BSDF or the phase function
-    (:func:`_scatter`) and plays Russian roulette (:func:`_survival`)."""
+    (:func:`_scatter`) and plays Russian roulette (:func:`_survival`). Also returns each path's
+    steps in the chunk: one ray cast each."""
     lanes = state.count
     limit = dr.opaque(mi.UInt32, limit)
     rr_depth = dr.opaque(mi.UInt32, rr_depth)
@@ -348,7 +352,7 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
             active &= ~rolled | (state.gen.next_float32() < survival)
         active &= (dr.max(state.power) > 0) & (state.depth < limit)
         step += 1
-    return active
+    return active, step
 
 
 def _fly(scene, state: _PathState, ch, active, media: bool, null_shapes):

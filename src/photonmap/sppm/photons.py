@@ -39,6 +39,7 @@ class Photons:
     aimed: int  # of them, aimed at specular shapes (core.aim)
     caustic_fraction: float  # of the aimed paths, those that met a specular shape first
     volume: VolumePhotons | None = None  # scenes with media: the iteration's caustic volume photons
+    rays: int = 0  # rays the photon paths cast
 
     @property
     def count(self) -> int:
@@ -73,4 +74,5 @@ def photon_pass(
     return Photons(
         kept.position, kept.power, kept.direction, kept.depth, paths, traced.light.aimed_paths,
         traced.caustic_fraction, volume if volume is not None and volume.count else None,
+        traced.records.rays,
     )  # fmt: skip

@@ -218,7 +218,7 @@ class SPPMPipeline(Progressive, Pipeline):
         self.iterations = 0
         self.stats = {
             "photons": 0, "photon_records": 0, "gathers": 0, "aimed_photons": 0,
-            "aimed_on_specular": 0.0, "volume_photons": 0,
+            "aimed_on_specular": 0.0, "volume_photons": 0, "photon_rays": 0, "eye_rays": 0,
         }  # fmt: skip
         self.cache.new_frame()
 
@@ -276,32 +276,67 @@ class SPPMPipeline(Progressive, Pipeline):
             caustics_only=self.path_traced,
         )  # fmt: skip
 
+    def _passes(self, i: int, radius, timed: bool = True):
+        """The photon pass and the eye pass of iteration ``i`` at ``radius`` (per pixel or one),
+        ``timed`` as the pipeline's stages."""
+        p = self.params
+        check_once(self, p, self.size, self.check_memory)
+        eye_seed, _ = iteration_seeds(p.seed, i)
+        run = self.cache.run if timed else lambda _, compute: compute()
+        photons = run("photon pass", lambda: self._photon_pass(i))
+        points = run("eye pass", lambda: eye_pass(
+            self.scene, self.sensor, eye_seed, self.settings, self.traits,
+            self.caustics(photons, i, radius), self.eye_spp,
+            "continue" if self.path_traced else "stop", self.mirror_pixels(),
+        ))  # fmt: skip
+        return photons, points
+
     def _iteration(self, i: int, radius):
         """Eye pass, photon pass and gather of iteration ``i`` at ``radius`` (per pixel or one);
         path-traced eye paths read the caustic photons at ``radius`` themselves and
         no gather follows (the result's flux and count are zero)."""
         p, settings = self.params, self.settings
-        check_once(self, p, self.size, self.check_memory)
-        eye_seed, _ = iteration_seeds(p.seed, i)
-        run = self.cache.run
-        photons = run("photon pass", lambda: self._photon_pass(i))
-        points = run("eye pass", lambda: eye_pass(
-            self.scene, self.sensor, eye_seed, settings, self.traits,
-            self.caustics(photons, i, radius), self.eye_spp,
-            "continue" if self.path_traced else "stop", self.mirror_pixels(),
-        ))  # fmt: skip
+        photons, points = self._passes(i, radius)
         if self.path_traced:  # the eye paths read the caustic photons themselves
             w, h = self.size
             got = Gathered(dr.zeros(mi.Color3f, w * h), dr.zeros(mi.Float, w * h))
         else:
-            got = run("gather", lambda: gather(points, radius, photons, settings))
+            got = self.cache.run("gather", lambda: gather(points, radius, photons, settings))
         if photons is not None:
             self.stats["photons"] += p.photons
             self.stats["photon_records"] += photons.count
             self.stats["aimed_photons"] += photons.aimed
             self.stats["aimed_on_specular"] += photons.caustic_fraction * photons.aimed
+            self.stats["photon_rays"] += photons.rays
         self.stats["gathers"] += dr.width(points.found)
+        self.stats["eye_rays"] += points.rays
         return points, got
+
+    def photons_seen(self) -> float | None:
+        """The share of the next iteration's photon records that lie within some visible point's
+        gather radius — the photons the gather can use; the rest were traced for nothing (a
+        diagnostic for the benchmarks: iteration ``iterations + 1`` is traced and not kept, and
+        the photon's depth and the surface it lies on are not checked). None where the eye paths
+        are path tracing (they read the photons at every vertex), in memoryless iterations and
+        without photons."""
+        if self.memoryless:
+            return None
+        w, h = self.size
+        state = self._state or PixelState.start(w * h, self.initial_radius())
+        photons, points = self._passes(self.iterations + 1, state.radius, timed=False)
+        if photons is None or not photons.count:
+            return None
+        found = np.asarray(points.found, bool)
+        where = np.asarray(points.si.p, np.float64).T[found]
+        radius = np.repeat(np.asarray(state.radius, np.float64), points.spp)[found]
+        if not len(where):
+            return 0.0
+        from scipy.spatial import cKDTree
+
+        stored = cKDTree(np.asarray(photons.position, np.float64).T)
+        pairs = cKDTree(where).sparse_distance_matrix(stored, radius.max(), output_type="coo_matrix")
+        near = pairs.data < radius[pairs.row]
+        return len(np.unique(pairs.col[near])) / photons.count
 
     def mirror_pixels(self) -> mi.UInt32 | None:
         """The pixels where the eye pass traces the lights' images in mirrors and glass

@@ -55,6 +55,7 @@ class VisiblePoints:
     depth: mi.UInt32  # segments from the camera to x (photons of depth ≤ max_depth − depth count)
     direct: mi.Spectrum  # per pixel: L_d of this iteration (emission seen, media, direct light)
     spp: int
+    rays: int = 0  # rays the pass cast: segments and shadow rays
 
     @property
     def bsdf(self) -> mi.BSDFPtr:
@@ -104,12 +105,17 @@ def eye_pass(
         u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
         lit = eye.found & settings.allows(eye.depth + 1)
         L += eye.beta * direct_lighting(scene, eye.si, u_light, gen, lit, traits, eye.medium)
-    dr.eval(L, eye.si, eye.beta, eye.found, eye.depth)  # one kernel: read lazily, the loop reran
+        eye.rays += mi.UInt32(lit)  # its shadow ray
+    dr.eval(L, eye.si, eye.beta, eye.found, eye.depth, eye.rays)  # one kernel: read lazily, the
+    # loop would run again
+    rays = int(np.asarray(eye.rays, np.int64).sum())
     direct = splat_means(sensor.film(), jitter, L, spp) if splat else pixel_means(L, spp)
     if not seen_here:
-        direct += emission_seen(scene, sensor, seed, settings, traits, mirrors, splat)
+        seen, seen_rays = emission_seen(scene, sensor, seed, settings, traits, mirrors, splat)
+        direct += seen
+        rays += seen_rays
     dr.eval(direct)
-    return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct, spp)
+    return VisiblePoints(eye.si, eye.beta, eye.found, eye.depth, direct, spp, rays)
 
 
 def splatted(film: mi.Film) -> bool:
@@ -121,15 +127,16 @@ def splatted(film: mi.Film) -> bool:
 
 def emission_seen(
     scene, sensor, seed: int, settings, traits, pixels: mi.UInt32, splat: bool = False
-) -> mi.Spectrum:
+) -> tuple[mi.Spectrum, int]:
     """Per pixel, the mean emission of :data:`LIGHT_SPP` jittered paths that only follow
     mirrors, glass and the media's transmittance (``splat``: splatted through the film's
     filter), traced in ``pixels`` alone (:func:`mirror_pixels`: elsewhere such paths meet a
     surface that ends them with no light first). A path's random numbers are those of its lane
-    in the whole film's wavefront, so the image is the one tracing every pixel gives."""
+    in the whole film's wavefront, so the image is the one tracing every pixel gives. Also
+    returns the rays the paths cast."""
     w, h = (int(c) for c in sensor.film().crop_size())
     if not dr.width(pixels):  # no light and no mirror or glass in view
-        return dr.zeros(mi.Spectrum, w * h)
+        return dr.zeros(mi.Spectrum, w * h), 0
     many = w * h * LIGHT_SPP
     traced = dr.arange(mi.UInt32, dr.width(pixels) * LIGHT_SPP)
     lanes = dr.gather(mi.UInt32, pixels, traced // LIGHT_SPP) * LIGHT_SPP + traced % LIGHT_SPP
@@ -140,14 +147,15 @@ def emission_seen(
         scene, ray, weight, broadcast(sensor.get_medium(), dr.width(lanes)), gen, settings,
         traits, emission=True, media_mode="transmit",
     )  # fmt: skip
+    rays = int(np.asarray(seen.rays, np.int64).sum())
     if splat:  # the splats reach the neighbours: the whole film's samples, zero where untraced
         radiance, positions = dr.zeros(mi.Spectrum, many), dr.zeros(mi.Point2f, many)
         dr.scatter(radiance, seen.radiance, lanes)
         dr.scatter(positions, jitter, lanes)
-        return splat_means(sensor.film(), positions, radiance, LIGHT_SPP)
+        return splat_means(sensor.film(), positions, radiance, LIGHT_SPP), rays
     means = dr.zeros(mi.Spectrum, w * h)
     dr.scatter(means, pixel_means(seen.radiance, LIGHT_SPP), pixels)
-    return means
+    return means, rays
 
 
 SUBPIXELS = 4  # rays per pixel side that find the pixels a light may show in (mirror_pixels)
