@@ -51,6 +51,25 @@ def render_passes(scene, spp: int, per_pass: int, seed: int, integrator=None) ->
     return sum(parts) / passes
 
 
+def blend_weights(pilot_a, pilot_b, where: np.ndarray, window: int = 9) -> np.ndarray:
+    """Per pixel, the weight ``w`` of estimate A in the inverse-variance blend ``w A + (1 − w) B``
+    of two unbiased estimates of one image, from independent pilot renders of each (two halves
+    apiece, at a common fraction of A's and B's samples): a variance is the local mean
+    (``window`` × ``window`` pixels, colour channels averaged) of the pilot halves' squared
+    difference, and ``w = v_B / (v_A + v_B)`` where ``where`` holds, 1 elsewhere (B does not
+    estimate those pixels). Weights from independent renders do not correlate with the images
+    they blend, so the blend stays unbiased. Shape ``(height, width, 1)``."""
+    from scipy.ndimage import uniform_filter
+
+    def variance(first, second):
+        d2 = np.mean((np.asarray(first, np.float64) - second) ** 2, axis=-1)
+        return uniform_filter(d2, window, mode="nearest")
+
+    va, vb = variance(*pilot_a), variance(*pilot_b)
+    w = np.where(va + vb > 0, vb / np.maximum(va + vb, 1e-300), 0.5)
+    return np.where(where, w, 1.0)[..., None]
+
+
 def light_image_mask(scene, spp: int = 64) -> np.ndarray:
     """Pixels that see no emitter, neither directly nor through mirrors and glass, nor next to
     one that does. Those pixels are the light's images: a bright source a few pixels wide whose

@@ -25,10 +25,13 @@ here):
 - ``diffuse_room`` (examples/diffuse_room.xml): a diffuse room and furniture under a large
   ceiling light, no mirror or glass; 8.
 
-References: ``path`` at ``--ref-spp`` samples per pixel in two halves of different seeds,
-cached in ``results/cache/`` (not in git; the file name holds the scene, size, max_depth and
-spp); the halves' difference estimates the reference's own error, reported as
-``reference_rel_rmse`` and ``reference_block_rel_rmse``.
+References (:func:`reference`): ``path`` at ``--ref-spp`` samples per pixel in two halves of
+different seeds, blended in the pixels where the camera sees only smooth surfaces with Mitsuba's
+``ptracer`` at a quarter of the samples (light paths connected to the camera: it finds the
+caustics seen directly that ``path`` finds by chance) by inverse-variance weights from
+independent pilot renders (:func:`accuracy.blend_weights`); cached in ``results/cache/`` (not in git; the file
+names hold the scene, size, max_depth and spp). The blended halves' difference estimates the
+reference's own error, reported as ``reference_rel_rmse`` and ``reference_block_rel_rmse``.
 
 Methods (``--methods``, default ``path,sppm,vcm,surface``): ``path`` at 4 … 4096 spp (timed
 renders); ``sppm`` and ``vcm`` for ``--seconds`` each, one run of the progressive pipeline each
@@ -103,6 +106,7 @@ import numpy as np
 
 import report
 from accuracy import (
+    blend_weights,
     cached_image,
     errors,
     light_image_mask,
@@ -184,22 +188,53 @@ def max_depth_of(name: str, scene: mi.Scene) -> int:
     return DEFAULT_MAX_DEPTH if depth == UNBOUNDED else depth
 
 
-def path_integrator(max_depth: int):
-    return mi.load_dict({"type": "path", "max_depth": max_depth})
+def path_integrator(max_depth: int, kind: str = "path"):
+    return mi.load_dict({"type": kind, "max_depth": max_depth})
+
+
+TRACER_SHARE, PILOT_SHARE = 4, 64  # ptracer's samples and the pilots' (each), of the reference's
+
+
+def camera_sees_smooth(scene) -> np.ndarray:
+    """Pixels whose neighbourhood (the film filter's reach and a pixel) shows no light, mirror,
+    glass or ``null`` boundary first (the complement of :func:`photonmap.sppm.visible.mirror_pixels`):
+    there ``ptracer``, which reaches the camera from smooth surfaces only, renders what ``path``
+    renders."""
+    from photonmap.sppm.visible import mirror_pixels
+
+    sensor = scene.sensors()[0]
+    w, h = (int(c) for c in sensor.film().crop_size())
+    shown = np.zeros(w * h, bool)
+    shown[np.asarray(mirror_pixels(scene, sensor), np.int64)] = True
+    return ~shown.reshape(h, w)
 
 
 def reference(name, scene, size, spp, max_depth, cache: Path) -> list[np.ndarray]:
-    """The two halves of a ``path`` reference at ``spp`` samples per pixel (cached)."""
+    """The two halves of the reference at ``spp`` samples per pixel (cached; module docstring):
+    ``path``'s, blended with ``ptracer``'s where :func:`camera_sees_smooth`."""
     stem = f"caustics_{name}_{size[0]}x{size[1]}_d{max_depth}_{spp}spp"
-    return [
-        cached_image(
-            cache / f"{stem}_{half}.exr",
-            lambda h=half: render_passes(
-                scene, spp // 2, 512, 100_000 * (h + 1), path_integrator(max_depth)
-            ),
-        ).astype(np.float64)
-        for half in (0, 1)
-    ]
+
+    def halves(kind: str, samples: int, seed: int, tag: str = "") -> list[np.ndarray]:
+        return [
+            cached_image(
+                cache / f"{stem}{tag}_{half}.exr",
+                lambda h=half: render_passes(
+                    scene, samples // 2, 512, seed * (h + 1), path_integrator(max_depth, kind)
+                ),
+            ).astype(np.float64)
+            for half in (0, 1)
+        ]
+
+    path = halves("path", spp, 100_000)
+    where = camera_sees_smooth(scene)
+    if not where.any():
+        return path
+    tracer = halves("ptracer", spp // TRACER_SHARE, 300_000, "_ptracer")
+    pilot = spp // PILOT_SHARE  # at the same ratio of samples as path and ptracer above
+    w = blend_weights(halves("path", pilot, 1_000_000, "_pilot_path"),
+                      halves("ptracer", pilot // TRACER_SHARE, 3_000_000, "_pilot_ptracer"),
+                      where)  # fmt: skip
+    return [w * p + (1 - w) * t for p, t in zip(path, tracer, strict=True)]
 
 
 # ----------------------------------------------------------------------------------- methods
@@ -637,7 +672,7 @@ def main(argv=None) -> dict:
     parser.add_argument("--iterations", type=int, default=None,
                         help="a budget of iterations of each progressive method instead")  # fmt: skip
     parser.add_argument("--photons", type=int, default=100_000, help="SPPM photons/iteration")
-    parser.add_argument("--ref-spp", type=int, default=16384, help="path reference spp")
+    parser.add_argument("--ref-spp", type=int, default=65536, help="path reference spp")
     parser.add_argument("--runs", type=int, default=None,
                         help="interleaved runs per scene (default 3; 1 with --quick)")  # fmt: skip
     parser.add_argument("--scenes", default=",".join(SCENES), help="comma-separated subset")

@@ -174,3 +174,21 @@ def test_a_noisy_reference_reports_no_ratio(bench, reference, ok):
     assert all((headline[key] == 6.0) is ok for key in bench.SPEEDUPS)
     assert bench.reference_check("diffuse_room", {**res, "headline": {
         key: 0.95 for key in bench.SPEEDUPS}})["goal"] == 0.9  # fmt: skip
+
+
+def test_the_reference_blend_weighs_by_inverse_variance():
+    """Two unbiased estimates of variance 4 and 1: the first weighs 1/5 where both estimate the
+    pixel, 1 where only it does; the blend's variance is the smaller 4/5."""
+    from accuracy import blend_weights
+
+    gen = np.random.default_rng(0)
+    shape = (48, 48, 3)
+    a, b = ([gen.normal(0.0, sd, shape) for _ in range(2)] for sd in (2.0, 1.0))
+    where = np.ones(shape[:2], bool)
+    where[:, :8] = False
+    w = blend_weights(a, b, where)
+    assert w.shape == (48, 48, 1) and np.all(w[:, :8] == 1.0)
+    assert np.median(w[:, 8:]) == pytest.approx(0.2, abs=0.03)
+    x, y = gen.normal(0.0, 2.0, shape), gen.normal(0.0, 1.0, shape)
+    blend = (w * x + (1 - w) * y)[:, 8:]
+    assert np.var(blend) == pytest.approx(0.8, rel=0.1)
