@@ -105,7 +105,7 @@ def eye_pass(
         u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
         lit = eye.found & settings.allows(eye.depth + 1)
         L += eye.beta * direct_lighting(scene, eye.si, u_light, gen, lit, traits, eye.medium)
-        eye.rays += mi.UInt32(lit)  # its shadow ray
+        eye.rays += mi.UInt32(lit) * 2  # its shadow ray and its BSDF-sampled ray
     dr.eval(L, eye.si, eye.beta, eye.found, eye.depth, eye.rays)  # one kernel: read lazily, the
     # loop would run again
     rays = int(np.asarray(eye.rays, np.int64).sum())
