@@ -29,7 +29,10 @@ References (:func:`reference`): ``path`` at ``--ref-spp`` samples per pixel in t
 different seeds, blended in the pixels where the camera sees only smooth surfaces with Mitsuba's
 ``ptracer`` at a quarter of the samples (light paths connected to the camera: it finds the
 caustics seen directly that ``path`` finds by chance) by inverse-variance weights from
-independent pilot renders (:func:`accuracy.blend_weights`); cached in ``results/cache/`` (not in git; the file
+independent pilot renders (:func:`accuracy.blend_weights`) — where the two agree: where their
+means over those pixels differ by more than :data:`BLEND_AGREEMENT` (``cornell_steinhurst``:
+``ptracer`` renders half the light ``path`` does, direct light included), ``path`` alone
+serves and ``reference_blend`` says so; cached in ``results/cache/`` (not in git; the file
 names hold the scene, size, max_depth and spp). The blended halves' difference estimates the
 reference's own error, reported as ``reference_rel_rmse`` and ``reference_block_rel_rmse``.
 
@@ -193,6 +196,7 @@ def path_integrator(max_depth: int, kind: str = "path"):
 
 
 TRACER_SHARE, PILOT_SHARE = 4, 64  # ptracer's samples and the pilots' (each), of the reference's
+BLEND_AGREEMENT = 0.02  # ptracer's and path's means where blended: at most this far apart
 
 
 def camera_sees_smooth(scene) -> np.ndarray:
@@ -209,9 +213,10 @@ def camera_sees_smooth(scene) -> np.ndarray:
     return ~shown.reshape(h, w)
 
 
-def reference(name, scene, size, spp, max_depth, cache: Path) -> list[np.ndarray]:
+def reference(name, scene, size, spp, max_depth, cache: Path) -> tuple[list[np.ndarray], dict]:
     """The two halves of the reference at ``spp`` samples per pixel (cached; module docstring):
-    ``path``'s, blended with ``ptracer``'s where :func:`camera_sees_smooth`."""
+    ``path``'s, blended with ``ptracer``'s where :func:`camera_sees_smooth` and the two agree;
+    and ``{"blended", "ptracer_over_path"}`` (the ratio of their means there)."""
     stem = f"caustics_{name}_{size[0]}x{size[1]}_d{max_depth}_{spp}spp"
 
     def halves(kind: str, samples: int, seed: int, tag: str = "") -> list[np.ndarray]:
@@ -228,13 +233,18 @@ def reference(name, scene, size, spp, max_depth, cache: Path) -> list[np.ndarray
     path = halves("path", spp, 100_000)
     where = camera_sees_smooth(scene)
     if not where.any():
-        return path
+        return path, {"blended": False, "ptracer_over_path": None}
     tracer = halves("ptracer", spp // TRACER_SHARE, 300_000, "_ptracer")
+    ratio = float(sum(t[where].mean() for t in tracer) / sum(p[where].mean() for p in path))
+    info = {"blended": abs(ratio - 1) <= BLEND_AGREEMENT, "ptracer_over_path": ratio}
+    if not info["blended"]:
+        print(f"  ptracer renders {ratio:.3f}x path where both see: path alone", flush=True)
+        return path, info
     pilot = spp // PILOT_SHARE  # at the same ratio of samples as path and ptracer above
     w = blend_weights(halves("path", pilot, 1_000_000, "_pilot_path"),
                       halves("ptracer", pilot // TRACER_SHARE, 3_000_000, "_pilot_ptracer"),
                       where)  # fmt: skip
-    return [w * p + (1 - w) * t for p, t in zip(path, tracer, strict=True)]
+    return [w * p + (1 - w) * t for p, t in zip(path, tracer, strict=True)], info
 
 
 # ----------------------------------------------------------------------------------- methods
@@ -512,7 +522,7 @@ def scene_result(name: str, size, args, ref_spp: int, budget: Budget) -> tuple[d
     interleaved), the median headline and the last run's images of the progressive methods."""
     scene = load(name, size)
     max_depth = max_depth_of(name, scene)
-    a, b = reference(name, scene, size, ref_spp, max_depth, args.out_dir / "cache")
+    (a, b), blend = reference(name, scene, size, ref_spp, max_depth, args.out_dir / "cache")
     ref = (a + b) / 2
     mask = light_image_mask(scene)
     noise = reference_noise(ref, a - b, mask)
@@ -523,7 +533,8 @@ def scene_result(name: str, size, args, ref_spp: int, budget: Budget) -> tuple[d
 
     res: dict = {"image": list(size), "max_depth": max_depth, "reference_spp": ref_spp,
                  "reference_rel_rmse": noise["rel_rmse"],
-                 "reference_block_rel_rmse": noise["block_rel_rmse"], "runs": []}  # fmt: skip
+                 "reference_block_rel_rmse": noise["block_rel_rmse"], "reference_blend": blend,
+                 "runs": []}  # fmt: skip
     for run in range(args.runs):
         result, images = one_run(scene, run, args, budget, max_depth, score, noise)
         res["runs"].append(result)

@@ -91,6 +91,8 @@ def test_quick_run_writes_schema(bench, quick, out):
     for name, scene in data["scenes"].items():
         assert finite(scene["reference_rel_rmse"]) and finite(scene["reference_block_rel_rmse"])
         assert isinstance(scene["reference_ok"], bool) and len(scene["runs"]) == 1
+        blend = scene["reference_blend"]  # ptracer's mean against path's where it is blended
+        assert isinstance(blend["blended"], bool) and finite(blend["ptracer_over_path"])
         run = scene["runs"][0]
         for method in bench.METHODS:
             assert run[method] and all(finite(r["seconds"]) for r in run[method])
