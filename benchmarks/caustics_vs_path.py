@@ -31,8 +31,8 @@ different seeds, blended in the pixels where the camera sees only smooth surface
 caustics seen directly that ``path`` finds by chance) by inverse-variance weights from
 independent pilot renders (:func:`accuracy.blend_weights`) — where the two agree: where their
 means over those pixels differ by more than :data:`BLEND_AGREEMENT` (``cornell_steinhurst``:
-``ptracer`` renders half the light ``path`` does, direct light included), ``path`` alone
-serves and ``reference_blend`` says so; cached in ``results/cache/`` (not in git; the file
+Mitsuba's ``ptracer`` renders 0.08× of ``path``'s light there), ``path`` alone serves and
+``reference_blend`` says so; cached in ``results/cache/`` (not in git; the file
 names hold the scene, size, max_depth and spp). The blended halves' difference estimates the
 reference's own error, reported as ``reference_rel_rmse`` and ``reference_block_rel_rmse``.
 
