@@ -75,7 +75,7 @@ Headline per scene (keys whose methods did not run are None):
   an iteration's photon records within some visible point's gather radius
   (``SPPMPipeline.photons_seen``, at the run's final radii; None where the eye paths are path
   tracing); ``sppm_/vcm_kernels_compiled_per_iteration``, the kernels the warm-up pipeline's
-  iterations 2 to :data:`PROBE_STEPS` + 1 traced anew, per iteration (target 0);
+  iterations after its first :data:`WARM_STEPS` traced anew, per iteration (target 0);
 - ``reference_ok``: the reference's own 4×4-block error at most a third of the smallest 4×4
   error compared (the progressive methods' final ones, over the runs); where it is not, the
   scene's speedups are None — no reportable ratio, a missed goal. ``goal`` and ``goal_met``:
@@ -162,7 +162,7 @@ SCENES = {
 PLAIN = ("cornell_box", "diffuse_room")  # no mirror or glass: par with path is the goal
 GOAL_SPECULAR, GOAL_PLAIN = 5.0, 0.9  # speedup against path at equal 4×4-block error
 REFERENCE_SHARE = 1 / 3  # the reference's own 4×4 error, at most this share of the smallest
-PROBE_STEPS = 3  # warm-up iterations whose new kernels are counted
+WARM_STEPS, PROBE_STEPS = 2, 3  # warm-up iterations that compile, then that are counted
 DEFAULT_MAX_DEPTH = 12
 CHECKPOINTS = (1, 2, 4, 8, 15, 30, 60, 120)  # seconds of compute at which errors are taken
 QUICK_ITERATIONS = 8  # --quick: iterations of each progressive method (a count, not seconds)
@@ -267,14 +267,16 @@ def run_progressive(label: str, cls, scene, score, budget: Budget, params: dict,
                     extra: Callable | None = None):  # fmt: skip
     """One run of the progressive pipeline ``cls(scene, **params)`` for ``budget`` (seconds of
     compute in calls of ``step()``, or a number of them), after a warm-up pipeline with the same
-    parameters: its first step compiles the kernels, its next :data:`PROBE_STEPS` count the
-    kernels an iteration traces anew (:func:`compiled_per_iteration`). At each checkpoint (of
+    parameters: its first :data:`WARM_STEPS` steps compile the kernels (iteration 1 has kernels of
+    its own: SPPM's photon-density start), its next :data:`PROBE_STEPS` count the kernels an
+    iteration traces anew (:func:`compiled_per_iteration`). At each checkpoint (of
     :data:`CHECKPOINTS`, or after 1, 2, 4, … steps) the clock stops and a row is taken:
     ``iterations``, ``seconds``, ``extra(pipe)`` and ``score(image)``. Returns the rows, the
     run's ``timer.ms`` and ``stats`` (with ``kernels_compiled_per_iteration``), the pipeline and
     its last image."""
     warm = cls(scene, **params)
-    warm.step()
+    for _ in range(WARM_STEPS):
+        warm.step()
     compiled = compiled_per_iteration(warm)
     del warm
     pipe = cls(scene, **params)

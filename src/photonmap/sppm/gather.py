@@ -176,7 +176,7 @@ class PixelState:
 
     def image(self) -> mi.Color3f:
         """``L = L_d / n + τ / (n π R²)`` per pixel."""
-        n = max(self.iterations, 1)
+        n = dr.opaque(mi.Float, max(self.iterations, 1))  # one kernel whatever the count
         return (self.direct + self.tau / (math.pi * dr.square(self.radius))) / n
 
 
