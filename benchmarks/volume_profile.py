@@ -101,8 +101,8 @@ class _CountingDr:
 def profile_march(pipe, repeats: int = 1) -> dict:
     """Photon marching (S6/S7) on the cached photons of ``pipe``: as is, without deposition (the
     S7 rasteriser replaced by a no-op) and with a deposit counter. Depends on the internals of
-    ``photonmap.volume.march``; any failure is reported instead of raised."""
-    from photonmap.volume import march
+    ``photonmap.volume.march`` and ``.step``; any failure is reported instead of raised."""
+    from photonmap.volume import march, step
 
     out: dict = {}
     try:
@@ -121,12 +121,12 @@ def profile_march(pipe, repeats: int = 1) -> dict:
         full_s, result = time_march()
         out["with_deposits_s"] = full_s
         out["steps"] = int(result.steps)
-        original = march.deposit_segment
-        march.deposit_segment = lambda *args, **kwargs: None
+        original = step.deposit_segment
+        step.deposit_segment = lambda *args, **kwargs: None
         try:
             bare_s, bare = time_march()
         finally:
-            march.deposit_segment = original
+            step.deposit_segment = original
         out["without_deposits_s"] = bare_s
         out["without_deposits_steps"] = int(bare.steps)
         out["deposition_share"] = max(0.0, 1.0 - bare_s / full_s) if full_s > 0 else math.nan
@@ -136,19 +136,20 @@ def profile_march(pipe, repeats: int = 1) -> dict:
         out["error"] = f"{type(exc).__name__}: {exc}"
         return out
     try:
-        out.update(count_deposits(march, run, out))
+        out.update(count_deposits(step, run, out))
     except Exception as exc:  # noqa: BLE001
         out["deposits_error"] = f"{type(exc).__name__}: {exc}"
     return out
 
 
-def count_deposits(march, run, timed_march: dict) -> dict:
-    """The lanes reaching the rasteriser's scatters during one more ``run()`` of the march."""
+def count_deposits(step, run, timed_march: dict) -> dict:
+    """The lanes reaching the rasteriser's scatters during one more ``run()`` of the march
+    (``step`` is the module that calls ``deposit_segment``)."""
     import drjit as dr
     import mitsuba as mi
 
     proxy = _CountingDr(dr, dr.uint64_array_t(mi.Float), mi.UInt32)
-    original, real_dr = march.deposit_segment, march.dr
+    original, real_dr = step.deposit_segment, step.dr
 
     def counting(*args, **kwargs):
         proxy.armed = True
@@ -157,13 +158,13 @@ def count_deposits(march, run, timed_march: dict) -> dict:
         finally:
             proxy.armed = False
 
-    if getattr(original, "__globals__", None) is not vars(march):
-        raise RuntimeError("deposit_segment does not read drjit from the march module")
+    if getattr(original, "__globals__", None) is not vars(step):
+        raise RuntimeError("deposit_segment does not read drjit from the step module")
     try:
-        march.dr, march.deposit_segment = proxy, counting
+        step.dr, step.deposit_segment = proxy, counting
         run()
     finally:
-        march.dr, march.deposit_segment = real_dr, original
+        step.dr, step.deposit_segment = real_dr, original
     counts = [int(c) for c in np.asarray(proxy.counter) if c > 0]
     if not counts or proxy.calls >= proxy.SLOTS:
         raise RuntimeError(f"cannot attribute the deposit counts ({proxy.calls} scatters)")

@@ -14,8 +14,9 @@ from photonmap.core.grid import GridBox
 from photonmap.volume import pilot
 from photonmap.volume.adaptive import PlaneSampler, emit_importance
 from photonmap.volume.emit import Photons, emit
-from photonmap.volume.march import MarchGrids, march
+from photonmap.volume.march import march
 from photonmap.volume.scene import Light
+from photonmap.volume.step import MarchGrids
 
 SIDE = 64
 

@@ -12,8 +12,9 @@ from scipy.special import erf
 from photonmap.core.grid import GridBox
 from photonmap.volume.deposit import FIXED_POINT_BITS, Int64, deposit_segment
 from photonmap.volume.emit import Photons, emit
-from photonmap.volume.march import MarchGrids, march
+from photonmap.volume.march import march
 from photonmap.volume.scene import Light
+from photonmap.volume.step import MarchGrids
 
 
 def grids(ior, kappa=0.0, level=0, limit=np.inf):

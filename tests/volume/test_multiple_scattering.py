@@ -43,9 +43,10 @@ from photonmap.core.errors import ParameterError, PhotonmapError
 from photonmap.core.grid import GridBox
 from photonmap.core.image import block_means
 from photonmap.volume.emit import Photons, emit
-from photonmap.volume.march import MarchGrids, Scattering, march
+from photonmap.volume.march import march
 from photonmap.volume.scatter import schlick_cosine, schlick_direction
 from photonmap.volume.scene import Light
+from photonmap.volume.step import MarchGrids, Scattering
 from photonmap.volume.view import schlick
 
 # ------------------------------------------------------------------------------------------------

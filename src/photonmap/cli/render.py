@@ -74,8 +74,8 @@ def render(  # over 80 lines with its option declarations; the body is shorter
     """Render SCENE to OUT (.exr linear, .png tone-mapped to sRGB).
 
     Volume --set keys: grid, grid_bbox, photons, eps, eps2, ds_min, ds_max, phase_k, sampler,
-    fidelity, ...; surface: photons, caustic_photons, k, max_radius, fg_rays, structure,
-    max_depth, lookup, ...; screen: bounces, light_res, radius, splat, subsample, shadows,
+    fidelity, ...; surface: photons, caustic_photons, k, radius, fg_rays, structure,
+    max_depth, lookup, ...; screen: bounces, photons, radius, splat, subsample, shadows,
     isg_samples, light_size, ...; a built-in scene's own parameters (photonmap scenes); an XML
     file's $name parameters (an unknown key lists them all). On a terminal the pipeline stages
     show as a progress bar."""

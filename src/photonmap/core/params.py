@@ -58,7 +58,7 @@ def current_names(params_type, changes: dict, what: str) -> dict:
         check_type(key, value, r.kind)
         warnings.warn(
             f"the {what} parameter {key!r} is now {r.new!r}; {key!r} will be removed in the next "
-            "release (docs/python.md, parameter names)",
+            "release",
             DeprecatedParameter,
             stacklevel=3,
         )

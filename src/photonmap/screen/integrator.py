@@ -2,7 +2,7 @@
 
 .. pluginparameters::
 
- * - bounces, light_res, radius, splat, compression, subsample, shadows, isg_samples,
+ * - bounces, photons, radius, splat, compression, subsample, shadows, isg_samples,
      light_size, glossy, seed
    - see :class:`photonmap.screen.pipeline.ScreenParams`
    - Defaults as there (Yao 2011 Tables 1–2 where given).

@@ -2,7 +2,7 @@
 
 .. pluginparameters::
 
- * - photons, caustic_photons, k, max_radius, fg_rays, structure, max_depth, seed, lookup,
+ * - photons, caustic_photons, k, radius, fg_rays, structure, max_depth, seed, lookup,
      fg_sampling, irradiance_cache, ic_error, irradiance_every, spp, emitter_spp, light_samples,
      volume_k, volume_radius, rr_depth, hide_emitters
    - see :class:`photonmap.surface.pipeline.SurfaceParams`

@@ -41,8 +41,9 @@ from ..core.errors import ParameterError
 from ..core.grid import GridBox, grid_shape
 from .deposit import Int64, Vector4i64, coarse_size
 from .emit import Photons, emit_at
-from .march import MarchGrids, accumulate
+from .march import accumulate
 from .scene import Light
+from .step import MarchGrids
 
 PILOT_GRID = 16  # cells per axis of the pilot grid for a 128³ volume (Pfeuti §3.2.2)
 GRAD_PERCENTILE = 90.0  # automatic grad_threshold: this percentile of g over lit voxels

@@ -39,12 +39,11 @@ import numpy as np
 from ..core.camera import moved_sensor
 from ..core.errors import ParameterError, SceneError
 from ..core.memory import check_image_memory, check_once
-from ..core.params import parameter_names, updated
+from ..core.params import field_types, parameter_names, updated
 from ..core.pipeline import Pipeline
 from ..core.scene_info import warn_unmodelled
 from ..core.settings import UNBOUNDED, PathSettings, overridden
 from ..core.stages import StageCache, cache_key
-from . import march
 from .material_stages import fog_boundaries, voxelized_materials
 from .materials import MaterialGrids, from_arrays, gradient
 from .medium_grid import KAPPA_TOLERANCE
@@ -62,6 +61,7 @@ from .params import (
 )
 from .photon_stages import adaptive_photons, uniform_photons
 from .scene import Light, VolumeScene, check_has_fog, from_mitsuba
+from .step import MarchGrids, Scattering
 from .surface_stages import shading_key, surface_shading, warn_settings
 from .view import ViewGrids, ViewSettings, render_view, sensor_key
 
@@ -121,7 +121,7 @@ class VolumePipeline(Pipeline):
                 also = f"; scene {scene!r} also accepts {', '.join(sorted(accepted))}"
                 raise ParameterError(
                     f"unknown volume parameter(s) {', '.join(unknown)}; valid: "
-                    f"{', '.join(sorted(valid))}{also if builtin else ''}"
+                    f"{', '.join(sorted(field_types(VolumeParams)))}{also if builtin else ''}"
                 )
         self.scene, defaults = load_scene(scene, **scene_params)
         own = {**defaults, **{k: v for k, v in params.items() if k in valid}}
@@ -328,12 +328,12 @@ class VolumePipeline(Pipeline):
         )
         phase_k = self.phase_k
         # multiple scattering: σ_s and the phase function steer the photons too (scatter.py)
-        scatter = march.Scattering(phase_k, p.seed) if p.scattering == "multiple" else None
+        scatter = Scattering(phase_k, p.seed) if p.scattering == "multiple" else None
         scatter_key = None if scatter is None else (sigma_key, cache_key(scatter))
         march_grids = self.cache.stage(
             "march grids",
             (octree_key, kappa_key, None if scatter is None else sigma_key),
-            lambda: march.MarchGrids.build(
+            lambda: MarchGrids.build(
                 mats.ior,
                 grad,
                 mats.kappa,

@@ -1,5 +1,5 @@
 """Multiple scattering in the voxel radiance grid (our extension of Sun et
-al. 2008): the sampling pieces the marcher (``march.py``) uses between its curved-ray steps.
+al. 2008): the sampling between the curved-ray steps (``step.py``), and the march of the orders.
 
 Each photon order is marched as Sun marches it (S6/S7: deposits of the attenuated energy
 ``L̃ = W·T`` along the whole curved path, the expected-value estimator of that order's fluence);
@@ -22,16 +22,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import drjit as dr
 import mitsuba as mi
 
 from ..core.grid import trilinear_packed
-from .deposit import Float64, weight_tally
-
-if TYPE_CHECKING:
-    from .march import MarchGrids, Step
+from .deposit import Float64, Int64, radiance_tally, weight_tally
+from .step import MarchGrids, MarchSettings, Scattering, Step, march_steps, sample_medium
 
 SCATTERING = ("single", "multiple")
 RR_DEPTH = 3  # scattering events before Russian roulette starts (the weights decay by albedo)
@@ -111,6 +108,8 @@ class Collision:
     ``channel`` since the order's start reaches the sampled ``target`` (κ constant over a step, as
     in eq (6)). Updated step by step inside a marching loop (:meth:`search`)."""
 
+    target: mi.Float  # the sampled optical depth (:func:`free_flight`)
+    channel: mi.UInt32  # the colour it is sampled in
     found: mi.Bool
     x: mi.Point3f  # the collision point
     start: mi.Point3f  # the start of the step it lies in (where σ_s is read, like κ)
@@ -119,9 +118,12 @@ class Collision:
     depth: mi.Color3f  # optical depth since the order's start (RGB)
 
     @staticmethod
-    def none(count: int) -> Collision:
-        """No collision yet, at optical depth 0."""
+    def none(count: int, target: mi.Float, channel: mi.UInt32) -> Collision:
+        """No collision yet, at optical depth 0, to be found at optical depth ``target`` of
+        colour ``channel``."""
         return Collision(
+            target,
+            channel,
             dr.zeros(mi.Bool, count),
             dr.zeros(mi.Point3f, count),
             dr.zeros(mi.Point3f, count),
@@ -130,12 +132,13 @@ class Collision:
             dr.zeros(mi.Color3f, count),
         )
 
-    def search(self, x: mi.Point3f, step: Step, target: mi.Float, channel: mi.UInt32) -> None:
+    def search(self, x: mi.Point3f, step: Step) -> None:
         """Record the collision of the photons whose ``target`` lies within ``step`` from ``x``
         and add the step's optical depth."""
+        target = self.target
         depth_new = self.depth + step.kappa * step.length
-        before = channel_of(self.depth, channel)
-        after = channel_of(depth_new, channel)
+        before = channel_of(self.depth, self.channel)
+        after = channel_of(depth_new, self.channel)
         hit = ~self.found & (after >= target) & (after > before)
         f = (target - before) / dr.maximum(after - before, 1e-30)  # where in the step
         self.x = dr.select(hit, dr.lerp(x, step.x, f), self.x)
@@ -197,3 +200,71 @@ class Wavefront:
         if weights is not None:
             self.tally = weight_tally(dr.gather(mi.Float, weights, alive))
         return x, omega, W
+
+
+def march_order(
+    acc: Int64,
+    medium: MarchGrids,
+    photon: tuple,
+    march: MarchSettings,
+    flight: tuple[mi.Float, mi.UInt32],
+    tally=radiance_tally,
+    shift: int = 0,
+    expand: bool = True,
+):
+    """One scattering order of every ``photon = (x, v = n dx/ds, L̃)`` (module docstring):
+    :func:`.step.march_steps`, which also finds the :class:`Collision` where the optical depth of
+    the colour ``channel`` reaches ``target`` (``flight = (target, channel)``). Returns the steps,
+    the final ``(x, v, L̃)`` and the collision."""
+    collision = Collision.none(dr.width(photon[2]), *flight)
+    steps, x, v, L = march_steps(acc, medium, photon, march, tally, shift, expand, collision)
+    return steps, x, v, L, collision
+
+
+def march_multiple(
+    acc: Int64,
+    medium: MarchGrids,
+    x: mi.Point3f,
+    d: mi.Vector3f,
+    L: mi.Color3f,
+    march: MarchSettings,
+    scattering: Scattering,
+    tally=radiance_tally,
+    shift: int = 0,
+    atomic: Int64 | None = None,
+):
+    """``march.py``'s march with multiple scattering, one order at a time over the photons still
+    alive (a :class:`Wavefront`). The collision of each order starts the next there, in a
+    Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian roulette
+    (:func:`roulette`). The first order deposits into ``acc`` as ``march.py`` does; the scattered
+    orders deposit with atomics into ``atomic`` (same layout, summed with ``acc`` by the caller):
+    one reduction mode per array, one ``Expand`` launch (see :func:`.deposit.reduce_mode`).
+    Returns the total steps and, per photon, the final ``(x, v, L̃)`` and its scattering events.
+    """
+    k = dr.opaque(mi.Float, scattering.phase_k)
+    v = sample_medium(medium, x)[0] * d  # v₀ = n(x₀)·d₀
+    photons = Wavefront.emitted(x, v, L, scattering.seed, tally)
+    rng = photons.rng
+    for order in range(MAX_ORDERS + 1):
+        into = acc if order == 0 else atomic
+        n_steps, x, v, L_end, collision = march_order(
+            into, medium, (x, v, L), march, free_flight(rng), photons.tally, shift, order == 0
+        )
+        dr.eval(into, n_steps, x, v, L_end, collision)  # one launch per order
+        photons.record(order, n_steps, x, v, L_end)
+        if order == MAX_ORDERS:
+            break
+        # the next order starts at the collisions
+        W = L * collision.sigma_s(medium) * collision.ratio
+        survives, W = roulette(W, photons.start, order, rng.next_float32())
+        omega = schlick_direction(
+            k, collision.direction, mi.Point2f(rng.next_float32(), rng.next_float32())
+        )
+        going = collision.found & survives & (dr.max(W) > 0)  # not absorbed
+        dr.eval(going, W, omega, rng)  # one kernel: the compaction gathers them per channel
+        alive = dr.compress(going)
+        if dr.width(alive) == 0:
+            break
+        x, omega, L = photons.compact(alive, collision.x, omega, W, medium.n)
+        v = sample_medium(medium, x)[0] * omega
+    return photons.steps, *photons.final

@@ -4,7 +4,7 @@ table as the grid's bottom voxel layer).
 
 A photon's path is a chain of **legs**. A leg starts anywhere — at a light outside the grid, at a
 scattering event, on a surface it bounced off — and runs straight to the grid (slab test), curved
-through it (Sun §4.4 eqs 4–6, the octree steps and S7 deposits of ``march.py``), and straight on
+through it (Sun §4.4 eqs 4–6, the octree steps and S7 deposits of ``step.py``), and straight on
 after it, until the first opaque surface (:class:`~.surfaces.Surfaces`) or away. Mitsuba casts
 the straight stretches: one cast per leg while ∇n = 0, and again only once the direction has
 turned by more than :data:`~.surfaces.RECAST_TURN` (in and around refractive objects); every
@@ -39,7 +39,8 @@ from ..core.grid import grid_extent
 from . import scatter
 from .deposit import Int64, radiance_tally
 from .emit import box_entry
-from .march import (
+from .scatter import Collision, Wavefront
+from .step import (
     KILL_FRACTION,
     MarchGrids,
     MarchSettings,
@@ -48,7 +49,6 @@ from .march import (
     deposit_step,
     sample_medium,
 )
-from .scatter import Collision, Wavefront
 from .surfaces import RECAST_TURN, SurfacePhotons, Surfaces, record
 
 IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
@@ -88,7 +88,7 @@ def _leg(
 ):
     """One leg of every photon from ``x`` (voxel coordinates, inside the grid or not) along unit
     ``d`` with energy ``L`` (module docstring), which also finds its
-    :class:`~.scatter.Collision` as ``march._march_order`` does."""
+    :class:`~.scatter.Collision` as :func:`.scatter.march_order` does."""
     n = medium.dims
     count = dr.width(L)
     size = grid_extent(n)
@@ -108,7 +108,7 @@ def _leg(
     exited = dr.zeros(mi.Bool, count)
     recast = dr.zeros(mi.Bool, count)
     bent = dr.zeros(mi.Bool, count)
-    collision = Collision.none(count)
+    collision = Collision.none(count, target, channel)
 
     while dr.hint(active, exclude=[march]):
         cast = active & recast  # the direction has turned since the last cast
@@ -119,7 +119,7 @@ def _leg(
         step = curved_step(medium, x, v, L, march, size, surface=t_surf)
         hits = t_surf <= step.length
         bent |= step.ior >= iso
-        collision.search(x, step, target, channel)
+        collision.search(x, step)
         deposit_step(acc, n, x, step, L, march, tally, shift, expand)
         x, v, L = step.x, step.v, step.L
         t_surf -= step.length
@@ -153,7 +153,7 @@ def march_with_surfaces(
     tally=radiance_tally,
 ):
     """March photons leg by leg (module docstring) into ``acc`` (the first leg) and ``atomic``
-    (the later legs; summed by the caller, as ``march._march_multiple`` does). Returns the total
+    (the later legs; summed by the caller, as :func:`.scatter.march_multiple` does). Returns the total
     steps, the per-photon final ``(x, v, L̃, events)`` and the :class:`~.surfaces.SurfacePhotons`.
     Photon ``i`` draws from PCG32 stream ``i`` of the scattering seed."""
     seed = scattering.seed if scattering is not None else 0
