@@ -81,7 +81,7 @@ from .media import (
     segment_transmittance,
 )
 from .scene_info import SceneTraits
-from .settings import UNBOUNDED, PathSettings
+from .settings import UNBOUNDED, PathSettings, survival
 
 MEDIA_MODES = ("transmit", "march", "end", "continue")
 SURFACE_MODES = ("stop", "continue")
@@ -293,7 +293,7 @@ def _follow(scene, ray, beta, medium, gen, *, settings, traits, emission, media_
         )  # fmt: skip
         # ---- Russian roulette (Mitsuba's path tracers)
         rolled = walk.active & (bounced | scattered) & (walk.depth >= rr_depth)
-        survive = dr.minimum(dr.max(walk.beta) * dr.square(walk.eta), 0.95)
+        survive = survival(walk.beta, eta=walk.eta)
         walk.beta[rolled] /= survive
         walk.active &= ~rolled | (gen.next_float32() < survive)
         walk.active &= dr.any(walk.beta != 0.0)

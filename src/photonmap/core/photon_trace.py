@@ -28,8 +28,7 @@ paths of Jensen's caustic map, Jensen 1996; the volume caustics); where rough gl
 (:func:`~photonmap.core.bsdf.is_rough_glass`, the surface method) its bounces count as delta
 ones and nothing is recorded on it. From ``rr_depth`` on a photon survives a surface
 interaction with probability ``q = min(0.95, max_c Φ_c / Φ_{0,c})`` and its power is divided
-by ``q`` (Mitsuba's Russian roulette; no η² factor: importance transport through a dielectric
-conserves power).
+by ``q`` (Mitsuba's Russian roulette, :func:`~photonmap.core.settings.survival`).
 
 **Wavefront in chunks.** All paths run in one symbolic Dr.Jit loop for up to :data:`CHUNK`
 interactions each; records go to preallocated slots (slot = step · paths + path) and are
@@ -56,7 +55,7 @@ from .errors import SceneError
 from .media import channel, enter, free_flight
 from .sampling import rng
 from .scene_info import SceneTraits
-from .settings import UNBOUNDED, PathSettings
+from .settings import UNBOUNDED, PathSettings, survival
 from .volume_map import VolumePhotons
 
 CHUNK = 8  # interactions per path in one symbolic loop (record slots: paths × CHUNK)
@@ -410,12 +409,11 @@ def _scatter(state: _PathState, si, bsdf, mei, on_surface, in_medium, followed, 
 
 def _survival(state: _PathState, in_medium, albedo, media: bool) -> mi.Float:
     """Russian roulette's survival probability: a medium event survives with the albedo (Jensen
-    & Christensen 1998), a surface interaction with ``q = min(0.95, max Φ/Φ₀)`` (Mitsuba)."""
-    relative = dr.max(state.power / dr.maximum(state.power0, 1e-30))
-    survival = dr.minimum(relative, 0.95)
+    & Christensen 1998), a surface interaction by :func:`~.settings.survival`."""
+    q = survival(state.power, state.power0)
     if media:
-        survival = dr.select(in_medium, albedo, survival)
-    return survival
+        q = dr.select(in_medium, albedo, q)
+    return q
 
 
 def _check_power(records: PhotonRecords) -> None:

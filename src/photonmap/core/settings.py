@@ -17,6 +17,7 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, replace
 
+import drjit as dr
 import mitsuba as mi
 
 from .errors import ParameterError
@@ -24,6 +25,7 @@ from .params import check_choice, check_range
 
 UNBOUNDED = -1
 MITSUBA_RR_DEPTH = 5  # Mitsuba's default rr_depth
+RR_MAX = 0.95  # Mitsuba's cap on Russian roulette's survival probability
 
 
 @dataclass(frozen=True)
@@ -58,6 +60,16 @@ class PathSettings:
         if self.max_depth == UNBOUNDED:
             return True if isinstance(segments, int) else segments >= 0
         return segments <= self.max_depth
+
+
+def survival(beta, beta0=1.0, eta=1.0) -> mi.Float:
+    """Russian roulette's survival probability from ``rr_depth`` on, the one rule of every light
+    and eye path here (Mitsuba's ``path``, ``volpath`` and ``ptracer``):
+    ``q = min(max_c (β_c / β₀,c) · η², 0.95)``, ``β`` the path's throughput (a colour per lane),
+    ``β₀`` its start (1 for eye paths) and ``η`` the product of the relative indices it crossed
+    (radiance through a dielectric scales by ``1/η²``: η² undoes it; 1 for photons, whose
+    importance transport conserves power). Survivors divide their throughput by ``q``."""
+    return dr.minimum(dr.max(beta / dr.maximum(beta0, 1e-30)) * dr.square(eta), RR_MAX)
 
 
 _DEPTH = re.compile(r"\bmax_depth\s*=\s*(-?\d+)")

@@ -68,13 +68,12 @@ from ..core.knn import COS_NORMAL
 from ..core.media import broadcast, channel, emitter_media, enter, pick, scene_media
 from ..core.progressive import iteration_seeds
 from ..core.scene_info import SceneTraits, check_gathered_bsdfs
-from ..core.settings import UNBOUNDED, PathSettings, check_path_params, overridden
+from ..core.settings import RR_MAX, UNBOUNDED, PathSettings, check_path_params, overridden
 
 RADIUS_PIXELS = 2.0  # automatic kernel radius, in pixel footprints at the median eye distance
 VOLUME_RADIUS = 1.0  # automatic volume kernel radius ρ, in surface radii (larger: boundary bias)
 MAX_BOUNCES = 64  # unbounded paths (max_depth −1) are unrolled this far at most
 NULL_CROSSINGS = 16  # extra wavefronts for the null boundaries of media (they add no depth)
-RR_MAX = 0.95  # Russian roulette survives with at most this probability
 FAR = 1e30  # a free flight's length where it meets nothing (finite: no NaN in derivatives)
 
 

@@ -32,7 +32,7 @@ import mitsuba as mi
 from ..core.camera import pixel_means, pixel_rays
 from ..core.hashgrid import HashGrid
 from ..core.sampling import rng
-from ..core.settings import UNBOUNDED, PathSettings
+from ..core.settings import UNBOUNDED, PathSettings, survival
 from . import mis
 from .light import (
     IMPORTANCE,
@@ -192,7 +192,7 @@ def _loop(scene, walk: _Walk, gen, limit, rr_depth, mode: str, at_vertex, emissi
         walk.beta[go_on] *= weight
         walk.eta[go_on] *= bs.eta
         rolled = go_on & (t >= rr_depth)
-        q = dr.minimum(dr.max(walk.beta) * dr.square(walk.eta) / walk.beta0, 0.95)
+        q = survival(walk.beta, walk.beta0, walk.eta)
         walk.beta[rolled] /= q
         go_on &= ~rolled | (gen.next_float32() < q)
         walk.specular[go_on] &= delta

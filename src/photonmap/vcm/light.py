@@ -43,7 +43,7 @@ import numpy as np
 
 from ..core.arrays import concat, to_numpy
 from ..core.sampling import rng
-from ..core.settings import UNBOUNDED, PathSettings
+from ..core.settings import UNBOUNDED, PathSettings, survival
 from . import mis
 from .mis import Techniques
 
@@ -356,7 +356,7 @@ def _loop(scene, state: _State, rec, stored, limit, rr_depth, to_camera, scatter
         go_on &= ok
         state.beta[go_on] *= weight
         rolled = go_on & (state.depth >= rr_depth)
-        q = dr.minimum(dr.max(state.beta / dr.maximum(state.beta0, 1e-30)), 0.95)
+        q = survival(state.beta, state.beta0)
         state.beta[rolled] /= q
         go_on &= ~rolled | (state.gen.next_float32() < q)
         ray = si.spawn_ray(si.to_world(bs.wo))

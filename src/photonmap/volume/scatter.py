@@ -75,7 +75,10 @@ def collision_weight(sigma_s: mi.Color3f, kappa: mi.Color3f, depth: mi.Color3f) 
 def roulette(weight: mi.Color3f, start: mi.Float, order: int, xi: mi.Float):
     """Russian roulette after :data:`RR_DEPTH` scattering events: survive with
     ``q = min(1, max weight / start)`` and return ``(survives, weight / q)``. The order is opaque
-    to the kernel: one kernel serves every order."""
+    to the kernel: one kernel serves every order. This is :func:`~photonmap.core.settings.survival`
+    with the cap 1 instead of 0.95 and no η (the grid's photons cross no interface): a fog's
+    photons scatter up to :data:`MAX_ORDERS` times, and a cap below 1 would end 5 % of them at
+    every order, however bright they still are, where a surface path has a few bounces."""
     late = dr.opaque(mi.UInt32, order) >= RR_DEPTH
     q = dr.select(late, dr.minimum(dr.max(weight) / start, 1.0), 1.0)
     return (xi < q) & (q > 0), weight / dr.maximum(q, 1e-30)
