@@ -78,8 +78,9 @@ from .screen.pipeline import STAGES as SCREEN_STAGES  # noqa: E402
 from .screen.pipeline import ScreenParams, ScreenPipeline  # noqa: E402
 from .sppm.pipeline import STAGES as SPPM_STAGES  # noqa: E402
 from .sppm.pipeline import BlockSums, SPPMParams, SPPMPipeline  # noqa: E402
-from .surface.pipeline import STAGES as SURFACE_STAGES  # noqa: E402
-from .surface.pipeline import SurfaceParams, SurfacePipeline  # noqa: E402
+from .surface.params import STAGES as SURFACE_STAGES  # noqa: E402
+from .surface.params import SurfaceParams  # noqa: E402
+from .surface.pipeline import SurfacePipeline  # noqa: E402
 from .vcm.pipeline import STAGES as VCM_STAGES  # noqa: E402
 from .vcm.pipeline import VCMParams, VCMPipeline  # noqa: E402
 from .volume.params import STAGES as VOLUME_STAGES  # noqa: E402

@@ -70,7 +70,7 @@ from ..core.progressive import iteration_seeds
 from ..core.scene_info import SceneTraits, check_gathered_bsdfs
 from ..core.settings import RR_MAX, UNBOUNDED, PathSettings, check_path_params, overridden
 
-RADIUS_PIXELS = 2.0  # automatic kernel radius, in pixel footprints at the median eye distance
+RADIUS_PIXELS = 2.0  # automatic radius in pixel footprints: sppm starts at 4 but shrinks; not this
 VOLUME_RADIUS = 1.0  # automatic volume kernel radius ρ, in surface radii (larger: boundary bias)
 MAX_BOUNCES = 64  # unbounded paths (max_depth −1) are unrolled this far at most
 NULL_CROSSINGS = 16  # extra wavefronts for the null boundaries of media (they add no depth)

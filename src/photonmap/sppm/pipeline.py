@@ -75,7 +75,11 @@ from .visible import eye_pass, mirror_pixels
 MODES = ("sppm", "memoryless")
 TRANSPORTS = ("auto", "photons", "paths")
 STAGES = ("photon pass", "eye pass", "gather")
-RADIUS_PIXELS = 4.0  # automatic initial radius, in pixel footprints at the median eye distance
+# automatic initial radius, in pixel footprints at the median eye distance (core.camera's
+# footprint_radius, as vcm and the differentiable estimate): 4, larger than theirs, because the
+# first iteration shrinks it per pixel to FIRST_PHOTONS photons, and photon mapping is the only
+# technique that reads the photons (VCM's connections carry most light and merge in 1)
+RADIUS_PIXELS = 4.0
 FIRST_PHOTONS = 32.0  # sppm: after iteration 1 a pixel's disk holds about this many photons
 VOLUME_RADIUS = 0.1  # automatic first volume radius ρ_1, × the scene diagonal
 MAX_SPP = 64  # eye paths per pixel and iteration at most

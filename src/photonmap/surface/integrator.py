@@ -5,7 +5,7 @@
  * - photons, caustic_photons, k, radius, fg_rays, structure, max_depth, seed, lookup,
      fg_sampling, irradiance_cache, ic_error, irradiance_every, spp, emitter_spp, light_samples,
      volume_k, volume_radius, rr_depth, hide_emitters
-   - see :class:`photonmap.surface.pipeline.SurfaceParams`
+   - see :class:`photonmap.surface.params.SurfaceParams`
    - Defaults as there (Steinhurst 2007 Table 7.1).
 
 .. code-block:: python
@@ -24,7 +24,8 @@ from __future__ import annotations
 import mitsuba as mi
 
 from ..core.plugin import PipelineIntegrator
-from .pipeline import SurfaceParams, SurfacePipeline
+from .params import SurfaceParams
+from .pipeline import SurfacePipeline
 
 
 class PhotonMapperIntegrator(PipelineIntegrator):

@@ -50,7 +50,10 @@ from .mis import MODES, Techniques
 STAGES = ("light pass", "camera pass")
 WAVEFRONT = 2**17  # automatic spp: about this many subpaths of each kind per iteration
 MAX_SPP = 64
-RADIUS_PIXELS = 1.0  # automatic initial radius, in pixel footprints at the median eye distance
+# automatic initial radius, in pixel footprints at the median eye distance (core.camera's
+# footprint_radius, as sppm): 1, smaller than sppm's 4, because merging is one technique of
+# several under MIS (connections carry the light they sample well) and has no per-pixel shrink
+RADIUS_PIXELS = 1.0
 ALPHA = 0.75
 
 

@@ -72,11 +72,12 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.arrays import aligned
+from ..core.checkpoint import Checkpoint
 from ..core.errors import ParameterError
 
 INV_FOUR_PI = 1.0 / (4.0 * math.pi)
 PARAMETERS = ("n", "sigma_s", "sigma_a")
-CHECKPOINT = True  # wrap each step in a _Checkpoint (False: one AD graph; slow, for tests)
+CHECKPOINT = True  # wrap each step in a Checkpoint (False: one AD graph; slow, for tests)
 
 
 @dataclass(frozen=True)
@@ -140,55 +141,6 @@ class OrthoCamera:
         y = y1 - (jj.ravel() + 0.5) / self.height * (y1 - y0)
         origins = np.stack([x, y, np.full_like(x, float(resolution))], 1)
         return origins, np.broadcast_to(np.array([0.0, 0.0, -1.0]), origins.shape)
-
-
-def _leaves(tree):
-    """The arrays of a nest of tuples, depth first."""
-    if isinstance(tree, tuple | list):
-        return [leaf for item in tree for leaf in _leaves(item)]
-    return [tree]
-
-
-class _Checkpoint(dr.CustomOp):
-    """One step of a scan as a custom AD operation: the primal is evaluated at once; the
-    derivatives replay the step from its stored (evaluated) inputs with a nested AD graph and
-    evaluate them — checkpointing, so that reverse mode through hundreds of steps compiles one
-    small kernel per step (which Dr.Jit's kernel cache then reuses) rather than one huge one."""
-
-    def eval(self, fn, state, params):
-        self.fn, self.state, self.params = fn, state, params
-        out = fn(state, params)
-        dr.eval(out)
-        return out
-
-    def _replay(self):
-        state, params = dr.detach(self.state), dr.detach(self.params)
-        dr.enable_grad(state, params)
-        return state, params, self.fn(state, params)
-
-    def forward(self):
-        state, params, out = self._replay()
-        dr.set_grad(state, self.grad_in("state"))
-        dr.set_grad(params, self.grad_in("params"))
-        dr.forward_to(out, flags=dr.ADFlag.ClearNone)  # outputs may be interior nodes
-        grad = dr.grad(out)
-        dr.eval(grad)
-        self.set_grad_out(grad)
-
-    def backward(self):
-        state, params, out = self._replay()
-        objective = None
-        for o, g in zip(_leaves(out), _leaves(self.grad_out()), strict=True):
-            term = dr.sum(o * g)
-            objective = term if objective is None else objective + term
-        dr.backward(objective)
-        grads = dr.grad(state), dr.grad(params)
-        dr.eval(grads)
-        self.set_grad_in("state", grads[0])
-        self.set_grad_in("params", grads[1])
-
-    def name(self):
-        return "checkpointed step"
 
 
 class DifferentiableVolumeCaustic:
@@ -390,11 +342,12 @@ class DifferentiableVolumeCaustic:
 
     def _scan(self, fn, state, params, steps, record=None):
         """``steps`` applications of ``fn(state, params) → state``, each one evaluated and, when
-        anything is differentiated, wrapped in a :class:`_Checkpoint` so that AD replays one
-        step at a time (small kernels, the same for every step) instead of one huge graph."""
+        anything is differentiated, wrapped in a :class:`~photonmap.core.checkpoint.Checkpoint`
+        so that AD replays one step at a time (small kernels, the same for every step) instead of
+        one huge graph."""
         for _ in range(steps):
             if CHECKPOINT and dr.grad_enabled(state, params):
-                state = dr.custom(_Checkpoint, fn, state, params)
+                state = dr.custom(Checkpoint, fn, state, params)
             else:
                 state = fn(state, params)
                 dr.eval(state)
