@@ -149,10 +149,12 @@ def _same_image(a, b, mean: float, pixels: float):
     """Equal up to the rays that graze a wall or pass a corner right behind a null surface:
     Mitsuba offsets a ray that crosses a surface along the normal, which moves such a hit.
     ``mean``: bound of mean |a − b| / mean b; ``pixels``: of the fraction of pixels off by more
-    than 1 % of mean b."""
+    than 1 % of mean b, which the mean leaves out: where the few grazing hits land depends on the
+    CPU's vector width (Dr.Jit compiles for the host), and one of them alone can pass ``mean``."""
     d = np.abs(a - b)
-    assert d.mean() < mean * b.mean()
-    assert (d.max(-1) > 0.01 * b.mean()).mean() < pixels
+    off = d.max(-1) > 0.01 * b.mean()
+    assert off.mean() < pixels
+    assert d[~off].mean() < mean * b.mean()
 
 
 def test_null_bsdf_cube_is_invisible():
@@ -164,7 +166,7 @@ def test_null_bsdf_cube_is_invisible():
     for shadows in ("soft", "sampled"):
         _, plain = _render(_cornell(), shadows=shadows)
         pipe, boxed = _render(_cornell(cube=cube), shadows=shadows)
-        _same_image(boxed, plain, 4e-4, 0.006)  # measured 2.0e-4, 0.003 (3 of 1024 pixels)
+        _same_image(boxed, plain, 4e-4, 0.006)  # measured 0.8e-4, 2 of 1024 pixels (AVX2)
 
 
 # ---------------------------------------------------------------------------- media
