@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import os
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Annotated
 
 import typer
@@ -111,28 +112,38 @@ def command(max_memory: str | None = None):
         raise typer.Exit(130)
 
 
-def split_sets(items: list[str]) -> dict[str, str]:
-    """``KEY=VALUE`` strings → {key: value text}."""
-    from ..core.errors import ParameterError
+@dataclass
+class SceneRequest:
+    """SCENE and its ``--set KEY=VALUE`` pairs, split once (:func:`scene_request`): ``scene``, the
+    file loaded with the pairs that name its ``$name`` parameters (``xml``), or None for a
+    built-in (``builtin``: its pipeline loads it); ``sets``, the other pairs as text — the
+    method's parameters and a built-in's own, typed by :meth:`params`."""
 
-    out = {}
-    for item in items:
+    scene: object  # mi.Scene, or None for a built-in
+    builtin: object  # photonmap.scenes.Builtin, or None for a file
+    xml: dict[str, str]
+    sets: dict[str, str]
+
+    def params(self, method: str) -> dict:
+        """:attr:`sets` as the parameters of ``method`` (and of the built-in scene)."""
+        return typed_params(method, self.sets, self.builtin)
+
+
+def scene_request(scene: str, items: list[str] | None) -> SceneRequest:
+    """The one way from a command line's SCENE and ``--set`` strings to a scene and its
+    parameters: each ``KEY=VALUE`` is split once and goes to the file's ``$KEY`` if it has one,
+    else to the method or the built-in scene (:meth:`SceneRequest.params`)."""
+    from ..core.errors import ParameterError, SceneError
+    from ..scenes import SCENES, load_scene
+
+    sets = {}
+    for item in items or []:
         if "=" not in item:
             raise ParameterError(f"--set expects KEY=VALUE, got {item!r}")
         key, value = item.split("=", 1)
-        out[key.strip()] = value
-    return out
-
-
-def load(scene: str, sets: dict[str, str]):
-    """``(mi_scene or None, builtin or None, remaining sets)``: a built-in is loaded by its
-    pipeline (with its defaults); an XML file is loaded here, its ``$name`` parameters taken
-    from ``sets``."""
-    from ..core.errors import SceneError
-    from ..scenes import SCENES, load_scene
-
+        sets[key.strip()] = value
     if scene in SCENES:
-        return None, SCENES[scene], sets
+        return SceneRequest(None, SCENES[scene], {}, sets)
     if not os.path.isfile(scene):
         raise SceneError(
             f"no built-in scene or scene file named {scene!r}; built-in scenes: "
@@ -142,7 +153,7 @@ def load(scene: str, sets: dict[str, str]):
         text = f.read()
     xml = {k: v for k, v in sets.items() if f"${k}" in text}
     mi_scene, _ = load_scene(scene, **xml)
-    return mi_scene, None, {k: v for k, v in sets.items() if k not in xml}
+    return SceneRequest(mi_scene, None, xml, {k: v for k, v in sets.items() if k not in xml})
 
 
 def typed_params(method: str, sets: dict[str, str], builtin) -> dict:

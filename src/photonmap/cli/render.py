@@ -20,10 +20,8 @@ from .base import (
     console,
     count,
     image_size,
-    load,
     say,
-    split_sets,
-    typed_params,
+    scene_request,
 )
 
 
@@ -96,7 +94,8 @@ def render(  # over 80 lines with its option declarations; the body is shorter
         if method is not None and method not in METHODS:
             raise PhotonmapError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
         with console.status(f"loading {scene}") if interactive() else nullcontext():
-            mi_scene, builtin, sets = load(scene, split_sets(set_ or []))
+            request = scene_request(scene, set_)
+            mi_scene, builtin = request.scene, request.builtin
         interrupt.check()
         if method is None and builtin is not None:
             method = builtin.pipeline  # the method the built-in scene is made for
@@ -110,7 +109,7 @@ def render(  # over 80 lines with its option declarations; the body is shorter
                 "--workers/--ray distribute a progressive method's iterations (--method sppm); "
                 "for many frames of any method use 'photonmap render-sequence'"
             )
-        params = _method_params(method, sets, builtin, spp, seed)
+        params = _method_params(method, request, spp, seed)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             with console.status(f"loading {scene}") if interactive() else nullcontext():
@@ -118,8 +117,7 @@ def render(  # over 80 lines with its option declarations; the body is shorter
             interrupt.check()
             size = _sized(pipe, width, height)
             if workers is not None or ray_address is not None:
-                xml = {k: v for k, v in split_sets(set_ or []).items() if k not in sets}
-                job = _job(scene, method, params, xml, size)
+                job = _job(scene, method, params, request.xml, size)
                 image = _distribute(job, output, time, preview_every, workers, ray_address, run)
             elif pipe.progressive:
                 image = _iterate(pipe, scene, output, time, "iterations" in params,
@@ -139,13 +137,13 @@ def render(  # over 80 lines with its option declarations; the body is shorter
             )
 
 
-def _method_params(method: str, sets: dict, builtin, spp: int | None, seed: int) -> dict:
+def _method_params(method: str, request, spp: int | None, seed: int) -> dict:
     """The ``--set`` values as the method's (and the built-in scene's) parameters, with ``--spp``
     (when given; else the method's own default) and ``--seed``; ``--spp`` other than 1 for a
     method without ``spp`` is refused."""
     from .. import METHODS, PhotonmapError
 
-    params = typed_params(method, sets, builtin)
+    params = request.params(method)
     if spp is not None and "spp" in {f.name for f in dataclasses.fields(METHODS[method].params)}:
         params.setdefault("spp", spp)
     elif spp not in (None, 1):
@@ -330,7 +328,8 @@ def render_sequence(
         check_side("--width", width)
         check_side("--height", height)
         spec = load_frames(frames)
-        mi_scene, builtin, _ = load(scene, {})
+        request = scene_request(scene, [])
+        mi_scene, builtin = request.scene, request.builtin
         method = spec.method or (builtin.pipeline if builtin else pick_method(mi_scene))
         if method not in METHODS:
             raise PhotonmapError(f"unknown method {method!r}; available: {', '.join(METHODS)}")

@@ -16,11 +16,9 @@ from .base import (
     console,
     error_exit,
     image_size,
-    load,
     root_cause,
     say,
-    split_sets,
-    typed_params,
+    scene_request,
 )
 
 
@@ -78,10 +76,10 @@ def reference(  # over 80 lines with its option declarations; the body is shorte
             check_seconds("--time", time)
         if not 0 <= seed < 2**32:
             raise ParameterError(f"--seed must lie in 0 … 2³²−1, got {seed}")
-        sets = split_sets(set_ or [])
-        mi_scene, builtin, rest = load(scene, sets)
+        request = scene_request(scene, set_)
+        mi_scene, builtin, rest = request.scene, request.builtin, request.sets
         if builtin is not None:
-            mi_scene, _ = load_scene(scene, **typed_params(builtin.pipeline, rest, builtin))
+            mi_scene, _ = load_scene(scene, **request.params(builtin.pipeline))
         elif rest:
             raise ParameterError(
                 f"unknown --set key(s) {', '.join(rest)}: not $parameters of {scene}"
@@ -220,10 +218,11 @@ def view(
             raise ParameterError(f"--port must lie in 1…65535, got {port}")
         if method is not None and method not in METHODS:
             raise ParameterError(f"unknown --method {method!r}; available: {', '.join(METHODS)}")
-        mi_scene, builtin, sets = load(scene, split_sets(set_ or []))
+        request = scene_request(scene, set_)
+        mi_scene, builtin = request.scene, request.builtin
         if method is None:
             method = builtin.pipeline if builtin is not None else pick_method(mi_scene)
-        params = typed_params(method, sets, builtin)
+        params = request.params(method)
         frames = None
         if volumes is not None:
             import numpy as np
@@ -286,8 +285,8 @@ def analyze_bandwidth(
     from ..analysis.report import bandwidth_report
 
     with command():
-        mi_scene, builtin, sets = load(scene, split_sets(set_ or []))
-        params = typed_params("surface", sets, builtin)
+        request = scene_request(scene, set_)
+        builtin, params = request.builtin, request.params("surface")
         text = bandwidth_report(
             scene, builtin, order, cache, line, tile, sweep, plot, size, crop, params, structure
         )
