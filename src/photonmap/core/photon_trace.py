@@ -42,6 +42,7 @@ smooth: photons that reach such a light are recorded there and absorbed.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 
 import drjit as dr
@@ -126,6 +127,28 @@ class Traced:
         return dr.count(first & self.light.aimed)[0] / self.light.aimed_paths
 
 
+@dataclass(frozen=True)
+class PhotonRules:
+    """How :func:`trace_light_paths` treats every path: its path ``settings`` and the scene's
+    ``traits``; ``caustics_only``: a path ends at its first smooth interaction (surface or
+    medium), stored only if caustic; ``roulette``: Russian roulette from ``settings.rr_depth``
+    on; ``redirect(si, bs, gen)``: a direction to go on in instead of the BSDF sample's (the
+    screen method's glossy rule); ``rough_glass``: see :func:`trace_photons`."""
+
+    settings: PathSettings
+    traits: SceneTraits
+    caustics_only: bool = False
+    roulette: bool = True
+    redirect: Callable | None = None
+    rough_glass: bool = False
+
+    @property
+    def limit(self) -> int:
+        """The deepest record kept (``max_depth − 1`` segments; paths stop there)."""
+        unbounded = self.settings.max_depth == UNBOUNDED
+        return np.iinfo(np.int32).max if unbounded else self.settings.max_depth - 1
+
+
 def trace_photons(
     scene: mi.Scene,
     paths: int,
@@ -152,51 +175,32 @@ def trace_photons(
     settings = settings or PathSettings()
     traits = traits or SceneTraits.of(scene)
     light = emit(scene, paths, seed, aim, caustics_only, media, powers, rough_glass)
-    records, volume = trace_light_paths(
-        scene, light, rng(paths, seed, stream=1), settings, traits, caustics_only,
-        rough_glass=rough_glass,
-    )  # fmt: skip
+    rules = PhotonRules(settings, traits, caustics_only, rough_glass=rough_glass)
+    records, volume = trace_light_paths(scene, light, rng(paths, seed, stream=1), rules)
     return Traced(records, volume, light)
 
 
 def trace_light_paths(
-    scene: mi.Scene,
-    light: LightPaths,
-    gen,
-    settings: PathSettings,
-    traits: SceneTraits,
-    caustics_only: bool = False,
-    roulette: bool = True,
-    first_depth: int = 0,
-    redirect=None,
-    rough_glass: bool = False,
+    scene: mi.Scene, light: LightPaths, gen, rules: PhotonRules, first_depth: int = 0
 ) -> tuple[PhotonRecords, VolumePhotons | None]:
-    """Trace the light paths ``light`` (module docstring) and return their surface records and,
-    in a scene with media, their volume photons. ``gen``: one random generator per path (an
-    ``mi.PCG32`` or any Dr.Jit struct with ``next_float32()``, e.g. a fixed random map);
-    ``caustics_only``: a path ends at its first smooth interaction (surface or medium), stored
-    only if caustic;
-    ``roulette``: Russian roulette from ``settings.rr_depth`` on; ``first_depth``: interactions
-    the paths have already had (records then count from it); ``redirect(si, bs, gen)``: a
-    direction to go on in instead of the BSDF sample's (the screen method's glossy rule);
-    ``rough_glass``: see :func:`trace_photons`."""
-    limit = np.iinfo(np.int32).max if settings.max_depth == UNBOUNDED else settings.max_depth - 1
+    """Trace the light paths ``light`` by ``rules`` (module docstring) and return their surface
+    records and, in a scene with media, their volume photons. ``gen``: one random generator per
+    path (an ``mi.PCG32`` or any Dr.Jit struct with ``next_float32()``, e.g. a fixed random
+    map); ``first_depth``: interactions the paths have already had (records then count from
+    it)."""
     n = light.count
     state = _PathState.start(light, gen, first_depth)
     surface, volume = [], []
     steps = rays = 0
     while state.count and steps < MAX_STEPS:
-        rec, vrec, state, cast = _chunk(
-            scene, state, limit, settings.rr_depth, traits, caustics_only, roulette, redirect,
-            rough_glass,
-        )  # fmt: skip
+        rec, vrec, state, cast = _chunk(scene, state, rules)
         surface.append(rec)
         volume.append(vrec)
         steps += CHUNK
         rays += cast
     records = PhotonRecords(*_concat(surface, 9), n, light.emitted_power, rays)
     _check_power(records)
-    if not traits.media:
+    if not rules.traits.media:
         return records, None
     return records, VolumePhotons(*_concat(volume, 5))
 
@@ -265,18 +269,16 @@ VOLUME_FIELDS = {
 }  # fmt: skip
 
 
-def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redirect,
-           rough_glass):  # fmt: skip
+def _chunk(scene, state, rules: PhotonRules):
     """One chunk of the loop: the records it stored (compacted, as field lists), the state of
     the paths still alive and the rays the chunk cast."""
     lanes = state.count
     slots = lanes * CHUNK
     rec = _slots(SURFACE_FIELDS, slots)
-    vrec = _slots(VOLUME_FIELDS, slots if traits.media else 1)
+    vrec = _slots(VOLUME_FIELDS, slots if rules.traits.media else 1)
     stored = dr.zeros(mi.Bool, slots)
     vstored = dr.zeros(mi.Bool, dr.width(vrec["depth"]))
-    alive, steps = _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits,
-                         caustics_only, roulette, redirect, rough_glass)  # fmt: skip
+    alive, steps = _loop(scene, state, (rec, vrec, stored, vstored), rules)
     dr.eval(rec, vrec, stored, vstored, alive, steps, *vars(state).values())
     out = []
     for fields_, mask in ((rec, stored), (vrec, vstored)):
@@ -286,20 +288,24 @@ def _chunk(scene, state, limit, rr_depth, traits, caustics_only, roulette, redir
 
 
 @dr.syntax
-def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, caustics_only,
-          roulette, redirect, rough_glass):  # fmt: skip
-    """The symbolic loop of one chunk; updates ``state`` in place, fills the record slots and
-    returns which paths are still alive. One iteration flies to the next interaction
+def _loop(scene, state, slots, rules: PhotonRules):
+    """The symbolic loop of one chunk; updates ``state`` in place, fills the record ``slots``
+    (surface and volume records and where they were stored) and returns which paths are still
+    alive. One iteration flies to the next interaction
     (:func:`_fly`), applies the partition of aimed emission (:mod:`.emission`) at the first one,
     stores a volume photon or a surface record, samples the BSDF or the phase function
     (:func:`_scatter`) and plays Russian roulette (:func:`_survival`). Also returns each path's
     steps in the chunk: one ray cast each."""
+    rec, vrec, stored, vstored = slots
+    # frozen dataclasses stay out of loops: their values as locals
+    media, null_shapes = rules.traits.media, rules.traits.null_shapes
+    caustics_only, roulette, redirect = rules.caustics_only, rules.roulette, rules.redirect
+    rough_glass = rules.rough_glass
     lanes = state.count
-    limit = dr.opaque(mi.UInt32, limit)
-    rr_depth = dr.opaque(mi.UInt32, rr_depth)
+    limit = dr.opaque(mi.UInt32, rules.limit)
+    rr_depth = dr.opaque(mi.UInt32, rules.settings.rr_depth)
     lane = dr.arange(mi.UInt32, lanes)
     stride = dr.opaque(mi.UInt32, lanes)  # not a literal: the survivors' count varies
-    media, null_shapes = traits.media, traits.null_shapes  # frozen dataclasses stay out of loops
     ch = channel(state.gen)
     step = dr.zeros(mi.UInt32, lanes)
     active = dr.max(state.power) > 0
@@ -340,7 +346,8 @@ def _loop(scene, state, rec, vrec, stored, vstored, limit, rr_depth, traits, cau
             dr.scatter(rec[name], value, slot, store)
         dr.scatter(stored, True, slot, store)
 
-        bounced = _scatter(state, si, bsdf, mei, on_surface, in_medium, followed, redirect, media)
+        where = (on_surface, in_medium, followed)
+        bounced = _scatter(state, (si, bsdf, mei), where, redirect, media)
         active = in_medium | on_surface
         if dr.hint(caustics_only, mode="scalar"):
             active &= ~state.smooth
@@ -372,11 +379,13 @@ def _fly(scene, state: _PathState, ch, active, media: bool, null_shapes):
     return si, flight.mei, in_medium, on_surface, albedo
 
 
-def _scatter(state: _PathState, si, bsdf, mei, on_surface, in_medium, followed, redirect, media):
-    """Go on from the interaction: at a surface by the BSDF in importance mode (``redirect``:
-    the direction instead of the sample's), in a medium by the phase function; the path's
-    history (specular, smooth, bounce counts) follows. Returns where a surface bounce (not a
-    ``Null`` pass) happened."""
+def _scatter(state: _PathState, interaction, where, redirect, media):
+    """Go on from the ``interaction`` ``(si, bsdf, mei)``: ``where = (on_surface, in_medium,
+    followed)``, at a surface by the BSDF in importance mode (``redirect``: the direction instead
+    of the sample's; ``followed``: rough glass followed as glass), in a medium by the phase
+    function; the path's history (specular, smooth, bounce counts) follows. Returns where a
+    surface bounce (not a ``Null`` pass) happened."""
+    (si, bsdf, mei), (on_surface, in_medium, followed) = interaction, where
     gen = state.gen
     bs, weight = bsdf.sample(
         mi.BSDFContext(mi.TransportMode.Importance), si, gen.next_float32(),

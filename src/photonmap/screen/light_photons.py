@@ -42,7 +42,7 @@ import numpy as np
 
 from ..core.emission import LightPaths
 from ..core.errors import ParameterError, SceneError
-from ..core.photon_trace import trace_light_paths
+from ..core.photon_trace import PhotonRules, trace_light_paths
 from ..core.scene_info import SceneTraits
 from ..core.settings import PathSettings
 from .light_gbuffer import LightGBuffer
@@ -123,10 +123,9 @@ def trace_photons(
         dr.zeros(mi.Bool, n), np.zeros(3), 0,
     )  # fmt: skip
     redirect = _redirect if glossy == "yao_average" else None
-    records, _ = trace_light_paths(
-        scene, light, gen, PathSettings(max_depth=bounces + 2), SceneTraits.of(scene),
-        roulette=False, first_depth=1, redirect=redirect,
-    )  # fmt: skip
+    rules = PhotonRules(PathSettings(max_depth=bounces + 2), SceneTraits.of(scene),
+                        roulette=False, redirect=redirect)  # fmt: skip
+    records, _ = trace_light_paths(scene, light, gen, rules, first_depth=1)
     photons = _slots(records, n * bounces, n, first_density)
     _check_power(photons)
     return photons
