@@ -15,7 +15,7 @@ import numpy as np
 
 import photonmap  # noqa: F401 - selects the Mitsuba variant
 from photonmap.core.camera import pixel_rays
-from photonmap.core.eye_trace import trace_eye_paths
+from photonmap.core.eye_trace import EyeRules, trace_eye_paths
 from photonmap.core.image import block_means, read_image, write_image
 from photonmap.core.media import broadcast
 from photonmap.core.sampling import rng
@@ -84,10 +84,8 @@ def light_image_mask(scene, spp: int = 64) -> np.ndarray:
     gen = rng(lanes, 12345, 0)
     pixel = dr.arange(mi.UInt32, lanes) // spp
     ray, weight = pixel_rays(sensor, pixel, mi.Point2f(gen.next_float32(), gen.next_float32()))
-    emitted = trace_eye_paths(
-        scene, ray, weight, broadcast(None, lanes), gen, PathSettings(16), SceneTraits.of(scene),
-        media_mode="transmit",
-    ).radiance  # fmt: skip
+    rules = EyeRules(PathSettings(16), SceneTraits.of(scene), media_mode="transmit")
+    emitted = trace_eye_paths(scene, (ray, weight, broadcast(None, lanes)), gen, rules).radiance
     seen = np.array(dr.block_reduce(dr.ReduceOp.Add, dr.max(emitted), spp)).reshape(h, w) / spp
     return ~binary_dilation(seen > 0.01, iterations=1)
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from photonmap import dr, mi
-from photonmap.core.eye_trace import trace_eye_paths
+from photonmap.core.eye_trace import EyeRules, trace_eye_paths
 from photonmap.core.photon_trace import trace_photons
 from photonmap.core.sampling import rng
 from photonmap.core.scene_info import SceneTraits
@@ -55,10 +55,8 @@ def eye_rays(surfaces: str, max_depth: int) -> np.ndarray:
     gen = rng(n, 5, 0)
     d = mi.warp.square_to_uniform_sphere(mi.Point2f(gen.next_float32(), gen.next_float32()))
     ray = mi.Ray3f(mi.Point3f(0.0, 0.2, 0.0) + dr.zeros(mi.Point3f, n), d)
-    eye = trace_eye_paths(
-        scene, ray, mi.Spectrum(1.0), mi.MediumPtr(None), gen,
-        PathSettings(max_depth, NO_ROULETTE), SceneTraits.of(scene), surfaces=surfaces,
-    )  # fmt: skip
+    rules = EyeRules(PathSettings(max_depth, NO_ROULETTE), SceneTraits.of(scene), surfaces=surfaces)
+    eye = trace_eye_paths(scene, (ray, mi.Spectrum(1.0), mi.MediumPtr(None)), gen, rules)
     return np.asarray(eye.rays)
 
 

@@ -4,13 +4,14 @@ thin wall."""
 
 import math
 
+import drjit as dr
 import mitsuba as mi
 import numpy as np
 import pytest
 
 from photonmap.core.photon_trace import PhotonRecords
 from photonmap.core.settings import PathSettings
-from photonmap.surface.gather import irradiance_estimate
+from photonmap.surface.gather import irradiance_estimate, radiance_estimate
 from photonmap.surface.photon_map import STRUCTURES, build_photon_maps, photon_map
 
 T = mi.ScalarTransform4f
@@ -117,3 +118,12 @@ def test_photons_on_a_floor_stay_off_the_wall_beside_it():
         )
         estimates.append(np.array(E)[0].mean())
     np.testing.assert_allclose(estimates[0], estimates[1], rtol=1e-5)
+
+
+def test_no_query_gives_no_estimate():
+    """The caustic map read where no eye path needs it (every sample of a render ended in fog):
+    an empty estimate, not an error from Dr.Jit's masks (a scalar mask cannot meet width 0)."""
+    pmap = photon_map(plane_photons(1000, 1.0), "hash")
+    none = dr.zeros(mi.SurfaceInteraction3f, 0)
+    estimate = radiance_estimate(pmap, none, none.bsdf(), 50, 0.1, True)
+    assert dr.width(estimate) == 0

@@ -192,7 +192,7 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     import drjit as dr
 
     from photonmap.core.camera import pixel_rays
-    from photonmap.core.eye_trace import trace_eye_paths
+    from photonmap.core.eye_trace import EyeRules, trace_eye_paths
     from photonmap.core.media import broadcast
     from photonmap.core.sampling import rng
     from photonmap.surface.eye_terms import caustic_radiance
@@ -207,9 +207,8 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     pipe.set_camera(width=w, height=w)
     pixel = dr.arange(mi.UInt32, lanes) // spp
     ray, weight = pixel_rays(pipe.sensor, pixel, mi.Point2f(gen.next_float32(), gen.next_float32()))
-    eye = trace_eye_paths(
-        pipe.scene, ray, weight, broadcast(None, lanes), gen, pipe.settings, pipe.traits
-    )
+    rules = EyeRules(pipe.settings, pipe.traits)
+    eye = trace_eye_paths(pipe.scene, (ray, weight, broadcast(None, lanes)), gen, rules)
     si, found, bounces = eye.si, eye.found, eye.bounces
     shared = np.array(caustic_radiance(caustic_map, si, found, bounces, spp, 50, radius))
     each = np.array(radiance_estimate(caustic_map, si, si.bsdf(), 50, radius, found))

@@ -127,54 +127,78 @@ class EyeVertices:
         return self.si.bsdf()
 
 
+@dataclass(frozen=True)
+class EyeRules:
+    """What :func:`trace_eye_paths` does along every path (module docstring): the path
+    ``settings`` and the scene's ``traits``; ``emission``: add the emitters met; ``media_mode``
+    (:data:`MEDIA_MODES`) and ``surfaces`` (:data:`SURFACE_MODES`); ``rough_glass``: follow
+    rough glass (``surfaces="stop"``); ``segments``: pieces recorded per path in ``"march"``
+    mode."""
+
+    settings: PathSettings
+    traits: SceneTraits
+    emission: bool = True
+    media_mode: str = "continue"
+    surfaces: str = "stop"
+    rough_glass: bool = False
+    segments: int = 4
+
+    def __post_init__(self):
+        if self.media_mode not in MEDIA_MODES:
+            raise ValueError(f"media_mode must be one of {MEDIA_MODES}, got {self.media_mode!r}")
+        if self.surfaces not in SURFACE_MODES:
+            raise ValueError(f"surfaces must be one of {SURFACE_MODES}, got {self.surfaces!r}")
+
+
 def trace_eye_paths(
     scene: mi.Scene,
-    ray: mi.Ray3f,
-    weight: mi.Spectrum,
-    medium: mi.MediumPtr,
+    rays: tuple,
     gen: mi.PCG32,
-    settings: PathSettings,
-    traits: SceneTraits,
+    rules: EyeRules,
     *,
-    emission: bool = True,
-    media_mode: str = "continue",
-    surfaces: str = "stop",
     caustics: Caustics | None = None,
     start_depth: int | mi.UInt32 = 0,
     active: mi.Bool | None = None,
-    segments: int = 4,
-    rough_glass: bool = False,
 ) -> EyeVertices:
-    """Follow the rays (unit directions; ``weight``: their throughput; ``medium``: where they
-    start) to their vertices (module docstring). ``caustics``: photon estimates read along the
-    paths (:class:`Caustics`); ``start_depth``: segments before these rays (per lane for a final
-    gather; rays from the camera start at 0); ``segments``: pieces recorded per path in
-    ``"march"`` mode; ``rough_glass``: follow rough glass (``surfaces="stop"``). The result is
+    """Follow ``rays = (ray, weight, medium)`` (unit directions, their throughput, the medium
+    where they start) to their vertices by ``rules`` (module docstring). ``caustics``: photon
+    estimates read along the paths (:class:`Caustics`); ``start_depth``: segments before these
+    rays (per lane for a final gather; rays from the camera start at 0). The result is
     evaluated."""
-    if media_mode not in MEDIA_MODES:
-        raise ValueError(f"media_mode must be one of {MEDIA_MODES}, got {media_mode!r}")
-    if surfaces not in SURFACE_MODES:
-        raise ValueError(f"surfaces must be one of {SURFACE_MODES}, got {surfaces!r}")
+    ray, weight, medium = rays
+    settings, traits, segments = rules.settings, rules.traits, rules.segments
     n = max(dr.width(ray.o), dr.width(ray.d), dr.width(weight), dr.width(medium))
     active = dr.full(mi.Bool, True, n) if active is None else mi.Bool(active)
     zero = dr.zeros(mi.Float, n)
     ray = mi.Ray3f(ray.o + zero, ray.d + zero, ray.maxt + zero, ray.time + zero, ray.wavelengths)
     if dr.width(medium) != n:
         medium = dr.gather(mi.MediumPtr, mi.MediumPtr(medium), dr.zeros(mi.UInt32, n))
-    marching = media_mode == "march" and traits.media
+    marching = rules.media_mode == "march" and traits.media
     slots = n * segments if marching else 1
     buffers = Segments(  # slot = piece · n + lane; read where stored only: not cleared
         dr.empty(mi.Point3f, slots), dr.empty(mi.Vector3f, slots), dr.empty(mi.Float, slots),
         dr.empty(mi.MediumPtr, slots), dr.empty(mi.Spectrum, slots), dr.empty(mi.UInt32, slots),
     )  # fmt: skip
     stored = dr.zeros(mi.Bool, slots)
-    vertices = _follow(
-        scene, ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), gen,
-        settings=settings, traits=traits, emission=emission, media_mode=media_mode,
-        surfaces=surfaces, caustics=caustics, start_depth=start_depth,
-        active=active & dr.full(mi.Bool, True, n), buffers=buffers, stored=stored,
-        max_pieces=segments, rough_glass=rough_glass,
+    walk = _Walk.start(
+        ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), start_depth,
+        active & dr.full(mi.Bool, True, n),
     )  # fmt: skip
+    vertex_rules = _Rules(
+        media=traits.media,
+        media_mode=rules.media_mode if traits.media else "transmit",  # vacuum: no collisions
+        continuing=rules.surfaces == "continue",
+        emission=rules.emission,
+        hide=settings.hide_emitters and isinstance(start_depth, int) and start_depth == 0,
+        photons_carry=caustics is not None,
+        rough_glass=rules.rough_glass,
+        rough_nee=rules.rough_glass and rules.emission and rules.surfaces == "stop"
+        and traits.rough_glass,
+        max_pieces=segments,
+        settings=settings,
+        traits=traits,
+    )  # fmt: skip
+    vertices = _follow(scene, walk, gen, vertex_rules, caustics or Caustics(), (buffers, stored))
     # every output at once: evaluating one output of a symbolic loop runs the whole loop again
     dr.eval(*(v for v in vars(vertices).values() if v is not None), buffers, stored)
     if marching:
@@ -247,34 +271,25 @@ class _Rules:
     rough_glass: bool
     rough_nee: bool  # next-event estimation at rough-glass vertices (rough_glass and emission)
     max_pieces: int
+    settings: PathSettings
+    traits: SceneTraits
 
 
 @dr.syntax
-def _follow(scene, ray, beta, medium, gen, *, settings, traits, emission, media_mode, surfaces,
-            caustics, start_depth, active, buffers, stored, max_pieces, rough_glass):  # fmt: skip
-    """The loop of :func:`trace_eye_paths` (module docstring): one iteration flies to the next
-    vertex (:func:`_fly`), adds the emission met there (:func:`_emission_met`), handles a medium
-    collision (:func:`_medium_vertex`) or a surface (:func:`_surface_vertex`) and plays Russian
-    roulette. Returns the :class:`EyeVertices` (lazy)."""
-    n = dr.width(beta)
+def _follow(scene, walk: _Walk, gen, rules: _Rules, caustics: Caustics, pieces):
+    """The loop of :func:`trace_eye_paths` (module docstring) from ``walk``'s start: one
+    iteration flies to the next vertex (:func:`_fly`), adds the emission met there
+    (:func:`_emission_met`), handles a medium collision (:func:`_medium_vertex`) or a surface
+    (:func:`_surface_vertex`) and plays Russian roulette. ``pieces``: the slots of the pieces in
+    media and where they were stored ("march" mode). Returns the :class:`EyeVertices` (lazy)."""
+    buffers, stored = pieces
+    n = dr.width(walk.beta)
+    settings = rules.settings
     max_depth = settings.max_depth if settings.max_depth != UNBOUNDED else 2**31 - 1
     max_depth = dr.opaque(mi.UInt32, max_depth)
     rr_depth = dr.opaque(mi.UInt32, settings.rr_depth)
-    rules = _Rules(
-        media=traits.media,
-        media_mode=media_mode if traits.media else "transmit",  # vacuum: nothing to collide with
-        continuing=surfaces == "continue",
-        emission=emission,
-        hide=settings.hide_emitters and isinstance(start_depth, int) and start_depth == 0,
-        photons_carry=caustics is not None,
-        rough_glass=rough_glass,
-        rough_nee=rough_glass and emission and surfaces == "stop" and traits.rough_glass,
-        max_pieces=max_pieces,
-    )
-    caustics = caustics or Caustics()
     medium_light, surface_light = caustics.medium, caustics.surface
-    null_shapes = traits.null_shapes
-    walk = _Walk.start(ray, beta, medium, start_depth, active)
+    null_shapes = rules.traits.null_shapes
     ch = channel(gen)
     lane = dr.arange(mi.UInt32, n)
     stride = dr.opaque(mi.UInt32, n)  # not a literal: one kernel for every size
@@ -288,9 +303,8 @@ def _follow(scene, ray, beta, medium, gen, *, settings, traits, emission, media_
         walk.active &= ~escaped
         _medium_vertex(walk, mei, scattered, arrived, max_depth, gen, rules, medium_light)
         bounced = _surface_vertex(
-            scene, walk, si, surface, emitter, arrived, max_depth, gen, rules, traits,
-            surface_light,
-        )  # fmt: skip
+            scene, walk, (si, surface, emitter, arrived), max_depth, gen, rules, surface_light
+        )
         # ---- Russian roulette (Mitsuba's path tracers)
         rolled = walk.active & (bounced | scattered) & (walk.depth >= rr_depth)
         survive = survival(walk.beta, eta=walk.eta)
@@ -401,12 +415,14 @@ def _medium_vertex(walk: _Walk, mei, scattered, arrived, max_depth, gen, rules, 
         walk.active &= ~scattered | (room & (phase_pdf > 0))
 
 
-def _surface_vertex(scene, walk: _Walk, si, surface, emitter, arrived, max_depth, gen,
-                    rules: _Rules, traits, surface_light):  # fmt: skip
-    """A surface: end on its smooth lobes or follow its delta / ``Null`` lobes
-    (``surfaces="stop"``, :func:`_end_or_follow`), or shade the smooth lobes and go on with the
-    BSDF sample (``"continue"``, :func:`_shade_and_go_on`). Returns where a bounce (not a
-    ``Null`` pass) continued the path."""
+def _surface_vertex(scene, walk: _Walk, vertex, max_depth, gen, rules: _Rules, surface_light):
+    """A surface ``vertex = (si, surface, emitter, arrived)`` (the hit, the lanes on a surface,
+    the emitter there, the segments to it): end on its smooth lobes or follow its delta /
+    ``Null`` lobes (``surfaces="stop"``, :func:`_end_or_follow`), or shade the smooth lobes and
+    go on with the BSDF sample (``"continue"``, :func:`_shade_and_go_on`). Returns where a bounce
+    (not a ``Null`` pass) continued the path."""
+    si, surface, emitter, arrived = vertex
+    traits = rules.traits
     n = dr.width(surface)
     ctx = mi.BSDFContext()
     bsdf = si.bsdf(walk.ray)

@@ -36,7 +36,7 @@ import numpy as np
 from ..core.arrays import aligned
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
-from ..core.eye_trace import Caustics, trace_eye_paths
+from ..core.eye_trace import Caustics, EyeRules, trace_eye_paths
 from ..core.film_filter import splat_means
 from ..core.media import broadcast
 from ..core.sampling import rng
@@ -96,10 +96,9 @@ def eye_pass(
     ray, weight = pixel_rays(sensor, dr.arange(mi.UInt32, lanes) // spp, jitter, not splat)
     start = broadcast(sensor.get_medium(), lanes)
     seen_here = spp >= LIGHT_SPP or mirrors is None
-    eye = trace_eye_paths(
-        scene, ray, weight, start, gen, settings, traits, emission=seen_here,
-        media_mode="continue", surfaces=surfaces, caustics=caustics,
-    )  # fmt: skip
+    rules = EyeRules(settings, traits, emission=seen_here, media_mode="continue",
+                     surfaces=surfaces)  # fmt: skip
+    eye = trace_eye_paths(scene, (ray, weight, start), gen, rules, caustics=caustics)
     L = eye.radiance
     if surfaces == "stop":
         u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
@@ -143,10 +142,9 @@ def emission_seen(
     gen = rng(many, seed, 1, lanes)
     jitter = mi.Point2f(gen.next_float32(), gen.next_float32())
     ray, weight = pixel_rays(sensor, lanes // LIGHT_SPP, jitter, not splat)
-    seen = trace_eye_paths(
-        scene, ray, weight, broadcast(sensor.get_medium(), dr.width(lanes)), gen, settings,
-        traits, emission=True, media_mode="transmit",
-    )  # fmt: skip
+    start = broadcast(sensor.get_medium(), dr.width(lanes))
+    rules = EyeRules(settings, traits, emission=True, media_mode="transmit")
+    seen = trace_eye_paths(scene, (ray, weight, start), gen, rules)
     rays = int(np.asarray(seen.rays, np.int64).sum())
     if splat:  # the splats reach the neighbours: the whole film's samples, zero where untraced
         radiance, positions = dr.zeros(mi.Spectrum, many), dr.zeros(mi.Point2f, many)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..core.arrays import aligned
 from ..core.camera import pixel_means, pixel_rays
-from ..core.eye_trace import trace_eye_paths
+from ..core.eye_trace import EyeRules, trace_eye_paths
 from ..core.media import broadcast
 from ..core.sampling import rng, rotated_hammersley
 from .gather import radiance_estimate
@@ -53,10 +53,9 @@ def light_images(
     sample = dr.arange(mi.UInt32, lanes) % p.emitter_spp
     jitter = rotated_hammersley(p.emitter_spp, sample, dr.gather(mi.Point2f, shift, which))
     ray, weight = pixel_rays(sensor, pixel, jitter)
-    extra = trace_eye_paths(
-        scene, ray, weight, broadcast(sensor.get_medium(), lanes), rng(lanes, p.seed, 4),
-        settings, traits, emission=True, media_mode="transmit", rough_glass=True,
-    ).radiance  # fmt: skip
+    rules = EyeRules(settings, traits, emission=True, media_mode="transmit", rough_glass=True)
+    start = broadcast(sensor.get_medium(), lanes)
+    extra = trace_eye_paths(scene, (ray, weight, start), rng(lanes, p.seed, 4), rules).radiance
     dr.scatter(image, pixel_means(extra, p.emitter_spp), flagged)
     return image
 

@@ -33,7 +33,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.arrays import to_numpy
-from ..core.eye_trace import trace_eye_paths
+from ..core.eye_trace import EyeRules, trace_eye_paths
 from ..core.media import enter
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import SceneTraits
@@ -94,10 +94,10 @@ def final_gather(
         medium_x = dr.zeros(mi.MediumPtr, count * m)
         if media:
             medium_x = enter(x, ray.d, dr.gather(mi.MediumPtr, medium, query), ok)
+        rules = EyeRules(settings, traits, emission=False, media_mode="end", rough_glass=True)
         y = trace_eye_paths(
-            scene, ray, dr.select(ok, weight, 0.0), medium_x, gen, settings, traits,
-            emission=False, media_mode="end", start_depth=dr.gather(mi.UInt32, depth, query),
-            active=ok, rough_glass=True,
+            scene, (ray, dr.select(ok, weight, 0.0), medium_x), gen, rules,
+            start_depth=dr.gather(mi.UInt32, depth, query), active=ok,
         )  # fmt: skip
         si_y, throughput, found = y.si, y.beta, y.found & settings.allows(y.depth + 1)
         L_medium = 0.0

@@ -32,7 +32,7 @@ def radiance_estimate(
     active: mi.Bool,
 ) -> mi.Spectrum:
     """Reflected radiance at ``si`` towards ``si.wi`` from the ``k`` nearest photons (Eq 2.6)."""
-    if pmap.size == 0:
+    if pmap.size == 0 or dr.width(si.p) == 0:  # no photons, or no query (Dr.Jit: no width 0 mask)
         return dr.zeros(mi.Spectrum, dr.width(si.p))
     neighbours = pmap.knn(si.p, si.sh_frame.n, k, max_radius)
     return _reflected(pmap, si, bsdf, k, max_radius, neighbours, active)

@@ -52,7 +52,7 @@ from ..core.bsdf import diffuse_albedo, has_glossy_shapes
 from ..core.camera import pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
 from ..core.errors import PhotonmapWarning, SceneError
-from ..core.eye_trace import trace_eye_paths
+from ..core.eye_trace import EyeRules, trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
 from ..core.memory import check_once
 from ..core.params import updated
@@ -428,10 +428,10 @@ class SurfacePipeline(Pipeline):
         in ``radiance``); the light scattered in the media along them (``medium_light``)."""
         lanes = dr.width(pixel)
         ray, ray_weight = pixel_rays(self.sensor, pixel, jitter)
-        eye = trace_eye_paths(
-            self.scene, ray, ray_weight, broadcast(self.sensor.get_medium(), lanes), gen,
-            self.settings, self.traits, emission=True, media_mode="march", rough_glass=True,
-        )  # fmt: skip
+        rules = EyeRules(self.settings, self.traits, emission=True, media_mode="march",
+                         rough_glass=True)  # fmt: skip
+        start = broadcast(self.sensor.get_medium(), lanes)
+        eye = trace_eye_paths(self.scene, (ray, ray_weight, start), gen, rules)
         eye.found &= self.settings.allows(eye.depth + 1)  # light can still arrive
         L = dr.zeros(mi.Spectrum, lanes)  # light at the eye-path ends and in the media
         if medium_light is not None:
