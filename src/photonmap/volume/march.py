@@ -31,7 +31,7 @@ Multiple scattering (``scattering``, our extension of Sun et al. 2008; ``scatter
 is this march (:func:`.scatter.march_order`, which also samples the order's collision); the photons
 that scatter are compacted, sorted (:func:`.scatter.coherent_order`) and marched as the next order
 (:func:`.scatter.march_multiple`), into the same accumulator, so C and D hold the fluence of all
-orders and S8/S9 are unchanged. The first order deposits exactly what :func:`_march` deposits.
+orders and S8/S9 are unchanged. The first order deposits exactly what single scattering does.
 With opaque surfaces the legs of a photon's path are marched by ``surface_march.py``.
 """
 
@@ -60,21 +60,6 @@ from .emit import Photons
 from .scatter import march_multiple
 from .step import MarchGrids, MarchSettings, Scattering, march_steps, sample_medium
 from .surface_march import march_with_surfaces
-
-
-def _march(
-    acc: Int64,
-    medium: MarchGrids,
-    x: mi.Point3f,
-    d: mi.Vector3f,
-    L: mi.Color3f,
-    march: MarchSettings,
-    tally=radiance_tally,
-    shift: int = 0,
-):
-    """Single scattering: every photon from ``x`` along unit ``d`` (:func:`.step.march_steps`)."""
-    v = sample_medium(medium, x)[0] * d  # v₀ = n(x₀)·d₀
-    return march_steps(acc, medium, (x, v, L), march, tally, shift)
 
 
 @dataclass
@@ -135,7 +120,9 @@ def accumulate(
             )
             dr.eval(acc, *final)
         elif scattering is None:
-            steps, *final = _march(acc, medium, *rays, settings, tally, shift)
+            x, d, L = rays  # single scattering: the steps from v₀ = n(x₀)·d₀
+            photon = (x, sample_medium(medium, x)[0] * d, L)
+            steps, *final = march_steps(acc, medium, photon, settings, tally, shift)
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
         else:

@@ -10,9 +10,10 @@ equation ``d/ds (n dx/ds) = ∇n`` is integrated by forward differences::
 The step is the distance ``t`` to the face of the octree node holding ``x_i`` plus δ = 10⁻³ voxel,
 clamped to ``[Δs_min, Δs_max(x_i)]`` (Sun §4.4, §5.3, "a little bit further"); that target
 displacement gives ``Δs = t · n(x_i)/‖v_i‖`` and eqs 4–5 apply literally (``v`` is not
-renormalised). Each step's segment is deposited (S7) by :func:`deposit_step`. The loops that
-chain steps are in ``march.py`` (single scattering), ``scatter.py`` (multiple scattering) and
-``surface_march.py`` (opaque surfaces).
+renormalised). Each step's segment is deposited (S7) by :func:`deposit_step`;
+:func:`march_steps` chains the steps of every photon (``march.py`` runs it for single
+scattering, ``scatter.py`` once per scattering order; ``surface_march.py`` has its own loop,
+which also casts rays to the opaque surfaces).
 """
 
 from __future__ import annotations
