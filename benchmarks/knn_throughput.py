@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 import report
+from photonmap.core.arrays import columns
 from report import fmt, machine_info, markdown_table, publish, results_stem
 from timing import summarize, timed
 
@@ -89,7 +90,7 @@ def main(argv=None) -> dict:
     from photonmap.surface.kdtree import KDTree
 
     def to_mi(a):
-        return mi.Point3f(*a.T)
+        return mi.Point3f(*columns(mi.Float, a))
 
     rows, results = [], []
     for name, generate in POINT_SETS.items():

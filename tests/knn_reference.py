@@ -8,7 +8,7 @@ import mitsuba as mi
 import numpy as np
 from scipy.spatial import cKDTree
 
-from photonmap.core.arrays import aligned
+from photonmap.core.arrays import columns
 from photonmap.core.knn import COS_NORMAL, NO_PHOTON
 
 
@@ -19,7 +19,7 @@ def lattice(values):
 def to_mi(a):
     """``a`` (N, 3) as a ``Point3f``, each coordinate from aligned memory (one kernel per test
     whatever the run: ``photonmap.core.arrays.aligned``)."""
-    return mi.Point3f(*(aligned(c) for c in np.asarray(a, np.float32).T))
+    return mi.Point3f(*columns(mi.Float, a))
 
 
 def dot32(a, n):

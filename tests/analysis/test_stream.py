@@ -12,6 +12,7 @@ from photonmap.analysis.bandwidth import bandwidth_table
 from photonmap.analysis.cache import simulate_lines
 from photonmap.analysis.stream import GatherTrace, cropped_scene, trace_final_gathers
 from photonmap.cli import app
+from photonmap.core.arrays import columns
 from photonmap.surface.gather_batch import ORDERS
 from photonmap.surface.pipeline import SurfacePipeline
 
@@ -39,8 +40,8 @@ def test_visits_are_kd_tree_traversals(trace):
     gmap = pipe.photon_maps()[0]
     picked = np.arange(0, len(trace.batch), 37)
     found = gmap.knn(
-        mi.Point3f(*trace.batch.position[picked].T),
-        mi.Vector3f(*trace.batch.normal[picked].T),
+        mi.Point3f(*columns(mi.Float, trace.batch.position[picked])),
+        mi.Vector3f(*columns(mi.Float, trace.batch.normal[picked])),
         20,
         pipe.radii()[1],
     )
@@ -94,10 +95,10 @@ def test_compiled_walk_is_the_renderers_traversal(trace):
     )
     gmap = pipe.photon_maps()[0]
     count, slots = gmap.structure.visits(
-        mi.Point3f(*trace.batch.position.T),
+        mi.Point3f(*columns(mi.Float, trace.batch.position)),
         SMALL["k"],
         pipe.radii()[1],
-        mi.Vector3f(*trace.batch.normal.T),
+        mi.Vector3f(*columns(mi.Float, trace.batch.normal)),
         gmap.photons.normal,
         gmap.photons.direction,
     )

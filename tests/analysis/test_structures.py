@@ -14,6 +14,7 @@ from photonmap.analysis.bandwidth import bandwidth_table
 from photonmap.analysis.blockhash import BlockHash
 from photonmap.analysis.kdbtree import KDBTree
 from photonmap.analysis.structures import fetches_per_block, recall, structure_trace
+from photonmap.core.arrays import columns
 from photonmap.core.errors import ParameterError
 from photonmap.core.knn import COS_NORMAL
 from photonmap.surface.gather_batch import ORDERS, GatherBatch, gather_order
@@ -72,13 +73,13 @@ def test_kdb_knn_is_exact(cloud, line, k, radius):
     expected = brute_force(p, normals, directions, q, qn, k, radius)
     assert (expected >= 0).sum() > 0.4 * expected.size  # not a vacuous comparison
     np.testing.assert_array_equal(found, expected)
-    kd = KDTree(mi.Point3f(*p.T)).knn(
-        mi.Point3f(*q.T),
+    kd = KDTree(mi.Point3f(*columns(mi.Float, p))).knn(
+        mi.Point3f(*columns(mi.Float, q)),
         k,
         radius,
-        mi.Vector3f(*qn.T),
-        mi.Vector3f(*normals.T),
-        mi.Vector3f(*directions.T),
+        mi.Vector3f(*columns(mi.Float, qn)),
+        mi.Vector3f(*columns(mi.Float, normals)),
+        mi.Vector3f(*columns(mi.Float, directions)),
     )
     index, count, _ = kd.numpy()
     np.testing.assert_array_equal(np.where(index == 0xFFFFFFFF, -1, index.astype(np.int64)), found)

@@ -6,7 +6,7 @@ import mitsuba as mi
 import numpy as np
 
 import photonmap  # noqa: F401  (selects the Mitsuba variant)
-from photonmap.core.arrays import aligned
+from photonmap.core.arrays import to_jit
 from photonmap.core.grid import filter_axis, filter_separable
 
 TAPS = [0.25, 0.5, 0.25, 0.125, 0.0]  # asymmetric, with a zero tap (skipped)
@@ -29,13 +29,13 @@ def reference(values: np.ndarray, taps, axes=(0, 1, 2)) -> np.ndarray:
 def test_filter_separable_matches_numpy():
     rng = np.random.default_rng(3)
     values = rng.uniform(0, 1, (5, 7, 6, 2)).astype(np.float32)
-    got = np.array(filter_separable(mi.TensorXf(aligned(values)), TAPS))
+    got = np.array(filter_separable(to_jit(mi.TensorXf, values), TAPS))
     np.testing.assert_allclose(got, reference(values, TAPS), rtol=2e-6, atol=1e-6)
 
 
 def test_one_kernel_for_every_axis_and_size():
     def kernels(shape) -> set:
-        t = mi.TensorXf(aligned(np.ones(shape, np.float32)))
+        t = to_jit(mi.TensorXf, np.ones(shape, np.float32))
         dr.eval(t)
         with dr.scoped_set_flag(dr.JitFlag.KernelHistory, True):
             dr.kernel_history()

@@ -7,6 +7,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from photonmap.core.arrays import columns
 from photonmap.core.errors import PhotonmapError
 from photonmap.core.settings import PathSettings
 from photonmap.surface.gather import irradiance_estimate
@@ -50,7 +51,8 @@ def test_furnace_irradiance_is_the_multiple_bounce_value(rho):
     rng = np.random.default_rng(1)
     n = rng.normal(size=(256, 3))
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    E = irradiance_estimate(global_map, mi.Point3f(*n.T), mi.Vector3f(*(-n).T), 100, 0.3)
+    points, inward = mi.Point3f(*columns(mi.Float, n)), mi.Vector3f(*columns(mi.Float, -n))
+    E = irradiance_estimate(global_map, points, inward, 100, 0.3)
     E = np.array(E)[0]
     expected = 1.0 / (1.0 - rho)  # Φ = 4π W on a sphere of area 4π m²
     # Monte Carlo (k = 100: ~10% per estimate, averaged over 256) and RR/depth truncation

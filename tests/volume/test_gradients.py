@@ -10,7 +10,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
-from photonmap.core.arrays import aligned
+from photonmap.core.arrays import to_jit
 from photonmap.core.errors import ParameterError
 from photonmap.volume.gradients import DifferentiableVolumeCaustic, OrthoCamera, ParallelBeam
 
@@ -44,7 +44,7 @@ def loss(img):
 
 def objective(model, params):
     t = mi.TensorXf64 if model.Float is mi.Float64 else mi.TensorXf
-    img = model.render(t(aligned(np.asarray(params["n"]))), params["sigma_s"], params["sigma_a"])
+    img = model.render(to_jit(t, np.asarray(params["n"])), params["sigma_s"], params["sigma_a"])
     return float(np.sum(np.asarray(img, np.float64) ** 2))
 
 
@@ -114,7 +114,7 @@ def test_forward_mode_equals_reverse_mode(reverse64):
 def test_direct_dr_backward_equals_value_and_grad(reverse64):
     """render() + dr.backward (all threads) gives the same gradient up to rounding."""
     model, (_, grad) = reverse64
-    n = mi.TensorXf64(aligned(PARAMS["n"]))
+    n = to_jit(mi.TensorXf64, PARAMS["n"])
     dr.enable_grad(n)
     dr.backward(loss(model.render(n, PARAMS["sigma_s"], PARAMS["sigma_a"])))
     assert np.allclose(np.array(dr.grad(n)), grad["n"], rtol=1e-9, atol=1e-16)
@@ -127,7 +127,7 @@ def test_grid_sigma_gradients_match_finite_differences():
     _, grad = model.value_and_grad(loss, params)
 
     def obj(p):
-        img = model.render(*(mi.TensorXf64(aligned(p[k])) for k in ("n", "sigma_s", "sigma_a")))
+        img = model.render(*(to_jit(mi.TensorXf64, p[k]) for k in ("n", "sigma_s", "sigma_a")))
         return float(np.sum(np.asarray(img) ** 2))
 
     for name in ("sigma_s", "sigma_a"):
@@ -234,11 +234,11 @@ def test_primal_matches_numpy_reference(curved):
         double=True,
     )
     n = lens(r, amplitude=0.2, width=1.5, centre=(3.0, 3.5, 3.0))
-    image = np.asarray(model.render(mi.TensorXf64(aligned(n)), 0.1, 0.03))
+    image = np.asarray(model.render(to_jit(mi.TensorXf64, n), 0.1, 0.03))
     reference, fluence = np_render(model, n, 0.1, 0.03, curved)
     assert reference.max() > 0 and fluence.max() > 0
     assert np.allclose(image, reference, rtol=1e-10, atol=0)
-    ours = np.asarray(model.trace(mi.TensorXf64(aligned(n)), 0.03, 0.1)[0]).reshape(r, r, r)
+    ours = np.asarray(model.trace(to_jit(mi.TensorXf64, n), 0.03, 0.1)[0]).reshape(r, r, r)
     assert np.allclose(ours, fluence, rtol=1e-10, atol=1e-14)
 
 
@@ -251,7 +251,7 @@ def test_constant_index_gives_straight_rays():
         ds=0.5,
         double=True,
     )
-    _, x, v, _ = model.trace(mi.TensorXf64(aligned(np.full((r, r, r), 1.33))))
+    _, x, v, _ = model.trace(to_jit(mi.TensorXf64, np.full((r, r, r), 1.33)))
     origins, d, _ = model.light.photons()
     x = np.stack([np.asarray(c) for c in x], 1)
     v = np.stack([np.asarray(c) for c in v], 1)
@@ -276,7 +276,7 @@ def test_linear_index_bends_the_ray_by_the_catenary():
             ds=ds,
             double=True,
         )
-        _, _, _, _, path = model.trace(mi.TensorXf64(aligned(n)), record=True)
+        _, _, _, _, path = model.trace(to_jit(mi.TensorXf64, n), record=True)
         xs = np.array([float(p[0][0]) for p in path]) - 2.0
         ys = np.array([float(p[1][0]) for p in path]) - y0
         exact = n0 / g * (np.cosh(g * xs / n0) - 1.0)
@@ -292,7 +292,7 @@ def test_same_inputs_give_the_same_image_and_gradient():
     """Up to the thread order of Dr.Jit's float scatter-adds (module docstring, Determinism)."""
     model = caustic(double=False, photon_steps=12, view_steps=12)
     runs = [model.value_and_grad(loss, PARAMS) for _ in range(2)]
-    images = [np.asarray(model.render(mi.TensorXf(aligned(PARAMS["n"])), 0.08, 0.02)) for _ in range(2)]
+    images = [np.asarray(model.render(to_jit(mi.TensorXf, PARAMS["n"]), 0.08, 0.02)) for _ in range(2)]
     assert runs[0][0] == pytest.approx(runs[1][0], rel=1e-5)
     for name in PARAMS:
         np.testing.assert_allclose(runs[0][1][name], runs[1][1][name], rtol=1e-4,

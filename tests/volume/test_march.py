@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
+from photonmap.core.arrays import columns
 from photonmap.core.grid import GridBox
 from photonmap.volume.deposit import FIXED_POINT_BITS, Int64, deposit_segment
 from photonmap.volume.emit import Photons, emit
@@ -38,7 +39,8 @@ def photons(origins, directions, power=1.0):
     d = d / np.linalg.norm(d, axis=1, keepdims=True)
     count = len(origins)
     p = np.broadcast_to(np.asarray(power, np.float64), (count, 3))
-    return Photons(mi.Point3f(*origins.T), mi.Vector3f(*d.T), mi.Color3f(*p.T), count)
+    o, d, p = (columns(mi.Float, a) for a in (origins, d, p))
+    return Photons(mi.Point3f(*o), mi.Vector3f(*d), mi.Color3f(*p), count)
 
 
 def final_direction(result):
@@ -183,8 +185,8 @@ def rasterise(s, e, paper=True):
     deposit_segment(
         acc,
         n,
-        mi.Point3f(*s.T),
-        mi.Point3f(*e.T),
+        mi.Point3f(*columns(mi.Float, s)),
+        mi.Point3f(*columns(mi.Float, e)),
         one,
         dr.zeros(mi.Color3f, k),
         d0,

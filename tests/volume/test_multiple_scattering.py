@@ -38,7 +38,7 @@ import pytest
 from scipy.stats import qmc
 
 from photonmap import VolumePipeline
-from photonmap.core.arrays import aligned
+from photonmap.core.arrays import columns
 from photonmap.core.errors import ParameterError, PhotonmapError
 from photonmap.core.grid import GridBox
 from photonmap.core.image import block_means
@@ -111,7 +111,7 @@ def lambertian_photons(count: int, seed: int) -> Photons:
         o[m, axis] = np.where(inward > 0, 0.0, N)
         o[m, b], o[m, c] = s[m, 1] * N, s[m, 2] * N
         d[m, axis], d[m, b], d[m, c] = inward * local[m, 2], local[m, 0], local[m, 1]
-    o, d, power = ([aligned(c) for c in a.astype(np.float32)] for a in (o.T, d.T, np.ones((3, count))))
+    o, d, power = (columns(mi.Float, a) for a in (o, d, np.ones((count, 3))))
     return Photons(mi.Point3f(*o), mi.Vector3f(*d), mi.Color3f(*power), count)
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.special import erf
 
+from photonmap.core.arrays import columns
 from photonmap.core.grid import GridBox
 from photonmap.volume.view import ViewGrids, ViewSettings, isosurface_hit, render_view, schlick
 
@@ -179,7 +180,8 @@ def test_isosurface_bisection_and_normal():
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     x_old = 64 + d * (radius + 0.6)
     x_new = 64 + d * (radius - 0.4)
-    t, normal = isosurface_hit(g, mi.Point3f(*x_old.T), mi.Point3f(*x_new.T), iso)
+    old, new = (mi.Point3f(*columns(mi.Float, x)) for x in (x_old, x_new))
+    t, normal = isosurface_hit(g, old, new, iso)
     hit = x_old + np.array(t)[:, None] * (x_new - x_old)
     # the n = n_iso isosurface of the trilinearly sampled field, found by dense NumPy search
     assert np.all(np.abs(np.linalg.norm(hit - 64, axis=1) - radius) < 0.02)  # 0.012 measured

@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .arrays import aligned
+from .arrays import to_jit
 from .bsdf import instanced_shapes, rough_glass_flags
 from .sampling import rng
 
@@ -127,7 +127,7 @@ def aimed_emission(scene: mi.Scene, emitter: mi.UInt32, counts: np.ndarray, sphe
     si.wi = si.to_local(d)
     radiance = mi.Color3f(emitters.eval(si))
     cos_y = dr.maximum(dr.dot(ps.n, d), 0.0)
-    per = dr.gather(mi.Float, mi.Float(aligned(np.maximum(counts, 1).astype(np.float32))), emitter)
+    per = dr.gather(mi.Float, to_jit(mi.Float, np.maximum(counts, 1)), emitter)
     power = radiance * cos_y / dr.maximum(ps.pdf * pdf_dir * per, 1e-30)
     power = dr.select((ps.pdf > 0) & (pdf_dir > 0), power, 0.0)
     return si.spawn_ray(d), power

@@ -12,7 +12,9 @@ the width, so one compiled kernel serves every width.
 Dr.Jit also maps a NumPy array's memory without copying it (``mi.Float(array)``), and reads a
 buffer that is not aligned to its vector width (64 bytes: 16 float32 lanes) with unaligned loads:
 another kernel, with another hash, chosen by where ``malloc`` happened to put the array, so a
-warm kernel cache missed it on the next run. :func:`aligned` gives such arrays an aligned home.
+warm kernel cache missed it on the next run. A constructor that must cast (a float64 array into
+``mi.Float``) maps a fresh temporary, aligned or not. :func:`to_jit` casts first and gives the
+array an aligned home (:func:`aligned`).
 """
 
 from __future__ import annotations
@@ -24,11 +26,10 @@ import numpy as np
 ALIGNMENT = 64  # bytes: Dr.Jit's widest vector load (16 lanes of 4 bytes)
 
 
-def aligned(array) -> np.ndarray:
-    """``array`` as a C-contiguous NumPy array whose memory starts on a :data:`ALIGNMENT`-byte
-    boundary (itself when it already does): what a NumPy array handed to Dr.Jit
-    (``mi.Float(aligned(a))``) should be, so that its kernels do not depend on ``malloc``."""
-    array = np.ascontiguousarray(array)
+def aligned(array, dtype=None) -> np.ndarray:
+    """``array`` as a C-contiguous NumPy array of ``dtype`` (default: its own) whose memory starts
+    on a :data:`ALIGNMENT`-byte boundary (itself when it already does)."""
+    array = np.ascontiguousarray(array, dtype)
     if array.ctypes.data % ALIGNMENT == 0:
         return array
     buffer = np.empty(array.nbytes + ALIGNMENT, np.uint8)
@@ -36,6 +37,28 @@ def aligned(array) -> np.ndarray:
     out = buffer[start : start + array.nbytes].view(array.dtype).reshape(array.shape)
     out[...] = array
     return out
+
+
+DTYPES = {
+    dr.VarType.Float32: np.float32, dr.VarType.Float64: np.float64, dr.VarType.UInt32: np.uint32,
+    dr.VarType.Int32: np.int32, dr.VarType.UInt64: np.uint64, dr.VarType.Int64: np.int64,
+    dr.VarType.Bool: np.bool_,
+}  # fmt: skip
+
+
+def to_jit(kind, array):
+    """``kind(array)`` for a Dr.Jit type (``mi.Float``, ``mi.UInt32``, ``mi.TensorXf``, …): the
+    NumPy array cast to the type's element and :func:`aligned` first. Dr.Jit maps NumPy memory
+    into its kernels and writes the pointer's alignment into their code; an unaligned array, or a
+    cast inside the constructor (which maps a fresh temporary), would make the kernel — and
+    whether Dr.Jit's kernel cache serves it — depend on where ``malloc`` put the memory."""
+    return kind(aligned(array, DTYPES[dr.type_v(kind)]))
+
+
+def columns(kind, array) -> list:
+    """The columns of an ``(N, k)`` NumPy array as ``k`` arrays of the Dr.Jit type ``kind``
+    (:func:`to_jit`): ``mi.Point3f(*columns(mi.Float, points))``."""
+    return [to_jit(kind, column) for column in np.asarray(array).T]
 
 
 def concat(parts: list):

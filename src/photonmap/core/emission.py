@@ -29,7 +29,7 @@ import mitsuba as mi
 import numpy as np
 
 from .aim import aimable, aimed_emission, specular_spheres
-from .arrays import aligned
+from .arrays import to_jit
 from .errors import ParameterError, SceneError
 from .media import broadcast, emitter_media
 from .sampling import rng
@@ -130,14 +130,14 @@ def emit(
     aimed = aimed.astype(np.int64)
     plain = counts - aimed
     index = np.arange(len(counts), dtype=np.uint32)
-    emitter = mi.UInt32(aligned(np.concatenate([np.repeat(index, plain), np.repeat(index, aimed)])))
+    emitter = to_jit(mi.UInt32, np.concatenate([np.repeat(index, plain), np.repeat(index, aimed)]))
     n_plain, n_aimed = int(plain.sum()), int(aimed.sum())
     ray, weight = sample_rays(scene, emitter, seed)
-    per = dr.gather(mi.Float, mi.Float(aligned(np.maximum(plain, 1).astype(np.float32))), emitter)
+    per = dr.gather(mi.Float, to_jit(mi.Float, np.maximum(plain, 1)), emitter)
     power = weight / per
     is_aimed = dr.arange(mi.UInt32, paths) >= n_plain
     if n_aimed:
-        a_emitter = mi.UInt32(aligned(np.repeat(index, aimed)))
+        a_emitter = to_jit(mi.UInt32, np.repeat(index, aimed))
         a_ray, a_power = aimed_emission(scene, a_emitter, aimed, spheres, seed)
         lanes = dr.arange(mi.UInt32, n_plain, paths)
         dr.scatter(ray.o, a_ray.o, lanes)

@@ -50,7 +50,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .arrays import aligned
+from .arrays import to_jit
 
 TABLE_STEP = 1.0 / 512  # spacing of the tabulated filter, in pixels (integers lie on the grid)
 INVERSE_SIZE = 4096  # intervals of the inverse-CDF table
@@ -84,7 +84,7 @@ class FilterTable:
         """:attr:`inverse` as a Dr.Jit array (made once per variant)."""
         key = mi.variant()
         if key not in self._device:
-            self._device[key] = mi.Float(aligned(self.inverse.astype(np.float32)))
+            self._device[key] = to_jit(mi.Float, self.inverse)
         return self._device[key]
 
 
@@ -105,7 +105,7 @@ def filter_table(rfilter) -> FilterTable:
     r = float(rfilter.radius())
     n = max(2 * math.ceil(r / TABLE_STEP), 2)
     x = np.linspace(-r, r, n + 1)
-    w = np.array(rfilter.eval(mi.Float(aligned(x.astype(np.float32)))), dtype=np.float64)
+    w = np.array(rfilter.eval(to_jit(mi.Float, x)), dtype=np.float64)
     w[~np.isfinite(w)] = 0.0
     dx = np.diff(x)
     aw = np.abs(w)
@@ -163,10 +163,8 @@ def _axis_windows(table: FilterTable, n: int, border: bool) -> AxisWindows:
     span = abs_part / total
     weight = None
     if table.signed:
-        weight = mi.Float(
-            aligned((abs_part / np.where(part > 1e-12 * total, part, np.inf)).astype(np.float32))
-        )
-    start, span = (mi.Float(aligned(a.astype(np.float32))) for a in (start, span))
+        weight = to_jit(mi.Float, abs_part / np.where(part > 1e-12 * total, part, np.inf))
+    start, span = (to_jit(mi.Float, a) for a in (start, span))
     return AxisWindows(start, span, weight)
 
 
@@ -267,7 +265,7 @@ def pixel_kernel(rfilter, rule: str = "footprint") -> np.ndarray:
     n = int(rfilter.border_size())
     d = np.arange(-n, n + 1, dtype=np.float64)
     if rule == "centre":
-        return np.array(rfilter.eval(mi.Float(aligned(d.astype(np.float32)))), dtype=np.float64)
+        return np.array(rfilter.eval(to_jit(mi.Float, d)), dtype=np.float64)
     table = filter_table(rfilter)
     return table.integrals(d - 0.5, d + 0.5)[1]
 
@@ -288,7 +286,7 @@ def filter_image(image, film, rule: str = "footprint"):
     data = np.array(image, dtype=np.float64)
     out = _convolve(_convolve(data, kernel, 1), kernel, 0)
     if tensor:
-        return mi.TensorXf(aligned(out.astype(np.float32)))
+        return to_jit(mi.TensorXf, out)
     return out.astype(data.dtype, copy=False) if np.issubdtype(data.dtype, np.floating) else out
 
 

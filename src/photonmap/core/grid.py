@@ -26,7 +26,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .arrays import aligned
+from .arrays import to_jit
 from .errors import ParameterError
 
 
@@ -172,7 +172,7 @@ def to_tensor(values, n=None) -> mi.TensorXf:
     if isinstance(values, mi.TensorXf):
         t = values
     else:
-        t = mi.TensorXf(aligned(np.asarray(values, np.float32)))
+        t = to_jit(mi.TensorXf, np.asarray(values, np.float32))
     if len(t.shape) == 3:
         t = mi.TensorXf(t.array, (*t.shape, 1))
     if n is not None and tuple(t.shape[:3]) != grid_shape(n):

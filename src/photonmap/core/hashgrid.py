@@ -61,7 +61,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .arrays import aligned, to_numpy
+from .arrays import to_jit, to_numpy
 from .errors import ParameterError
 from .knn import (
     COS_NORMAL,
@@ -130,10 +130,10 @@ class HashGrid(PhotonSearch):
         cell = np.clip(cell, 0, dims - 1)
         slot = ((cell[:, 2] * dims[1] + cell[:, 1]) * dims[0] + cell[:, 0]) % self.table_size
         order = np.argsort(slot, kind="stable").astype(np.uint32)
-        self.order = mi.UInt32(aligned(order))
+        self.order = to_jit(mi.UInt32, order)
         self.record = pack_records(points.T[:, order], order)
         counts = np.bincount(slot, minlength=self.table_size)
-        self.cell_start = mi.UInt32(aligned(np.concatenate([[0], np.cumsum(counts)]).astype(np.uint32)))
+        self.cell_start = to_jit(mi.UInt32, np.concatenate([[0], np.cumsum(counts)]))
         self._build_slab_bounds(points, cell)
         # kernel inputs as opaque values (one compiled kernel for every grid)
         self._origin = dr.opaque(mi.Point3f, self.origin)
@@ -158,9 +158,9 @@ class HashGrid(PhotonSearch):
             np.maximum.at(hi, cell[:, a], points[:, a])
             beyond = np.minimum.accumulate(np.append(lo, np.inf)[::-1])[::-1]
             below = np.maximum.accumulate(np.insert(hi, 0, -np.inf))
-            self.slab_bounds.append(mi.Float(aligned(np.stack([lo, hi], axis=1).ravel())))
-            self.beyond_lo.append(mi.Float(aligned(beyond.astype(np.float32))))
-            self.below_hi.append(mi.Float(aligned(below.astype(np.float32))))
+            self.slab_bounds.append(to_jit(mi.Float, np.stack([lo, hi], axis=1).ravel()))
+            self.beyond_lo.append(to_jit(mi.Float, beyond))
+            self.below_hi.append(to_jit(mi.Float, below))
 
     # --- cell arithmetic (the same float32 operations at build and query time)
     def _cell(self, p: mi.Point3f) -> mi.Point3i:

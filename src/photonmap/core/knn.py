@@ -43,7 +43,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .arrays import aligned, to_numpy
+from .arrays import to_jit, to_numpy
 from .errors import ParameterError
 
 COS_NORMAL = math.cos(math.radians(30.0))
@@ -179,7 +179,7 @@ def pack_records(xyz: np.ndarray, w: np.ndarray | None = None) -> mi.Float:
     records[:, :3] = xyz.T
     if w is not None:
         records[:, 3] = np.asarray(w, np.uint32).view(np.float32)
-    return mi.Float(aligned(records.ravel()))
+    return to_jit(mi.Float, records.ravel())
 
 
 def read_record(records: mi.Float, i: mi.UInt32, active=True) -> tuple[mi.Point3f, mi.UInt32]:

@@ -13,7 +13,7 @@ import mitsuba as mi
 import numpy as np
 
 from . import interrupt
-from .arrays import aligned
+from .arrays import to_jit
 from .camera import footprint_radius
 from .errors import ParameterError, SceneError
 from .params import check_range
@@ -45,7 +45,7 @@ class Progressive:
                 "the render produced NaN or infinite values; check the scene's textures and "
                 "emitters for NaN"
             )
-        return mi.TensorXf(aligned(np.asarray(image, np.float32)))
+        return to_jit(mi.TensorXf, np.asarray(image, np.float32))
 
     def initial_radius(self) -> float:
         """``r_1``: the ``radius`` parameter, or :attr:`radius_pixels` footprints of a pixel at

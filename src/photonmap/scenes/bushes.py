@@ -13,6 +13,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.arrays import columns
 from .cornell import DEPTH, MM, WIDTH, ceiling_light, diffuse, empty_box
 
 LEAF = 12.0 * MM  # half edge of a leaf quad
@@ -52,7 +53,7 @@ def _bush(centre: np.ndarray, leaves: int, rng: np.random.Generator, name: str) 
     props["bsdf"] = mi.load_dict({"type": "twosided", "bsdf": diffuse(LEAF_GREEN)})
     mesh = mi.Mesh(name, len(vertices), len(faces), props)
     params = mi.traverse(mesh)
-    params["vertex_positions"] = dr.ravel(mi.Point3f(*vertices.T))
+    params["vertex_positions"] = dr.ravel(mi.Point3f(*columns(mi.Float, vertices)))
     params["faces"] = dr.ravel(mi.Vector3u(*faces.astype(np.uint32).T))
     params.update()
     return mesh

@@ -15,7 +15,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.bsdf import diffuse_albedo, intersect_visible, is_specular
 from ..core.camera import pixel_means, pixel_rays
 
@@ -134,7 +134,7 @@ def _light_edges(scene: mi.Scene, sensor: mi.Sensor, emission: mi.Color3f) -> mi
         (np.tile(sub % k, len(index)) + within[0]) / k,
         (np.tile(sub // k, len(index)) + within[1]) / k,
     )
-    ray, weight = pixel_rays(sensor, mi.UInt32(aligned(np.repeat(index, k * k))), jitter)
+    ray, weight = pixel_rays(sensor, to_jit(mi.UInt32, np.repeat(index, k * k)), jitter)
     si = intersect_visible(scene, ray)
     seen = dr.select(si.is_valid(), si.emitter(scene).eval(si), 0.0)
     Le = pixel_means(seen if box else seen * weight, k * k)

@@ -34,7 +34,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned, to_numpy
+from ..core.arrays import to_jit, to_numpy
 from ..core.errors import ParameterError
 from .gbuffer import GBuffer
 from .light_photons import ScreenPhotons
@@ -122,7 +122,7 @@ def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mod
     number = (c[:, 2] * dims[1] + c[:, 1]) * dims[0] + c[:, 0]
     order = np.argsort(number, kind="stable")
     counts = np.bincount(number, minlength=int(np.prod(dims)))
-    cell_start = mi.UInt32(aligned(np.concatenate([[0], np.cumsum(counts)]).astype(np.uint32)))
+    cell_start = to_jit(mi.UInt32, np.concatenate([[0], np.cumsum(counts)]))
     rec = np.zeros((len(order), 12), np.float32)  # (pos, r_p), (nrm, 0), (power, 0)
     rec[:, 0:3], rec[:, 3] = pos[order], r_p[order]
     rec[:, 4:7], rec[:, 8:11] = nrm[order], power[order]

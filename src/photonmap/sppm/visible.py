@@ -33,7 +33,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
 from ..core.eye_trace import Caustics, EyeRules, trace_eye_paths
@@ -189,4 +189,4 @@ def mirror_pixels(scene: mi.Scene, sensor: mi.Sensor) -> mi.UInt32:
     for dy in range(2 * grow + 1):  # a loop over the window's offsets, not over pixels
         for dx in range(2 * grow + 1):
             near |= padded[dy : dy + h, dx : dx + w]
-    return mi.UInt32(aligned(np.flatnonzero(near).astype(np.uint32)))
+    return to_jit(mi.UInt32, np.flatnonzero(near))

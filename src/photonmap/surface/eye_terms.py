@@ -10,7 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.camera import pixel_means, pixel_rays
 from ..core.eye_trace import EyeRules, trace_eye_paths
 from ..core.media import broadcast
@@ -41,7 +41,7 @@ def light_images(
     for dy in range(3):
         for dx in range(3):
             grown |= seen[dy : dy + h, dx : dx + w]
-    flagged = mi.UInt32(aligned(np.flatnonzero(grown).astype(np.uint32)))
+    flagged = to_jit(mi.UInt32, np.flatnonzero(grown))
     count = dr.width(flagged)
     if count == 0:
         return image

@@ -48,7 +48,7 @@ import mitsuba as mi
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.bsdf import intersect_visible
 from ..core.errors import ParameterError
 from ..core.hashgrid import HashGrid
@@ -257,11 +257,11 @@ def _greedy_records(i, j, eligible, order, cache) -> np.ndarray:
     runs = np.flatnonzero(np.diff(cache[order], prepend=-1, append=-1) != 0)
     start, length = runs[:-1], np.diff(runs)
     record = _greedy(
-        mi.UInt32(aligned(order.astype(np.uint32))),
-        mi.UInt32(aligned(start.astype(np.uint32))),
-        mi.UInt32(aligned(length.astype(np.uint32))),
+        to_jit(mi.UInt32, order),
+        to_jit(mi.UInt32, start),
+        to_jit(mi.UInt32, length),
         mi.UInt32(ptr),
-        mi.UInt32(aligned(np.append(j[by_lane], 0).astype(np.uint32))),  # never empty (Dr.Jit loops)
+        to_jit(mi.UInt32, np.append(j[by_lane], 0)),  # never empty (Dr.Jit loops)
         mi.Bool(eligible),
         n,
     )
@@ -310,16 +310,16 @@ def apply_cache(
     ``ρ/π · E``, an interpolating lane's ``ρ/π · Σ w_j E(x_j)`` (Eq 5.10). ``gathered``: the final
     gathers of ``plan.gather`` in that order (irradiance at records); ``rho``: ρ per lane."""
     result = dr.zeros(mi.Spectrum, count)
-    lanes = mi.UInt32(aligned(plan.gather.astype(np.uint32)))
+    lanes = to_jit(mi.UInt32, plan.gather)
     dr.scatter(result, gathered, lanes)
     E = dr.zeros(mi.Spectrum, count)  # at the records
     dr.scatter(E, gathered, lanes, mi.Bool(plan.record))
     dr.eval(E)
     interpolated = dr.zeros(mi.Spectrum, count)
     if len(plan.link_lane):
-        term = dr.gather(mi.Spectrum, E, mi.UInt32(aligned(plan.link_record.astype(np.uint32))))
-        weight = mi.Float(aligned(plan.link_weight.astype(np.float32)))
-        link_lane = mi.UInt32(aligned(plan.link_lane.astype(np.uint32)))
+        term = dr.gather(mi.Spectrum, E, to_jit(mi.UInt32, plan.link_record))
+        weight = to_jit(mi.Float, plan.link_weight)
+        link_lane = to_jit(mi.UInt32, plan.link_lane)
         dr.scatter_reduce(dr.ReduceOp.Add, interpolated, term * weight, link_lane)
     E += interpolated
     cached = np.zeros(count, bool)

@@ -50,7 +50,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned, to_numpy
+from ..core.arrays import to_jit, to_numpy
 from ..core.errors import ParameterError
 from ..core.knn import (
     COS_NORMAL,
@@ -136,7 +136,7 @@ class KDTree(PhotonSearch):
         if not np.all(np.isfinite(points)):
             raise ParameterError("photon positions must be finite")
         order, axis = left_balanced_order(points)
-        self.order = mi.UInt32(aligned(order))
+        self.order = to_jit(mi.UInt32, order)
         self.axis = mi.UInt32(axis)
         self.record = pack_records(points.T[:, order], order | (axis << 30))
         self._count = dr.opaque(mi.UInt32, count)
@@ -158,7 +158,7 @@ class KDTree(PhotonSearch):
         count = self._search(*args, trace=(None, None))[-1].numpy().astype(np.int64)
         offset = np.cumsum(count) - count
         buffer = dr.zeros(mi.UInt32, max(int(count.sum()), 1))
-        self._search(*args, trace=(buffer, mi.UInt32(aligned(offset.astype(np.uint32)))))
+        self._search(*args, trace=(buffer, to_jit(mi.UInt32, offset)))
         dr.eval(buffer)
         return count, buffer.numpy()[: count.sum()]
 

@@ -47,7 +47,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned, to_numpy
+from ..core.arrays import to_jit, to_numpy
 from ..core.bsdf import diffuse_albedo, has_glossy_shapes
 from ..core.camera import pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
@@ -258,7 +258,7 @@ class SurfacePipeline(Pipeline):
         plan, irradiance, at, ok = None, None, si, found
         if p.irradiance_cache != "none":
             plan = self.cache_plan(si, bsdf, found, size)
-            lanes = mi.UInt32(aligned(plan.gather.astype(np.uint32)))
+            lanes = to_jit(mi.UInt32, plan.gather)
             at, ok = dr.gather(type(si), si, lanes), dr.gather(mi.Bool, found, lanes)
             depth = dr.gather(mi.UInt32, depth, lanes)
             medium = None if medium is None else dr.gather(mi.MediumPtr, medium, lanes)

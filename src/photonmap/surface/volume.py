@@ -25,7 +25,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.direct import equiangular, inscattered_direct
 from ..core.media import Segments, channel, interaction, segment_transmittance, within_extent
 from ..core.sampling import rng
@@ -118,22 +118,22 @@ class MediumLight:
             base = ends[first - 1] if first else 0
             last = max(first + 1, int(np.searchsorted(ends, base + CHUNK, side="right")))
             run = np.arange(first, last)
-            seg = mi.UInt32(aligned(np.repeat(run, steps[run]).astype(np.uint32)))
+            seg = to_jit(mi.UInt32, np.repeat(run, steps[run]))
             k = np.arange(ends[last - 1] - base) - np.repeat(
                 ends[run] - steps[run] - base, steps[run]
             )
             self._march_run(
                 segments,
                 seg,
-                mi.Float(aligned(k.astype(np.float32))),
-                mi.Float(aligned(steps.astype(np.float32))),
+                to_jit(mi.Float, k),
+                to_jit(mi.Float, steps),
                 jitter,
                 centre,
                 L,
                 stream + 4 * first,
             )
             first = last
-        return mi.Spectrum(*(mi.Float(aligned(c.astype(np.float32))) for c in L))
+        return mi.Spectrum(*(to_jit(mi.Float, c) for c in L))
 
     def _march_run(self, segments, seg, k, steps, jitter, centre, L, stream: int) -> None:
         """:meth:`march` at the points ``k`` (0 … N−1) of the segments ``seg``, added to ``L``

@@ -29,7 +29,7 @@ import mitsuba as mi
 import numpy as np
 
 from ..core import sampling
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.errors import ParameterError
 from ..core.grid import GridBox
 from .emit import Photons, emit_at
@@ -103,14 +103,14 @@ class PlaneSampler:
         cx1 = dr.gather(mi.Float, self.col_cdf, row + i + 1)
         fy = dr.clip((u2 - cy0) / dr.maximum(cy1 - cy0, 1e-30), 0.0, 1.0 - 1e-6)
         fx = dr.clip((u1 - cx0) / dr.maximum(cx1 - cx0, 1e-30), 0.0, 1.0 - 1e-6)
-        cell = mi.Float(aligned(self.pdf.ravel().astype(np.float32)))
+        cell = to_jit(mi.Float, self.pdf.ravel())
         density = dr.gather(mi.Float, cell, j * w + i) * (w * h)
         x, y = (mi.Float(i) + fx) / w, (mi.Float(j) + fy) / h
         if not filtered:
             return x, y, density
         if self.filter_pdf is None:
             return x, y, density, density
-        other = mi.Float(aligned(self.filter_pdf.ravel().astype(np.float32)))
+        other = to_jit(mi.Float, self.filter_pdf.ravel())
         return x, y, density, dr.gather(mi.Float, other, j * w + i) * (w * h)
 
 

@@ -71,7 +71,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.checkpoint import Checkpoint
 from ..core.errors import ParameterError
 
@@ -193,7 +193,7 @@ class DifferentiableVolumeCaustic:
         if isinstance(value, int | float) and not isinstance(value, bool):
             if not scalar_ok:
                 raise ParameterError(f"{name} must be a grid of shape ({r}, {r}, {r})")
-            value = self.Float(value)
+            value = dr.opaque(self.Float, value)  # a literal would make a kernel per value
         if dr.is_tensor_v(value):
             shape = tuple(value.shape)
             if shape != (r, r, r):
@@ -205,7 +205,7 @@ class DifferentiableVolumeCaustic:
         elif isinstance(value, np.ndarray):
             if value.shape != (r, r, r):
                 raise ParameterError(f"{name} has shape {value.shape}; it must be ({r}, {r}, {r})")
-            kind, flat = "grid", self.Float(aligned(np.asarray(value, np.float64).ravel()))
+            kind, flat = "grid", to_jit(self.Float, np.asarray(value, np.float64).ravel())
         elif dr.is_array_v(value) and dr.depth_v(value) == 1 and dr.width(value) == 1:
             if not scalar_ok:
                 raise ParameterError(f"{name} must be a grid of shape ({r}, {r}, {r})")
@@ -295,9 +295,9 @@ class DifferentiableVolumeCaustic:
         return dr.sqrt(dr.square(b[0] - a[0]) + dr.square(b[1] - a[1]) + dr.square(b[2] - a[2]))
 
     def _start(self, origins, directions, n_grids):
-        x = tuple(self.Float(aligned(origins[:, k])) for k in range(3))
+        x = tuple(to_jit(self.Float, origins[:, k]) for k in range(3))
         n0 = self._sample(self._corners(x), n_grids[:1])[0]
-        v = tuple(n0 * self.Float(aligned(directions[:, k])) for k in range(3))
+        v = tuple(n0 * to_jit(self.Float, directions[:, k]) for k in range(3))
         return x, v
 
     def _inputs(self, n, sigma_s, sigma_a):
@@ -380,8 +380,8 @@ class DifferentiableVolumeCaustic:
         if self.curved_view:
             x, v = self._start(origins, directions, n_grids)
         else:
-            x = tuple(self.Float(aligned(origins[:, k])) for k in range(3))
-            v = tuple(self.Float(aligned(directions[:, k])) for k in range(3))
+            x = tuple(to_jit(self.Float, origins[:, k]) for k in range(3))
+            v = tuple(to_jit(self.Float, directions[:, k]) for k in range(3))
         count = len(origins)
         state = (x, v, dr.full(self.Float, 1.0, count), dr.zeros(self.Float, count))
         params = (n_grids, fluence, sigma_s, kappa)
@@ -446,7 +446,7 @@ class DifferentiableVolumeCaustic:
                     f"tangent for {name!r} must be finite with shape {shape}, "
                     f"got shape {tangent.shape}"
                 )
-            grad = self.Float(aligned(tangent.ravel())) if shape else self.Float(float(tangent))
+            grad = to_jit(self.Float, tangent.ravel()) if shape else dr.opaque(self.Float, float(tangent))
             dr.set_grad(p, self.Tensor(grad, shape=shape) if shape else grad)
         value = loss(self.render(**params))
         dr.forward_to(value)

@@ -37,7 +37,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned
+from ..core.arrays import to_jit
 from ..core.errors import ParameterError
 from ..core.grid import GridBox, filter_separable, gaussian_taps, grid_shape, voxel_count, voxel_of
 from ..core.noise import perlin3
@@ -183,9 +183,9 @@ def from_arrays(grids: dict, box: GridBox) -> MaterialGrids:
         rgb[name] = values
     _check_material(ior, rgb["sigma_s"], rgb["kappa"], "the volume grids")
     return MaterialGrids(
-        mi.TensorXf(aligned(ior[..., None].astype(np.float32))),
-        mi.TensorXf(aligned((rgb["sigma_s"] * box.h).astype(np.float32))),
-        mi.TensorXf(aligned((rgb["kappa"] * box.h).astype(np.float32))),
+        to_jit(mi.TensorXf, ior[..., None]),
+        to_jit(mi.TensorXf, (rgb["sigma_s"] * box.h)),
+        to_jit(mi.TensorXf, (rgb["kappa"] * box.h)),
     )
 
 

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import mitsuba as mi
 import numpy as np
 
-from ..core.arrays import aligned
+from ..core.arrays import columns
 from ..core.errors import SceneError
 from .medium_grid import coefficients_at
 from .surfaces import digest
@@ -78,7 +78,7 @@ def read_medium(medium, what: str, bbox) -> Medium:
     side = 8 if heterogeneous else 1
     u = np.stack(np.meshgrid(*[np.arange(side)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5
     points = lo + (hi - lo) * u / side
-    sigma_s, sigma_t = coefficients_at(medium, mi.Point3f(*(aligned(c) for c in points.T.astype(np.float32))))
+    sigma_s, sigma_t = coefficients_at(medium, mi.Point3f(*columns(mi.Float, points)))
     sigma_s = np.asarray(sigma_s, dtype=np.float64).reshape(-1, 3).mean(0)
     sigma_t = np.asarray(sigma_t, dtype=np.float64).reshape(-1, 3).mean(0)
     if not (np.all(np.isfinite(sigma_t)) and np.all(np.isfinite(sigma_s))):
