@@ -6,6 +6,8 @@ light several of them use."""
 import mitsuba as mi
 import numpy as np
 
+from photonmap.core.arrays import to_jit
+
 T = mi.ScalarTransform4f
 W, H = 48, 36
 FOG = {"type": "ref", "id": "fog"}
@@ -58,7 +60,7 @@ def heterogeneous_fog() -> dict:
         "albedo": 0.8,
         "sigma_t": {
             "type": "gridvolume",
-            "data": mi.TensorXf(grid.astype(np.float32)),
+            "data": to_jit(mi.TensorXf, grid),
             "to_world": T().translate([-1.5, -1, -1]).scale([3, 2, 2]),
         },
     }

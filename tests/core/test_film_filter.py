@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from filter_oracle import RADIUS, camera, expected_image, filter_1d, scene_dict
+from photonmap.core.arrays import to_jit
 from photonmap.core.camera import pixel_means, pixel_rays
 from photonmap.core.film_filter import filter_image, pixel_kernel, sample_offsets, splat_means
 from photonmap.core.sampling import rotated_hammersley
@@ -23,7 +24,7 @@ CUT = ((26, 6), (12, 12))  # a bright line 0.0–0.8 px outside the crop's left 
 @pytest.mark.parametrize("kind", FILTERS + ("box",))
 def test_the_oracle_filters_are_mitsubas(kind):
     x = np.linspace(-RADIUS[kind] - 0.5, RADIUS[kind] + 0.5, 1001)
-    mitsuba = np.array(mi.load_dict({"type": kind}).eval(mi.Float(x.astype(np.float32))))
+    mitsuba = np.array(mi.load_dict({"type": kind}).eval(to_jit(mi.Float, x)))
     inside = np.abs(np.abs(x) - 0.5) > 1e-3 if kind == "box" else slice(None)  # box: its edge
     atol = 5e-4 if kind == "gaussian" else 2e-6  # Mitsuba's gaussian uses a fast exp
     np.testing.assert_allclose(mitsuba[inside], filter_1d(kind, x)[inside], atol=atol)
@@ -199,7 +200,7 @@ def test_filter_image_is_the_filter_over_each_pixel_cut_at_the_edges(kind):
                         total, norm = total + k * image[y + dy, x + dx], norm + k
             expected[y, x] = total / norm
     np.testing.assert_allclose(filter_image(image, film), expected, atol=2e-4)
-    tensor = filter_image(mi.TensorXf(image.astype(np.float32)), film)
+    tensor = filter_image(to_jit(mi.TensorXf, image), film)
     assert isinstance(tensor, mi.TensorXf)
     np.testing.assert_allclose(np.array(tensor), expected, atol=3e-4)
     box = mi.load_dict(camera(13, 9, "box")).film()

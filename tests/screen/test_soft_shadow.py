@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from photonmap import ParameterError
+from photonmap.core.arrays import to_jit
 from photonmap.screen.gbuffer import GBuffer
 from photonmap.screen.soft_shadow import _boundary_pixels, lattice, soft_visibility
 
@@ -21,7 +22,7 @@ def make_gbuffer(W, H, f_px, depth, valid=None) -> GBuffer:
     nrm = np.tile([[0.0], [0.0], [-1.0]], (1, W * H))
     return GBuffer(
         W, H, mi.Point3f(pos.astype(np.float32)), mi.Normal3f(nrm.astype(np.float32)),
-        mi.Float(z.astype(np.float32)), mi.Color3f(np.full((3, W * H), 0.5, np.float32)),
+        to_jit(mi.Float, z), mi.Color3f(np.full((3, W * H), 0.5, np.float32)),
         mi.Bool(valid), mi.ScalarPoint3f(0, 0, 0), mi.ScalarVector3f(0, 0, 1), float(f_px),
     )  # fmt: skip
 
@@ -135,7 +136,7 @@ def test_matches_numpy_reference_on_a_blob_shadow():
     hard = np.where(blob & valid, 0.0, 1.0).ravel()
     d = np.where(hard == 0, 0.4 + 0.005 * xx.ravel(), 0)
     D = np.full(W * H, 1.5)
-    args = [mi.Float(a.astype(np.float32)) for a in (hard, d, D)]
+    args = [to_jit(mi.Float, a) for a in (hard, d, D)]
     V = soft_visibility(gb, *args, radius=0.3, scene_diag=8.0, samples=(3, 4))
     ref = reference(gb, *args, L=0.3, diag=8.0, samples=(3, 4), sigma=0.05**2)
     assert np.count_nonzero((ref > 0) & (ref < 1)) > 300

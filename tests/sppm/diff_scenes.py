@@ -10,6 +10,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from photonmap.core.arrays import to_jit
 from photonmap.sppm.differentiable import DifferentiablePhotonMapper
 
 T = mi.ScalarTransform4f
@@ -88,7 +89,7 @@ def receiver_weight(rows_from: int) -> mi.TensorXf:
     """A smooth weight over the receiver's pixels (rows ≥ ``rows_from``), zero elsewhere."""
     y, x = np.mgrid[0:SIZE, 0:SIZE]
     w = np.exp(-((x - SIZE / 2) ** 2 + (y - 0.7 * SIZE) ** 2) / (0.1 * SIZE**2)) * (y >= rows_from)
-    return mi.TensorXf(np.repeat(w[..., None], 3, axis=2).astype(np.float32))
+    return to_jit(mi.TensorXf, np.repeat(w[..., None], 3, axis=2))
 
 
 def weighted_sum(scene, weight, seed: int, photons: int = PHOTONS) -> mi.Float:

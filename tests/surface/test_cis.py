@@ -9,6 +9,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+from photonmap.core.arrays import to_jit
 from photonmap.core.camera import pixel_rays
 from photonmap.core.errors import ParameterError
 from photonmap.scenes import cornell
@@ -36,7 +37,7 @@ def g(x):
 def teaching_cdf(cells=CELLS):
     """p = 0.5 on [0, 0.5), 1.5 on [0.5, 1] as a one-query table of ``cells`` equal bins."""
     p = np.where((np.arange(cells) + 0.5) / cells < 0.5, 0.5, 1.5) / cells
-    return cdf_of(mi.Float(p.astype(np.float32)))
+    return cdf_of(to_jit(mi.Float, p))
 
 
 def test_teaching_example_numbers():
@@ -56,7 +57,7 @@ def test_teaching_example_by_the_table_sampler():
     n = 1 << 18
     cdf = teaching_cdf()
     zeta = (np.arange(n) + 0.5) / n  # stratified: the estimates below are near exact
-    cell, s, p_cell = sample_cell(cdf, dr.zeros(mi.UInt32, n), mi.Float(zeta.astype(np.float32)))
+    cell, s, p_cell = sample_cell(cdf, dr.zeros(mi.UInt32, n), to_jit(mi.Float, zeta))
     x = (cell.numpy() + s.numpy()) / CELLS
     pdf = CELLS * p_cell.numpy()
     assert np.allclose(pdf, np.where(x < 0.5, 0.5, 1.5), rtol=1e-5)
@@ -70,8 +71,8 @@ def test_teaching_example_by_the_table_sampler():
 def test_cells_round_trip_and_cover_equal_projected_solid_angle():
     rng = np.random.default_rng(1)
     n = 4096
-    cell = mi.UInt32(rng.integers(0, CELLS, n).astype(np.uint32))
-    s, t = (mi.Float(rng.random(n).astype(np.float32)) for _ in range(2))
+    cell = to_jit(mi.UInt32, rng.integers(0, CELLS, n))
+    s, t = (to_jit(mi.Float, rng.random(n)) for _ in range(2))
     d = cell_direction(cell, s, t)
     assert np.allclose(dr.norm(d).numpy(), 1, atol=1e-5)
     assert np.array_equal(cell_of(d).numpy(), cell.numpy())
@@ -88,7 +89,7 @@ def test_donation_and_normalisation_follow_alg_6_1():
     rng = np.random.default_rng(2)
     table = rng.random((3, CELLS)) * (rng.random((3, CELLS)) < 0.5)
     table[2] = 0  # no photon at all: uniform
-    pdf = normalised(mi.Float(table.ravel().astype(np.float32))).numpy().reshape(3, CELLS)
+    pdf = normalised(to_jit(mi.Float, table.ravel())).numpy().reshape(3, CELLS)
     for row, expected in zip(table[:2], pdf[:2], strict=True):
         donation = 0.05 * row.sum() / CELLS
         filled = np.where(row > 0, row, donation)
@@ -105,7 +106,7 @@ def test_sampled_directions_follow_the_table_pdf():
     rng = np.random.default_rng(3)
     p = rng.random(CELLS) + 0.1
     p /= p.sum()
-    cdf = cdf_of(mi.Float(p.astype(np.float32)))
+    cdf = cdf_of(to_jit(mi.Float, p))
     n = 1 << 17
     u = mi.Point2f(*rng.random((2, n)).astype(np.float32))
     wo, pdf = sample_table(cdf, dr.zeros(mi.UInt32, n), u)

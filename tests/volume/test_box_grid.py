@@ -17,6 +17,7 @@ import pytest
 from scipy.ndimage import map_coordinates
 
 from photonmap import VolumePipeline
+from photonmap.core.arrays import to_jit
 from photonmap.core.errors import ParameterError
 from photonmap.core.grid import GridBox, flat_index, pack, trilinear_packed, voxel_of
 from photonmap.core.image import block_means
@@ -169,7 +170,7 @@ def test_octree_of_a_box_grid_is_that_of_its_padded_cube():
     cube = np.pad(ior, [(0, 32 - s) for s in shape], mode="edge")
 
     def tensor(a):
-        return mi.TensorXf(a.astype(np.float32))
+        return to_jit(mi.TensorXf, a)
 
     box, padded = build_octree(tensor(ior)), build_octree(tensor(cube))
     for a, b in ((box.level, padded.level), (box.step_limit, padded.step_limit)):

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import photonmap  # noqa: F401  (selects the Mitsuba variant)
+from photonmap.core.arrays import to_jit
 from photonmap.core.errors import ParameterError
 from photonmap.core.grid import GridBox
 from photonmap.core.noise import perlin3, permutation
@@ -217,7 +218,7 @@ def test_gradient_of_linear_field_is_exact():
     """Oracle 10, including the one-sided faces; channel order (∂x, ∂y, ∂z)."""
     z, y, x = np.meshgrid(*[np.arange(N, dtype=np.float64)] * 3, indexing="ij")
     ior = 1.2 + 0.01 * x - 0.003 * y + 0.0005 * z
-    g = gradient(mi.TensorXf(ior[..., None].astype(np.float32))).numpy()
+    g = gradient(to_jit(mi.TensorXf, ior[..., None])).numpy()
     assert g.shape == (N, N, N, 3)
     np.testing.assert_allclose(g, np.broadcast_to([0.01, -0.003, 0.0005], g.shape), atol=2e-6)
 
