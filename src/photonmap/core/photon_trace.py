@@ -299,7 +299,9 @@ def _loop(scene, state, slots, rules: PhotonRules):
     rec, vrec, stored, vstored = slots
     # frozen dataclasses stay out of loops: their values as locals
     media, null_shapes = rules.traits.media, rules.traits.null_shapes
-    caustics_only, roulette, redirect = rules.caustics_only, rules.roulette, rules.redirect
+    roulette, redirect = rules.roulette, rules.redirect
+    # a value, not code: the global and the caustic map's passes run one kernel
+    all_records = ~dr.opaque(mi.Bool, rules.caustics_only)
     rough_glass = rules.rough_glass
     lanes = state.count
     limit = dr.opaque(mi.UInt32, rules.limit)
@@ -324,9 +326,7 @@ def _loop(scene, state, slots, rules: PhotonRules):
         # ---- a medium collision: a volume photon
         state.depth[in_medium] += 1
         if dr.hint(media, mode="scalar"):
-            vstore = in_medium & (state.depth <= limit)
-            if dr.hint(caustics_only, mode="scalar"):
-                vstore &= caustic
+            vstore = in_medium & (state.depth <= limit) & (caustic | all_records)
             values = (mei.p, state.ray.d, state.power, state.depth, caustic)
             for name, value in zip(VOLUME_FIELDS, values, strict=True):
                 dr.scatter(vrec[name], value, slot, vstore)
@@ -337,9 +337,7 @@ def _loop(scene, state, slots, rules: PhotonRules):
         if dr.hint(rough_glass, mode="scalar"):
             followed = is_rough_glass(bsdf, on_surface)
         store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & ~followed
-        store &= state.depth + 1 <= limit
-        if dr.hint(caustics_only, mode="scalar"):
-            store &= caustic
+        store &= (state.depth + 1 <= limit) & (caustic | all_records)
         values = (si.p, state.power, state.ray.d, mi.Vector3f(si.sh_frame.n), state.depth + 1,
                   caustic, state.path, state.delta, state.glossy)  # fmt: skip
         for name, value in zip(SURFACE_FIELDS, values, strict=True):
@@ -348,9 +346,7 @@ def _loop(scene, state, slots, rules: PhotonRules):
 
         where = (on_surface, in_medium, followed)
         bounced = _scatter(state, (si, bsdf, mei), where, redirect, media)
-        active = in_medium | on_surface
-        if dr.hint(caustics_only, mode="scalar"):
-            active &= ~state.smooth
+        active = (in_medium | on_surface) & (~state.smooth | all_records)
         if dr.hint(roulette, mode="scalar"):
             survival = _survival(state, in_medium, albedo, media)
             rolled = in_medium | (bounced & (state.depth >= rr_depth))
