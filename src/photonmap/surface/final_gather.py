@@ -14,10 +14,10 @@ light and caustics at x are computed separately). ``L(y_i → x)`` comes from ir
 at photon positions (default) or from an exact k-NN radiance estimate at y_i (the dissertation's
 naive algorithm, ``lookup="knn"``).
 
-With the precomputed irradiance the whole batch — BSDF sampling, the eye-path loop and the
-nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is one fused kernel; no
-interaction at y is materialised in memory. A k-NN lookup runs its own kernels over the evaluated
-hits (``fused=False``).
+With the precomputed irradiance the eye-path loop and the nearest-point lookup
+(:meth:`photonmap.core.hashgrid.HashGrid.nearest`) are one fused kernel after the one that samples
+the batch's directions; no interaction at y is materialised in memory. A k-NN lookup runs its own
+kernels over the evaluated hits (``fused=False``).
 
 The rays are issued in explicit batches of photon-map queries — as many final-gather rays of every
 query point at a time as fit in ``BATCH_RAYS`` (2²¹) rays per batch — the unit that gather
@@ -28,6 +28,9 @@ bit-identical in every order (tested).
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import drjit as dr
 import mitsuba as mi
@@ -46,31 +49,61 @@ FG_STREAM = 1 << 16  # RNG streams of the final-gather batches start here
 BATCH_RAYS = 1 << 21  # final-gather rays traced per batch
 
 
+@dataclass
+class GatherPoints:
+    """The points x gathered at: the eye-ray hits ``si`` where ``active``, the eye path's
+    segments to each (``depth``), the medium there (None in vacuum) and where the irradiance
+    cache wants irradiance rather than radiance (``irradiance``, None without it)."""
+
+    si: mi.SurfaceInteraction3f
+    active: mi.Bool
+    depth: mi.UInt32
+    medium: mi.MediumPtr | None = None
+    irradiance: mi.Bool | None = None
+
+
+@dataclass(frozen=True)
+class GatherRays:
+    """How the rays leave x: ``rays`` per point, random numbers from ``seed``, directions by
+    ``sampling`` (``table``: the per-point tabular pdf of ``"jensen"``/``"cis"``), followed by the
+    path ``settings`` in a scene of ``traits``."""
+
+    rays: int
+    seed: int
+    settings: PathSettings
+    traits: SceneTraits
+    sampling: str = "bsdf"
+    table: mi.Float | None = None
+
+
+@dataclass(frozen=True)
+class GatherReading:
+    """How a ray's end y is read: ``lookup(si_y, bsdf_y, active)`` returns the radiance leaving
+    y towards x (lazily if ``fused``); ``layout`` (k-NN lookups, ``fused=False``) issues each
+    batch's gathers in ``layout.order``; ``medium_light`` is the light at a collision in a
+    medium (:mod:`.volume`)."""
+
+    lookup: Callable
+    fused: bool = True
+    layout: RequestLayout | None = None
+    medium_light: MediumLight | None = None
+
+
 def final_gather(
-    scene: mi.Scene,
-    si: mi.SurfaceInteraction3f,
-    active: mi.Bool,
-    lookup,
-    rays: int,
-    seed: int,
-    settings: PathSettings,
-    traits: SceneTraits,
-    depth: mi.UInt32,
-    sampling: str = "bsdf",
-    fused: bool = True,
-    medium: mi.MediumPtr | None = None,
-    medium_light: MediumLight | None = None,
-    layout: RequestLayout | None = None,
-    table: mi.Float | None = None,
-    irradiance: mi.Bool | None = None,
+    scene: mi.Scene, points: GatherPoints, cast: GatherRays, reading: GatherReading
 ) -> mi.Spectrum:
-    """Average of ``rays`` final-gather estimates at each ``si`` (``depth``: the eye path's
-    segments to it); ``lookup(si_y, bsdf_y, active)`` returns the radiance leaving y towards x
-    (lazily if ``fused``). The rays are followed by the transport core's eye-path loop
+    """Average of ``cast.rays`` final-gather estimates at each of the ``points``. The rays are
+    followed by the transport core's eye-path loop
     (:func:`~photonmap.core.eye_trace.trace_eye_paths`: mirrors, glass, ``null`` boundaries,
-    media). In a scene with participating media (``medium``: the medium at each ``si``) a ray
-    that collides in a medium reads the light there (``medium_light``, :mod:`.volume`).
-    ``layout`` (k-NN lookups, ``fused=False``): issue each batch's gathers in ``layout.order``."""
+    media); in a scene with participating media a ray that collides in a medium reads the light
+    there (``reading.medium_light``)."""
+    si, active, depth, medium, irradiance = (
+        points.si, points.active, points.depth, points.medium, points.irradiance,
+    )  # fmt: skip
+    rays, seed, settings, traits = cast.rays, cast.seed, cast.settings, cast.traits
+    lookup, fused, layout, medium_light = (
+        reading.lookup, reading.fused, reading.layout, reading.medium_light,
+    )  # fmt: skip
     count = dr.width(active)
     per_batch = max(1, min(rays, BATCH_RAYS // max(count, 1)))
     total = dr.zeros(mi.Spectrum, count)
@@ -86,7 +119,8 @@ def final_gather(
         gen = rng(count * m, seed, FG_STREAM + first)
         i = first + dr.arange(mi.UInt32, count * m) % m
         u = rotated_hammersley(rays, i, dr.gather(mi.Point2f, shift, query))
-        wo, pdf, weight, ok = _sample_direction(sampling, x, bsdf, gen, u, ok, table, query)
+        wo, pdf, weight, ok = _sample_direction(cast.sampling, x, bsdf, gen, u, ok, cast.table,
+                                                query)  # fmt: skip
         if irradiance is not None:
             cos_pdf = mi.Spectrum(dr.maximum(wo.z, 0.0) / dr.maximum(pdf, 1e-12))
             weight = dr.select(dr.gather(mi.Bool, irradiance, query), cos_pdf, weight)

@@ -65,7 +65,7 @@ from ..core.volume_map import ScatteredDensity, VolumeMap
 from . import memory
 from .cis import TABLE_SAMPLING, sampling_table
 from .eye_terms import caustic_radiance, light_images
-from .final_gather import final_gather
+from .final_gather import GatherPoints, GatherRays, GatherReading, final_gather
 from .gather import radiance_estimate
 from .gather_batch import OrderParams, RequestLayout
 from .irradiance import lookup_radiance, precompute_irradiance, with_glossy_estimates
@@ -269,23 +269,12 @@ class SurfacePipeline(Pipeline):
             table = sampling_table(p.fg_sampling, pmap, at, ok, p.k, self.radii()[1])
         L = dr.zeros(mi.Spectrum, 0)
         if dr.width(ok):
+            layout = self.request_layout(*size, bounces, None if plan is None else plan.gather)
             L = final_gather(
                 self.scene,
-                at,
-                ok,
-                lookup,
-                p.fg_rays,
-                p.seed,
-                self.settings,
-                self.traits,
-                depth,
-                p.fg_sampling,
-                fused=p.lookup == "irradiance",
-                medium=medium,
-                medium_light=medium_light,
-                table=table,
-                irradiance=irradiance,
-                layout=self.request_layout(*size, bounces, None if plan is None else plan.gather),
+                GatherPoints(at, ok, depth, medium, irradiance),
+                GatherRays(p.fg_rays, p.seed, self.settings, self.traits, p.fg_sampling, table),
+                GatherReading(lookup, p.lookup == "irradiance", layout, medium_light),
             )
         if plan is None:
             return L
