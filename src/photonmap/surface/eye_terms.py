@@ -19,18 +19,20 @@ from .gather import radiance_estimate
 
 
 def light_images(
-    scene, sensor, emitted: mi.Spectrum, specular: mi.Bool, w: int, h: int, p, settings, traits
+    scene, sensor, emitted: mi.Spectrum, specular: mi.Bool, size: tuple, p, settings, traits
 ) -> mi.Spectrum:
-    """Per pixel, the emitted radiance seen directly or through mirrors and glass: the mean of the
-    eye samples' ``emitted``, except in the pixels where a sample saw a light or followed a
-    mirror or glass (``specular``), and their neighbours: there it is the mean of
-    ``p.emitter_spp`` new samples of this term alone (a selection by the samples themselves, as
-    in adaptive sampling: a slight bias at a light's edge, within the noise it removes). Those
+    """Per pixel of the ``size = (w, h)`` image, the emitted radiance seen directly or through
+    mirrors and glass: the mean of the eye samples' ``emitted``, except in the pixels where a
+    sample saw a light or followed a mirror or glass (``specular``), and their neighbours: there
+    it is the mean of ``p.emitter_spp`` new samples of this term alone (a selection by the
+    samples themselves, as in adaptive sampling: a slight bias at a light's edge, within the
+    noise it removes). Those
     pixels hold the lights and their specular images — bright, small, and the one place where
     the eye samples alone leave visible noise. Flagging every pixel that sees glass, not only
     those whose sample happened to meet a light, keeps the glints of a glass stack (one of
     many reflections at one of many interfaces: few eye samples find them). The extra samples
     only follow mirrors, glass and the media's transmittance, so they are cheap."""
+    w, h = size
     image = pixel_means(emitted, p.spp)
     if p.emitter_spp == 0:
         return image

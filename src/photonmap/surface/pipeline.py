@@ -374,7 +374,7 @@ class SurfacePipeline(Pipeline):
         L = run("final gather", lambda: _added(L, lambda: beta * final_gather_pass()))
         image = pixel_means(L, p.spp)
         image += run("light images", lambda: light_images(
-            self.scene, self.sensor, eye.radiance, bounces > 0, w, h, p, self.settings,
+            self.scene, self.sensor, eye.radiance, bounces > 0, (w, h), p, self.settings,
             self.traits,
         ))  # fmt: skip
         image = mi.TensorXf(dr.ravel(image), (h, w, 3))
