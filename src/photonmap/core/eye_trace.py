@@ -184,10 +184,6 @@ def trace_eye_paths(
         ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), start_depth,
         active & dr.full(mi.Bool, True, n),
     )  # fmt: skip
-    # the paths' start and random state in memory: with the caller's code fused into it (camera
-    # rays, final-gather directions, a seeding, a literal depth) the loop compiled a kernel of
-    # its own for each caller
-    dr.make_opaque(walk.ray, walk.beta, walk.medium, walk.depth, walk.active, gen)
     vertex_rules = _Rules(
         media=traits.media,
         media_mode=rules.media_mode if traits.media else "transmit",  # vacuum: no collisions
@@ -298,14 +294,12 @@ def _follow(scene, walk: _Walk, gen, rules: _Rules, caustics: Caustics, pieces):
     lane = dr.arange(mi.UInt32, n)
     stride = dr.opaque(mi.UInt32, n)  # not a literal: one kernel for every size
     record = (buffers, stored, lane, stride)
-    # a value, not code: the eye pass and the final gather (emission left out) run one kernel
-    camera_sees_emitters = dr.opaque(mi.Bool, rules.emission)
     while dr.hint(walk.active & (walk.events < MAX_EVENTS), exclude=[rules]):
         si, mei, scattered = _fly(scene, walk, gen, ch, max_depth, rules, null_shapes, record)
         surface = walk.active & ~scattered & si.is_valid()
         escaped = walk.active & ~scattered & ~si.is_valid()
         arrived = walk.depth + 1  # segments to this vertex
-        emitter = _emission_met(scene, walk, si, (scattered, arrived, camera_sees_emitters), rules)
+        emitter = _emission_met(scene, walk, si, scattered, arrived, rules)
         walk.active &= ~escaped
         _medium_vertex(walk, mei, scattered, arrived, max_depth, gen, rules, medium_light)
         bounced = _surface_vertex(
@@ -370,18 +364,16 @@ def _fly(scene, walk: _Walk, gen, ch, max_depth, rules: _Rules, null_shapes, rec
     return si, mei, scattered
 
 
-def _emission_met(scene, walk: _Walk, si, where, rules: _Rules):
+def _emission_met(scene, walk: _Walk, si, scattered, arrived, rules: _Rules):
     """Add ``β L_e`` of an emitter's surface or the environment met where it counts (module
-    docstring); returns the emitter met. ``where``: whether the path scattered in a medium, its
-    segments so far, and whether emitters count on the first segment (``rules.emission`` as an
-    opaque value)."""
-    scattered, arrived, camera_sees_emitters = where
+    docstring); returns the emitter met."""
     active = walk.active & ~scattered
     emitter = si.emitter(scene, active)
     shown = active & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
     if rules.hide:
         shown &= arrived > 1
-    shown &= (walk.origin != FROM_CAMERA) | camera_sees_emitters
+    if not rules.emission:
+        shown &= walk.origin != FROM_CAMERA
     shown &= walk.origin != FROM_MEDIUM  # the pieces' direct in-scattering holds that light
     if rules.photons_carry:
         shown &= walk.origin != THROUGH_DELTA

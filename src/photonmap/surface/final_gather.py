@@ -14,10 +14,10 @@ light and caustics at x are computed separately). ``L(y_i → x)`` comes from ir
 at photon positions (default) or from an exact k-NN radiance estimate at y_i (the dissertation's
 naive algorithm, ``lookup="knn"``).
 
-With the precomputed irradiance the eye-path loop and the nearest-point lookup
-(:meth:`photonmap.core.hashgrid.HashGrid.nearest`) are one fused kernel after the one that samples
-the batch's directions; no interaction at y is materialised in memory. A k-NN lookup runs its own
-kernels over the evaluated hits (``fused=False``).
+With the precomputed irradiance the whole batch — BSDF sampling, the eye-path loop and the
+nearest-point lookup (:meth:`photonmap.core.hashgrid.HashGrid.nearest`) — is one fused kernel; no
+interaction at y is materialised in memory. A k-NN lookup runs its own kernels over the evaluated
+hits (``fused=False``).
 
 The rays are issued in explicit batches of photon-map queries — as many final-gather rays of every
 query point at a time as fit in ``BATCH_RAYS`` (2²¹) rays per batch — the unit that gather
