@@ -121,8 +121,9 @@ def test_aligned_arrays_launch_one_kernel_wherever_numpy_put_them():
 
 def test_to_jit_casts_before_dr_jit_maps_the_memory():
     """A float64 array into ``mi.Float`` makes Dr.Jit map a cast temporary wherever ``malloc``
-    put it (measured: two kernels in twelve launches with the heap shifted in between);
-    :func:`to_jit` casts into an aligned home first, so one kernel serves them all."""
+    put it (measured outside this test, with random-sized allocations in between: two kernels
+    in twelve launches; the allocator here does not always reproduce it); :func:`to_jit` casts
+    into an aligned home first, so one kernel serves every launch."""
     values = np.arange(40, dtype=np.float64) * 0.5
     cast = aligned(misaligned(values, 8), np.float32)
     assert cast.dtype == np.float32 and cast.ctypes.data % ALIGNMENT == 0
