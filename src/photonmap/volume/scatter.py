@@ -177,9 +177,10 @@ class Wavefront:
         """The emitted photons at ``x`` with ``v`` (or ``d``) and power ``L``."""
         count = dr.width(L)
         rng = mi.PCG32(count, dr.opaque(mi.UInt64, seed), dr.arange(mi.UInt64, count))
-        dr.make_opaque(rng)  # in memory, as after a compaction: every later order, one kernel
+        start = dr.max(L)
+        dr.make_opaque(rng, start)  # in memory, as after a compaction: every order, one kernel
         final = [mi.Point3f(x), mi.Vector3f(v), mi.Color3f(L), dr.zeros(mi.UInt32, count)]
-        return Wavefront(dr.arange(mi.UInt32, count), dr.max(L), rng, tally, final)
+        return Wavefront(dr.arange(mi.UInt32, count), start, rng, tally, final)
 
     def record(self, order: int, steps: mi.UInt32, x, v, L) -> None:
         """Where the live photons stopped in ``order`` (evaluated), and its steps."""
@@ -201,7 +202,11 @@ class Wavefront:
         self.rng.inc = dr.gather(mi.UInt64, self.rng.inc, alive)
         weights = getattr(self.tally, "weights", None)
         if weights is not None:
-            self.tally = weight_tally(dr.gather(mi.Float, weights, alive))
+            weights = dr.gather(mi.Float, weights, alive)
+        # in memory, as the first order's photons are: every later order runs one kernel
+        dr.eval(x, omega, W, self.ids, self.start, self.rng, weights)
+        if weights is not None:
+            self.tally = weight_tally(weights)
         return x, omega, W
 
 

@@ -177,7 +177,8 @@ def march_with_surfaces(
         photons.record(order, leg.steps, leg.x, leg.v, leg.L)
         si = surfaces.hit(leg.cast_x, leg.cast_d, leg.surface)
         surface = leg.surface & si.is_valid()
-        keep = surface & (leg.bent | (order > 0)) & (dr.max(leg.L) > 0)  # after an event
+        scattered = dr.opaque(mi.Bool, order > 0)  # opaque: every order's kernel is one
+        keep = surface & (leg.bent | scattered) & (dr.max(leg.L) > 0)  # after an event
         keep &= (mi.UInt32(si.bsdf().flags()) & SMOOTH) != 0  # a mirror shows none (view.py)
         position, normal = mi.Point3f(si.p), mi.Vector3f(si.sh_frame.n)
         if order == last:
