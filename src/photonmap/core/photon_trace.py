@@ -133,7 +133,11 @@ class PhotonRules:
     ``traits``; ``caustics_only``: a path ends at its first smooth interaction (surface or
     medium), stored only if caustic; ``roulette``: Russian roulette from ``settings.rr_depth``
     on; ``redirect(si, bs, gen)``: a direction to go on in instead of the BSDF sample's (the
-    screen method's glossy rule); ``rough_glass``: see :func:`trace_photons`."""
+    screen method's glossy rule); ``rough_glass``: see :func:`trace_photons`; ``null_counts``:
+    a ``Null`` event (a ``null`` shape, a mask's or a thin dielectric's pass) is an interaction
+    like a delta bounce, counted in ``depth``, as the VCM subpaths need it (their MIS treats it
+    as a delta vertex: SmallVCM's rule, and their camera subpaths'), where a photon otherwise
+    passes it uncounted."""
 
     settings: PathSettings
     traits: SceneTraits
@@ -141,6 +145,7 @@ class PhotonRules:
     roulette: bool = True
     redirect: Callable | None = None
     rough_glass: bool = False
+    null_counts: bool = False
 
     @property
     def limit(self) -> int:
@@ -181,28 +186,76 @@ def trace_photons(
 
 
 def trace_light_paths(
-    scene: mi.Scene, light: LightPaths, gen, rules: PhotonRules, first_depth: int = 0
+    scene: mi.Scene, light: LightPaths, gen, rules: PhotonRules, first_depth: int = 0,
+    vertices: VertexRule | None = None,
 ) -> tuple[PhotonRecords, VolumePhotons | None]:
-    """Trace the light paths ``light`` by ``rules`` (module docstring) and return their surface
-    records and, in a scene with media, their volume photons. ``gen``: one random generator per
+    """Trace the light paths ``light`` by ``rules`` (module docstring) and return what
+    ``vertices`` made of their surface vertices (default :class:`PhotonMapVertices`: the photon
+    records) and, in a scene with media, their volume photons. ``gen``: one random generator per
     path (an ``mi.PCG32`` or any Dr.Jit struct with ``next_float32()``, e.g. a fixed random
     map); ``first_depth``: interactions the paths have already had (records then count from
     it)."""
-    n = light.count
-    state = _PathState.start(light, gen, first_depth)
+    vertices = vertices or PhotonMapVertices()
+    state = _PathState.start(light, gen, first_depth, vertices.extra(light))
     surface, volume = [], []
     steps = rays = 0
     while state.count and steps < MAX_STEPS:
-        rec, vrec, state, cast = _chunk(scene, state, rules)
+        rec, vrec, state, cast = _chunk(scene, state, rules, vertices)
         surface.append(rec)
         volume.append(vrec)
         steps += CHUNK
         rays += cast
-    records = PhotonRecords(*_concat(surface, 9), n, light.emitted_power, rays)
-    _check_power(records)
+    made = vertices.result(dict(zip(vertices.fields, _concat(surface, len(vertices.fields)),
+                                    strict=True)), light, rays)  # fmt: skip
     if not rules.traits.media:
-        return records, None
-    return records, VolumePhotons(*_concat(volume, 5))
+        return made, None
+    return made, VolumePhotons(*_concat(volume, 5))
+
+
+class VertexRule:
+    """What a method does at the surface vertices of the core's light paths (the per-vertex
+    hook): its records' ``fields`` (name → Dr.Jit type), its per-path state (:meth:`extra`,
+    carried in ``state.extra`` through the chunks), and the steps :func:`_loop` calls — on
+    arrival at a vertex (:meth:`arrive`), the record's values where one is stored
+    (:meth:`record`) and after the BSDF sample (:meth:`bounced`). :meth:`result` makes the
+    method's output of the records (each field concatenated over the chunks)."""
+
+    fields: dict
+
+    def extra(self, light: LightPaths):
+        return None
+
+    def arrive(self, state, si: mi.SurfaceInteraction3f, on_surface: mi.Bool) -> None:
+        pass
+
+    def record(self, state, si, bsdf, store: mi.Bool, caustic: mi.Bool) -> tuple:
+        raise NotImplementedError
+
+    def bounced(self, state, si, bsdf, sample, bounced: mi.Bool) -> None:
+        pass
+
+    def result(self, records: dict, light: LightPaths, rays: int):
+        raise NotImplementedError
+
+
+class PhotonMapVertices(VertexRule):
+    """The photon map's vertices (module docstring): a :class:`PhotonRecords` entry at each
+    surface with a smooth lobe."""
+
+    fields = {
+        "position": mi.Point3f, "power": mi.Color3f, "direction": mi.Vector3f,
+        "normal": mi.Vector3f, "depth": mi.UInt32, "caustic": mi.Bool, "path": mi.UInt32,
+        "delta": mi.UInt32, "glossy": mi.UInt32,
+    }  # fmt: skip
+
+    def record(self, state, si, bsdf, store, caustic) -> tuple:
+        return (si.p, state.power, state.ray.d, mi.Vector3f(si.sh_frame.n), state.depth + 1,
+                caustic, state.path, state.delta, state.glossy)  # fmt: skip
+
+    def result(self, records: dict, light: LightPaths, rays: int) -> PhotonRecords:
+        out = PhotonRecords(*records.values(), light.count, light.emitted_power, rays)
+        _check_power(out)
+        return out
 
 
 @dataclass
@@ -223,16 +276,17 @@ class _PathState:
     glossy: mi.UInt32
     path: mi.UInt32
     gen: object
+    extra: object  # the vertex rule's per-path state, or None
 
     @classmethod
-    def start(cls, light: LightPaths, gen, first_depth: int) -> _PathState:
+    def start(cls, light: LightPaths, gen, first_depth: int, extra) -> _PathState:
         n = light.count
         return cls(
             mi.Ray3f(light.ray), mi.Color3f(light.power), mi.Color3f(light.power),
             mi.MediumPtr(light.medium), dr.full(mi.UInt32, first_depth, n), dr.zeros(mi.Bool, n),
             dr.zeros(mi.Bool, n), dr.full(mi.Bool, first_depth == 0, n), mi.Bool(light.aimed),
             mi.Bool(light.partitioned), dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n),
-            dr.arange(mi.UInt32, n), gen,
+            dr.arange(mi.UInt32, n), gen, extra,
         )  # fmt: skip
 
     @property
@@ -241,7 +295,7 @@ class _PathState:
 
     def kept(self, alive: mi.Bool) -> _PathState:
         index = dr.compress(alive)
-        values = [dr.gather(type(v), v, index) for v in vars(self).values()]
+        values = [v if v is None else dr.gather(type(v), v, index) for v in vars(self).values()]
         state = _PathState(*values)
         dr.eval(*vars(state).values())
         return state
@@ -258,27 +312,22 @@ def _slots(names_types: dict, count: int) -> dict:
     return {name: dr.empty(kind, count) for name, kind in names_types.items()}
 
 
-SURFACE_FIELDS = {
-    "position": mi.Point3f, "power": mi.Color3f, "direction": mi.Vector3f, "normal": mi.Vector3f,
-    "depth": mi.UInt32, "caustic": mi.Bool, "path": mi.UInt32, "delta": mi.UInt32,
-    "glossy": mi.UInt32,
-}  # fmt: skip
 VOLUME_FIELDS = {
     "position": mi.Point3f, "direction": mi.Vector3f, "power": mi.Color3f, "depth": mi.UInt32,
     "caustic": mi.Bool,
 }  # fmt: skip
 
 
-def _chunk(scene, state, rules: PhotonRules):
+def _chunk(scene, state, rules: PhotonRules, vertices: VertexRule):
     """One chunk of the loop: the records it stored (compacted, as field lists), the state of
     the paths still alive and the rays the chunk cast."""
     lanes = state.count
     slots = lanes * CHUNK
-    rec = _slots(SURFACE_FIELDS, slots)
+    rec = _slots(vertices.fields, slots)
     vrec = _slots(VOLUME_FIELDS, slots if rules.traits.media else 1)
     stored = dr.zeros(mi.Bool, slots)
     vstored = dr.zeros(mi.Bool, dr.width(vrec["depth"]))
-    alive, steps = _loop(scene, state, (rec, vrec, stored, vstored), rules)
+    alive, steps = _loop(scene, state, (rec, vrec, stored, vstored), rules, vertices)
     dr.eval(rec, vrec, stored, vstored, alive, steps, *vars(state).values())
     out = []
     for fields_, mask in ((rec, stored), (vrec, vstored)):
@@ -288,17 +337,18 @@ def _chunk(scene, state, rules: PhotonRules):
 
 
 @dr.syntax
-def _loop(scene, state, slots, rules: PhotonRules):
+def _loop(scene, state, slots, rules: PhotonRules, vertices: VertexRule):
     """The symbolic loop of one chunk; updates ``state`` in place, fills the record ``slots``
     (surface and volume records and where they were stored) and returns which paths are still
     alive. One iteration flies to the next interaction
     (:func:`_fly`), applies the partition of aimed emission (:mod:`.emission`) at the first one,
-    stores a volume photon or a surface record, samples the BSDF or the phase function
-    (:func:`_scatter`) and plays Russian roulette (:func:`_survival`). Also returns each path's
-    steps in the chunk: one ray cast each."""
+    stores a volume photon or the ``vertices`` rule's record at a surface, samples the BSDF or
+    the phase function (:func:`_scatter`) and plays Russian roulette (:func:`_survival`). Also
+    returns each path's steps in the chunk: one ray cast each."""
     rec, vrec, stored, vstored = slots
     # frozen dataclasses stay out of loops: their values as locals
-    media, null_shapes = rules.traits.media, rules.traits.null_shapes
+    media, null_counts = rules.traits.media, rules.null_counts
+    null_shapes = False if null_counts else rules.traits.null_shapes  # null shapes: vertices
     roulette, redirect = rules.roulette, rules.redirect
     # a value, not code: the global and the caustic map's passes run one kernel
     all_records = ~dr.opaque(mi.Bool, rules.caustics_only)
@@ -321,6 +371,7 @@ def _loop(scene, state, slots, rules: PhotonRules):
         on_surface &= keep
         state.fresh &= ~(in_medium | on_surface)
         caustic = state.specular & ~state.smooth
+        vertices.arrive(state, si, on_surface)
         slot = step * stride + lane
 
         # ---- a medium collision: a volume photon
@@ -338,14 +389,14 @@ def _loop(scene, state, slots, rules: PhotonRules):
             followed = is_rough_glass(bsdf, on_surface)
         store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & ~followed
         store &= (state.depth + 1 <= limit) & (caustic | all_records)
-        values = (si.p, state.power, state.ray.d, mi.Vector3f(si.sh_frame.n), state.depth + 1,
-                  caustic, state.path, state.delta, state.glossy)  # fmt: skip
-        for name, value in zip(SURFACE_FIELDS, values, strict=True):
+        values = vertices.record(state, si, bsdf, store, caustic)
+        for name, value in zip(vertices.fields, values, strict=True):
             dr.scatter(rec[name], value, slot, store)
         dr.scatter(stored, True, slot, store)
 
         where = (on_surface, in_medium, followed)
-        bounced = _scatter(state, (si, bsdf, mei), where, redirect, media)
+        bs, bounced = _scatter(state, (si, bsdf, mei), where, (redirect, null_counts), media)
+        vertices.bounced(state, si, bsdf, bs, bounced)
         active = (in_medium | on_surface) & (~state.smooth | all_records)
         if dr.hint(roulette, mode="scalar"):
             survival = _survival(state, in_medium, albedo, media)
@@ -375,13 +426,15 @@ def _fly(scene, state: _PathState, ch, active, media: bool, null_shapes):
     return si, flight.mei, in_medium, on_surface, albedo
 
 
-def _scatter(state: _PathState, interaction, where, redirect, media):
+def _scatter(state: _PathState, interaction, where, surface_rules, media):
     """Go on from the ``interaction`` ``(si, bsdf, mei)``: ``where = (on_surface, in_medium,
-    followed)``, at a surface by the BSDF in importance mode (``redirect``: the direction instead
-    of the sample's; ``followed``: rough glass followed as glass), in a medium by the phase
-    function; the path's history (specular, smooth, bounce counts) follows. Returns where a
-    surface bounce (not a ``Null`` pass) happened."""
+    followed)``, at a surface by the BSDF in importance mode (``surface_rules = (redirect,
+    null_counts)``: the direction instead of the sample's, and whether a ``Null`` event counts
+    as a bounce; ``followed``: rough glass followed as glass), in a medium by the phase
+    function; the path's history (specular, smooth, bounce counts) follows. Returns the BSDF
+    sample and where a surface bounce (not an uncounted ``Null`` pass) happened."""
     (si, bsdf, mei), (on_surface, in_medium, followed) = interaction, where
+    redirect, null_counts = surface_rules
     gen = state.gen
     bs, weight = bsdf.sample(
         mi.BSDFContext(mi.TransportMode.Importance), si, gen.next_float32(),
@@ -389,6 +442,8 @@ def _scatter(state: _PathState, interaction, where, redirect, media):
     )  # fmt: skip
     lobe = bs.sampled_type
     passed = on_surface & mi.has_flag(lobe, mi.BSDFFlags.Null)  # straight on, no interaction
+    if null_counts:
+        passed = dr.zeros(mi.Bool, dr.width(on_surface))
     bounced = on_surface & ~passed
     state.depth[bounced] += 1
     state.power[on_surface] *= weight
@@ -409,7 +464,7 @@ def _scatter(state: _PathState, interaction, where, redirect, media):
         )  # fmt: skip
         state.power[in_medium] *= phase_weight
         state.ray[in_medium] = mei.spawn_ray(wo)
-    return bounced
+    return bs, bounced
 
 
 def _survival(state: _PathState, in_medium, albedo, media: bool) -> mi.Float:

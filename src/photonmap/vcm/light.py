@@ -25,11 +25,13 @@ subpath goes on by the adjoint BSDF sample (``TransportMode.Importance``) and Ru
 on its throughput from ``rr_depth`` on; a vertex needs a segment to the camera, so the subpath
 stops where one more would not fit ``max_depth``.
 
-**Wavefront.** The subpaths run in symbolic Dr.Jit loops of :data:`CHUNK` vertices; the stored
-vertices of a chunk are compacted and the subpaths still alive go on in the next chunk (memory per
-chunk, whatever ``max_depth``). At the end the vertices are sorted by subpath (each carries its
-rank on it): the camera pass connects each camera vertex to the vertices of the subpath with its
-pixel's index.
+**Transport.** The subpaths are the core's light paths (:func:`photonmap.core.photon_trace.trace_light_paths`:
+its chunked wavefront, BSDF sampling in importance mode and Russian roulette), with
+:class:`LightVertexRule` as their vertex rule: the MIS quantities ride along as the paths'
+extra state, a ``Null`` event counts as a delta vertex (``PhotonRules.null_counts``), and each
+stored vertex is connected to the camera. At the end the vertices are sorted by subpath (each
+carries its rank on it): the camera pass connects each camera vertex to the vertices of the
+subpath with its pixel's index.
 """
 
 from __future__ import annotations
@@ -42,13 +44,14 @@ import mitsuba as mi
 import numpy as np
 
 from ..core.arrays import concat, to_numpy
+from ..core.emission import LightPaths
+from ..core.photon_trace import PhotonRules, VertexRule, trace_light_paths
 from ..core.sampling import rng
-from ..core.settings import UNBOUNDED, PathSettings, survival
+from ..core.scene_info import SceneTraits
+from ..core.settings import PathSettings
 from . import mis
 from .mis import Techniques
 
-CHUNK = 8  # vertices per subpath in one symbolic loop
-MAX_STEPS = 4096  # vertices of one subpath at most
 IMPORTANCE = mi.BSDFContext(mi.TransportMode.Importance)
 RADIANCE = mi.BSDFContext()
 FOLLOWED_DELTA = mi.BSDFFlags.Delta | mi.BSDFFlags.Null  # sampled events with no density
@@ -137,30 +140,19 @@ class Emitters:
 
 
 @dataclass
-class _State:
-    """The subpaths alive between chunks, at their current vertex ``si``."""
+class _Subpath:
+    """A light subpath's MIS quantities and stored vertices so far — the extra state it carries
+    through the core's loop — and what its first vertex's ``dVCM`` needs of its emission."""
 
-    si: mi.SurfaceInteraction3f
-    valid: mi.Bool  # si is a hit to process
-    beta: mi.Spectrum
-    beta0: mi.Spectrum  # for Russian roulette
     d_vcm: mi.Float
     d_vc: mi.Float
     d_vm: mi.Float
-    depth: mi.UInt32  # segments to si
     rank: mi.UInt32  # vertices stored so far
-    path: mi.UInt32
-    gen: object
-
-    @property
-    def count(self) -> int:
-        return dr.width(self.path)
-
-    def kept(self, alive: mi.Bool) -> _State:
-        index = dr.compress(alive)
-        state = _State(*(dr.gather(type(v), v, index) for v in vars(self).values()))
-        dr.eval(*vars(state).values())
-        return state
+    light: mi.PositionSample3f  # where it left the light ...
+    emitter: mi.EmitterPtr  # ... which one
+    delta: mi.Bool  # a positional delta light
+    p_e: mi.Float  # the emission density (module docstring)
+    cos_light: mi.Float
 
 
 def update_at_hit(si: mi.SurfaceInteraction3f, d_vcm, d_vc, d_vm):
@@ -176,15 +168,13 @@ def reverse_pdf(bsdf, ctx, si: mi.SurfaceInteraction3f, wo: mi.Vector3f, active)
     return bsdf.pdf(ctx, swapped, si.wi, active)
 
 
-def scattered(bsdf, ctx, si, gen, d_vcm, d_vc, d_vm, tech: Techniques, active):
-    """Sample the BSDF at ``si`` and update the MIS quantities for the next segment (TR (34)–(36),
-    SmallVCM's ``SampleScattering``): after a delta (or ``Null``) event ``dVCM = 0`` and the other
-    two are scaled by ``cos θ_o``; otherwise ``dVC = cos θ_o / p (dVC p_rev + dVCM + η)``,
-    ``dVM = cos θ_o / p (dVM p_rev + dVCM / η + 1)``, ``dVCM = 1 / p``. Returns the sample, its
-    weight ``f |cos θ_o| / p``, whether it was a delta event and the new quantities."""
-    bs, weight = bsdf.sample(
-        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
-    )
+def after_sample(bsdf, ctx, si, bs, quantities, tech: Techniques, active):
+    """The MIS quantities ``(dVCM, dVC, dVM)`` for the segment after the BSDF sample ``bs`` at
+    ``si`` (TR (34)–(36), SmallVCM's ``SampleScattering``): after a delta (or ``Null``) event
+    ``dVCM = 0`` and the other two are scaled by ``cos θ_o``; otherwise ``dVC = cos θ_o / p (dVC
+    p_rev + dVCM + η)``, ``dVM = cos θ_o / p (dVM p_rev + dVCM / η + 1)``, ``dVCM = 1 / p``.
+    Also returns whether it was a delta event."""
+    d_vcm, d_vc, d_vm = quantities
     delta = mi.has_flag(bs.sampled_type, FOLLOWED_DELTA)
     cos_out = dr.abs(mi.Frame3f.cos_theta(bs.wo))
     p_rev = reverse_pdf(bsdf, ctx, si, bs.wo, active & ~delta)
@@ -196,12 +186,25 @@ def scattered(bsdf, ctx, si, gen, d_vcm, d_vc, d_vm, tech: Techniques, active):
                                                                         strict=True))
     if not tech.connect:  # no connections: the subpaths need dVC only for them (module docstring)
         new_vc = dr.zeros(mi.Float, dr.width(new_vc))
+    return (new_vcm, new_vc, new_vm), delta
+
+
+def scattered(bsdf, ctx, si, gen, d_vcm, d_vc, d_vm, tech: Techniques, active):
+    """Sample the BSDF at ``si`` and update the MIS quantities for the next segment
+    (:func:`after_sample`). Returns the sample, its weight ``f |cos θ_o| / p``, whether it was a
+    delta event, the new quantities and where the sample is usable."""
+    bs, weight = bsdf.sample(
+        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
+    )
+    (new_vcm, new_vc, new_vm), delta = after_sample(bsdf, ctx, si, bs, (d_vcm, d_vc, d_vm),
+                                                    tech, active)  # fmt: skip
     ok = active & (bs.pdf > 0) & dr.any(weight != 0.0)
     return bs, weight, delta, new_vcm, new_vc, new_vm, ok
 
 
-def _start(scene: mi.Scene, n: int, gen, tech: Techniques, emitters: Emitters) -> _State:
-    """Emit ``n`` subpaths and find their first hits (module docstring)."""
+def _emit(scene: mi.Scene, n: int, gen, tech: Techniques, emitters: Emitters):
+    """Emit ``n`` subpaths (module docstring): their rays and throughput as the core's
+    :class:`~photonmap.core.emission.LightPaths`, and their :class:`_Subpath` state."""
     idx, _, _ = scene.sample_emitter(gen.next_float32())
     emitter = dr.gather(mi.EmitterPtr, scene.emitters_dr(), idx)
     delta = mi.has_flag(emitter.flags(), mi.EmitterFlags.DeltaPosition)
@@ -218,32 +221,20 @@ def _start(scene: mi.Scene, n: int, gen, tech: Techniques, emitters: Emitters) -
     it.p = ps.p + d
     _, intensity = emitter.sample_direction(it, mi.Point2f(0.5, 0.5), delta)  # I(d) / 1²
     p_e = emitters.emitted(ps, emitter, cos_light, delta)
-    pick = emitters.pick(emitter)
     beta = dr.select(delta, intensity, radiance) / dr.maximum(p_e, 1e-30)
     ray = si0.spawn_ray(d)
     ray.o = dr.select(delta, ps.p, ray.o)  # a point light's rays leave from the point itself
-    si = scene.ray_intersect(ray)
-    valid = si.is_valid() & dr.any(beta > 0)
-    # the first vertex's quantities (module docstring)
-    cos_in = dr.maximum(dr.abs(mi.Frame3f.cos_theta(si.wi)), 1e-12)
-    ds = mi.DirectionSample3f(ps)
-    ds.d = dr.normalize(ps.p - si.p)
-    ds.dist = si.t
-    ds.emitter = emitter
-    p_direct = dr.select(  # next-event estimation's density of the light point, per area
-        delta, pick, scene.pdf_emitter_direction(mi.Interaction3f(si), ds, valid & ~delta)
-        * cos_light / dr.square(si.t),
-    )  # fmt: skip
     p_e = dr.maximum(p_e, 1e-30)
     d_vc, d_vm = mis.light_start(p_e, cos_light, dr.opaque(mi.Float, tech.vc_factor))
     d_vc, d_vm = (dr.select(delta, 0.0, v) for v in (d_vc, d_vm))
     if not tech.connect:
         d_vc = dr.zeros(mi.Float, n)
-    d_vcm = mis.first_light_hit(p_direct, p_e, dr.square(si.t), cos_in)
-    _, d_vc, d_vm = mis.after_hit(d_vcm, d_vc, d_vm, dr.square(si.t), cos_in)
     zeros = dr.zeros(mi.UInt32, n)
-    return _State(si, valid, beta, mi.Spectrum(beta), d_vcm, d_vc, d_vm, zeros + 1, zeros,
-                  dr.arange(mi.UInt32, n), gen)  # fmt: skip
+    subpaths = _Subpath(dr.zeros(mi.Float, n), d_vc, d_vm, zeros, ps, emitter, delta, p_e,
+                        cos_light)  # fmt: skip
+    paths = LightPaths(ray, mi.Color3f(beta), dr.zeros(mi.MediumPtr, n), dr.zeros(mi.Bool, n),
+                       dr.zeros(mi.Bool, n), np.zeros(3), 0)  # fmt: skip
+    return paths, subpaths
 
 
 RECORD_FIELDS = {
@@ -262,14 +253,11 @@ def light_pass(
     (each splat × ``P / N_L = 1 / spp``: the estimate is the mean over the light subpaths)."""
     n = tech.light_paths
     w, h = (int(c) for c in sensor.film().crop_size())
-    limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
-    state = _start(scene, n, rng(n, seed, 2), tech, emitters)
-    chunks, steps = [], 0
-    while state.count and steps < MAX_STEPS:
-        rec, state = _chunk(scene, sensor, state, limit, settings.rr_depth, tech, (w, h))
-        chunks.append(rec)
-        steps += CHUNK
-    records = {k: concat([c[k] for c in chunks]) for k in RECORD_FIELDS}
+    gen = rng(n, seed, 2)
+    paths, subpaths = _emit(scene, n, gen, tech, emitters)
+    rules = PhotonRules(settings, SceneTraits.of(scene), null_counts=True)
+    rule = LightVertexRule(scene, sensor, tech, emitters, subpaths)
+    records, _ = trace_light_paths(scene, paths, gen, rules, vertices=rule)
     image = np.zeros((h, w, 3))
     if tech.light_tracing and dr.width(records["pixel"]):
         pixel = records["pixel"].numpy()
@@ -278,6 +266,65 @@ def light_pass(
             image[..., c] = np.bincount(pixel, splat[c], minlength=w * h + 1)[: w * h].reshape(h, w)
     image /= tech.spp
     return LightPass(_sorted(records, n), image, n)
+
+
+class LightVertexRule(VertexRule):
+    """The light subpaths' vertex rule in the core's loop (module docstring): on arrival the MIS
+    quantities are completed (the first vertex's ``dVCM`` from next-event estimation's density
+    of its light point), each stored vertex carries them and its light-tracing splat, and after
+    the BSDF sample they are updated for the next segment."""
+
+    fields = RECORD_FIELDS
+
+    def __init__(self, scene, sensor, tech: Techniques, emitters: Emitters, subpaths: _Subpath):
+        self.scene, self.sensor, self.tech = scene, sensor, tech
+        self.emitters, self.subpaths = emitters, subpaths
+        self.size = tuple(int(c) for c in sensor.film().crop_size())
+
+    def extra(self, light: LightPaths) -> _Subpath:
+        return self.subpaths
+
+    def arrive(self, state, si, on_surface) -> None:
+        sub = state.extra
+        first = on_surface & (state.depth == 0)
+        cos_in = dr.maximum(dr.abs(mi.Frame3f.cos_theta(si.wi)), 1e-12)
+        dist2 = dr.square(si.t)
+        ds = mi.DirectionSample3f(sub.light)
+        ds.d = dr.normalize(sub.light.p - si.p)
+        ds.dist = si.t
+        ds.emitter = sub.emitter
+        pick = self.emitters.pick(sub.emitter)
+        p_direct = dr.select(  # next-event estimation's density of the light point, per area
+            sub.delta, pick,
+            self.scene.pdf_emitter_direction(mi.Interaction3f(si), ds, first & ~sub.delta)
+            * sub.cos_light / dist2,
+        )  # fmt: skip
+        d_vcm, d_vc, d_vm = mis.after_hit(sub.d_vcm, sub.d_vc, sub.d_vm, dist2, cos_in)
+        d_vcm = dr.select(first, mis.first_light_hit(p_direct, sub.p_e, dist2, cos_in), d_vcm)
+        sub.d_vcm[on_surface] = d_vcm
+        sub.d_vc[on_surface] = d_vc
+        sub.d_vm[on_surface] = d_vm
+
+    def record(self, state, si, bsdf, store, caustic) -> tuple:
+        sub = state.extra
+        pixel, splat = _to_camera(self.scene, self.sensor, si, bsdf, state.power, sub.d_vcm,
+                                  sub.d_vc, self.tech, self.size, store)  # fmt: skip
+        rank = mi.UInt32(sub.rank)  # a copy: the masked update below is in place
+        sub.rank[store] += 1
+        return (si, state.power, state.depth + 1, sub.d_vcm, sub.d_vc, sub.d_vm, state.path,
+                rank, pixel, splat)  # fmt: skip
+
+    def bounced(self, state, si, bsdf, bs, bounced) -> None:
+        sub = state.extra
+        quantities = (sub.d_vcm, sub.d_vc, sub.d_vm)
+        (d_vcm, d_vc, d_vm), _ = after_sample(bsdf, IMPORTANCE, si, bs, quantities, self.tech,
+                                              bounced)  # fmt: skip
+        sub.d_vcm[bounced] = d_vcm
+        sub.d_vc[bounced] = d_vc
+        sub.d_vm[bounced] = d_vm
+
+    def result(self, records: dict, light: LightPaths, rays: int) -> dict:
+        return records
 
 
 def _sorted(records: dict, n: int) -> LightVertices:
@@ -300,77 +347,6 @@ def _sorted(records: dict, n: int) -> LightVertices:
         out.append(value)
     dr.eval(*out)
     return LightVertices(*out, start)
-
-
-def _chunk(scene, sensor, state: _State, limit, rr_depth, tech, size):
-    lanes = state.count
-    slots = lanes * CHUNK
-    rec = {k: dr.empty(t, slots) for k, t in RECORD_FIELDS.items()}  # read where stored only
-    stored = dr.zeros(mi.Bool, slots)
-
-    def to_camera(si, bsdf, beta, d_vcm, d_vc, active):
-        return _to_camera(scene, sensor, si, bsdf, beta, d_vcm, d_vc, tech, size, active)
-
-    def scatter(bsdf, si, gen, d_vcm, d_vc, d_vm, active):
-        return scattered(bsdf, IMPORTANCE, si, gen, d_vcm, d_vc, d_vm, tech, active)
-
-    alive = _loop(scene, state, rec, stored, limit, rr_depth, to_camera, scatter)
-    dr.eval(rec, stored, alive, *vars(state).values())
-    index = dr.compress(stored)
-    out = {k: dr.gather(type(v), v, index) for k, v in rec.items()}
-    dr.eval(out)
-    return out, state.kept(alive)
-
-
-@dr.syntax
-def _loop(scene, state: _State, rec, stored, limit, rr_depth, to_camera, scatter):
-    """One chunk: at each vertex store it and connect it to the camera, then sample the next
-    segment (module docstring). Updates ``state`` in place; returns the subpaths still alive."""
-    lanes = state.count
-    limit = dr.opaque(mi.UInt32, limit)
-    rr_depth = dr.opaque(mi.UInt32, rr_depth)
-    lane = dr.arange(mi.UInt32, lanes)
-    stride = dr.opaque(mi.UInt32, lanes)
-    step = dr.zeros(mi.UInt32, lanes)
-    active = mi.Bool(state.valid)
-    while active & (step < CHUNK):
-        si = state.si
-        bsdf = si.bsdf()
-        smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
-        keep = active & smooth & (state.depth + 1 <= limit)
-        slot = step * stride + lane
-        pixel, splat = to_camera(si, bsdf, state.beta, state.d_vcm, state.d_vc, keep)
-        for key, value in (
-            ("si", si), ("throughput", state.beta), ("depth", state.depth),
-            ("d_vcm", state.d_vcm), ("d_vc", state.d_vc), ("d_vm", state.d_vm),
-            ("path", state.path), ("rank", state.rank), ("pixel", pixel), ("splat", splat),
-        ):  # fmt: skip
-            dr.scatter(rec[key], value, slot, keep)
-        dr.scatter(stored, True, slot, keep)
-        state.rank[keep] += 1
-        # ---- the next segment, if a vertex after it could still reach the camera
-        go_on = active & (state.depth + 2 <= limit)
-        bs, weight, _, d_vcm, d_vc, d_vm, ok = scatter(
-            bsdf, si, state.gen, state.d_vcm, state.d_vc, state.d_vm, go_on
-        )
-        go_on &= ok
-        state.beta[go_on] *= weight
-        rolled = go_on & (state.depth >= rr_depth)
-        q = survival(state.beta, state.beta0)
-        state.beta[rolled] /= q
-        go_on &= ~rolled | (state.gen.next_float32() < q)
-        ray = si.spawn_ray(si.to_world(bs.wo))
-        nxt = scene.ray_intersect(ray, go_on)
-        go_on &= nxt.is_valid()
-        d_vcm, d_vc, d_vm = update_at_hit(nxt, d_vcm, d_vc, d_vm)
-        state.si[go_on] = nxt
-        state.d_vcm[go_on] = d_vcm
-        state.d_vc[go_on] = d_vc
-        state.d_vm[go_on] = d_vm
-        state.depth[go_on] += 1
-        active = go_on
-        step += 1
-    return active
 
 
 def _to_camera(scene, sensor, si, bsdf, beta, d_vcm, d_vc, tech: Techniques, size, active):

@@ -38,13 +38,14 @@ from ..core.errors import SceneError
 from ..core.film_filter import filter_image
 from ..core.memory import check_memory, check_once
 from ..core.params import check_choice, check_fields, check_range, updated
+from ..core.photon_trace import CHUNK
 from ..core.pipeline import Pipeline
 from ..core.progressive import Progressive, iteration_seeds
 from ..core.scene_info import check_gathered_bsdfs, refuse_media
 from ..core.settings import PathSettings, check_path_params, overridden
 from ..core.stages import StageCache
 from .camera import MergeGrid, camera_pass
-from .light import CHUNK, Emitters, light_pass
+from .light import Emitters, light_pass
 from .mis import MODES, Techniques
 
 STAGES = ("light pass", "camera pass")
