@@ -59,6 +59,12 @@ sampling; after a collision or a smooth vertex and then a delta chain not when `
 given: photons carry that light (:class:`Caustics`, read at each medium collision and smooth
 surface vertex). Depth counts segments as Mitsuba's
 ``max_depth`` does; Russian roulette from ``rr_depth`` on, ``q = min(0.95, max β · η²)``.
+
+A method with a vertex rule of its own (``EyeRules.vertex``, an :class:`EyeVertexRule`: VCM's
+camera subpaths) does the work at every surface itself — the emission met and its own
+techniques at a smooth vertex, its per-path state around the BSDF sample the loop takes — and
+the loop goes on from every surface by that sample (a ``Null`` event counts as a vertex, and
+``null`` shapes are hit).
 """
 
 from __future__ import annotations
@@ -133,7 +139,7 @@ class EyeRules:
     ``settings`` and the scene's ``traits``; ``emission``: add the emitters met; ``media_mode``
     (:data:`MEDIA_MODES`) and ``surfaces`` (:data:`SURFACE_MODES`); ``rough_glass``: follow
     rough glass (``surfaces="stop"``); ``segments``: pieces recorded per path in ``"march"``
-    mode."""
+    mode; ``vertex``: a method's :class:`EyeVertexRule` (module docstring; vacuum only)."""
 
     settings: PathSettings
     traits: SceneTraits
@@ -142,12 +148,34 @@ class EyeRules:
     surfaces: str = "stop"
     rough_glass: bool = False
     segments: int = 4
+    vertex: EyeVertexRule | None = None
 
     def __post_init__(self):
         if self.media_mode not in MEDIA_MODES:
             raise ValueError(f"media_mode must be one of {MEDIA_MODES}, got {self.media_mode!r}")
         if self.surfaces not in SURFACE_MODES:
             raise ValueError(f"surfaces must be one of {SURFACE_MODES}, got {self.surfaces!r}")
+
+
+class EyeVertexRule:
+    """What a method does at the surface vertices of the core's eye paths (the per-vertex hook;
+    module docstring): its per-path state (:meth:`extra`, carried in ``walk.extra``), and the
+    steps the loop calls at a surface — on arrival, the emission met (:meth:`arrive`, which adds
+    it to ``walk.radiance``), at a smooth vertex within ``max_depth`` the radiance of the
+    method's techniques (:meth:`at_vertex`), and after the BSDF sample the lanes that go on
+    (:meth:`bounced`, which updates the state there)."""
+
+    def extra(self):
+        return None
+
+    def arrive(self, walk, si, arrived, hit) -> None:
+        raise NotImplementedError
+
+    def at_vertex(self, walk, si, bsdf, gen, arrived, here) -> mi.Spectrum:
+        raise NotImplementedError
+
+    def bounced(self, walk, si, bsdf, sample, go_on) -> mi.Bool:
+        raise NotImplementedError
 
 
 def trace_eye_paths(
@@ -182,8 +210,10 @@ def trace_eye_paths(
     stored = dr.zeros(mi.Bool, slots)
     walk = _Walk.start(
         ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), start_depth,
-        active & dr.full(mi.Bool, True, n),
+        active & dr.full(mi.Bool, True, n), rules.vertex.extra() if rules.vertex else None,
     )  # fmt: skip
+    if rules.vertex is not None:  # no literal loop state: a rule's loop may change any of it
+        dr.make_opaque(walk)
     vertex_rules = _Rules(
         media=traits.media,
         media_mode=rules.media_mode if traits.media else "transmit",  # vacuum: no collisions
@@ -197,6 +227,7 @@ def trace_eye_paths(
         max_pieces=segments,
         settings=settings,
         traits=traits,
+        vertex=rules.vertex,
     )  # fmt: skip
     vertices = _follow(scene, walk, gen, vertex_rules, caustics or Caustics(), (buffers, stored))
     # every output at once: evaluating one output of a symbolic loop runs the whole loop again
@@ -234,9 +265,10 @@ class _Walk:
     medium_end: mi.MediumPtr
     found: mi.Bool  # on a smooth surface
     in_medium: mi.Bool  # at a medium collision ("end" mode)
+    extra: object = None  # the vertex rule's per-path state
 
     @staticmethod
-    def start(ray, beta, medium, start_depth, active) -> _Walk:
+    def start(ray, beta, medium, start_depth, active, extra=None) -> _Walk:
         """Paths at the start of ``ray``, none ended yet (every variable at full width)."""
         n = dr.width(beta)
         return _Walk(
@@ -247,7 +279,7 @@ class _Walk:
             active, dr.zeros(mi.UInt32, n), dr.zeros(mi.UInt32, n),
             dr.zeros(mi.SurfaceInteraction3f, n), dr.zeros(mi.MediumInteraction3f, n),
             dr.zeros(mi.Spectrum, n), dr.zeros(mi.MediumPtr, n), dr.zeros(mi.Bool, n),
-            dr.zeros(mi.Bool, n),
+            dr.zeros(mi.Bool, n), extra,
         )  # fmt: skip
 
     def vertices(self) -> EyeVertices:
@@ -273,6 +305,7 @@ class _Rules:
     max_pieces: int
     settings: PathSettings
     traits: SceneTraits
+    vertex: EyeVertexRule | None
 
 
 @dr.syntax
@@ -289,7 +322,7 @@ def _follow(scene, walk: _Walk, gen, rules: _Rules, caustics: Caustics, pieces):
     max_depth = dr.opaque(mi.UInt32, max_depth)
     rr_depth = dr.opaque(mi.UInt32, settings.rr_depth)
     medium_light, surface_light = caustics.medium, caustics.surface
-    null_shapes = rules.traits.null_shapes
+    null_shapes = False if rules.vertex else rules.traits.null_shapes  # a rule's: vertices
     ch = channel(gen)
     lane = dr.arange(mi.UInt32, n)
     stride = dr.opaque(mi.UInt32, n)  # not a literal: one kernel for every size
@@ -366,8 +399,11 @@ def _fly(scene, walk: _Walk, gen, ch, max_depth, rules: _Rules, null_shapes, rec
 
 def _emission_met(scene, walk: _Walk, si, scattered, arrived, rules: _Rules):
     """Add ``β L_e`` of an emitter's surface or the environment met where it counts (module
-    docstring); returns the emitter met."""
+    docstring); returns the emitter met. A vertex rule adds what it counts itself."""
     active = walk.active & ~scattered
+    if rules.vertex is not None:
+        rules.vertex.arrive(walk, si, arrived, active & si.is_valid())
+        return None
     emitter = si.emitter(scene, active)
     shown = active & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
     if rules.hide:
@@ -421,6 +457,8 @@ def _surface_vertex(scene, walk: _Walk, vertex, max_depth, gen, rules: _Rules, s
     ``Null`` lobes (``surfaces="stop"``, :func:`_end_or_follow`), or shade the smooth lobes and
     go on with the BSDF sample (``"continue"``, :func:`_shade_and_go_on`). Returns where a bounce
     (not a ``Null`` pass) continued the path."""
+    if rules.vertex is not None:
+        return _rule_vertex(walk, vertex, max_depth, gen, rules.vertex)
     si, surface, emitter, arrived = vertex
     traits = rules.traits
     n = dr.width(surface)
@@ -491,3 +529,26 @@ def _surface_vertex(scene, walk: _Walk, vertex, max_depth, gen, rules: _Rules, s
     walk.ray[go_on] = si.spawn_ray(d)
     walk.active &= ~surface | (go_on & ((arrived < max_depth) | passed))
     return bounced
+
+
+def _rule_vertex(walk: _Walk, vertex, max_depth, gen, rule: EyeVertexRule):
+    """A surface ``vertex`` under a method's vertex rule (module docstring): the rule's
+    techniques at a smooth vertex, then the BSDF sample from every vertex within ``max_depth``,
+    the rule deciding where it goes on. Returns where it did."""
+    si, surface, _, arrived = vertex
+    bsdf = si.bsdf(walk.ray)
+    here = surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (arrived < max_depth)
+    walk.radiance[here] += walk.beta * rule.at_vertex(walk, si, bsdf, gen, arrived, here)
+    go_on = surface & (arrived < max_depth)
+    bs, weight = bsdf.sample(
+        mi.BSDFContext(), si, gen.next_float32(),
+        mi.Point2f(gen.next_float32(), gen.next_float32()), go_on,
+    )  # fmt: skip
+    go_on &= (bs.pdf > 0) & dr.any(weight != 0.0)
+    go_on = rule.bounced(walk, si, bsdf, bs, go_on)
+    walk.beta[go_on] *= weight
+    walk.eta[go_on] *= bs.eta
+    walk.ray[go_on] = si.spawn_ray(si.to_world(bs.wo))
+    walk.depth[go_on] = arrived
+    walk.active &= ~surface | go_on
+    return go_on

@@ -6,7 +6,7 @@ A camera subpath starts through its pixel (the film's filter importance-sampled,
 :func:`photonmap.core.camera.pixel_rays`) with ``dVCM = N_L / (P p_cam) = 1 / W_e(ω)`` (the
 sensor's importance over the crop of ``P = N_L`` pixels, TR (31): the density with which a camera
 subpath of this pixel samples the direction, per pixel) and ``dVC = dVM = 0``. At each hit
-(quantities completed as on the light side, :func:`.light.update_at_hit`):
+(quantities completed as on the light side, :func:`.mis.after_hit`):
 
 - **emission met**, weighted by ``1 / (1 + p_direct dVCM + p_e dVC)`` (TR (43); the emission
   seen directly is unweighted: no other technique makes it);
@@ -15,14 +15,18 @@ subpath of this pixel samples the direction, per pixel) and ``dVC = dVM = 0``. A
   the same index (TR (40)–(41); a shadow ray each), **merging** with the light vertices within
   ``r`` (TR (38)–(39), normalised by ``1 / (π r² N_L)``: photon mapping's density estimate;
   unweighted in ``ppm`` mode, which stops after it);
-- the next segment by the BSDF sample (:func:`.light.scattered`) and Russian roulette on the
-  throughput (Mitsuba's, with the η² of the refractions crossed).
+- the next segment by the BSDF sample (the quantities by :func:`.light.after_sample`) and
+  Russian roulette on the throughput (Mitsuba's, with the η² of the refractions crossed).
 
 In ``lt`` mode the camera subpaths only add the emission they see directly.
+
+The subpaths are the transport core's eye paths (:func:`photonmap.core.eye_trace.trace_eye_paths`:
+the flight, the BSDF sample, Russian roulette) with :class:`CameraVertexRule` as their vertex rule.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -30,23 +34,16 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.camera import pixel_means, pixel_rays
+from ..core.eye_trace import EyeRules, EyeVertexRule, trace_eye_paths
 from ..core.hashgrid import HashGrid
 from ..core.sampling import rng
-from ..core.settings import UNBOUNDED, PathSettings, survival
+from ..core.scene_info import SceneTraits
+from ..core.settings import UNBOUNDED, PathSettings
 from . import mis
-from .light import (
-    IMPORTANCE,
-    RADIANCE,
-    Emitters,
-    LightVertices,
-    reverse_pdf,
-    scattered,
-    update_at_hit,
-)
+from .light import IMPORTANCE, RADIANCE, Emitters, LightVertices, after_sample, reverse_pdf
 from .mis import Techniques
 
 RAY_EPSILON = 1500 * 2.0**-24  # Mitsuba's math::RayEpsilon<float>
-MAX_EVENTS = 1024  # vertices of one camera subpath at most (Russian roulette ends them first)
 
 
 @dataclass
@@ -77,20 +74,15 @@ class MergeGrid:
 
 
 @dataclass
-class _Walk:
-    ray: mi.Ray3f
-    beta: mi.Spectrum
-    beta0: mi.Float
+class _Subpath:
+    """A camera subpath's MIS quantities and history: the extra state it carries through the
+    core's loop."""
+
     d_vcm: mi.Float
     d_vc: mi.Float
     d_vm: mi.Float
-    depth: mi.UInt32
-    eta: mi.Float
     specular: mi.Bool  # every bounce so far a delta one
     prev: mi.Interaction3f  # the last vertex
-    radiance: mi.Spectrum
-    active: mi.Bool
-    events: mi.UInt32
     offset: mi.Float  # the camera's centre to the ray's origin (the near clip plane); then 0
 
 
@@ -128,22 +120,17 @@ def camera_pass(
     importance = importance.x * dr.square(distance)
     d_vcm = dr.select(importance > 0, dr.rcp(importance), 0.0)
     zero = dr.zeros(mi.Float, n)
-    walk = _Walk(
-        ray, mi.Spectrum(weight), dr.maximum(dr.max(dr.abs(mi.Spectrum(weight))), 1e-30), d_vcm,
-        zero, zero, dr.zeros(mi.UInt32, n), zero + 1, dr.full(mi.Bool, True, n),
-        dr.zeros(mi.Interaction3f, n), dr.zeros(mi.Spectrum, n), dr.full(mi.Bool, True, n),
-        dr.zeros(mi.UInt32, n), dr.norm(ray.o - centre),  # Mitsuba starts at the near plane
-    )  # fmt: skip
-    limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
+    subpaths = _Subpath(d_vcm, zero, zero, dr.full(mi.Bool, True, n),
+                        dr.zeros(mi.Interaction3f, n), dr.norm(ray.o - centre))  # fmt: skip
+    dr.make_opaque(subpaths)  # no literal loop state (a literal that the loop changes is refused)
     if tech.mode == "lt":  # the camera subpaths add the emission they see and stop
-        limit = 1
+        settings = dataclasses.replace(settings, max_depth=1)
+    limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
     limit = dr.opaque(mi.UInt32, limit)
     vm_factor = dr.opaque(mi.Float, tech.vm_factor)
     path = dr.arange(mi.UInt32, n)
 
-    # the loop's state (``gen`` too) reaches these closures as arguments: a symbolic loop
-    # passes its body copies of the state, which a closure over the originals would not see
-    def at_vertex(si, bsdf, gen, t, d_vcm, d_vc, d_vm, active):
+    def techniques(si, bsdf, gen, t, d_vcm, d_vc, d_vm, active):
         """The techniques at a smooth vertex: next-event estimation, connections, merges."""
         total = dr.zeros(mi.Spectrum, n)
         if tech.nee:
@@ -156,55 +143,58 @@ def camera_pass(
             total += _merge(grid, si, bsdf, t, d_vcm, d_vm, tech, limit, active)
         return total
 
-    def emission(si, t, d_vcm, d_vc, specular, prev, active):
-        return _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech, emitters,
-                         settings.hide_emitters, active)  # fmt: skip
-
-    def scatter(bsdf, si, gen, d_vcm, d_vc, d_vm, active):
-        return scattered(bsdf, RADIANCE, si, gen, d_vcm, d_vc, d_vm, tech, active)
-
-    dr.make_opaque(walk)  # no literal loop state (a literal that the loop changes is refused)
-    _loop(scene, walk, gen, limit, dr.opaque(mi.UInt32, settings.rr_depth), tech.mode,
-          at_vertex, emission, scatter)  # fmt: skip
-    return pixel_means(walk.radiance, tech.spp)
+    rule = CameraVertexRule(scene, tech, emitters, settings.hide_emitters, techniques, subpaths)
+    rules = EyeRules(settings, SceneTraits.of(scene), media_mode="transmit", vertex=rule)
+    eye = trace_eye_paths(scene, (ray, mi.Spectrum(weight), dr.zeros(mi.MediumPtr, n)), gen,
+                          rules)  # fmt: skip
+    return pixel_means(eye.radiance, tech.spp)
 
 
-@dr.syntax
-def _loop(scene, walk: _Walk, gen, limit, rr_depth, mode: str, at_vertex, emission, scatter):
-    """The camera subpaths' loop (module docstring); updates ``walk`` in place."""
-    while walk.active & (walk.events < MAX_EVENTS):
-        si = scene.ray_intersect(walk.ray, walk.active)
-        si.t += walk.offset  # the first segment's length from the camera's centre
-        hit = walk.active & si.is_valid()
-        t = walk.depth + 1
-        d_vcm, d_vc, d_vm = update_at_hit(si, walk.d_vcm, walk.d_vc, walk.d_vm)
-        walk.radiance[hit] += walk.beta * emission(si, t, d_vcm, d_vc, walk.specular, walk.prev,
-                                                   hit)  # fmt: skip
-        bsdf = si.bsdf(walk.ray)
-        here = hit & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & (t < limit)
-        walk.radiance[here] += walk.beta * at_vertex(si, bsdf, gen, t, d_vcm, d_vc, d_vm, here)
-        # ---- the next segment
-        go_on = hit & (t < limit)
-        bs, weight, delta, d_vcm, d_vc, d_vm, ok = scatter(bsdf, si, gen, d_vcm, d_vc, d_vm, go_on)
-        go_on &= ok
-        if dr.hint(mode == "ppm", mode="scalar"):
+class CameraVertexRule(EyeVertexRule):
+    """The camera subpaths' vertex rule in the core's eye loop (module docstring): on arrival the
+    MIS quantities completed and the emission met weighted, at a smooth vertex the ``techniques``
+    (next-event estimation, connections, merges), after the BSDF sample the quantities updated
+    (``ppm`` mode: only delta samples go on, the path merged at its first smooth vertex)."""
+
+    def __init__(self, scene, tech: Techniques, emitters: Emitters, hide: bool, techniques,
+                 subpaths: _Subpath):  # fmt: skip
+        self.scene, self.tech, self.emitters, self.hide = scene, tech, emitters, hide
+        self.techniques, self.subpaths = techniques, subpaths
+
+    def extra(self) -> _Subpath:
+        return self.subpaths
+
+    def arrive(self, walk, si, arrived, hit) -> None:
+        sub = walk.extra
+        cos_in = dr.maximum(dr.abs(mi.Frame3f.cos_theta(si.wi)), 1e-12)
+        dist2 = dr.square(si.t + sub.offset)  # the first segment's from the camera's centre
+        d_vcm, d_vc, d_vm = mis.after_hit(sub.d_vcm, sub.d_vc, sub.d_vm, dist2, cos_in)
+        sub.d_vcm[hit] = d_vcm
+        sub.d_vc[hit] = d_vc
+        sub.d_vm[hit] = d_vm
+        walk.radiance[hit] += walk.beta * _emission(
+            self.scene, si, arrived, d_vcm, d_vc, sub.specular, sub.prev, self.tech,
+            self.emitters, self.hide, hit,
+        )  # fmt: skip
+
+    def at_vertex(self, walk, si, bsdf, gen, arrived, here) -> mi.Spectrum:
+        sub = walk.extra
+        return self.techniques(si, bsdf, gen, arrived, sub.d_vcm, sub.d_vc, sub.d_vm, here)
+
+    def bounced(self, walk, si, bsdf, bs, go_on) -> mi.Bool:
+        sub = walk.extra
+        quantities = (sub.d_vcm, sub.d_vc, sub.d_vm)
+        (d_vcm, d_vc, d_vm), delta = after_sample(bsdf, RADIANCE, si, bs, quantities, self.tech,
+                                                  go_on)  # fmt: skip
+        if self.tech.mode == "ppm":
             go_on &= delta  # merged at the first smooth vertex; its delta lobes go on
-        walk.beta[go_on] *= weight
-        walk.eta[go_on] *= bs.eta
-        rolled = go_on & (t >= rr_depth)
-        q = survival(walk.beta, walk.beta0, walk.eta)
-        walk.beta[rolled] /= q
-        go_on &= ~rolled | (gen.next_float32() < q)
-        walk.specular[go_on] &= delta
-        walk.prev[go_on] = mi.Interaction3f(si)
-        walk.d_vcm[go_on] = d_vcm
-        walk.d_vc[go_on] = d_vc
-        walk.d_vm[go_on] = d_vm
-        walk.ray[go_on] = si.spawn_ray(si.to_world(bs.wo))
-        walk.offset[go_on] = 0.0
-        walk.depth[go_on] = t
-        walk.active = go_on
-        walk.events += 1
+        sub.specular[go_on] &= delta
+        sub.prev[go_on] = mi.Interaction3f(si)
+        sub.d_vcm[go_on] = d_vcm
+        sub.d_vc[go_on] = d_vc
+        sub.d_vm[go_on] = d_vm
+        sub.offset[go_on] = 0.0
+        return go_on
 
 
 def _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech: Techniques, emitters: Emitters,

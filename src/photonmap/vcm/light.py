@@ -155,12 +155,6 @@ class _Subpath:
     cos_light: mi.Float
 
 
-def update_at_hit(si: mi.SurfaceInteraction3f, d_vcm, d_vc, d_vm):
-    """:func:`.mis.after_hit` at ``si`` (its distance and the cosine of its incoming direction)."""
-    cos_in = dr.maximum(dr.abs(mi.Frame3f.cos_theta(si.wi)), 1e-12)
-    return mis.after_hit(d_vcm, d_vc, d_vm, dr.square(si.t), cos_in)
-
-
 def reverse_pdf(bsdf, ctx, si: mi.SurfaceInteraction3f, wo: mi.Vector3f, active) -> mi.Float:
     """The density of sampling ``si.wi`` from ``wo`` (the reverse of the forward sample)."""
     swapped = mi.SurfaceInteraction3f(si)
@@ -187,19 +181,6 @@ def after_sample(bsdf, ctx, si, bs, quantities, tech: Techniques, active):
     if not tech.connect:  # no connections: the subpaths need dVC only for them (module docstring)
         new_vc = dr.zeros(mi.Float, dr.width(new_vc))
     return (new_vcm, new_vc, new_vm), delta
-
-
-def scattered(bsdf, ctx, si, gen, d_vcm, d_vc, d_vm, tech: Techniques, active):
-    """Sample the BSDF at ``si`` and update the MIS quantities for the next segment
-    (:func:`after_sample`). Returns the sample, its weight ``f |cos θ_o| / p``, whether it was a
-    delta event, the new quantities and where the sample is usable."""
-    bs, weight = bsdf.sample(
-        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()), active
-    )
-    (new_vcm, new_vc, new_vm), delta = after_sample(bsdf, ctx, si, bs, (d_vcm, d_vc, d_vm),
-                                                    tech, active)  # fmt: skip
-    ok = active & (bs.pdf > 0) & dr.any(weight != 0.0)
-    return bs, weight, delta, new_vcm, new_vc, new_vm, ok
 
 
 def _emit(scene: mi.Scene, n: int, gen, tech: Techniques, emitters: Emitters):
