@@ -212,8 +212,8 @@ def trace_eye_paths(
         ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), start_depth,
         active & dr.full(mi.Bool, True, n), rules.vertex.extra() if rules.vertex else None,
     )  # fmt: skip
-    if rules.vertex is not None:  # no literal loop state: a rule's loop may change any of it
-        dr.make_opaque(walk)
+    if rules.vertex is not None:  # in memory: the literals a rule's loop changes (a changed
+        dr.make_opaque(walk.radiance, walk.eta, walk.depth, walk.extra)  # literal is refused)
     vertex_rules = _Rules(
         media=traits.media,
         media_mode=rules.media_mode if traits.media else "transmit",  # vacuum: no collisions

@@ -122,7 +122,6 @@ def camera_pass(
     zero = dr.zeros(mi.Float, n)
     subpaths = _Subpath(d_vcm, zero, zero, dr.full(mi.Bool, True, n),
                         dr.zeros(mi.Interaction3f, n), dr.norm(ray.o - centre))  # fmt: skip
-    dr.make_opaque(subpaths)  # no literal loop state (a literal that the loop changes is refused)
     if tech.mode == "lt":  # the camera subpaths add the emission they see and stop
         settings = dataclasses.replace(settings, max_depth=1)
     limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
