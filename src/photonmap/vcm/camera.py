@@ -124,25 +124,7 @@ def camera_pass(
                         dr.zeros(mi.Interaction3f, n), dr.norm(ray.o - centre))  # fmt: skip
     if tech.mode == "lt":  # the camera subpaths add the emission they see and stop
         settings = dataclasses.replace(settings, max_depth=1)
-    limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
-    limit = dr.opaque(mi.UInt32, limit)
-    vm_factor = dr.opaque(mi.Float, tech.vm_factor)
-    path = dr.arange(mi.UInt32, n)
-
-    def techniques(si, bsdf, gen, t, d_vcm, d_vc, d_vm, active):
-        """The techniques at a smooth vertex: next-event estimation, connections, merges."""
-        total = dr.zeros(mi.Spectrum, n)
-        if tech.nee:
-            total += _next_event(scene, si, bsdf, gen, d_vcm, d_vc, vm_factor, tech, emitters,
-                                 active)  # fmt: skip
-        if tech.connect and vertices is not None:
-            total += _connect(scene, si, bsdf, path, t, d_vcm, d_vc, vertices, vm_factor, limit,
-                              active)  # fmt: skip
-        if tech.merge and grid is not None:
-            total += _merge(grid, si, bsdf, t, d_vcm, d_vm, tech, limit, active)
-        return total
-
-    rule = CameraVertexRule(scene, tech, emitters, settings.hide_emitters, techniques, subpaths)
+    rule = CameraVertexRule(scene, tech, emitters, settings, (vertices, grid), subpaths)
     rules = EyeRules(settings, SceneTraits.of(scene), media_mode="transmit", vertex=rule)
     eye = trace_eye_paths(scene, (ray, mi.Spectrum(weight), dr.zeros(mi.MediumPtr, n)), gen,
                           rules)  # fmt: skip
@@ -151,14 +133,20 @@ def camera_pass(
 
 class CameraVertexRule(EyeVertexRule):
     """The camera subpaths' vertex rule in the core's eye loop (module docstring): on arrival the
-    MIS quantities completed and the emission met weighted, at a smooth vertex the ``techniques``
-    (next-event estimation, connections, merges), after the BSDF sample the quantities updated
-    (``ppm`` mode: only delta samples go on, the path merged at its first smooth vertex)."""
+    MIS quantities completed and the emission met weighted, at a smooth vertex next-event
+    estimation, connections and merges, after the BSDF sample the quantities updated (``ppm``
+    mode: only delta samples go on, the path merged at its first smooth vertex). ``light``: the
+    light pass's ``(vertices, grid)`` (None where the mode uses neither)."""
 
-    def __init__(self, scene, tech: Techniques, emitters: Emitters, hide: bool, techniques,
-                 subpaths: _Subpath):  # fmt: skip
-        self.scene, self.tech, self.emitters, self.hide = scene, tech, emitters, hide
-        self.techniques, self.subpaths = techniques, subpaths
+    def __init__(self, scene, tech: Techniques, emitters: Emitters, settings: PathSettings,
+                 light: tuple, subpaths: _Subpath):  # fmt: skip
+        self.scene, self.tech, self.emitters, self.subpaths = scene, tech, emitters, subpaths
+        self.hide = settings.hide_emitters
+        self.vertices, self.grid = light
+        limit = 2**31 - 1 if settings.max_depth == UNBOUNDED else settings.max_depth
+        self.limit = dr.opaque(mi.UInt32, limit)
+        self.vm_factor = dr.opaque(mi.Float, tech.vm_factor)
+        self.paths = dr.width(subpaths.d_vcm)
 
     def extra(self) -> _Subpath:
         return self.subpaths
@@ -171,14 +159,18 @@ class CameraVertexRule(EyeVertexRule):
         sub.d_vcm[hit] = d_vcm
         sub.d_vc[hit] = d_vc
         sub.d_vm[hit] = d_vm
-        walk.radiance[hit] += walk.beta * _emission(
-            self.scene, si, arrived, d_vcm, d_vc, sub.specular, sub.prev, self.tech,
-            self.emitters, self.hide, hit,
-        )  # fmt: skip
+        walk.radiance[hit] += walk.beta * self._emission(si, arrived, (d_vcm, d_vc), sub, hit)
 
     def at_vertex(self, walk, si, bsdf, gen, arrived, here) -> mi.Spectrum:
-        sub = walk.extra
-        return self.techniques(si, bsdf, gen, arrived, sub.d_vcm, sub.d_vc, sub.d_vm, here)
+        sub, tech = walk.extra, self.tech
+        total = dr.zeros(mi.Spectrum, self.paths)
+        if tech.nee:
+            total += self._next_event(si, bsdf, gen, (sub.d_vcm, sub.d_vc), here)
+        if tech.connect and self.vertices is not None:
+            total += self._connect(si, bsdf, arrived, (sub.d_vcm, sub.d_vc), here)
+        if tech.merge and self.grid is not None:
+            total += self._merge(si, bsdf, arrived, (sub.d_vcm, sub.d_vm), here)
+        return total
 
     def bounced(self, walk, si, bsdf, bs, go_on) -> mi.Bool:
         sub = walk.extra
@@ -195,65 +187,100 @@ class CameraVertexRule(EyeVertexRule):
         sub.offset[go_on] = 0.0
         return go_on
 
+    def _emission(self, si, t, camera, sub: _Subpath, active):
+        """``w L_e`` of an emitter met (TR (43): ``w = 1 / (1 + p_direct dVCM + p_e dVC)``,
+        ``camera = (dVCM, dVC)``, with ``p_direct`` next-event estimation's density of the point
+        from the previous vertex; 1 for the emission seen directly; in ``ppm`` mode 1 along
+        purely specular paths and 0 otherwise, in ``lt`` mode only the emission seen
+        directly)."""
+        scene, tech = self.scene, self.tech
+        emitter = si.emitter(scene, active)
+        met = active & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
+        radiance = emitter.eval(si, met)
+        first = t == 1
+        if tech.mode == "ppm":
+            weight = dr.select(first | sub.specular, 1.0, 0.0)
+        elif tech.mode == "lt":
+            weight = dr.select(first, 1.0, 0.0)
+        else:
+            later = met & ~first
+            ds = mi.DirectionSample3f(scene, si, sub.prev)
+            cos_light = dr.abs(mi.Frame3f.cos_theta(si.wi))
+            p_direct = scene.pdf_emitter_direction(sub.prev, ds, later)
+            p_direct_area = p_direct * cos_light / dr.square(si.t)
+            p_e = self.emitters.emitted(si, emitter, cos_light, dr.zeros(mi.Bool, dr.width(t)))
+            weight = dr.select(first, 1.0, mis.emission_weight(*camera, p_direct_area, p_e))
+        if self.hide:
+            weight = dr.select(first, 0.0, weight)
+        return dr.select(met, weight * radiance, 0.0)
 
-def _emission(scene, si, t, d_vcm, d_vc, specular, prev, tech: Techniques, emitters: Emitters,
-              hide: bool, active):  # fmt: skip
-    """``w L_e`` of an emitter met (TR (43): ``w = 1 / (1 + p_direct dVCM + p_e dVC)``, with
-    ``p_direct`` next-event estimation's density of the point from the previous vertex; 1 for
-    the emission seen directly; in ``ppm`` mode 1 along purely specular paths and 0 otherwise,
-    in ``lt`` mode only the emission seen directly)."""
-    emitter = si.emitter(scene, active)
-    met = active & (emitter != None)  # noqa: E711 (Dr.Jit pointer test)
-    radiance = emitter.eval(si, met)
-    first = t == 1
-    if tech.mode == "ppm":
-        weight = dr.select(first | specular, 1.0, 0.0)
-    elif tech.mode == "lt":
-        weight = dr.select(first, 1.0, 0.0)
-    else:
-        later = met & ~first
-        ds = mi.DirectionSample3f(scene, si, prev)
-        cos_light = dr.abs(mi.Frame3f.cos_theta(si.wi))
-        p_direct = scene.pdf_emitter_direction(prev, ds, later)
-        p_direct_area = p_direct * cos_light / dr.square(si.t)
-        p_e = emitters.emitted(si, emitter, cos_light, dr.zeros(mi.Bool, dr.width(t)))
-        weight = dr.select(first, 1.0, mis.emission_weight(d_vcm, d_vc, p_direct_area, p_e))
-    if hide:
-        weight = dr.select(first, 0.0, weight)
-    return dr.select(met, weight * radiance, 0.0)
+    def _next_event(self, si, bsdf, gen, camera, active):
+        """Next-event estimation weighted by TR (44)–(45), ``camera = (dVCM, dVC)`` (``pt``
+        mode: against the BSDF sample alone)."""
+        scene, tech = self.scene, self.tech
+        u = mi.Point2f(gen.next_float32(), gen.next_float32())
+        ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
+        lit = active & (ds.pdf > 0)  # a new mask: ``&=`` would change the caller's
+        wo = si.to_local(ds.d)
+        f, p_forward = bsdf.eval_pdf(RADIANCE, si, wo, lit)
+        cos_light = dr.select(ds.delta, 1.0, dr.abs(dr.dot(ds.n, ds.d)))
+        p_direct = dr.select(ds.delta, ds.pdf * dr.square(ds.dist), ds.pdf)  # per solid angle
+        p_forward = dr.select(ds.delta, 0.0, p_forward)  # no BSDF sample finds a delta light
+        if tech.mode == "pt":  # against the BSDF sample alone
+            weight = dr.rcp(1.0 + p_forward / p_direct)
+        else:
+            p_rev = reverse_pdf(bsdf, RADIANCE, si, wo, lit)
+            p_e = self.emitters.emitted(ds, ds.emitter, cos_light, ds.delta)
+            weight = mis.next_event_weight(*camera, p_forward, p_direct, p_e,
+                                           dr.abs(mi.Frame3f.cos_theta(wo)), cos_light, p_rev,
+                                           self.vm_factor)  # fmt: skip
+        lit &= dr.any(f != 0.0)
+        lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
+        return dr.select(lit, weight * f * em_weight, 0.0)
 
+    def _connect(self, si, bsdf, t, camera, active):
+        """Σ over the vertices of the light subpath of the same lane (TR (40)–(41)), ``camera =
+        (dVCM, dVC)``: :func:`_connect`."""
+        path = dr.arange(mi.UInt32, self.paths)
+        return _connect(self.scene, (si, bsdf, path, t), camera, self.vertices,
+                        (self.vm_factor, self.limit), active)  # fmt: skip
 
-def _next_event(scene, si, bsdf, gen, d_vcm, d_vc, vm_factor, tech: Techniques,
-                emitters: Emitters, active):  # fmt: skip
-    """Next-event estimation weighted by TR (44)–(45) (``pt`` mode: against the BSDF sample
-    alone)."""
-    u = mi.Point2f(gen.next_float32(), gen.next_float32())
-    ds, em_weight = scene.sample_emitter_direction(si, u, False, active)
-    lit = active & (ds.pdf > 0)  # a new mask: ``&=`` would change the caller's
-    wo = si.to_local(ds.d)
-    f, p_forward = bsdf.eval_pdf(RADIANCE, si, wo, lit)
-    cos_light = dr.select(ds.delta, 1.0, dr.abs(dr.dot(ds.n, ds.d)))
-    p_direct = dr.select(ds.delta, ds.pdf * dr.square(ds.dist), ds.pdf)  # per solid angle here
-    p_forward = dr.select(ds.delta, 0.0, p_forward)  # no BSDF sample finds a delta light
-    if tech.mode == "pt":  # against the BSDF sample alone
-        weight = dr.rcp(1.0 + p_forward / p_direct)
-    else:
-        p_rev = reverse_pdf(bsdf, RADIANCE, si, wo, lit)
-        p_e = emitters.emitted(ds, ds.emitter, cos_light, ds.delta)
-        weight = mis.next_event_weight(d_vcm, d_vc, p_forward, p_direct, p_e,
-                                       dr.abs(mi.Frame3f.cos_theta(wo)), cos_light, p_rev,
-                                       vm_factor)  # fmt: skip
-    lit &= dr.any(f != 0.0)
-    lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
-    return dr.select(lit, weight * f * em_weight, 0.0)
+    def _merge(self, si, bsdf, t, camera, active):
+        """``1/(π r² N_L) Σ w f_s β_L`` over the light vertices within ``r`` whose path fits
+        ``max_depth`` (TR (38)–(39): ``w_light = dVCM_L / η + dVM_L p``, ``w_camera = dVCM / η
+        + dVM p_rev``, ``camera = (dVCM, dVM)``; ``w = 1`` in ``ppm`` mode), ``f_s`` without its
+        cosine."""
+        tech, grid, limit = self.tech, self.grid, self.limit
+        vc_factor = dr.opaque(mi.Float, tech.vc_factor)
+        weighted = tech.mode != "ppm"
+
+        def term(j, near):
+            ok = near & (dr.gather(mi.UInt32, grid.depth, j, near) + t <= limit)
+            wo = si.to_local(dr.gather(mi.Vector3f, grid.wi, j, ok))
+            f, p = bsdf.eval_pdf(RADIANCE, si, wo, ok)
+            f = f / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
+            weight = dr.ones(mi.Float, dr.width(t))
+            if weighted:
+                p_rev = reverse_pdf(bsdf, RADIANCE, si, wo, ok)
+                light = (dr.gather(mi.Float, grid.d_vcm, j, ok),
+                         dr.gather(mi.Float, grid.d_vm, j, ok))  # fmt: skip
+                weight = mis.merge_weight(light, camera, p, p_rev, vc_factor)
+            return dr.select(ok, weight * f * dr.gather(mi.Spectrum, grid.beta, j, ok), 0.0)
+
+        zero = dr.zeros(mi.Spectrum, dr.width(t))
+        radius2 = dr.opaque(mi.Float, tech.radius**2)
+        total = grid.grid.sum_within(si.p, radius2, term, zero, active, span=2)
+        return total * dr.opaque(mi.Float, tech.merge_normalization)
 
 
 @dr.syntax
-def _connect(scene, si, bsdf, path, t, d_vcm, d_vc, vertices: LightVertices, vm_factor, limit,
-             active):  # fmt: skip
-    """Σ over the vertices of the light subpath ``path``: ``w β_L f_L f_C / d²`` with TR (40)–(41)
-    ``w_light = p_C→L (η + dVCM_L + dVC_L p_L,rev)``, ``w_camera = p_L→C (η + dVCM + dVC
-    p_C,rev)``, the densities per area; a shadow ray each."""
+def _connect(scene, vertex, camera, vertices: LightVertices, constants, active):
+    """Σ over the vertices of the light subpath ``path`` at the camera ``vertex = (si, bsdf,
+    path, t)``: ``w β_L f_L f_C / d²`` with TR (40)–(41) ``w_light = p_C→L (η + dVCM_L + dVC_L
+    p_L,rev)``, ``w_camera = p_L→C (η + dVCM + dVC p_C,rev)`` (``camera = (dVCM, dVC)``), the
+    densities per area; a shadow ray each. ``constants = (η_VCM, max_depth)``."""
+    si, bsdf, path, t = vertex
+    vm_factor, limit = constants
     k = dr.gather(mi.UInt32, vertices.start, path, active)
     end = dr.gather(mi.UInt32, vertices.start, path + 1, active)
     total = dr.zeros(mi.Spectrum, dr.width(path))
@@ -273,7 +300,7 @@ def _connect(scene, si, bsdf, path, t, d_vcm, d_vc, vertices: LightVertices, vm_
         p_light_rev = reverse_pdf(light_bsdf, IMPORTANCE, light, wo_light, ok)
         weight = mis.connection_weight(
             (dr.gather(mi.Float, vertices.d_vcm, k), dr.gather(mi.Float, vertices.d_vc, k)),
-            (d_vcm, d_vc), p, p_rev, p_light, p_light_rev, dr.abs(mi.Frame3f.cos_theta(wo)),
+            camera, p, p_rev, p_light, p_light_rev, dr.abs(mi.Frame3f.cos_theta(wo)),
             dr.abs(mi.Frame3f.cos_theta(wo_light)), dist2, vm_factor,
         )  # fmt: skip
         value = f * f_light * dr.gather(mi.Spectrum, vertices.throughput, k) / dist2
@@ -289,28 +316,3 @@ def _lifted(si: mi.SurfaceInteraction3f, d: mi.Vector3f) -> mi.Point3f:
     of a shadow ray between two surface points must not hit its own surface)."""
     lift = (1.0 + dr.max(dr.abs(si.p))) * RAY_EPSILON
     return si.p + dr.mulsign(si.n * lift, dr.dot(si.n, d))
-
-
-def _merge(grid: MergeGrid, si, bsdf, t, d_vcm, d_vm, tech: Techniques, limit, active):
-    """``1/(π r² N_L) Σ w f_s β_L`` over the light vertices within ``r`` whose path fits
-    ``max_depth`` (TR (38)–(39): ``w_light = dVCM_L / η + dVM_L p``, ``w_camera = dVCM / η +
-    dVM p_rev``; ``w = 1`` in ``ppm`` mode), ``f_s`` without its cosine."""
-    vc_factor = dr.opaque(mi.Float, tech.vc_factor)
-    weighted = tech.mode != "ppm"
-
-    def term(j, near):
-        ok = near & (dr.gather(mi.UInt32, grid.depth, j, near) + t <= limit)
-        wo = si.to_local(dr.gather(mi.Vector3f, grid.wi, j, ok))
-        f, p = bsdf.eval_pdf(RADIANCE, si, wo, ok)
-        f = f / dr.maximum(dr.abs(mi.Frame3f.cos_theta(wo)), 1e-4)
-        weight = dr.ones(mi.Float, dr.width(t))
-        if weighted:
-            p_rev = reverse_pdf(bsdf, RADIANCE, si, wo, ok)
-            light = (dr.gather(mi.Float, grid.d_vcm, j, ok), dr.gather(mi.Float, grid.d_vm, j, ok))
-            weight = mis.merge_weight(light, (d_vcm, d_vm), p, p_rev, vc_factor)
-        return dr.select(ok, weight * f * dr.gather(mi.Spectrum, grid.beta, j, ok), 0.0)
-
-    zero = dr.zeros(mi.Spectrum, dr.width(t))
-    radius2 = dr.opaque(mi.Float, tech.radius**2)
-    total = grid.grid.sum_within(si.p, radius2, term, zero, active, span=2)
-    return total * dr.opaque(mi.Float, tech.merge_normalization)

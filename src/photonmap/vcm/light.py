@@ -288,8 +288,7 @@ class LightVertexRule(VertexRule):
 
     def record(self, state, si, bsdf, store, caustic) -> tuple:
         sub = state.extra
-        pixel, splat = _to_camera(self.scene, self.sensor, si, bsdf, state.power, sub.d_vcm,
-                                  sub.d_vc, self.tech, self.size, store)  # fmt: skip
+        pixel, splat = self._to_camera(si, bsdf, state.power, (sub.d_vcm, sub.d_vc), store)
         rank = mi.UInt32(sub.rank)  # a copy: the masked update below is in place
         sub.rank[store] += 1
         return (si, state.power, state.depth + 1, sub.d_vcm, sub.d_vc, sub.d_vm, state.path,
@@ -306,6 +305,31 @@ class LightVertexRule(VertexRule):
 
     def result(self, records: dict, light: LightPaths, rays: int) -> dict:
         return records
+
+    def _to_camera(self, si, bsdf, beta, light, active):
+        """Light tracing at a stored vertex: its pixel (``w · h`` where it misses the crop) and
+        the splat ``w_LT · β f_s W_e / d²`` (TR (46): ``w_light = p_cam (η + dVCM + dVC
+        p_rev)``, ``light = (dVCM, dVC)``; the only technique in ``lt`` mode)."""
+        scene, sensor, tech = self.scene, self.sensor, self.tech
+        w, h = self.size
+        miss = dr.full(mi.UInt32, w * h, dr.width(active))
+        if not tech.light_tracing:
+            return miss, dr.zeros(mi.Spectrum, dr.width(active))
+        ds, importance = sensor.sample_direction(si, mi.Point2f(0.5, 0.5), active)
+        wo = si.to_local(ds.d)
+        seen = active & (ds.pdf > 0) & dr.any(importance > 0)
+        f = bsdf.eval(IMPORTANCE, si, wo, seen)
+        seen &= dr.any(f != 0.0) & ~scene.ray_test(si.spawn_ray_to(ds.p), seen)
+        x, y = mi.UInt32(dr.floor(ds.uv.x)), mi.UInt32(dr.floor(ds.uv.y))
+        seen &= (ds.uv.x >= 0) & (ds.uv.y >= 0) & (x < w) & (y < h)
+        weight = dr.ones(mi.Float, dr.width(active))
+        if tech.mode != "lt":
+            p_rev = reverse_pdf(bsdf, IMPORTANCE, si, wo, seen)
+            p_camera = importance.x * dr.abs(mi.Frame3f.cos_theta(wo))  # × P / N_L = 1
+            weight = mis.light_tracing_weight(*light, p_camera, p_rev,
+                                              dr.opaque(mi.Float, tech.vm_factor))  # fmt: skip
+        splat = dr.select(seen, weight * beta * f * importance, 0.0)
+        return dr.select(seen, y * w + x, miss), splat
 
 
 def _sorted(records: dict, n: int) -> LightVertices:
@@ -328,28 +352,3 @@ def _sorted(records: dict, n: int) -> LightVertices:
         out.append(value)
     dr.eval(*out)
     return LightVertices(*out, start)
-
-
-def _to_camera(scene, sensor, si, bsdf, beta, d_vcm, d_vc, tech: Techniques, size, active):
-    """Light tracing at a stored vertex: its pixel (``w · h`` where it misses the crop) and the
-    splat ``w_LT · β f_s W_e / d²`` (TR (46): ``w_light = p_cam (η + dVCM + dVC p_rev)``; the
-    only technique in ``lt`` mode)."""
-    w, h = size
-    miss = dr.full(mi.UInt32, w * h, dr.width(active))
-    if not tech.light_tracing:
-        return miss, dr.zeros(mi.Spectrum, dr.width(active))
-    ds, importance = sensor.sample_direction(si, mi.Point2f(0.5, 0.5), active)
-    wo = si.to_local(ds.d)
-    seen = active & (ds.pdf > 0) & dr.any(importance > 0)
-    f = bsdf.eval(IMPORTANCE, si, wo, seen)
-    seen &= dr.any(f != 0.0) & ~scene.ray_test(si.spawn_ray_to(ds.p), seen)
-    x, y = mi.UInt32(dr.floor(ds.uv.x)), mi.UInt32(dr.floor(ds.uv.y))
-    seen &= (ds.uv.x >= 0) & (ds.uv.y >= 0) & (x < w) & (y < h)
-    weight = dr.ones(mi.Float, dr.width(active))
-    if tech.mode != "lt":
-        p_rev = reverse_pdf(bsdf, IMPORTANCE, si, wo, seen)
-        p_camera = importance.x * dr.abs(mi.Frame3f.cos_theta(wo))  # × P / N_L = 1
-        weight = mis.light_tracing_weight(d_vcm, d_vc, p_camera, p_rev,
-                                          dr.opaque(mi.Float, tech.vm_factor))  # fmt: skip
-    splat = dr.select(seen, weight * beta * f * importance, 0.0)
-    return dr.select(seen, y * w + x, miss), splat
