@@ -188,7 +188,7 @@ def trace_photons(
 def trace_light_paths(
     scene: mi.Scene, light: LightPaths, gen, rules: PhotonRules, first_depth: int = 0,
     vertices: VertexRule | None = None,
-) -> tuple[PhotonRecords, VolumePhotons | None]:
+) -> tuple:
     """Trace the light paths ``light`` by ``rules`` (module docstring) and return what
     ``vertices`` made of their surface vertices (default :class:`PhotonMapVertices`: the photon
     records) and, in a scene with media, their volume photons. ``gen``: one random generator per
@@ -196,7 +196,7 @@ def trace_light_paths(
     map); ``first_depth``: interactions the paths have already had (records then count from
     it)."""
     vertices = vertices or PhotonMapVertices()
-    state = _PathState.start(light, gen, first_depth, vertices.extra(light))
+    state = _PathState.start(light, gen, first_depth, vertices.extra())
     surface, volume = [], []
     steps = rays = 0
     while state.count and steps < MAX_STEPS:
@@ -217,12 +217,14 @@ class VertexRule:
     hook): its records' ``fields`` (name → Dr.Jit type), its per-path state (:meth:`extra`,
     carried in ``state.extra`` through the chunks), and the steps :func:`_loop` calls — on
     arrival at a vertex (:meth:`arrive`), the record's values where one is stored
-    (:meth:`record`) and after the BSDF sample (:meth:`bounced`). :meth:`result` makes the
-    method's output of the records (each field concatenated over the chunks)."""
+    (:meth:`record`; they are stored after it returns, so a value it updates in place, as a
+    masked ``x[mask] += 1`` does, goes out as a copy) and after the BSDF sample
+    (:meth:`bounced`). :meth:`result` makes the method's output of the records (each field
+    concatenated over the chunks)."""
 
     fields: dict
 
-    def extra(self, light: LightPaths):
+    def extra(self):
         return None
 
     def arrive(self, state, si: mi.SurfaceInteraction3f, on_surface: mi.Bool) -> None:

@@ -262,7 +262,7 @@ class LightVertexRule(VertexRule):
         self.emitters, self.subpaths = emitters, subpaths
         self.size = tuple(int(c) for c in sensor.film().crop_size())
 
-    def extra(self, light: LightPaths) -> _Subpath:
+    def extra(self) -> _Subpath:
         return self.subpaths
 
     def arrive(self, state, si, on_surface) -> None:
