@@ -9,6 +9,8 @@ from photonmap.core import photon_trace
 from photonmap.core.emission import emit, emitter_powers, split_paths
 from photonmap.core.errors import ParameterError, SceneError
 from photonmap.core.photon_trace import PhotonRecords, _check_power
+from photonmap.core.sampling import rng
+from photonmap.core.scene_info import SceneTraits
 from photonmap.core.settings import PathSettings
 
 T = mi.ScalarTransform4f
@@ -107,6 +109,55 @@ def test_unbounded_paths_end_by_russian_roulette_alone():
     ratio = total / (records.emitted_power / (1 - albedo))
     assert np.all(np.abs(ratio - 1) < 0.01), ratio  # measured within 0.004 (seeds 0-2)
     assert int(np.array(records.depth).max()) > 3 * photon_trace.CHUNK
+
+
+class CountingVertices(photon_trace.VertexRule):
+    """A vertex rule whose per-path state counts the path's stored vertices: each record holds
+    the count before it (its rank along the path)."""
+
+    fields = {"path": mi.UInt32, "rank": mi.UInt32, "depth": mi.UInt32}
+
+    def __init__(self, paths: int):
+        self.paths = paths
+
+    def extra(self):
+        return dr.zeros(mi.UInt32, self.paths) + dr.opaque(mi.UInt32, 0)
+
+    def record(self, state, si, bsdf, store, caustic):
+        rank = mi.UInt32(state.extra)
+        state.extra[store] += 1
+        return state.path, rank, state.depth + 1
+
+    def result(self, records, light, rays):
+        return records
+
+
+def test_a_vertex_rule_keeps_its_state_through_the_chunks():
+    """A method's vertex rule sees the vertices the photon map stores (same paths, same
+    depths: the same random numbers), and its per-path state follows each path through every
+    chunk's compaction: along a path the ranks it counted are 0, 1, 2, … in depth order, past
+    one chunk of :data:`~photonmap.core.photon_trace.CHUNK` interactions."""
+    scene = closed_box([0.9] * 3, point())
+    paths, seed = 4096, 3
+    rules = photon_trace.PhotonRules(PathSettings(-1, 3), SceneTraits.of(scene))
+
+    def traced(vertices):
+        light = emit(scene, paths, seed)
+        gen = rng(paths, seed, stream=1)
+        return photon_trace.trace_light_paths(scene, light, gen, rules, vertices=vertices)[0]
+
+    photons = traced(None)
+    counted = traced(CountingVertices(paths))
+    path, depth = (np.array(counted[k], np.int64) for k in ("path", "depth"))
+    rank = np.array(counted["rank"], np.int64)
+    order = np.lexsort((depth, path))
+    expected = np.lexsort((np.array(photons.depth), np.array(photons.path)))
+    assert np.array_equal(path[order], np.array(photons.path)[expected])
+    assert np.array_equal(depth[order], np.array(photons.depth)[expected])
+    first = np.r_[0, np.flatnonzero(np.diff(path[order])) + 1]  # each path's first record
+    position = np.arange(len(order)) - np.repeat(first, np.diff(np.r_[first, len(order)]))
+    assert np.array_equal(rank[order], position)
+    assert rank.max() >= photon_trace.CHUNK
 
 
 def test_a_mask_stores_photons_and_lets_the_rest_through():
