@@ -11,7 +11,7 @@ from scipy.special import erf
 
 from photonmap.core.arrays import columns
 from photonmap.core.grid import GridBox
-from photonmap.volume.deposit import FIXED_POINT_BITS, Int64, deposit_segment
+from photonmap.volume.deposit import FIXED_POINT_BITS, Deposits, Int64, deposit_segment
 from photonmap.volume.emit import Photons, emit
 from photonmap.volume.march import march
 from photonmap.volume.scene import Light
@@ -183,16 +183,13 @@ def rasterise(s, e, paper=True):
     d0 = mi.Vector3f(0.0, 0.0, 0.0) + dr.zeros(mi.Vector3f, k)
     d1 = mi.Vector3f(1.0, 0.0, 0.0) + dr.zeros(mi.Vector3f, k)
     deposit_segment(
-        acc,
+        Deposits(acc),
         n,
-        mi.Point3f(*columns(mi.Float, s)),
-        mi.Point3f(*columns(mi.Float, e)),
+        (mi.Point3f(*columns(mi.Float, s)), mi.Point3f(*columns(mi.Float, e))),
         one,
         dr.zeros(mi.Color3f, k),
-        d0,
-        d1,
-        mi.Float(2.0**FIXED_POINT_BITS),
-        paper,
+        (d0, d1),
+        (mi.Float(2.0**FIXED_POINT_BITS), paper),
     )
     a = np.array(acc).reshape(n, n, n, 8) / 2.0**FIXED_POINT_BITS
     return a[..., 0], a[..., 3]  # energy count (paper weights 1) and Σ u (direction lerp 0 → 1)

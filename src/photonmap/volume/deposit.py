@@ -12,6 +12,9 @@ Used by the marcher (``march.py``) and the pilot marcher (``pilot.py``).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
@@ -57,24 +60,25 @@ def weight_tally(weight: mi.Float):
     return tally
 
 
+@dataclass
+class Deposits:
+    """Where and how a march deposits (S7): into the fixed-point accumulator ``acc``, each
+    deposit's two packets made by ``tally``, into the grid ``2^shift`` times coarser
+    (:func:`coarse_size`), with ``expand`` choosing the reduction (:func:`reduce_mode`)."""
+
+    acc: Int64
+    tally: Callable = radiance_tally
+    shift: int = 0
+    expand: bool = True
+
+
 @dr.syntax
 def deposit_segment(
-    acc,
-    n,
-    s,
-    e,
-    L_s,
-    optical_depth,
-    dir_s,
-    dir_e,
-    scale,
-    paper,
-    active=True,
-    tally=radiance_tally,
-    shift: int = 0,
-    expand: bool = True,
-):
-    """S7: deposit the segment ``s → e`` (voxel units) into the fixed-point accumulator ``acc``.
+    into: Deposits, n, segment, L_s, optical_depth, directions, constants, active=True
+):  # fmt: skip
+    """S7: deposit the ``segment = (s, e)`` (voxel units), its direction going from
+    ``directions = (dir_s, dir_e)``, by :class:`Deposits` ``into``; ``constants = (scale,
+    paper)``: the fixed-point scale and the papers' literal deposits.
 
     The voxels touched are those holding the segment's intersections with the major-axis centre
     planes ``c = m + ½`` in the half-open range ``[s_a, e_a)`` (Pfeuti's Fig 3.14 rasteriser).
@@ -87,6 +91,8 @@ def deposit_segment(
     ``v >> shift`` of a grid ``2^shift`` times coarser (:func:`coarse_size`; the rasterisation
     stays at full resolution). ``n``: the grid's extent (``(n_x, n_y, n_z)``, or one ``n``).
     """
+    acc, tally, shift, expand = into.acc, into.tally, into.shift, into.expand
+    (s, e), (dir_s, dir_e), (scale, paper) = segment, directions, constants
     count = dr.width(s)
     L_e = L_s * dr.exp(-optical_depth)
     step, p0, u0, total, len_a = _centre_planes(s, e, active)

@@ -48,6 +48,7 @@ from .deposit import (
     CHANNELS,
     FIXED_POINT_BITS,
     WEIGHT_BITS,
+    Deposits,
     Float64,
     Int64,
     Vector4d,
@@ -116,19 +117,19 @@ def accumulate(
         if surfaces is not None:
             atomic = dr.zeros(Int64, cells * CHANNELS)
             steps, final, on_surfaces = march_with_surfaces(
-                acc, atomic, medium, *rays, settings, scattering, surfaces, iso, tally
+                (acc, atomic), medium, rays, settings, scattering, surfaces, iso, tally
             )
             dr.eval(acc, *final)
         elif scattering is None:
             x, d, L = rays  # single scattering: the steps from v₀ = n(x₀)·d₀
             photon = (x, sample_medium(medium, x)[0] * d, L)
-            steps, *final = march_steps(acc, medium, photon, settings, tally, shift)
+            steps, *final = march_steps(Deposits(acc, tally, shift), medium, photon, settings)
             dr.eval(acc, steps, *final)
             steps = int(dr.sum(Float64(steps))[0])
         else:
             atomic = dr.zeros(Int64, cells * CHANNELS)  # no memory until an order writes to it
             steps, *final = march_multiple(
-                acc, medium, *rays, settings, scattering, tally, shift, atomic
+                (acc, atomic), medium, rays, settings, scattering, tally, shift
             )
             dr.eval(acc, *final)
         final = tuple(final)

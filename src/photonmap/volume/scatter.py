@@ -27,7 +27,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.grid import trilinear_packed
-from .deposit import Float64, Int64, radiance_tally, weight_tally
+from .deposit import Deposits, Float64, Int64, radiance_tally, weight_tally
 from .step import MarchGrids, MarchSettings, Scattering, Step, march_steps, sample_medium
 
 SCATTERING = ("single", "multiple")
@@ -211,54 +211,51 @@ class Wavefront:
 
 
 def march_order(
-    acc: Int64,
+    into: Deposits,
     medium: MarchGrids,
     photon: tuple,
     march: MarchSettings,
     flight: tuple[mi.Float, mi.UInt32],
-    tally=radiance_tally,
-    shift: int = 0,
-    expand: bool = True,
 ):
-    """One scattering order of every ``photon = (x, v = n dx/ds, L̃)`` (module docstring):
-    :func:`.step.march_steps`, which also finds the :class:`Collision` where the optical depth of
-    the colour ``channel`` reaches ``target`` (``flight = (target, channel)``). Returns the steps,
-    the final ``(x, v, L̃)`` and the collision."""
+    """One scattering order of every ``photon = (x, v = n dx/ds, L̃)`` (module docstring),
+    depositing ``into``: :func:`.step.march_steps`, which also finds the :class:`Collision`
+    where the optical depth of the colour ``channel`` reaches ``target`` (``flight = (target,
+    channel)``). Returns the steps, the final ``(x, v, L̃)`` and the collision."""
     collision = Collision.none(dr.width(photon[2]), *flight)
-    steps, x, v, L = march_steps(acc, medium, photon, march, tally, shift, expand, collision)
+    steps, x, v, L = march_steps(into, medium, photon, march, collision)
     return steps, x, v, L, collision
 
 
 def march_multiple(
-    acc: Int64,
+    accumulators: tuple[Int64, Int64],
     medium: MarchGrids,
-    x: mi.Point3f,
-    d: mi.Vector3f,
-    L: mi.Color3f,
+    rays: tuple,
     march: MarchSettings,
     scattering: Scattering,
     tally=radiance_tally,
     shift: int = 0,
-    atomic: Int64 | None = None,
 ):
-    """``march.py``'s march with multiple scattering, one order at a time over the photons still
-    alive (a :class:`Wavefront`). The collision of each order starts the next there, in a
-    Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄`` and Russian roulette
-    (:func:`roulette`). The first order deposits into ``acc`` as ``march.py`` does; the scattered
-    orders deposit with atomics into ``atomic`` (same layout, summed with ``acc`` by the caller):
-    one reduction mode per array, one ``Expand`` launch (see :func:`.deposit.reduce_mode`).
+    """``march.py``'s march with multiple scattering of the photons ``rays = (x, d, L)``, one
+    order at a time over the photons still alive (a :class:`Wavefront`). The collision of each
+    order starts the next there, in a Schlick-sampled direction, with weight ``W ⊙ σ_s ⊙ T/p̄``
+    and Russian roulette (:func:`roulette`). The first order deposits into ``acc`` as
+    ``march.py`` does; the scattered orders deposit with atomics into ``atomic``
+    (``accumulators = (acc, atomic)``, the same layout, summed by the caller): one reduction
+    mode per array, one ``Expand`` launch (see :func:`.deposit.reduce_mode`).
     Returns the total steps and, per photon, the final ``(x, v, L̃)`` and its scattering events.
     """
+    acc, atomic = accumulators
+    x, d, L = rays
     k = dr.opaque(mi.Float, scattering.phase_k)
     v = sample_medium(medium, x)[0] * d  # v₀ = n(x₀)·d₀
     photons = Wavefront.emitted(x, v, L, scattering.seed, tally)
     rng = photons.rng
     for order in range(MAX_ORDERS + 1):
-        into = acc if order == 0 else atomic
+        into = Deposits(acc if order == 0 else atomic, photons.tally, shift, order == 0)
         n_steps, x, v, L_end, collision = march_order(
-            into, medium, (x, v, L), march, free_flight(rng), photons.tally, shift, order == 0
+            into, medium, (x, v, L), march, free_flight(rng)
         )
-        dr.eval(into, n_steps, x, v, L_end, collision)  # one launch per order
+        dr.eval(into.acc, n_steps, x, v, L_end, collision)  # one launch per order
         photons.record(order, n_steps, x, v, L_end)
         if order == MAX_ORDERS:
             break

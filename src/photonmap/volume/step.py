@@ -24,7 +24,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.grid import flat_index, grid_dims, grid_extent, pack, to_tensor, trilinear_packed
-from .deposit import deposit_segment
+from .deposit import Deposits, deposit_segment
 
 OVERSHOOT = 1e-3  # δ, voxels: Sun's "a little bit further" past the node's face
 KILL_FRACTION = 1e-3  # τ_rel: a photon below τ_rel × its initial power stops
@@ -142,29 +142,17 @@ def curved_step(
     return Step(x_new, v_new, L_new, dir_, dr.normalize(v_new), kappa, t, leaving, n_x)
 
 
-def deposit_step(acc, n, x, step: Step, L, march: MarchSettings, tally, shift=0, expand=True):
+def deposit_step(into: Deposits, n, x, step: Step, L, march: MarchSettings):
     """S7: rasterise the segment ``x → step.x`` of a photon that carried ``L`` at ``x``
     (:func:`.deposit.deposit_segment`)."""
     deposit_segment(
-        acc,
-        n,
-        x,
-        step.x,
-        L,
-        step.kappa * step.length,
-        step.direction,
-        step.new_direction,
-        march.scale,
-        march.paper,
-        tally=tally,
-        shift=shift,
-        expand=expand,
-    )
+        into, n, (x, step.x), L, step.kappa * step.length, (step.direction, step.new_direction),
+        (march.scale, march.paper),
+    )  # fmt: skip
 
 
 @dr.syntax
-def march_steps(acc, medium: MarchGrids, photon, march: MarchSettings, tally, shift=0,
-                expand=True, collision=None):  # fmt: skip
+def march_steps(into: Deposits, medium: MarchGrids, photon, march: MarchSettings, collision=None):
     """S6/S7: march every ``photon = (x, v = n dx/ds, L̃)`` by :func:`curved_step`, depositing
     each step (:func:`deposit_step`), until it leaves the grid, falls below
     :data:`KILL_FRACTION` of its starting power or reaches ``march.max_steps``. With a
@@ -178,11 +166,11 @@ def march_steps(acc, medium: MarchGrids, photon, march: MarchSettings, tally, sh
     steps = dr.zeros(mi.UInt32, count)
     active = dr.max(L) > 0  # photons that miss the grid carry no power
 
-    while dr.hint(active, exclude=[march]):
+    while dr.hint(active, exclude=[march, into]):
         step = curved_step(medium, x, v, L, march, size)
         if collision is not None:  # a Python condition: decided when the loop is traced
             collision.search(x, step)
-        deposit_step(acc, n, x, step, L, march, tally, shift, expand)
+        deposit_step(into, n, x, step, L, march)
         x, v, L = step.x, step.v, step.L
         steps += 1
         active = ~step.leaving & (dr.max(L) >= L_kill) & (steps < march.max_steps)

@@ -37,7 +37,7 @@ import mitsuba as mi
 
 from ..core.grid import grid_extent
 from . import scatter
-from .deposit import Int64, radiance_tally
+from .deposit import Deposits, Int64, radiance_tally
 from .emit import box_entry
 from .scatter import Collision, Wavefront
 from .step import (
@@ -72,23 +72,19 @@ class Leg:
 
 @dr.syntax
 def _leg(
-    acc: Int64,
+    into: Deposits,
     medium: MarchGrids,
     surfaces: Surfaces,
-    x: mi.Point3f,
-    d: mi.Vector3f,
-    L: mi.Color3f,
+    photon: tuple,
     march: MarchSettings,
-    target: mi.Float,
-    channel: mi.UInt32,
+    flight: tuple[mi.Float, mi.UInt32],
     iso: mi.Float,
-    tally=radiance_tally,
-    shift: int = 0,
-    expand: bool = True,
 ):
-    """One leg of every photon from ``x`` (voxel coordinates, inside the grid or not) along unit
-    ``d`` with energy ``L`` (module docstring), which also finds its
-    :class:`~.scatter.Collision` as :func:`.scatter.march_order` does."""
+    """One leg of every ``photon = (x, d, L)`` from ``x`` (voxel coordinates, inside the grid or
+    not) along unit ``d`` with energy ``L`` (module docstring), depositing ``into``, which also
+    finds its :class:`~.scatter.Collision` (``flight = (target, channel)``) as
+    :func:`.scatter.march_order` does."""
+    x, d, L = photon
     n = medium.dims
     count = dr.width(L)
     size = grid_extent(n)
@@ -108,9 +104,9 @@ def _leg(
     exited = dr.zeros(mi.Bool, count)
     recast = dr.zeros(mi.Bool, count)
     bent = dr.zeros(mi.Bool, count)
-    collision = Collision.none(count, target, channel)
+    collision = Collision.none(count, *flight)
 
-    while dr.hint(active, exclude=[march]):
+    while dr.hint(active, exclude=[march, into]):
         cast = active & recast  # the direction has turned since the last cast
         t_new = surfaces.distance(x, dr.normalize(v), cast)
         t_surf = dr.select(cast, t_new, t_surf)
@@ -120,7 +116,7 @@ def _leg(
         hits = t_surf <= step.length
         bent |= step.ior >= iso
         collision.search(x, step)
-        deposit_step(acc, n, x, step, L, march, tally, shift, expand)
+        deposit_step(into, n, x, step, L, march)
         x, v, L = step.x, step.v, step.L
         t_surf -= step.length
         steps += 1
@@ -140,22 +136,22 @@ def _leg(
 
 
 def march_with_surfaces(
-    acc: Int64,
-    atomic: Int64,
+    accumulators: tuple[Int64, Int64],
     medium: MarchGrids,
-    x: mi.Point3f,
-    d: mi.Vector3f,
-    L: mi.Color3f,
+    rays: tuple,
     march: MarchSettings,
     scattering: Scattering | None,
     surfaces: Surfaces,
     iso: float,
     tally=radiance_tally,
 ):
-    """March photons leg by leg (module docstring) into ``acc`` (the first leg) and ``atomic``
-    (the later legs; summed by the caller, as :func:`.scatter.march_multiple` does). Returns the total
-    steps, the per-photon final ``(x, v, L̃, events)`` and the :class:`~.surfaces.SurfacePhotons`.
-    Photon ``i`` draws from PCG32 stream ``i`` of the scattering seed."""
+    """March the photons ``rays = (x, d, L)`` leg by leg (module docstring) into ``acc`` (the
+    first leg) and ``atomic`` (the later legs; ``accumulators = (acc, atomic)``, summed by the
+    caller, as :func:`.scatter.march_multiple` does). Returns the total steps, the per-photon
+    final ``(x, v, L̃, events)`` and the :class:`~.surfaces.SurfacePhotons`. Photon ``i`` draws
+    from PCG32 stream ``i`` of the scattering seed."""
+    acc, atomic = accumulators
+    x, d, L = rays
     seed = scattering.seed if scattering is not None else 0
     k = dr.opaque(mi.Float, scattering.phase_k if scattering is not None else 0.0)
     iso = dr.opaque(mi.Float, iso)
@@ -168,12 +164,9 @@ def march_with_surfaces(
             target, channel = scatter.free_flight(rng)
         else:  # single scattering: no collision
             target, channel = dr.full(mi.Float, dr.inf, dr.width(L)), dr.zeros(mi.UInt32, 1)
-        into = acc if order == 0 else atomic
-        leg = _leg(
-            into, medium, surfaces, x, d, L, march, target, channel, iso, photons.tally, 0,
-            order == 0,
-        )  # fmt: skip
-        dr.eval(into, leg)  # one launch per leg
+        into = Deposits(acc if order == 0 else atomic, photons.tally, 0, order == 0)
+        leg = _leg(into, medium, surfaces, (x, d, L), march, (target, channel), iso)
+        dr.eval(into.acc, leg)  # one launch per leg
         photons.record(order, leg.steps, leg.x, leg.v, leg.L)
         si = surfaces.hit(leg.cast_x, leg.cast_d, leg.surface)
         surface = leg.surface & si.is_valid()
