@@ -55,26 +55,27 @@ def glass_sphere() -> mi.Scene:
     return scene
 
 
-def references(scene, depth):
-    """``path`` and ``ptracer`` at 4096 spp, and the pixels that do not see the light."""
+def references(make, depth):
+    """``(make, images, mask)``: the scene's maker (each test builds its own scene, so that no
+    scene outlives its test: Dr.Jit traces every BSDF alive into each kernel), ``path`` and
+    ``ptracer`` at 4096 spp, and the pixels that do not see the light."""
+    scene = make()
     out = {
         kind: np.array(mi.render(scene, integrator=mi.load_dict({"type": kind, "max_depth": depth}),
                                  spp=4096, seed=7))
         for kind in ("path", "ptracer")
     }  # fmt: skip
-    return out, out["path"].max(axis=2) < 1.0
+    return make, out, out["path"].max(axis=2) < 1.0
 
 
 @pytest.fixture(scope="module")
 def cornell_refs():
-    scene = cornell()
-    return scene, *references(scene, 8)
+    return references(cornell, 8)
 
 
 @pytest.fixture(scope="module")
 def glass_refs():
-    scene = glass_sphere()
-    return scene, *references(scene, 12)
+    return references(glass_sphere, 12)
 
 
 def brightness(image, ref, mask):
@@ -84,8 +85,8 @@ def brightness(image, ref, mask):
 def brightness_of(refs, mode, max_depth, spp, iterations):
     """The brightness of ``mode``'s image of ``refs``' scene against its ``path`` reference
     (``ptracer``'s for ``lt``), off the light's pixels."""
-    scene, images, mask = refs
-    image = np.array(VCMPipeline(scene, mode=mode, max_depth=max_depth, spp=spp)
+    make, images, mask = refs
+    image = np.array(VCMPipeline(make(), mode=mode, max_depth=max_depth, spp=spp)
                      .run(iterations=iterations))  # fmt: skip
     return brightness(image, images["ptracer" if mode == "lt" else "path"], mask)
 
@@ -157,10 +158,9 @@ def light_in_glass() -> mi.Scene:
 
 @pytest.fixture(scope="module")
 def light_in_glass_refs():
-    scene = light_in_glass()
-    ref = np.array(mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 12}),
-                             spp=8192, seed=1))  # fmt: skip
-    return scene, ref, ref.max(axis=2) < 1.0
+    ref = np.array(mi.render(light_in_glass(), integrator=mi.load_dict({"type": "path",
+                   "max_depth": 12}), spp=8192, seed=1))  # fmt: skip
+    return ref, ref.max(axis=2) < 1.0
 
 
 @pytest.mark.parametrize("mode", ["vcm", "bpt", "ppm"])
@@ -170,6 +170,7 @@ def test_light_inside_glass(light_in_glass_refs, mode):
     this light only by BSDF samples through the glass and is left out: 0.94–1.03 at 256
     iterations of one subpath). With the light subpaths' throughput scaled by η² at each
     refraction they came out at 0.46–0.53."""
-    scene, ref, mask = light_in_glass_refs
-    image = np.array(VCMPipeline(scene, mode=mode, max_depth=12, spp=4).run(iterations=64))
+    ref, mask = light_in_glass_refs
+    image = np.array(VCMPipeline(light_in_glass(), mode=mode, max_depth=12, spp=4)
+                     .run(iterations=64))  # fmt: skip
     assert abs(brightness(image, ref, mask) - 1) < 0.04
