@@ -310,3 +310,28 @@ def test_media_that_disagree_with_the_shapes_around_them_are_warned_about():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert warn_disagreeing_media(mi.load_string(cut), "sppm") == []
+
+
+def test_a_vertex_rule_for_surfaces_only_is_refused_in_media():
+    """A method's vertex rule that knows only surfaces (VCM's) would keep wrong state through a
+    medium collision the loop scatters at: both loops refuse it in a scene with media, where the
+    photon map's own rule traces them."""
+    from photonmap.core.emission import emit
+    from photonmap.core.eye_trace import EyeRules, EyeVertexRule
+    from photonmap.core.photon_trace import PhotonRules, VertexRule, trace_light_paths
+    from photonmap.core.scene_info import SceneTraits
+
+    scene = closed_fog_box(0.5, 1.0)
+    traits = SceneTraits.of(scene)
+    rules = PhotonRules(PathSettings(max_depth=8), traits)
+
+    class SurfacesOnly(VertexRule):
+        fields = {"depth": mi.UInt32}
+
+    light = emit(scene, 64, 0)
+    with pytest.raises(ValueError, match="SurfacesOnly handles surface vertices only"):
+        trace_light_paths(scene, light, rng(64, 0, 1), rules, vertices=SurfacesOnly())
+    records, volume = trace_light_paths(scene, light, rng(64, 0, 1), rules)
+    assert volume.count > 0
+    with pytest.raises(ValueError, match="EyeVertexRule handles surface vertices only"):
+        EyeRules(PathSettings(), traits, vertex=EyeVertexRule())

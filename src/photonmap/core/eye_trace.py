@@ -139,7 +139,7 @@ class EyeRules:
     ``settings`` and the scene's ``traits``; ``emission``: add the emitters met; ``media_mode``
     (:data:`MEDIA_MODES`) and ``surfaces`` (:data:`SURFACE_MODES`); ``rough_glass``: follow
     rough glass (``surfaces="stop"``); ``segments``: pieces recorded per path in ``"march"``
-    mode; ``vertex``: a method's :class:`EyeVertexRule` (module docstring; vacuum only)."""
+    mode; ``vertex``: a method's :class:`EyeVertexRule` (module docstring; refused with media)."""
 
     settings: PathSettings
     traits: SceneTraits
@@ -155,6 +155,9 @@ class EyeRules:
             raise ValueError(f"media_mode must be one of {MEDIA_MODES}, got {self.media_mode!r}")
         if self.surfaces not in SURFACE_MODES:
             raise ValueError(f"surfaces must be one of {SURFACE_MODES}, got {self.surfaces!r}")
+        if self.vertex is not None and self.traits.media:
+            raise ValueError(f"{type(self.vertex).__name__} handles surface vertices only; the "
+                             "scene has participating media")  # fmt: skip
 
 
 class EyeVertexRule:

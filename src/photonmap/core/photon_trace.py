@@ -196,6 +196,9 @@ def trace_light_paths(
     map); ``first_depth``: interactions the paths have already had (records then count from
     it)."""
     vertices = vertices or PhotonMapVertices()
+    if rules.traits.media and not vertices.media:
+        raise ValueError(f"{type(vertices).__name__} handles surface vertices only; the scene "
+                         "has participating media")  # fmt: skip
     state = _PathState.start(light, gen, first_depth, vertices.extra())
     surface, volume = [], []
     steps = rays = 0
@@ -220,9 +223,12 @@ class VertexRule:
     (:meth:`record`; they are stored after it returns, so a value it updates in place, as a
     masked ``x[mask] += 1`` does, goes out as a copy) and after the BSDF sample
     (:meth:`bounced`). :meth:`result` makes the method's output of the records (each field
-    concatenated over the chunks)."""
+    concatenated over the chunks). ``media``: whether the rule's state stays right through
+    medium collisions (where the loop scatters without calling it); a rule that does not is
+    refused in a scene with media."""
 
     fields: dict
+    media = False
 
     def extra(self):
         return None
@@ -244,6 +250,7 @@ class PhotonMapVertices(VertexRule):
     """The photon map's vertices (module docstring): a :class:`PhotonRecords` entry at each
     surface with a smooth lobe."""
 
+    media = True  # the volume photons are the loop's own
     fields = {
         "position": mi.Point3f, "power": mi.Color3f, "direction": mi.Vector3f,
         "normal": mi.Vector3f, "depth": mi.UInt32, "caustic": mi.Bool, "path": mi.UInt32,
