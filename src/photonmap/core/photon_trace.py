@@ -57,6 +57,7 @@ from .media import channel, enter, free_flight
 from .sampling import rng
 from .scene_info import SceneTraits
 from .settings import UNBOUNDED, PathSettings, survival
+from .rows import Rows
 from .volume_map import VolumePhotons
 
 CHUNK = 8  # interactions per path in one symbolic loop (record slots: paths × CHUNK)
@@ -315,16 +316,10 @@ def _concat(chunks: list, width: int) -> list:
     return [concat([c[i] for c in chunks]) for i in range(width)]
 
 
-def _slots(names_types: dict, count: int) -> dict:
-    """Record slots, read where stored only: not cleared (clearing them was a quarter of the
-    photon pass)."""
-    return {name: dr.empty(kind, count) for name, kind in names_types.items()}
-
-
-VOLUME_FIELDS = {
+VOLUME_ROWS = Rows({
     "position": mi.Point3f, "direction": mi.Vector3f, "power": mi.Color3f, "depth": mi.UInt32,
     "caustic": mi.Bool,
-}  # fmt: skip
+})  # fmt: skip
 
 
 def _chunk(scene, state, rules: PhotonRules, vertices: VertexRule):
@@ -332,16 +327,15 @@ def _chunk(scene, state, rules: PhotonRules, vertices: VertexRule):
     the paths still alive and the rays the chunk cast."""
     lanes = state.count
     slots = lanes * CHUNK
-    rec = _slots(vertices.fields, slots)
-    vrec = _slots(VOLUME_FIELDS, slots if rules.traits.media else 1)
+    rows = Rows(vertices.fields)
+    # record slots, read where stored only: not cleared (clearing them was a quarter of the pass)
+    rec, vrec = rows.empty(slots), VOLUME_ROWS.empty(slots if rules.traits.media else 1)
     stored = dr.zeros(mi.Bool, slots)
-    vstored = dr.zeros(mi.Bool, dr.width(vrec["depth"]))
-    alive, steps = _loop(scene, state, (rec, vrec, stored, vstored), rules, vertices)
+    vstored = dr.zeros(mi.Bool, slots if rules.traits.media else 1)
+    alive, steps = _loop(scene, state, (rows, rec, vrec, stored, vstored), rules, vertices)
     dr.eval(rec, vrec, stored, vstored, alive, steps, *vars(state).values())
-    out = []
-    for fields_, mask in ((rec, stored), (vrec, vstored)):
-        index = dr.compress(mask)
-        out.append([dr.gather(type(v), v, index) for v in fields_.values()])
+    out = [layout.read(storage, dr.compress(mask))
+           for layout, storage, mask in ((rows, rec, stored), (VOLUME_ROWS, vrec, vstored))]
     return out[0], out[1], state.kept(alive), int(np.asarray(steps, np.int64).sum())
 
 
@@ -354,7 +348,7 @@ def _loop(scene, state, slots, rules: PhotonRules, vertices: VertexRule):
     stores a volume photon or the ``vertices`` rule's record at a surface, samples the BSDF or
     the phase function (:func:`_scatter`) and plays Russian roulette (:func:`_survival`). Also
     returns each path's steps in the chunk: one ray cast each."""
-    rec, vrec, stored, vstored = slots
+    rows, rec, vrec, stored, vstored = slots
     # frozen dataclasses stay out of loops: their values as locals
     media, null_counts = rules.traits.media, rules.null_counts
     null_shapes = False if null_counts else rules.traits.null_shapes  # null shapes: vertices
@@ -388,8 +382,7 @@ def _loop(scene, state, slots, rules: PhotonRules, vertices: VertexRule):
         if dr.hint(media, mode="scalar"):
             vstore = in_medium & (state.depth <= limit) & (caustic | all_records)
             values = (mei.p, state.ray.d, state.power, state.depth, caustic)
-            for name, value in zip(VOLUME_FIELDS, values, strict=True):
-                dr.scatter(vrec[name], value, slot, vstore)
+            VOLUME_ROWS.write(vrec, values, slot, vstore)
             dr.scatter(vstored, True, slot, vstore)
 
         # ---- a surface: a record where the BSDF has a smooth lobe
@@ -398,9 +391,7 @@ def _loop(scene, state, slots, rules: PhotonRules, vertices: VertexRule):
             followed = is_rough_glass(bsdf, on_surface)
         store = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth) & ~followed
         store &= (state.depth + 1 <= limit) & (caustic | all_records)
-        values = vertices.record(state, si, bsdf, store, caustic)
-        for name, value in zip(vertices.fields, values, strict=True):
-            dr.scatter(rec[name], value, slot, store)
+        rows.write(rec, vertices.record(state, si, bsdf, store, caustic), slot, store)
         dr.scatter(stored, True, slot, store)
 
         where = (on_surface, in_medium, followed)
