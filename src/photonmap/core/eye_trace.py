@@ -86,6 +86,7 @@ from .media import (
     free_flight,
     segment_transmittance,
 )
+from .rows import Rows
 from .scene_info import SceneTraits
 from .settings import UNBOUNDED, PathSettings, survival
 
@@ -93,6 +94,10 @@ MEDIA_MODES = ("transmit", "march", "end", "continue")
 SURFACE_MODES = ("stop", "continue")
 MAX_EVENTS = 1024  # loop iterations of one eye path at most (Null-lobe passes included)
 FOLLOWED = mi.BSDFFlags.Delta | mi.BSDFFlags.Null
+SEGMENT_ROWS = Rows({  # the fields of media.Segments
+    "origin": mi.Point3f, "direction": mi.Vector3f, "length": mi.Float, "medium": mi.MediumPtr,
+    "weight": mi.Spectrum, "lane": mi.UInt32,
+})  # fmt: skip
 SPLIT_MIN, SPLIT_MAX = 0.2, 0.8  # the clamp of q at a BSDF with followed and smooth lobes
 
 # where the path's last scattering was, which decides whether an emitter hit counts
@@ -206,10 +211,7 @@ def trace_eye_paths(
         medium = dr.gather(mi.MediumPtr, mi.MediumPtr(medium), dr.zeros(mi.UInt32, n))
     marching = rules.media_mode == "march" and traits.media
     slots = n * segments if marching else 1
-    buffers = Segments(  # slot = piece · n + lane; read where stored only: not cleared
-        dr.empty(mi.Point3f, slots), dr.empty(mi.Vector3f, slots), dr.empty(mi.Float, slots),
-        dr.empty(mi.MediumPtr, slots), dr.empty(mi.Spectrum, slots), dr.empty(mi.UInt32, slots),
-    )  # fmt: skip
+    buffers = SEGMENT_ROWS.empty(slots)  # slot = piece · n + lane; read where stored only
     stored = dr.zeros(mi.Bool, slots)
     walk = _Walk.start(
         ray, mi.Spectrum(weight) * dr.ones(mi.Float, n), mi.MediumPtr(medium), start_depth,
@@ -236,10 +238,7 @@ def trace_eye_paths(
     # every output at once: evaluating one output of a symbolic loop runs the whole loop again
     dr.eval(*(v for v in vars(vertices).values() if v is not None), buffers, stored)
     if marching:
-        index = dr.compress(stored)
-        vertices.segments = Segments(
-            *(dr.gather(type(f), f, index) for f in vars(buffers).values())
-        )
+        vertices.segments = Segments(*SEGMENT_ROWS.read(buffers, dr.compress(stored)))
     return vertices
 
 
@@ -370,15 +369,7 @@ def _fly(scene, walk: _Walk, gen, ch, max_depth, rules: _Rules, null_shapes, rec
         length = dr.select(si.is_valid(), si.t, escape_length(scene, ray, medium, in_medium))
         recorded = in_medium & (walk.pieces < rules.max_pieces)
         slot = walk.pieces * stride + lane
-        for field, value in (
-            ("origin", ray.o),
-            ("direction", ray.d),
-            ("length", length),
-            ("medium", medium),
-            ("weight", walk.beta),
-            ("lane", lane),
-        ):
-            dr.scatter(getattr(buffers, field), value, slot, recorded)
+        SEGMENT_ROWS.write(buffers, (ray.o, ray.d, length, medium, walk.beta, lane), slot, recorded)
         dr.scatter(stored, True, slot, recorded)
         walk.pieces[recorded] += 1
         walk.beta[in_medium] *= segment_transmittance(ray, length, medium, gen, ch, in_medium)
