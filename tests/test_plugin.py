@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+import photonmap
 from photonmap import PhotonmapError, VolumePipeline, mi
 from photonmap.core.errors import ParameterError, SceneError
 from photonmap.scenes import SCENES
@@ -150,4 +151,6 @@ def test_plugin_errors_are_photonmap_errors():
         mi.render(scene, integrator=integrator())
     assert isinstance(info.value.__cause__, SceneError)
     assert "no fog" in str(info.value.__cause__)  # refused, naming --method surface
+    with pytest.raises(SceneError, match="no fog"):  # the Python API raises it as itself
+        photonmap.render(scene, method="volume")
     assert issubclass(ParameterError, PhotonmapError)

@@ -20,7 +20,7 @@ import dataclasses
 
 import mitsuba as mi
 
-from .core.errors import ParameterError
+from .core.errors import ParameterError, PhotonmapError
 from .core.plugin import PipelineIntegrator
 from .sppm.differentiable import DifferentiablePhotonMapper
 
@@ -55,7 +55,12 @@ def render(
     if params is None:
         _check_settings(method, settings)
         integrator = mi.load_dict({"type": plugins[method], **settings})
-        return mi.render(scene, sensor=sensor, integrator=integrator, seed=seed)
+        try:
+            return mi.render(scene, sensor=sensor, integrator=integrator, seed=seed)
+        except RuntimeError as error:  # Dr.Jit's custom operation wraps the method's own error
+            if isinstance(error.__cause__, PhotonmapError):
+                raise error.__cause__ from None
+            raise
     if not isinstance(params, mi.SceneParameters):
         raise ParameterError(
             f"params must be mi.traverse(scene), got {type(params).__name__}"
