@@ -54,8 +54,9 @@ def test_what_was_written_comes_back_bit_for_bit_where_the_mask_allowed():
 
 
 def test_a_struct_with_pointers_comes_back():
+    behind = mi.ScalarTransform4f().translate([0, 0, -3])
     scene = mi.load_dict({"type": "scene", "a": {"type": "sphere"},
-                          "b": {"type": "rectangle", "to_world": mi.ScalarTransform4f().translate([0, 0, -3])}})  # fmt: skip
+                          "b": {"type": "rectangle", "to_world": behind}})  # fmt: skip
     n = 16
     x = np.linspace(-0.3, 0.3, n).astype(np.float32)
     ray = mi.Ray3f(mi.Point3f(mi.Float(x), 0, 5), mi.Vector3f(0, 0, -1))

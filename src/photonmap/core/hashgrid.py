@@ -70,9 +70,9 @@ from .knn import (
     accept,
     finish,
     heap_bound2,
+    jit_records,
     new_heap,
     offer,
-    pack_records,
     photon_key,
     read_record,
     squared_distance,
@@ -106,13 +106,17 @@ class HashGrid(PhotonSearch):
             raise ParameterError(f"cell_size must be positive and finite, got {cell_size!r}")
         if not photons_per_cell > 0:
             raise ParameterError(f"photons_per_cell must be positive, got {photons_per_cell!r}")
-        points = to_numpy(positions).reshape(3, count).T
-        if not np.all(np.isfinite(points)):
-            raise ParameterError("photon positions must be finite")
-        lo = points.min(axis=0) if count else np.zeros(3, np.float32)
-        span = points.max(axis=0) - lo if count else np.zeros(3, np.float32)
+        lo, hi = np.zeros(3, np.float32), np.zeros(3, np.float32)
+        if count:
+            bounds = [[r(positions[a], axis=None) for a in range(3)] for r in (dr.min, dr.max)]
+            dr.eval(bounds)
+            lo, hi = (np.array([c[0] for c in b], np.float32) for b in bounds)
+            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+                raise ParameterError("photon positions must be finite")
+        span = hi - lo
         extent = float(span.max())
         if cell_size is None:
+            points = to_numpy(positions).reshape(3, count).T
             cell_size = _automatic_cell_size(points, lo, extent, photons_per_cell)
         self.cell_size = max(float(cell_size), extent / (MAX_CELLS_PER_AXIS - 1), 1e-30)
         self.origin = tuple(float(c) for c in lo)
@@ -123,24 +127,25 @@ class HashGrid(PhotonSearch):
         table = 1 << max(2 * count - 1, 63).bit_length()
         self.hashed = cells > table
         self.table_size = table if self.hashed else cells
-
-        # the same float32 operations as ``_cell`` and ``_cell_number`` at query time
-        dims = np.array(self.dims)
-        cell = np.floor((points - lo) * np.float32(self.inv_cell)).astype(np.int64)
-        cell = np.clip(cell, 0, dims - 1)
-        slot = ((cell[:, 2] * dims[1] + cell[:, 1]) * dims[0] + cell[:, 0]) % self.table_size
-        # Dr.Jit's stable radix sort: the order NumPy's stable argsort gives, five times faster
-        self.order = dr.argsort(to_jit(mi.UInt32, slot.astype(np.uint32)))
-        order = np.array(self.order)
-        self.record = pack_records(points.T[:, order], order)
-        counts = np.bincount(slot, minlength=self.table_size)
-        self.cell_start = to_jit(mi.UInt32, np.concatenate([[0], np.cumsum(counts)]))
-        self._build_slab_bounds(points, cell)
         # kernel inputs as opaque values (one compiled kernel for every grid)
         self._origin = dr.opaque(mi.Point3f, self.origin)
         self._inv_cell = dr.opaque(mi.Float, self.inv_cell)
         self._dims = dr.opaque(mi.Point3i, self.dims)
         self._slot_mask = dr.opaque(mi.UInt32, self.table_size - 1)
+
+        # the photons sorted by slot (the cell arithmetic of the queries; Dr.Jit's radix sort is
+        # stable: a slot's photons in their original order), their records and the slot starts
+        counts = dr.zeros(mi.UInt32, self.table_size + 1)
+        self.order = dr.zeros(mi.UInt32, 0)
+        cell = None
+        if count:  # (Dr.Jit refuses arithmetic between width 0 and a literal)
+            cell = self._cell(positions)
+            slot = self._slot(self._cell_number(cell))
+            self.order = dr.argsort(slot)
+            dr.scatter_reduce(dr.ReduceOp.Add, counts, 1, slot, mode=dr.ReduceMode.Local)
+        self.record = jit_records(dr.gather(mi.Point3f, positions, self.order), self.order)
+        self.cell_start = dr.prefix_sum(counts)  # exclusive: slot s starts at cell_start[s]
+        self._build_slab_bounds(positions, cell)
         # Iteration cap of the cell loop: each cell of the grid lies on one shell, and each
         # (row, ring) pair adds at most two positions outside the grid.
         rings = max(self.dims) + 1
@@ -149,14 +154,18 @@ class HashGrid(PhotonSearch):
         )
         self._iteration_cap = dr.opaque(mi.UInt32, self.iteration_cap)
 
-    def _build_slab_bounds(self, points: np.ndarray, cell: np.ndarray):
-        """Per axis: the photon extent of each cell slab and its running min / max."""
+    def _build_slab_bounds(self, positions: mi.Point3f, cell: mi.Point3i | None):
+        """Per axis: the photon extent of each cell slab and its running min / max (``cell``:
+        each photon's; None without photons)."""
         self.slab_bounds, self.beyond_lo, self.below_hi = [], [], []
         for a in range(3):
-            lo = np.full(self.dims[a], np.inf, np.float32)
-            hi = np.full(self.dims[a], -np.inf, np.float32)
-            np.minimum.at(lo, cell[:, a], points[:, a])
-            np.maximum.at(hi, cell[:, a], points[:, a])
+            lo = dr.full(mi.Float, dr.inf, self.dims[a])
+            hi = dr.full(mi.Float, -dr.inf, self.dims[a])
+            if cell is not None:
+                index, local = mi.UInt32(cell[a]), dr.ReduceMode.Local
+                dr.scatter_reduce(dr.ReduceOp.Min, lo, positions[a], index, mode=local)
+                dr.scatter_reduce(dr.ReduceOp.Max, hi, positions[a], index, mode=local)
+            lo, hi = np.array(lo), np.array(hi)
             beyond = np.minimum.accumulate(np.append(lo, np.inf)[::-1])[::-1]
             below = np.maximum.accumulate(np.insert(hi, 0, -np.inf))
             self.slab_bounds.append(to_jit(mi.Float, np.stack([lo, hi], axis=1).ravel()))
@@ -335,7 +344,6 @@ class HashGrid(PhotonSearch):
         index = dr.select(none, NO_PHOTON, mi.UInt32(best_key & NO_PHOTON))
         d2 = dr.select(none, dr.inf, dr.reinterpret_array(mi.Float, mi.UInt32(best_key >> 32)))
         return index, d2
-
 
     def sum_within(self, query: mi.Point3f, radius2: mi.Float, term, zero, active, span: int = 3):
         """``Σ term(j, near)`` over the stored photons ``j`` with ``‖p_j − query‖² < radius2`` in

@@ -182,6 +182,18 @@ def pack_records(xyz: np.ndarray, w: np.ndarray | None = None) -> mi.Float:
     return to_jit(mi.Float, records.ravel())
 
 
+def jit_records(xyz: mi.Point3f, w: mi.UInt32) -> mi.Float:
+    """:func:`pack_records` of Dr.Jit arrays (``w`` a uint32 per record), one packet store a
+    record."""
+    n = dr.width(w)
+    if n == 0:
+        return dr.zeros(mi.Float, 0)
+    out = dr.empty(mi.Float, 4 * n)
+    row = mi.Vector4f(xyz.x, xyz.y, xyz.z, dr.reinterpret_array(mi.Float, w))
+    dr.scatter(out, row, dr.arange(mi.UInt32, n))
+    return out
+
+
 def read_record(records: mi.Float, i: mi.UInt32, active=True) -> tuple[mi.Point3f, mi.UInt32]:
     """Record ``i`` of ``records`` (one 16-byte gather): ``(x, y, z)`` and ``w`` as uint32."""
     r = dr.gather(mi.Vector4f, records, i, active)

@@ -54,10 +54,10 @@ from .bsdf import intersect_visible, is_rough_glass, is_specular
 from .emission import LightPaths, emit
 from .errors import SceneError
 from .media import channel, enter, free_flight
+from .rows import Rows
 from .sampling import rng
 from .scene_info import SceneTraits
 from .settings import UNBOUNDED, PathSettings, survival
-from .rows import Rows
 from .volume_map import VolumePhotons
 
 CHUNK = 8  # interactions per path in one symbolic loop (record slots: paths × CHUNK)
