@@ -146,6 +146,7 @@ class HashGrid(PhotonSearch):
         self.record = jit_records(dr.gather(mi.Point3f, positions, self.order), self.order)
         self.cell_start = dr.prefix_sum(counts)  # exclusive: slot s starts at cell_start[s]
         self._build_slab_bounds(positions, cell)
+        dr.eval(self.order, self.record, self.cell_start)  # built here, not in the first query
         # Iteration cap of the cell loop: each cell of the grid lies on one shell, and each
         # (row, ring) pair adds at most two positions outside the grid.
         rings = max(self.dims) + 1
