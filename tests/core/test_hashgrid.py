@@ -190,6 +190,11 @@ def test_bad_construction_raises():
         HashGrid(to_mi(uniform_points(10, 12)), cell_size=-1.0)
     with pytest.raises(ParameterError):
         HashGrid(to_mi([[0.0, math.nan, 0.0]]))
+    for bad in (math.nan, math.inf):  # one bad coordinate among many (a minimum skips a NaN)
+        points = uniform_points(100, 14)
+        points[37, 1] = bad
+        with pytest.raises(ParameterError, match="finite"):
+            HashGrid(to_mi(points), cell_size=0.1)
     grid = HashGrid(to_mi(uniform_points(10, 12)))
     with pytest.raises(ParameterError):
         grid.within(to_mi(uniform_points(2, 13)), -0.5)

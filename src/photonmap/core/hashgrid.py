@@ -109,10 +109,11 @@ class HashGrid(PhotonSearch):
         lo, hi = np.zeros(3, np.float32), np.zeros(3, np.float32)
         if count:
             bounds = [[r(positions[a], axis=None) for a in range(3)] for r in (dr.min, dr.max)]
-            dr.eval(bounds)
-            lo, hi = (np.array([c[0] for c in b], np.float32) for b in bounds)
-            if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
+            finite = dr.all(dr.all(dr.isfinite(positions)), axis=None)  # (min and max skip NaN)
+            dr.eval(bounds, finite)
+            if not finite[0]:
                 raise ParameterError("photon positions must be finite")
+            lo, hi = (np.array([c[0] for c in b], np.float32) for b in bounds)
         span = hi - lo
         extent = float(span.max())
         if cell_size is None:
