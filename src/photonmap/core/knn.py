@@ -43,7 +43,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from .arrays import to_jit, to_numpy
+from .arrays import to_jit
 from .errors import ParameterError
 
 COS_NORMAL = math.cos(math.radians(30.0))
@@ -182,14 +182,15 @@ def pack_records(xyz: np.ndarray, w: np.ndarray | None = None) -> mi.Float:
     return to_jit(mi.Float, records.ravel())
 
 
-def jit_records(xyz: mi.Point3f, w: mi.UInt32) -> mi.Float:
-    """:func:`pack_records` of Dr.Jit arrays (``w`` a uint32 per record), one packet store a
-    record."""
-    n = dr.width(w)
+def jit_records(xyz: mi.Point3f, w: mi.UInt32 | None = None) -> mi.Float:
+    """:func:`pack_records` of Dr.Jit arrays (``w`` a uint32 per record; 0 if None), one packet
+    store a record."""
+    n = dr.width(xyz)
     if n == 0:
         return dr.zeros(mi.Float, 0)
+    w = dr.zeros(mi.Float, n) if w is None else dr.reinterpret_array(mi.Float, w)
     out = dr.empty(mi.Float, 4 * n)
-    row = mi.Vector4f(xyz.x, xyz.y, xyz.z, dr.reinterpret_array(mi.Float, w))
+    row = mi.Vector4f(xyz.x, xyz.y, xyz.z, w)
     dr.scatter(out, row, dr.arange(mi.UInt32, n))
     return out
 
@@ -328,7 +329,8 @@ class PhotonSearch:
         if key not in self._stored_cache:
             if len(self._stored_cache) >= 4:
                 self._stored_cache.clear()
-            records = pack_records(to_numpy(photon_data)[:, self.order.numpy()])
+            records = jit_records(dr.gather(mi.Vector3f, photon_data, self.order))
+            dr.eval(records)
             self._stored_cache[key] = (photon_data, records)  # keeps the variables alive
         return self._stored_cache[key][1]
 
