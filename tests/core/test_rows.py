@@ -109,3 +109,13 @@ def test_a_symbolic_loop_writes_packet_rows():
     lanes = slot % n
     assert np.array_equal(np.array(out[0]), values["p"][:, lanes])
     assert np.array_equal(np.array(out[2]), values["depth"][lanes])
+
+
+def test_the_rows_of_a_dataclass_are_its_fields():
+    from photonmap.core.media import Segments
+    from photonmap.core.volume_map import VolumePhotons
+
+    rows = Rows.of(VolumePhotons)  # 3 + 3 + 3 + 1 + 1 words
+    assert list(rows.fields) == ["position", "direction", "power", "depth", "caustic"]
+    assert rows.fields["depth"] is mi.UInt32 and rows.widths == [8, 2, 1]
+    assert [kind for _, kind in Rows.of(Segments).others] == [mi.MediumPtr]

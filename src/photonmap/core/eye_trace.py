@@ -94,10 +94,7 @@ MEDIA_MODES = ("transmit", "march", "end", "continue")
 SURFACE_MODES = ("stop", "continue")
 MAX_EVENTS = 1024  # loop iterations of one eye path at most (Null-lobe passes included)
 FOLLOWED = mi.BSDFFlags.Delta | mi.BSDFFlags.Null
-SEGMENT_ROWS = Rows({  # the fields of media.Segments
-    "origin": mi.Point3f, "direction": mi.Vector3f, "length": mi.Float, "medium": mi.MediumPtr,
-    "weight": mi.Spectrum, "lane": mi.UInt32,
-})  # fmt: skip
+SEGMENT_ROWS = Rows.of(Segments)
 SPLIT_MIN, SPLIT_MAX = 0.2, 0.8  # the clamp of q at a BSDF with followed and smooth lobes
 
 # where the path's last scattering was, which decides whether an emitter hit counts

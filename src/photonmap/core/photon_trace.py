@@ -316,10 +316,7 @@ def _concat(chunks: list, width: int) -> list:
     return [concat([c[i] for c in chunks]) for i in range(width)]
 
 
-VOLUME_ROWS = Rows({
-    "position": mi.Point3f, "direction": mi.Vector3f, "power": mi.Color3f, "depth": mi.UInt32,
-    "caustic": mi.Bool,
-})  # fmt: skip
+VOLUME_ROWS = Rows.of(VolumePhotons)
 
 
 def _chunk(scene, state, rules: PhotonRules, vertices: VertexRule):

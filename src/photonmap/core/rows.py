@@ -16,6 +16,9 @@ reinterpreted, bit for bit; a ``Bool`` as 0 or 1. Other leaves (the shape pointe
 
 from __future__ import annotations
 
+import dataclasses
+import typing
+
 import drjit as dr
 import mitsuba as mi
 
@@ -85,6 +88,12 @@ class Rows:
         # the words in rows of power-of-two widths, widest first (17 words: 16 + 1)
         n = len(self.words)
         self.widths = [1 << b for b in reversed(range(n.bit_length())) if n >> b & 1]
+
+    @classmethod
+    def of(cls, record_type) -> Rows:
+        """The rows of a dataclass whose fields are all Dr.Jit arrays (their annotations)."""
+        hints = typing.get_type_hints(record_type)
+        return cls({f.name: hints[f.name] for f in dataclasses.fields(record_type)})
 
     def empty(self, slots: int) -> tuple:
         """Storage for ``slots`` records; not cleared (:meth:`read` reads only stored slots)."""
