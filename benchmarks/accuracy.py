@@ -15,7 +15,8 @@ import numpy as np
 
 import photonmap  # noqa: F401 - selects the Mitsuba variant
 from photonmap.core.camera import pixel_rays
-from photonmap.core.eye_trace import EyeRules, trace_eye_paths
+from photonmap.core.eye_rules import EyeRules
+from photonmap.core.eye_trace import trace_eye_paths
 from photonmap.core.image import block_means, read_image, write_image
 from photonmap.core.media import broadcast
 from photonmap.core.sampling import rng

@@ -317,7 +317,7 @@ def test_a_vertex_rule_for_surfaces_only_is_refused_in_media():
     medium collision the loop scatters at: both loops refuse it in a scene with media, where the
     photon map's own rule traces them."""
     from photonmap.core.emission import emit
-    from photonmap.core.eye_trace import EyeRules, EyeVertexRule
+    from photonmap.core.eye_rules import EyeRules, EyeVertexRule
     from photonmap.core.photon_trace import PhotonRules, VertexRule, trace_light_paths
     from photonmap.core.scene_info import SceneTraits
 

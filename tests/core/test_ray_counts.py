@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from photonmap import dr, mi
-from photonmap.core.eye_trace import EyeRules, trace_eye_paths
+from photonmap.core.eye_rules import EyeRules
+from photonmap.core.eye_trace import trace_eye_paths
 from photonmap.core.photon_trace import trace_photons
 from photonmap.core.sampling import rng
 from photonmap.core.scene_info import SceneTraits

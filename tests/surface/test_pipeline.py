@@ -194,7 +194,8 @@ def test_caustic_estimate_is_shared_only_by_plain_pixels():
     import drjit as dr
 
     from photonmap.core.camera import pixel_rays
-    from photonmap.core.eye_trace import EyeRules, trace_eye_paths
+    from photonmap.core.eye_rules import EyeRules
+    from photonmap.core.eye_trace import trace_eye_paths
     from photonmap.core.media import broadcast
     from photonmap.core.sampling import rng
     from photonmap.surface.eye_terms import caustic_radiance

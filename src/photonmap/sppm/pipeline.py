@@ -57,7 +57,7 @@ from ..core.bsdf import has_delta_lobes
 from ..core.camera import scene_bounds
 from ..core.emission import checked_powers
 from ..core.errors import ParameterError
-from ..core.eye_trace import Caustics
+from ..core.eye_rules import Caustics
 from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import Renamed, check_choice, check_fields, check_range, updated
@@ -354,7 +354,7 @@ class SPPMPipeline(Progressive, Pipeline):
 
     def caustics(self, photons, i: int, radius) -> Caustics | None:
         """Iteration ``i``'s caustic photons as path-traced eye paths read them
-        (:class:`~photonmap.core.eye_trace.Caustics`): at surfaces within ``radius``, in the
+        (:class:`~photonmap.core.eye_rules.Caustics`): at surfaces within ``radius``, in the
         media within ``ρ_i``; None under visible points or without photons."""
         if not self.path_traced or photons is None:
             return None
@@ -377,7 +377,7 @@ class SPPMPipeline(Progressive, Pipeline):
 
     def volume_caustics(self, photons, i: int):
         """Iteration ``i``'s caustic volume photons as the eye paths read them at medium
-        collisions (:class:`~photonmap.core.eye_trace.Caustics`), or None where there are none. The
+        collisions (:class:`~photonmap.core.eye_rules.Caustics`), or None where there are none. The
         automatic ``ρ_1`` is fixed by iteration 1's (whichever iterations run, so memoryless
         blocks agree): the sphere that holds about :data:`FIRST_PHOTONS` of them (the median
         distance of the k-th nearest), within the scene-wide bound."""

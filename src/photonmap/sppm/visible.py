@@ -36,7 +36,8 @@ import numpy as np
 from ..core.arrays import to_jit
 from ..core.camera import pixel_means, pixel_rays
 from ..core.direct import direct_lighting
-from ..core.eye_trace import Caustics, EyeRules, trace_eye_paths
+from ..core.eye_rules import Caustics, EyeRules
+from ..core.eye_trace import trace_eye_paths
 from ..core.film_filter import splat_means
 from ..core.media import broadcast
 from ..core.sampling import rng

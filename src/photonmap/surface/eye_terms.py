@@ -12,7 +12,8 @@ import numpy as np
 
 from ..core.arrays import to_jit
 from ..core.camera import pixel_means, pixel_rays
-from ..core.eye_trace import EyeRules, trace_eye_paths
+from ..core.eye_rules import EyeRules
+from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast
 from ..core.sampling import rng, rotated_hammersley
 from .gather import radiance_estimate

@@ -36,7 +36,8 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.arrays import to_numpy
-from ..core.eye_trace import EyeRules, trace_eye_paths
+from ..core.eye_rules import EyeRules
+from ..core.eye_trace import trace_eye_paths
 from ..core.media import enter
 from ..core.sampling import rng, rotated_hammersley
 from ..core.scene_info import SceneTraits

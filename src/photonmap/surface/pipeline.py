@@ -52,7 +52,8 @@ from ..core.bsdf import diffuse_albedo, has_glossy_shapes
 from ..core.camera import pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
 from ..core.errors import PhotonmapWarning, SceneError
-from ..core.eye_trace import EyeRules, trace_eye_paths
+from ..core.eye_rules import EyeRules
+from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
 from ..core.memory import check_once
 from ..core.params import updated

@@ -34,7 +34,8 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.camera import pixel_means, pixel_rays
-from ..core.eye_trace import EyeRules, EyeVertexRule, trace_eye_paths
+from ..core.eye_rules import EyeRules, EyeVertexRule
+from ..core.eye_trace import trace_eye_paths
 from ..core.hashgrid import HashGrid
 from ..core.sampling import rng
 from ..core.scene_info import SceneTraits
