@@ -38,7 +38,7 @@ from accuracy import (
 )
 from photonmap.core.hashgrid import HashGrid
 from photonmap.core.image import compare, write_image
-from photonmap.core.photon_trace import trace_photons
+from photonmap.core.photon_trace import PhotonRules, trace_photons
 from photonmap.core.settings import PathSettings
 from photonmap.scenes import SCENES
 from photonmap.surface.kdtree import KDTree
@@ -99,7 +99,7 @@ def throughput(scene, photons: int, queries: int, runs: int = 3) -> dict:
     kd-tree at ``queries`` of the photons' own positions (medians of ``runs``)."""
 
     def trace(count):
-        return trace_photons(scene, count, PathSettings(9, 3)).records
+        return trace_photons(scene, count, PhotonRules.of(scene, PathSettings(9, 3))).records
 
     trace(10_000)
     t_trace = median(timed(trace, photons)[0] for _ in range(runs))

@@ -5,7 +5,7 @@ import pytest
 
 from photonmap import SurfacePipeline, dr, mi
 from photonmap.core.emission import emitter_powers
-from photonmap.core.photon_trace import trace_photons
+from photonmap.core.photon_trace import PhotonRules, trace_photons
 from photonmap.core.settings import PathSettings
 from photonmap.scenes import cornell, load_scene
 
@@ -62,7 +62,7 @@ def test_ceiling_light(name):
 
 def test_glass_sphere_makes_a_caustic_on_the_floor():
     scene, _ = load_scene("cornell_steinhurst", **SMALL)
-    records = trace_photons(scene, 2**17, PathSettings(9, 3)).records
+    records = trace_photons(scene, 2**17, PhotonRules.of(scene, PathSettings(9, 3))).records
     caustic = records.select(records.caustic)
     position = np.array(caustic.position)
     on_floor = np.abs(position[1]) < 1e-5
@@ -85,7 +85,7 @@ def test_spot_variant_is_lit_only_indirectly():
     # The camera sees no emitter, and all first photon hits are on the disk.
     emitted = mi.render(scene, integrator=mi.load_dict({"type": "path", "max_depth": 1}), spp=2)
     assert np.array(emitted).max() == 0.0
-    records = trace_photons(scene, 2**12, PathSettings(9, 3)).records
+    records = trace_photons(scene, 2**12, PhotonRules.of(scene, PathSettings(9, 3))).records
     first = records.select(records.depth == 1)
     position = np.array(first.position)
     np.testing.assert_allclose(position[1], 0.5483, atol=1e-6)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from photonmap.core.media import broadcast, channel, emitter_media, free_flight, transmittance
-from photonmap.core.photon_trace import trace_photons
+from photonmap.core.photon_trace import PhotonRules, trace_photons
 from photonmap.core.sampling import rng
 from photonmap.core.settings import PathSettings
 
@@ -196,7 +196,8 @@ def test_energy_white_walls_all_light_is_absorbed_by_the_fog():
     """Every photon ends absorbed in the fog, so the collisions carry Φ/(1-a) and the power the
     fog scatters (the volume photons, ``direct`` ones included) is Φ·a/(1-a)."""
     a = 0.5
-    traced = trace_photons(closed_fog_box(a, 1.0), 20_000, PathSettings(max_depth=200), seed=1)
+    scene = closed_fog_box(a, 1.0)
+    traced = trace_photons(scene, 20_000, PhotonRules.of(scene, PathSettings(max_depth=200)), 1)
     surface, volume = traced.records, traced.volume
     phi = surface.emitted_power.mean()
     ratio = np.array(volume.power).sum(axis=1).mean() / (phi * a / (1 - a))
@@ -210,7 +211,8 @@ def test_energy_albedo_one_fog_loses_nothing():
     """In albedo-1 fog all light ends absorbed by the walls of reflectance ρ: the power arriving
     at the walls (every surface record) sums to Φ/(1-ρ)."""
     rho = 0.5
-    traced = trace_photons(closed_fog_box(1.0, rho), 20_000, PathSettings(max_depth=200), seed=1)
+    scene = closed_fog_box(1.0, rho)
+    traced = trace_photons(scene, 20_000, PhotonRules.of(scene, PathSettings(max_depth=200)), 1)
     surface, volume = traced.records, traced.volume
     phi = surface.emitted_power.mean()
     ratio = np.array(surface.power).sum(axis=1).mean() / (phi / (1 - rho))
@@ -231,7 +233,7 @@ def test_an_emitter_without_a_medium_emits_into_the_medium_around_it():
     assert media[0] is not None and media[0].ptr == fog.ptr
     counts = []
     for scene in (named, unnamed):
-        traced = trace_photons(scene, 5_000, PathSettings(max_depth=200), seed=2)
+        traced = trace_photons(scene, 5_000, PhotonRules.of(scene, PathSettings(max_depth=200)), 2)
         counts.append(traced.volume.count)
     assert counts[0] == counts[1]  # the same paths, scattered alike
 

@@ -8,7 +8,7 @@ from photonmap import dr, mi
 from photonmap.core import photon_trace
 from photonmap.core.emission import emit, emitter_powers, split_paths
 from photonmap.core.errors import ParameterError, SceneError
-from photonmap.core.photon_trace import PhotonRecords, _check_power
+from photonmap.core.photon_trace import PhotonRecords, PhotonRules, _check_power
 from photonmap.core.sampling import rng
 from photonmap.core.scene_info import SceneTraits
 from photonmap.core.settings import PathSettings
@@ -21,9 +21,8 @@ def trace_photons(scene, paths, max_depth=8, rr_depth=3, seed=0, caustics_only=F
     """The records of ``paths`` light paths with at most ``max_depth`` interactions each (paths
     of ``max_depth + 1`` segments, Mitsuba's count)."""
     settings = PathSettings(max_depth + 1, rr_depth)
-    return photon_trace.trace_photons(
-        scene, paths, settings, seed, caustics_only=caustics_only
-    ).records
+    rules = photon_trace.PhotonRules.of(scene, settings, caustics_only=caustics_only)
+    return photon_trace.trace_photons(scene, paths, rules, seed).records
 
 
 def closed_box(albedo, *lights, **shapes) -> mi.Scene:
@@ -104,7 +103,9 @@ def test_unbounded_paths_end_by_russian_roulette_alone():
     many chunks of the loop as they need, and the stored power sums to ``Φ / (1 − ρ)``."""
     albedo = 0.7
     scene = closed_box([albedo] * 3, point())
-    records = photon_trace.trace_photons(scene, 2**15, PathSettings(-1, 3), seed=1).records
+    records = photon_trace.trace_photons(
+        scene, 2**15, PhotonRules.of(scene, PathSettings(-1, 3)), 1
+    ).records
     total = np.array(records.power, dtype=np.float64).sum(axis=1)
     ratio = total / (records.emitted_power / (1 - albedo))
     assert np.all(np.abs(ratio - 1) < 0.01), ratio  # measured within 0.004 (seeds 0-2)
@@ -179,7 +180,9 @@ def test_a_mask_stores_photons_and_lets_the_rest_through():
             },
         }
     )  # fmt: skip
-    records = photon_trace.trace_photons(scene, 2**16, PathSettings(-1, 3), seed=1).records
+    records = photon_trace.trace_photons(
+        scene, 2**16, PhotonRules.of(scene, PathSettings(-1, 3)), 1
+    ).records
     y = np.array(records.position)[1]
     power = np.array(records.power).sum(axis=0)
     on_mask = power[np.abs(y - 1) < 1e-3].sum()
@@ -299,8 +302,10 @@ def test_followed_rough_glass_holds_no_records_and_makes_caustics():
     there after two smooth bounces (in and out of the ball)."""
     scene = rough_ball_over_floor(point((0, 4, 0), 10.0))
     settings = PathSettings(9, 3)
-    followed = photon_trace.trace_photons(scene, 2**17, settings, 1, rough_glass=True).records
-    shaded = photon_trace.trace_photons(scene, 2**17, settings, 1).records
+    followed = photon_trace.trace_photons(
+        scene, 2**17, PhotonRules.of(scene, settings, rough_glass=True), 1
+    ).records
+    shaded = photon_trace.trace_photons(scene, 2**17, PhotonRules.of(scene, settings), 1).records
     for records in (followed, shaded):
         assert records.count > 0
     y = np.array(followed.position)[1]

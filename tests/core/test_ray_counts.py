@@ -10,7 +10,7 @@ import pytest
 from photonmap import dr, mi
 from photonmap.core.eye_rules import EyeRules
 from photonmap.core.eye_trace import trace_eye_paths
-from photonmap.core.photon_trace import trace_photons
+from photonmap.core.photon_trace import PhotonRules, trace_photons
 from photonmap.core.sampling import rng
 from photonmap.core.scene_info import SceneTraits
 from photonmap.core.settings import PathSettings
@@ -32,7 +32,8 @@ def closed_box() -> mi.Scene:
 @pytest.mark.parametrize("interactions", [1, 3, 11])  # 11: over a chunk of 8
 def test_photon_paths_cast_one_ray_per_interaction(interactions):
     settings = PathSettings(interactions + 1, NO_ROULETTE)  # records of depth ≤ interactions
-    records = trace_photons(closed_box(), PATHS, settings, seed=3).records
+    scene = closed_box()
+    records = trace_photons(scene, PATHS, PhotonRules.of(scene, settings), seed=3).records
     assert records.count == PATHS * interactions  # every path stores at every interaction
     assert records.rays == PATHS * interactions
 
@@ -45,7 +46,8 @@ def test_an_open_scene_counts_the_rays_that_leave():
         "floor": {"type": "rectangle", "to_world": mi.ScalarTransform4f().rotate([1, 0, 0], -90)},
         "light": {"type": "point", "position": [0, 1, 0]},
     })  # fmt: skip
-    records = trace_photons(scene, PATHS, PathSettings(2, NO_ROULETTE), seed=1).records
+    rules = PhotonRules.of(scene, PathSettings(2, NO_ROULETTE))
+    records = trace_photons(scene, PATHS, rules, seed=1).records
     assert 0 < records.count < PATHS
     assert records.rays == PATHS
 

@@ -26,7 +26,8 @@ SETTINGS = PathSettings(9, 3)  # at most 8 interactions, Russian roulette from t
 
 
 def trace_aimed_photons(scene, paths, aim, seed=0, caustics_only=False):
-    return photon_trace.trace_photons(scene, paths, SETTINGS, seed, aim, caustics_only)
+    rules = photon_trace.PhotonRules.of(scene, SETTINGS, caustics_only=caustics_only)
+    return photon_trace.trace_photons(scene, paths, rules, seed, aim)
 
 
 def trace_photons(scene, paths, seed=0, caustics_only=False):

@@ -148,6 +148,12 @@ class PhotonRules:
     rough_glass: bool = False
     null_counts: bool = False
 
+    @staticmethod
+    def of(scene: mi.Scene, settings: PathSettings | None = None, **options) -> PhotonRules:
+        """The rules for ``scene`` (its traits found here) under ``settings`` (default
+        Mitsuba's) and ``options`` (the other fields)."""
+        return PhotonRules(settings or PathSettings(), SceneTraits.of(scene), **options)
+
     @property
     def limit(self) -> int:
         """The deepest record kept (``max_depth − 1`` segments; paths stop there)."""
@@ -158,30 +164,24 @@ class PhotonRules:
 def trace_photons(
     scene: mi.Scene,
     paths: int,
-    settings: PathSettings | None = None,
+    rules: PhotonRules | None = None,
     seed: int = 0,
     aim: float = 0.0,
-    caustics_only: bool = False,
-    traits: SceneTraits | None = None,
     media: list | None = None,
     powers: np.ndarray | None = None,
-    rough_glass: bool = False,
 ) -> Traced:
     """Emit ``paths`` light paths (:func:`~photonmap.core.emission.emit`, the fraction ``aim``
-    aimed at specular shapes) and trace them (:func:`trace_light_paths`): the one way every
-    method makes photons. ``settings``: the path-length settings (default Mitsuba's);
-    ``caustics_only`` keeps only the caustic records (``aim = 1``: every area light's paths
-    aimed — the caustics of surfaces that also have smooth lobes, a plastic's coating, are then
-    left out); ``media``:
-    the emitters' media and ``powers`` their checked powers, if known
-    (:func:`~photonmap.core.media.emitter_media`, :func:`~photonmap.core.emission.checked_powers`:
-    a pipeline finds them once); ``rough_glass``: rough glass is followed as glass is
+    aimed at specular shapes) and trace them by ``rules`` (:func:`trace_light_paths`; default
+    :meth:`PhotonRules.of` the scene): the one way every method makes photons. With
+    ``rules.caustics_only`` only the caustic records are kept (``aim = 1``: every area light's
+    paths aimed — the caustics of surfaces that also have smooth lobes, a plastic's coating, are
+    then left out); with ``rules.rough_glass`` rough glass is followed as glass is
     (:func:`~photonmap.core.bsdf.is_rough_glass`: aimed at, no records on it, its bounces
-    specular)."""
-    settings = settings or PathSettings()
-    traits = traits or SceneTraits.of(scene)
-    light = emit(scene, paths, seed, aim, caustics_only, media, powers, rough_glass)
-    rules = PhotonRules(settings, traits, caustics_only, rough_glass=rough_glass)
+    specular). ``media``: the emitters' media and ``powers`` their checked powers, if known
+    (:func:`~photonmap.core.media.emitter_media`, :func:`~photonmap.core.emission.checked_powers`:
+    a pipeline finds them once)."""
+    rules = rules or PhotonRules.of(scene)
+    light = emit(scene, paths, seed, aim, rules.caustics_only, media, powers, rules.rough_glass)
     records, volume = trace_light_paths(scene, light, rng(paths, seed, stream=1), rules)
     return Traced(records, volume, light)
 

@@ -21,9 +21,7 @@ from dataclasses import dataclass
 import drjit as dr
 import mitsuba as mi
 
-from ..core.photon_trace import trace_photons
-from ..core.scene_info import SceneTraits
-from ..core.settings import PathSettings
+from ..core.photon_trace import PhotonRules, trace_photons
 from ..core.volume_map import VolumePhotons
 
 
@@ -50,23 +48,19 @@ def photon_pass(
     scene: mi.Scene,
     paths: int,
     seed: int,
-    settings: PathSettings,
     aim: float,
-    traits: SceneTraits,
+    rules: PhotonRules,
     media: list | None = None,
     powers=None,
-    caustics_only: bool = False,
 ) -> Photons:
-    """Trace ``paths`` photon paths (random numbers from ``seed``, the iteration's seed), the
-    fraction ``aim`` of the area lights' paths aimed at the specular shapes, and keep the records
-    after the first interaction; in a scene with media also the caustic volume photons (module
-    docstring). ``media``, ``powers``: the emitters' media and checked powers, if known.
-    ``caustics_only``: only the photons that reached a surface or a medium through mirrors and
-    glass (every area light's paths aimed at them)."""
-    traced = trace_photons(
-        scene, paths, settings, seed, 1.0 if caustics_only else aim, caustics_only,
-        traits=traits, media=media, powers=powers,
-    )  # fmt: skip
+    """Trace ``paths`` photon paths by ``rules`` (random numbers from ``seed``, the iteration's
+    seed), the fraction ``aim`` of the area lights' paths aimed at the specular shapes, and keep
+    the records after the first interaction; in a scene with media also the caustic volume
+    photons (module docstring). ``media``, ``powers``: the emitters' media and checked powers, if
+    known. With ``rules.caustics_only`` only the photons that reached a surface or a medium
+    through mirrors and glass (every area light's paths aimed at them)."""
+    aim = 1.0 if rules.caustics_only else aim
+    traced = trace_photons(scene, paths, rules, seed, aim, media, powers)
     kept = traced.records.after_first()
     volume = None
     if traced.volume is not None:

@@ -61,6 +61,7 @@ from ..core.eye_rules import Caustics
 from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import Renamed, check_choice, check_fields, check_range, updated
+from ..core.photon_trace import PhotonRules
 from ..core.pipeline import Pipeline
 from ..core.progressive import Progressive, iteration_seeds
 from ..core.scene_info import SceneTraits, check_gathered_bsdfs, warn_disagreeing_media
@@ -274,10 +275,10 @@ class SPPMPipeline(Progressive, Pipeline):
         p = self.params
         if self.path_traced and not self.delta_lobes:
             return None
+        rules = PhotonRules(self.settings, self.traits, caustics_only=self.path_traced)
         return photon_pass(
-            self.scene, p.photons, iteration_seeds(p.seed, i)[1], self.settings,
-            p.aim, self.traits, self.emitter_media, self.emitter_powers,
-            caustics_only=self.path_traced,
+            self.scene, p.photons, iteration_seeds(p.seed, i)[1], p.aim, rules,
+            self.emitter_media, self.emitter_powers,
         )  # fmt: skip
 
     def _passes(self, i: int, radius, timed: bool = True):

@@ -26,7 +26,7 @@ import mitsuba as mi
 
 from ..core.errors import ParameterError
 from ..core.hashgrid import HashGrid
-from ..core.photon_trace import PhotonRecords, trace_photons
+from ..core.photon_trace import PhotonRecords, PhotonRules, trace_photons
 from ..core.scene_info import SceneTraits
 from ..core.settings import UNBOUNDED, PathSettings
 from ..core.volume_map import VolumeMap
@@ -94,16 +94,16 @@ def build_photon_maps(
     settings = settings or PathSettings()
     traits = traits or SceneTraits.of(scene)
     traced = trace_photons(
-        scene, photons, settings, seed, traits=traits, media=media, rough_glass=True
+        scene, photons, PhotonRules(settings, traits, rough_glass=True), seed, media=media
     )
     global_records = traced.records
     if settings.max_depth != UNBOUNDED and global_records.count:
         global_records = global_records.select(global_records.depth + 2 <= settings.max_depth)
     if caustic_photons:
+        caustic_rules = PhotonRules(settings, traits, caustics_only=True, rough_glass=True)
         caustic_records = trace_photons(
-            scene, caustic_photons, settings, seed + 1, 1.0, caustics_only=True, traits=traits,
-            media=media, rough_glass=True,
-        ).records  # fmt: skip
+            scene, caustic_photons, caustic_rules, seed + 1, 1.0, media=media
+        ).records
     else:
         caustic_records = global_records.select(dr.zeros(mi.Bool, global_records.count))
     vmap = None
