@@ -57,7 +57,7 @@ from ..core.bsdf import has_delta_lobes
 from ..core.camera import scene_bounds
 from ..core.emission import checked_powers
 from ..core.errors import ParameterError
-from ..core.eye_rules import Caustics
+from ..core.eye_rules import Caustics, EyeRules
 from ..core.media import emitter_media
 from ..core.memory import check_once
 from ..core.params import Renamed, check_choice, check_fields, check_range, updated
@@ -289,10 +289,11 @@ class SPPMPipeline(Progressive, Pipeline):
         eye_seed, _ = iteration_seeds(p.seed, i)
         run = self.cache.run if timed else lambda _, compute: compute()
         photons = run("photon pass", lambda: self._photon_pass(i))
+        rules = EyeRules(self.settings, self.traits, media_mode="continue",
+                         surfaces="continue" if self.path_traced else "stop")  # fmt: skip
         points = run("eye pass", lambda: eye_pass(
-            self.scene, self.sensor, eye_seed, self.settings, self.traits,
-            self.caustics(photons, i, radius), self.eye_spp,
-            "continue" if self.path_traced else "stop", self.mirror_pixels(),
+            self.scene, self.sensor, eye_seed, rules, self.caustics(photons, i, radius),
+            self.eye_spp, self.mirror_pixels(),
         ))  # fmt: skip
         return photons, points
 

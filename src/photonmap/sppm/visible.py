@@ -27,7 +27,7 @@ is small (none without mirrors and glass).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import drjit as dr
 import mitsuba as mi
@@ -41,8 +41,6 @@ from ..core.eye_trace import trace_eye_paths
 from ..core.film_filter import splat_means
 from ..core.media import broadcast
 from ..core.sampling import rng
-from ..core.scene_info import SceneTraits
-from ..core.settings import PathSettings
 
 
 @dataclass
@@ -70,25 +68,26 @@ def eye_pass(
     scene: mi.Scene,
     sensor: mi.Sensor,
     seed: int,
-    settings: PathSettings,
-    traits: SceneTraits,
+    rules: EyeRules,
     caustics: Caustics | None = None,
     spp: int = 1,
-    surfaces: str = "stop",
     mirrors: mi.UInt32 | None = None,
 ) -> VisiblePoints:
     """Trace ``spp`` jittered eye paths per pixel of ``sensor``'s film crop (random numbers from
-    ``seed``, the iteration's seed) to their visible points; evaluated before returning. The
+    ``seed``, the iteration's seed) by ``rules`` (the path settings, the scene's traits, the
+    media mode, what to do at smooth surfaces; whether they count the emitters met is decided
+    here) to their visible points; evaluated before returning. The
     emission seen is estimated from at least :data:`LIGHT_SPP` paths per pixel: the lights'
     images in mirrors and glass are bright and small, and one sample per iteration leaves a pixel
     that catches one a spike of the light's radiance over the iteration count — with fewer eye
     paths, further paths of their own that only follow mirrors and glass, traced in the pixels
     ``mirrors`` (:func:`mirror_pixels`); in a scene without mirrors and glass (``mirrors`` None)
     the eye paths see the lights themselves.
-    ``caustics``: the iteration's caustic photons read along the paths; ``surfaces``:
+    ``caustics``: the iteration's caustic photons read along the paths; ``rules.surfaces``
     ``"continue"`` traces the paths on through smooth surfaces (module docstring), which leaves
     no visible points: each path is then a whole estimate of its pixel, and the paths are
     splatted through the film's filter as Mitsuba's film splats them (:func:`splatted`)."""
+    settings, traits, surfaces = rules.settings, rules.traits, rules.surfaces
     w, h = (int(c) for c in sensor.film().crop_size())
     lanes = w * h * spp
     gen = rng(lanes, seed, 0)
@@ -97,8 +96,7 @@ def eye_pass(
     ray, weight = pixel_rays(sensor, dr.arange(mi.UInt32, lanes) // spp, jitter, not splat)
     start = broadcast(sensor.get_medium(), lanes)
     seen_here = spp >= LIGHT_SPP or mirrors is None
-    rules = EyeRules(settings, traits, emission=seen_here, media_mode="continue",
-                     surfaces=surfaces)  # fmt: skip
+    rules = replace(rules, emission=seen_here)
     eye = trace_eye_paths(scene, (ray, weight, start), gen, rules, caustics=caustics)
     L = eye.radiance
     if surfaces == "stop":
