@@ -144,18 +144,18 @@ class RandomPath:
         vcm, vc, _ = camera[1]
         p_direct = self.p_nee_area() * self.d2(0, 1) / cos_light  # per solid angle at z_1
         out["s=1"] = mis.next_event_weight(
-            vcm, vc, self.bsdf_pdf(1, 2, 0), p_direct, 0.0 if mode == "pt" else p_e,
-            self.cos(1, 0), cos_light, self.bsdf_pdf(1, 0, 2), vm_factor,
+            (vcm, vc, self.bsdf_pdf(1, 2, 0), self.bsdf_pdf(1, 0, 2), self.cos(1, 0)),
+            (p_direct, 0.0 if mode == "pt" else p_e, cos_light), vm_factor,
         )  # fmt: skip
         if mode == "pt":
             return out
         for s in range(2, k):
-            out[f"s={s}"] = mis.connection_weight(
-                light[s - 1][:2], camera[s][:2], self.bsdf_pdf(s, s + 1, s - 1),
-                self.bsdf_pdf(s, s - 1, s + 1), self.bsdf_pdf(s - 1, s - 2, s),
-                self.bsdf_pdf(s - 1, s, s - 2), self.cos(s, s - 1), self.cos(s - 1, s),
-                self.d2(s - 1, s), vm_factor,
-            )  # fmt: skip
+            light_end = (*light[s - 1][:2], self.bsdf_pdf(s - 1, s - 2, s),
+                         self.bsdf_pdf(s - 1, s, s - 2), self.cos(s - 1, s))  # fmt: skip
+            camera_end = (*camera[s][:2], self.bsdf_pdf(s, s + 1, s - 1),
+                          self.bsdf_pdf(s, s - 1, s + 1), self.cos(s, s - 1))  # fmt: skip
+            d2 = self.d2(s - 1, s)
+            out[f"s={s}"] = mis.connection_weight(light_end, camera_end, d2, vm_factor)
         vcm, vc, _ = light[k - 1]
         p_camera = self.importance() * self.cos(k - 1, k) / self.d2(k - 1, k)
         out[f"s={k}"] = mis.light_tracing_weight(

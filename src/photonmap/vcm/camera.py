@@ -232,9 +232,8 @@ class CameraVertexRule(EyeVertexRule):
         else:
             p_rev = reverse_pdf(bsdf, RADIANCE, si, wo, lit)
             p_e = self.emitters.emitted(ds, ds.emitter, cos_light, ds.delta)
-            weight = mis.next_event_weight(*camera, p_forward, p_direct, p_e,
-                                           dr.abs(mi.Frame3f.cos_theta(wo)), cos_light, p_rev,
-                                           self.vm_factor)  # fmt: skip
+            here = (*camera, p_forward, p_rev, dr.abs(mi.Frame3f.cos_theta(wo)))
+            weight = mis.next_event_weight(here, (p_direct, p_e, cos_light), self.vm_factor)
         lit &= dr.any(f != 0.0)
         lit &= ~scene.ray_test(si.spawn_ray_to(ds.p), lit)
         return dr.select(lit, weight * f * em_weight, 0.0)
@@ -299,11 +298,12 @@ def _connect(scene, vertex, camera, vertices: LightVertices, constants, active):
         wo_light = light.to_local(-direction)
         f_light, p_light = light_bsdf.eval_pdf(IMPORTANCE, light, wo_light, ok)
         p_light_rev = reverse_pdf(light_bsdf, IMPORTANCE, light, wo_light, ok)
-        weight = mis.connection_weight(
-            (dr.gather(mi.Float, vertices.d_vcm, k), dr.gather(mi.Float, vertices.d_vc, k)),
-            camera, p, p_rev, p_light, p_light_rev, dr.abs(mi.Frame3f.cos_theta(wo)),
-            dr.abs(mi.Frame3f.cos_theta(wo_light)), dist2, vm_factor,
+        light_end = (
+            dr.gather(mi.Float, vertices.d_vcm, k), dr.gather(mi.Float, vertices.d_vc, k),
+            p_light, p_light_rev, dr.abs(mi.Frame3f.cos_theta(wo_light)),
         )  # fmt: skip
+        camera_end = (*camera, p, p_rev, dr.abs(mi.Frame3f.cos_theta(wo)))
+        weight = mis.connection_weight(light_end, camera_end, dist2, vm_factor)
         value = f * f_light * dr.gather(mi.Spectrum, vertices.throughput, k) / dist2
         ok &= dr.any(value != 0.0)
         ok &= ~scene.ray_test(si.spawn_ray_to(_lifted(light, -direction)), ok)

@@ -150,22 +150,26 @@ def emission_weight(vcm, vc, p_direct_area, p_e):
     return 1.0 / (1.0 + p_direct_area * vcm + p_e * vc)
 
 
-def next_event_weight(vcm, vc, p_forward, p_direct, p_e, cos_here, cos_light, p_rev, vm_factor):
+def next_event_weight(camera, light, vm_factor):
     """Next-event estimation (TR (44)–(45)): ``w_light = p_bsdf / p_direct`` (both per solid
     angle at the camera vertex), ``w_camera = p_e cos θ / (p_direct cos θ_L) (η + dVCM + dVC
-    p_rev)``."""
+    p_rev)``. ``camera``: the camera end ``(dVCM, dVC, p_bsdf, p_rev, cos θ)`` as in
+    :func:`connection_weight`; ``light``: the light sample ``(p_direct, p_e, cos θ_L)``."""
+    vcm, vc, p_forward, p_rev, cos_here = camera
+    p_direct, p_e, cos_light = light
     w_light = p_forward / p_direct
     w_camera = p_e * cos_here / (p_direct * cos_light) * (vm_factor + vcm + vc * p_rev)
     return 1.0 / (w_light + 1.0 + w_camera)
 
 
-def connection_weight(light, camera, p_camera, p_camera_rev, p_light, p_light_rev, cos_camera,
-                      cos_light, dist2, vm_factor):  # fmt: skip
-    """A camera vertex connected to a light vertex (TR (40)–(41)); ``light`` and ``camera`` are
-    the subpaths' ``(dVCM, dVC)``, ``p_camera`` the camera BSDF's density of the direction to the
-    light vertex (``p_light`` the reverse's at the light vertex), the cosines at each end."""
-    w_light = p_camera * cos_light / dist2 * (vm_factor + light[0] + light[1] * p_light_rev)
-    w_camera = p_light * cos_camera / dist2 * (vm_factor + camera[0] + camera[1] * p_camera_rev)
+def connection_weight(light, camera, dist2, vm_factor):
+    """A camera vertex connected to a light vertex (TR (40)–(41)) at squared distance
+    ``dist2``. Each end is ``(dVCM, dVC, p, p_rev, cos θ)``: its subpath's quantities, its
+    BSDF's density of the direction to the other end and of the reverse, its cosine."""
+    vcm_l, vc_l, p_light, p_light_rev, cos_light = light
+    vcm_c, vc_c, p_camera, p_camera_rev, cos_camera = camera
+    w_light = p_camera * cos_light / dist2 * (vm_factor + vcm_l + vc_l * p_light_rev)
+    w_camera = p_light * cos_camera / dist2 * (vm_factor + vcm_c + vc_c * p_camera_rev)
     return 1.0 / (w_light + 1.0 + w_camera)
 
 
