@@ -118,7 +118,7 @@ def ground_truth(pipe, photons: int, factor: int) -> np.ndarray:
     for batch in range(factor):
         parts = [emit.emit(light, s.box, photons, "halton", batch * photons) for light in s.lights]
         for part in parts:
-            r = march.march(part, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h)
+            r = march.march(part, grids, march.Marching(p.ds_min, fidelity=p.fidelity), s.box.h)
             C = r.C if C is None else C + r.C
             D = r.D if D is None else D + r.D
         dr.eval(C, D)

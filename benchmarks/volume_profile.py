@@ -111,7 +111,7 @@ def profile_march(pipe, repeats: int = 1) -> dict:
         p, h = pipe.params, pipe.world.box.h
 
         def run():
-            return march.march(photons, grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=h)
+            return march.march(photons, grids, march.Marching(p.ds_min, fidelity=p.fidelity), h)
 
         def time_march():
             run()  # warm-up (compiles this variant)

@@ -13,7 +13,7 @@ from photonmap.core.arrays import columns
 from photonmap.core.grid import GridBox
 from photonmap.volume.deposit import FIXED_POINT_BITS, Deposits, Int64, deposit_segment
 from photonmap.volume.emit import Photons, emit
-from photonmap.volume.march import march
+from photonmap.volume.march import Marching, march
 from photonmap.volume.scene import Light
 from photonmap.volume.step import MarchGrids
 
@@ -85,7 +85,8 @@ def test_refraction_angle_converges_to_snell(n1, n2, theta, step, tolerance):
     # the steps against the interface; the spec's measured values (and tolerances) match this one
     g = grids(snell_field(n1, n2), level=0, limit=step)
     t = math.radians(theta)
-    r = march(photons([[1.0, 63.5, 32.0]], [[math.sin(t), -math.cos(t), 0.0]]), g, ds_min=step)
+    ray = photons([[1.0, 63.5, 32.0]], [[math.sin(t), -math.cos(t), 0.0]])
+    r = march(ray, g, Marching(ds_min=step))
     v = np.array(r.final[1])[:, 0]
     out = math.degrees(math.atan2(v[0], -v[1]))
     expected = math.degrees(math.asin(n1 * math.sin(t) / n2))
@@ -112,7 +113,8 @@ def test_total_internal_reflection_turns_the_photon_back(theta, step, tolerance)
     # and at 55° (1.23 > 1) already at Δs = 1.
     g = grids(snell_field(1.5, 1.0), level=0, limit=step)
     t = math.radians(theta)
-    r = march(photons([[1.0, 63.5, 32.0]], [[math.sin(t), -math.cos(t), 0.0]]), g, ds_min=step)
+    ray = photons([[1.0, 63.5, 32.0]], [[math.sin(t), -math.cos(t), 0.0]])
+    r = march(ray, g, Marching(ds_min=step))
     x, v = np.array(r.final[0])[:, 0], np.array(r.final[1])[:, 0]
     assert v[1] > 0 and x[1] > 32
     mirror = 180 - theta
@@ -131,7 +133,7 @@ def focus_distances(n_obj, heights, pfeuti_update=False, radius=32.0):
     h = np.asarray(heights) * radius
     o = np.column_stack([64.0 + h, np.full(len(h), 127.9), np.full(len(h), 64.0)])
     d = np.tile([0.0, -1.0, 0.0], (len(h), 1))
-    r = march(photons(o, d), g, pfeuti_update=pfeuti_update)
+    r = march(photons(o, d), g, Marching(pfeuti_update=pfeuti_update))
     x, v = np.array(r.final[0]).T, np.array(r.final[1]).T
     s = (x[:, 0] - 64.0) / v[:, 0]  # back along the exit ray to the axis x = 64
     return 64.0 - (x[:, 1] - s * v[:, 1])
@@ -252,7 +254,7 @@ def beam(direction, n=32, kappa=0.0, count=4**6, fidelity="physical"):
     box = GridBox((0.0, 0.0, 0.0), float(n), n)  # h = 1
     light = Light("directional", np.ones(3), direction=np.asarray(direction, float))
     g = grids(np.ones((n, n, n)), kappa=kappa, level=int(math.log2(n)))
-    return march(emit(light, box, count), g, fidelity=fidelity)
+    return march(emit(light, box, count), g, Marching(fidelity=fidelity))
 
 
 def test_uniform_beam_fills_every_voxel_with_the_irradiance():

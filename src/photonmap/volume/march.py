@@ -75,15 +75,25 @@ class MarchResult:
     surface: object | None = None  # SurfacePhotons: photons recorded on opaque surfaces
 
 
+@dataclass(frozen=True)
+class Marching:
+    """How the photons step (module docstring): ``ds_min`` the smallest step Δs_min in voxels,
+    ``max_steps`` the step cap (default 8 × the grid's side), ``fidelity`` ``"paper"`` for the
+    papers' literal deposits (one per voxel, linear energy), ``pfeuti_update`` Pfeuti's direction
+    update (:func:`~.step.curved_step`)."""
+
+    ds_min: float = 1.0
+    max_steps: int | None = None
+    fidelity: str = "physical"
+    pfeuti_update: bool = False
+
+
 def accumulate(
     photons: Photons,
     medium: MarchGrids,
     tally=radiance_tally,
     shift: int = 0,
-    ds_min: float = 1.0,
-    max_steps: int | None = None,
-    fidelity: str = "physical",
-    pfeuti_update: bool = False,
+    marching: Marching = Marching(),
     scattering: Scattering | None = None,
     surfaces=None,
     iso: float = float("inf"),
@@ -103,11 +113,11 @@ def accumulate(
     if phi_max > 0:
         scale = dr.opaque(mi.Float, 2.0**FIXED_POINT_BITS / phi_max)
         settings = MarchSettings(
-            dr.opaque(mi.Float, ds_min),
-            max_steps or 8 * n,
+            dr.opaque(mi.Float, marching.ds_min),
+            marching.max_steps or 8 * n,
             scale,
-            fidelity == "paper",
-            pfeuti_update,
+            marching.fidelity == "paper",
+            marching.pfeuti_update,
         )
         rays = (
             mi.Point3f(photons.origin),
@@ -145,17 +155,15 @@ def accumulate(
 def march(
     photons: Photons,
     medium: MarchGrids,
-    ds_min: float = 1.0,
-    max_steps: int | None = None,
-    fidelity: str = "physical",
-    pfeuti_update: bool = False,
+    marching: Marching = Marching(),
     voxel_size: float = 1.0,
     weights: mi.Float | None = None,
     scattering: Scattering | None = None,
     surfaces=None,
     iso: float = float("inf"),
 ) -> MarchResult:
-    """March ``photons`` through ``medium`` and return the deposited C, D grids (S6/S7).
+    """March ``photons`` through ``medium`` by ``marching`` (:class:`Marching`) and return the
+    deposited C, D grids (S6/S7).
 
     ``C`` is returned divided by ``voxel_size²`` (the voxel edge h in world units), i.e. as fluence
     in world units (``C/h²`` estimates ``φ = ∫ L_i dω'``); ``D`` likewise. With
@@ -173,17 +181,7 @@ def march(
         )
     tally = radiance_tally if weights is None else weight_tally(weights)
     first, second, unit, steps, final, on_surfaces = accumulate(
-        photons,
-        medium,
-        tally,
-        0,
-        ds_min,
-        max_steps,
-        fidelity,
-        pfeuti_update,
-        scattering,
-        surfaces,
-        iso,
+        photons, medium, tally, 0, marching, scattering, surfaces, iso
     )
     unit /= voxel_size**2
     energy, flux = mi.Vector4f(first * unit), mi.Vector4f(second * unit)

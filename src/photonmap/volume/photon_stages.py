@@ -36,7 +36,7 @@ def uniform_photons(
     march_key = (light_key, octree_key, kappa_key, p.ds_min, p.fidelity, scatter_key)
     march_key += (s.refracted_ior,)
     traced = cache.stage("photon tracing", march_key, lambda: march.march(
-        photons, march_grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=s.box.h,
+        photons, march_grids, march.Marching(p.ds_min, fidelity=p.fidelity), s.box.h,
         scattering=scatter, surfaces=s.surfaces, iso=s.refracted_ior,
     ))  # fmt: skip
     smooth_key = (march_key, p.smoothing)
@@ -95,7 +95,7 @@ def adaptive_photons(
     march_key = (gen_key, octree_key, kappa_key, p.ds_min, scatter_key)
     march_key += (surface_key(s), s.refracted_ior)
     traced = cache.stage("photon tracing", march_key, lambda: march.march(
-        photons, march_grids, ds_min=p.ds_min, fidelity=p.fidelity, voxel_size=box.h,
+        photons, march_grids, march.Marching(p.ds_min, fidelity=p.fidelity), box.h,
         weights=weights, scattering=scatter, surfaces=s.surfaces, iso=s.refracted_ior,
     ))  # fmt: skip
     mip_key = (march_key, p.smoothing)

@@ -41,7 +41,7 @@ from ..core.errors import ParameterError
 from ..core.grid import GridBox, grid_shape
 from .deposit import Int64, Vector4i64, coarse_size
 from .emit import Photons, emit_at
-from .march import accumulate
+from .march import Marching, accumulate
 from .scene import Light
 from .step import MarchGrids
 
@@ -110,8 +110,9 @@ def march_pilot(
     side = math.isqrt(photons.generated)
     shift = pilot_shift(medium.n)
     m = grid_shape(coarse_size(medium.dims, shift), 4)
+    marching = Marching(ds_min, fidelity=fidelity)
     first, second, unit, steps, *_ = accumulate(
-        photons, medium, _origin_tally(side, photons.generated), shift, ds_min, fidelity=fidelity
+        photons, medium, _origin_tally(side, photons.generated), shift, marching
     )
     first = np.asarray(first, dtype=np.float64).T.reshape(m)
     second = np.asarray(second, dtype=np.float64).T.reshape(m)
