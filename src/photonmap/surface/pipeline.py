@@ -52,7 +52,7 @@ from ..core.bsdf import diffuse_albedo, has_glossy_shapes
 from ..core.camera import pixel_means, pixel_rays, scene_bounds
 from ..core.direct import direct_lighting
 from ..core.errors import PhotonmapWarning, SceneError
-from ..core.eye_rules import EyeRules
+from ..core.eye_rules import EyeRules, EyeVertices
 from ..core.eye_trace import trace_eye_paths
 from ..core.media import broadcast, emitter_media, isotropic
 from ..core.memory import check_once
@@ -249,13 +249,13 @@ class SurfacePipeline(Pipeline):
             record_only=self.requests_only,
         )
 
-    def indirect(
-        self, si, bsdf, found, lookup, size, bounces, depth, medium=None, medium_light=None
-    ) -> mi.Spectrum:
-        """``L_indirect`` at the eye-ray hits: the final gather, sampled by ``fg_sampling``,
-        at every hit or — with an irradiance cache — at the hits its plan gathers
-        (:func:`~.irradiance_cache.plan_cache`), the others interpolating."""
+    def indirect(self, eye: EyeVertices, lookup, size, medium_light=None) -> mi.Spectrum:
+        """``L_indirect`` at the eye paths' smooth vertices ``eye``: the final gather, sampled by
+        ``fg_sampling``, at every vertex or — with an irradiance cache — at the vertices its plan
+        gathers (:func:`~.irradiance_cache.plan_cache`), the others interpolating; ``lookup``:
+        what a gather ray reads where it lands, ``size`` the image's."""
         p = self.params
+        si, bsdf, found, depth, medium = eye.si, eye.bsdf, eye.found, eye.depth, eye.medium
         plan, irradiance, at, ok = None, None, si, found
         if p.irradiance_cache != "none":
             plan = self.cache_plan(si, bsdf, found, size)
@@ -270,7 +270,7 @@ class SurfacePipeline(Pipeline):
             table = sampling_table(p.fg_sampling, pmap, at, ok, p.k, self.radii()[1])
         L = dr.zeros(mi.Spectrum, 0)
         if dr.width(ok):
-            layout = self.request_layout(*size, bounces, None if plan is None else plan.gather)
+            layout = self.request_layout(*size, eye.bounces, None if plan is None else plan.gather)
             L = final_gather(
                 self.scene,
                 GatherPoints(at, ok, depth, medium, irradiance),
@@ -367,10 +367,8 @@ class SurfacePipeline(Pipeline):
         def final_gather_pass():
             if p.lookup == "direct":
                 return radiance_estimate(extra, si, bsdf, p.k, r_global, found)
-            return self.indirect(
-                si, bsdf, found, self._lookup(global_map, extra, r_global), (w, h), bounces,
-                eye.depth, eye.medium, medium_light,
-            )  # fmt: skip
+            lookup = self._lookup(global_map, extra, r_global)
+            return self.indirect(eye, lookup, (w, h), medium_light)
 
         L = run("final gather", lambda: _added(L, lambda: beta * final_gather_pass()))
         image = pixel_means(L, p.spp)
