@@ -52,27 +52,14 @@ TABLES = 4  # block hashing's hash tables
 
 
 @numba.njit(cache=True)
-def _bh_search(
-    qp,
-    qn,
-    k,
-    radius2,
-    cos_normal,
-    accuracy,
-    qbucket,
-    bucket_first,
-    bucket_count,
-    entries,
-    blocks,
-    block_first,
-    block_count,
-    p,
-    nrm,
-    drc,
-    index,
-):
-    """Approximate k-NN: ``(found (Q, k), reads (Q,), lines)``; ``qbucket`` (Q, T): each query's
-    bucket line per table (bucket id = line − blocks)."""
+def _bh_search(query, accuracy, qbucket, hash_tables, photons):
+    """Approximate k-NN: ``(found (Q, k), reads (Q,), lines)``; ``query``: the queries as
+    :func:`.line_search.gather_args` gives them, ``qbucket`` (Q, T): each query's bucket line per
+    table (bucket id = line − blocks), ``hash_tables`` the tables' arrays, ``photons``
+    (:func:`.line_search.stored_photons`)."""
+    qp, qn, k, radius2, cos_normal = query
+    bucket_first, bucket_count, entries, blocks, block_first, block_count = hash_tables
+    index = photons[3]
     queries, tables = qbucket.shape
     found_out = np.empty((queries, k), np.int64)
     reads = np.zeros(queries, np.int64)
@@ -119,7 +106,7 @@ def _bh_search(
                 used += 1
                 reads[r] += 1
                 for i in range(block_first[b], block_first[b] + block_count[b]):
-                    key, ok = candidate(p, nrm, drc, i, q, qn[r], radius2, cos_normal, scratch)
+                    key, ok = candidate(photons, i, q, qn[r], radius2, cos_normal, scratch)
                     if ok:
                         found = offer(heap, found, k, (key << np.uint64(32)) | index[i])
             for j in range(n_cand):
@@ -259,7 +246,7 @@ class BlockHash:
         photons = stored_photons(self.points, self.perm, normals, directions)
         return chunked(
             lambda s: _bh_search(
-                args[0][s], args[1][s], *args[2:], self.accuracy, qbucket[s], *tables, *photons
+                (args[0][s], args[1][s], *args[2:]), self.accuracy, qbucket[s], tables, photons
             ),
             len(args[0]),
         )

@@ -26,15 +26,15 @@ from ..core.errors import ParameterError
 
 
 @numba.njit(cache=True, nogil=True)
-def feed_bank(
-    lines, start, count, base, div, seg, prv, nxt, tail, size, segcap, tags, misses, state
-):
-    """Reads of lines ``(lines[start : start + count] − base) // div`` through one bank (see the
-    module docstring): ``seg``/``prv``/``nxt`` (lines,): each line's segment (K: evicted, K + 1:
-    never read) and neighbours in the recency list; ``tail``/``size``/``segcap`` (K,): each
-    segment's last line, its size and its capacity; ``tags`` (sets, ways): the set-associative
-    cache, MRU first, −1 empty (0 sets: none); ``misses`` (K,); ``state``: most recent line,
-    compulsory misses, set-associative misses."""
+def feed_bank(lines, run, base, div, caches):
+    """Reads of lines ``(lines[start : start + count] − base) // div``, ``run = (start, count)``,
+    through one bank ``caches`` (:func:`bank`; see the module docstring): ``seg``/``prv``/``nxt``
+    (lines,): each line's segment (K: evicted, K + 1: never read) and neighbours in the recency
+    list; ``tail``/``size``/``segcap`` (K,): each segment's last line, its size and its capacity;
+    ``tags`` (sets, ways): the set-associative cache, MRU first, −1 empty (0 sets: none);
+    ``misses`` (K,); ``state``: most recent line, compulsory misses, set-associative misses."""
+    start, count = run
+    seg, prv, nxt, tail, size, segcap, tags, misses, state = caches
     K = segcap.shape[0]
     sets, ways = tags.shape
     head, compulsory, sa_misses = state[0], state[1], state[2]
@@ -119,7 +119,7 @@ def simulate_reads(order, offset, count, lines, segcap, sets, ways):
     count[g]]`` taken in ``order`` (each gather's stored reads, in a gather order)."""
     b = bank(lines.max() + 1 if len(lines) else 1, segcap, sets, ways)
     for g in order:
-        feed_bank(lines, offset[g], count[g], 0, 1, *b)
+        feed_bank(lines, (offset[g], count[g]), 0, 1, b)
     return b[7], b[8][2], b[8][1]
 
 
@@ -129,7 +129,7 @@ def simulate_lines(lines, segcap, sets, ways):
     compulsory)`` for the capacities with segment sizes ``segcap`` (K,) and a ``ways``-way cache
     of ``sets`` sets (0: none)."""
     b = bank(lines.max() + 1 if len(lines) else 1, segcap, sets, ways)
-    feed_bank(lines, 0, len(lines), 0, 1, *b)
+    feed_bank(lines, (0, len(lines)), 0, 1, b)
     return b[7], b[8][2], b[8][1]
 
 

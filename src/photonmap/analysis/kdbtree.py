@@ -77,10 +77,12 @@ def _box(pts, a, b, lo, hi):
 
 
 @numba.njit(cache=True)
-def _split(pts, perm, a, b, leaves, g, m, seg_a, seg_b):
-    """Cut the photons ``pts[a:b]`` (and ``perm`` alike) into ``g`` children of ``leaves`` leaves
-    by binary kd splits (module docstring), the children's segments into ``seg_a``/``seg_b`` in
-    pre-order."""
+def _split(pts, perm, segment, leaves, g, m, out):
+    """Cut the photons ``pts[a:b]``, ``segment = (a, b)``, (and ``perm`` alike) into ``g``
+    children of ``leaves`` leaves by binary kd splits (module docstring), the children's
+    segments into ``out = (seg_a, seg_b)`` in pre-order."""
+    a, b = segment
+    seg_a, seg_b = out
     # pending splits: segment, leaves, children
     sa = np.zeros(128, np.int64)
     sb = np.zeros(128, np.int64)
@@ -161,7 +163,7 @@ def _kdb_build(points, m, fanout):
             per_child *= fanout
         g = (leaves + per_child - 1) // per_child
         kind[node], first[node], count[node] = 0, entries, g
-        _split(pts, perm, a, b, leaves, g, m, seg_a, seg_b)
+        _split(pts, perm, (a, b), leaves, g, m, (seg_a, seg_b))
         for j in range(g):
             _box(pts, seg_a[j], seg_b[j], lo[entries + j], hi[entries + j])
         for j in range(g - 1, -1, -1):  # first child on top: pre-order numbering
@@ -180,10 +182,13 @@ def _kdb_build(points, m, fanout):
 
 
 @numba.njit(cache=True)
-def _kdb_search(
-    qp, qn, k, radius2, cos_normal, kind, first, count, lo, hi, child, p, nrm, drc, index
-):
-    """Exact k-NN of every query; returns ``(found (Q, k), reads (Q,), lines)``."""
+def _kdb_search(query, tree, photons):
+    """Exact k-NN of every ``query`` (:func:`.line_search.gather_args`) in the nodes ``tree``
+    of ``photons`` (:func:`.line_search.stored_photons`); returns ``(found (Q, k), reads (Q,),
+    lines)``."""
+    qp, qn, k, radius2, cos_normal = query
+    kind, first, count, lo, hi, child = tree
+    index = photons[3]
     queries = qp.shape[0]
     found_out = np.empty((queries, k), np.int64)
     reads = np.zeros(queries, np.int64)
@@ -215,7 +220,7 @@ def _kdb_search(
             reads[r] += 1
             if kind[node] == 1:
                 for j in range(first[node], first[node] + count[node]):
-                    key, ok = candidate(p, nrm, drc, j, q, qn[r], radius2, cos_normal, scratch)
+                    key, ok = candidate(photons, j, q, qn[r], radius2, cos_normal, scratch)
                     if ok:
                         found = offer(heap, found, k, (key << np.uint64(32)) | index[j])
                 continue
@@ -275,6 +280,6 @@ class KDBTree:
         tree = (self.kind, self.first, self.count, self.lo, self.hi, self.child)
         photons = stored_photons(self.points, self.perm, normals, directions)
         return chunked(
-            lambda s: _kdb_search(args[0][s], args[1][s], *args[2:], *tree, *photons),
+            lambda s: _kdb_search((args[0][s], args[1][s], *args[2:]), tree, photons),
             len(args[0]),
         )

@@ -70,13 +70,17 @@ def _offer(hd, hi, found, k, d, i):
 
 
 @numba.njit(cache=True, nogil=True)
-def walk(q, qn, pos, flag, pnrm, pdir, k, radius2, cos_normal, hd, hi, sd, sn, out):
+def walk(q, qn, tree, gather, scratch):
     """Heap slots (1-based) visited by the k-NN gather at ``q`` (float32 (3,)) with normal ``qn``,
-    written to ``out`` in visiting order; returns their number. ``pos`` (N, 4) float32 and
-    ``flag`` (N, 4) uint32 are two views of the tree's 16-byte records in heap order (x, y, z;
-    photon index | axis << 30 in column 3); ``pnrm``/``pdir`` (N, 3) the photons' normals and
-    directions in heap order (0 rows: no such test); ``hd``/``hi``/``sd``/``sn``: scratch (k and
-    :data:`STACK_SIZE` entries)."""
+    written to ``out`` in visiting order; returns their number. ``tree = (pos, flag, pnrm,
+    pdir)``: ``pos`` (N, 4) float32 and ``flag`` (N, 4) uint32 are two views of the tree's
+    16-byte records in heap order (x, y, z; photon index | axis << 30 in column 3);
+    ``pnrm``/``pdir`` (N, 3) the photons' normals and directions in heap order (0 rows: no such
+    test). ``gather = (k, radius², cos_normal)``; ``scratch = (hd, hi, sd, sn, out)``
+    (:func:`_scratch`: k and :data:`STACK_SIZE` entries, and ``out``)."""
+    pos, flag, pnrm, pdir = tree
+    k, radius2, cos_normal = gather
+    hd, hi, sd, sn, out = scratch
     n = pos.shape[0]
     qx, qy, qz = q[0], q[1], q[2]
     if not (np.isfinite(qx) and np.isfinite(qy) and np.isfinite(qz)):
@@ -148,59 +152,54 @@ def _scratch(k, n):
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def visit_counts(qpos, qnrm, pos, flag, pnrm, pdir, k, radius2, cos_normal):
-    """Nodes visited by each gather (Q,)."""
+def visit_counts(qpos, qnrm, tree, gather):
+    """Nodes visited by each gather (Q,) (:func:`walk`'s ``tree`` and ``gather``)."""
     m = qpos.shape[0]
     count = np.zeros(m, np.int64)
     chunk = 4096
     for c in numba.prange((m + chunk - 1) // chunk):
-        hd, hi, sd, sn, out = _scratch(k, pos.shape[0])
+        scratch = _scratch(gather[0], tree[0].shape[0])
         for g in range(c * chunk, min(m, (c + 1) * chunk)):
-            count[g] = walk(
-                qpos[g], qnrm[g], pos, flag, pnrm, pdir, k, radius2, cos_normal, hd, hi, sd, sn, out
-            )
+            count[g] = walk(qpos[g], qnrm[g], tree, gather, scratch)
     return count
 
 
 @numba.njit(cache=True, nogil=True, parallel=True)
-def visit_slots(qpos, qnrm, pos, flag, pnrm, pdir, k, radius2, cos_normal, offset, total):
+def visit_slots(qpos, qnrm, tree, gather, offset, total):
     """Every gather's visited heap slots, concatenated (gather ``g`` at ``offset[g]``)."""
     m = qpos.shape[0]
     slots = np.empty(total, np.int64)
     chunk = 4096
     for c in numba.prange((m + chunk - 1) // chunk):
-        hd, hi, sd, sn, out = _scratch(k, pos.shape[0])
+        scratch = _scratch(gather[0], tree[0].shape[0])
+        out = scratch[4]
         for g in range(c * chunk, min(m, (c + 1) * chunk)):
-            v = walk(
-                qpos[g], qnrm[g], pos, flag, pnrm, pdir, k, radius2, cos_normal, hd, hi, sd, sn, out
-            )
+            v = walk(qpos[g], qnrm[g], tree, gather, scratch)
             slots[offset[g] : offset[g] + v] = out[:v]
     return slots
 
 
 @numba.njit(cache=True, nogil=True)
-def simulate(
-    order, qpos, qnrm, pos, flag, pnrm, pdir, k, radius2, cos_normal, per_line, segcap, sets, ways
-):
+def simulate(order, qpos, qnrm, tree, gather, caches):
     """Issue the gathers ``order`` (indices into ``qpos``/``qnrm``) and feed every node read to
-    one cache bank per line size (``per_line`` (L,): photons per line; ``segcap`` (L, K): the
-    segment sizes, in lines, of the fully associative capacities; ``sets`` (L,): sets of the
-    ``ways``-way cache, 0 for none). Returns ``(misses (L, K), set-associative misses (L,),
-    compulsory (L,), visits)``."""
-    n = pos.shape[0]
+    one cache bank per line size; ``caches = (per_line, segcap, sets, ways)``: ``per_line``
+    (L,) photons per line, ``segcap`` (L, K) the segment sizes, in lines, of the fully
+    associative capacities, ``sets`` (L,) sets of the ``ways``-way cache, 0 for none. Returns
+    ``(misses (L, K), set-associative misses (L,), compulsory (L,), visits)``."""
+    per_line, segcap, sets, ways = caches
+    n = tree[0].shape[0]
     L = per_line.shape[0]
     banks = [
         bank((n + per_line[b] - 1) // per_line[b] + 1, segcap[b], sets[b], ways) for b in range(L)
     ]
     visits = 0
-    hd, hi, sd, sn, out = _scratch(k, n)
+    scratch = _scratch(gather[0], n)
+    out = scratch[4]
     for g in order:
-        v = walk(
-            qpos[g], qnrm[g], pos, flag, pnrm, pdir, k, radius2, cos_normal, hd, hi, sd, sn, out
-        )
+        v = walk(qpos[g], qnrm[g], tree, gather, scratch)
         visits += v
         for b in range(L):
-            feed_bank(out, 0, v, 1, per_line[b], *banks[b])
+            feed_bank(out, (0, v), 1, per_line[b], banks[b])
     misses = np.empty((L, segcap.shape[1]), np.int64)
     state = np.empty((L, 3), np.int64)
     for b in range(L):
@@ -210,21 +209,19 @@ def simulate(
 
 
 @numba.njit(cache=True, nogil=True)
-def read_lines(qpos, qnrm, pos, flag, pnrm, pdir, k, radius2, cos_normal, per_line, kind, size):
+def read_lines(qpos, qnrm, tree, gather, per_line, kind, size):
     """Every gather's line reads with runs within one line merged (hits in every cache that
     change nothing), concatenated in gather order into a buffer of ``kind``'s dtype, first
     ``size`` long (grown by half when full): ``(count (Q,), buffer, used, visits)``."""
     m = qpos.shape[0]
-    n = pos.shape[0]
     count = np.zeros(m, np.int64)
     lines = np.empty(max(size, 1024), kind.dtype)
     used = 0
     visits = 0
-    hd, hi, sd, sn, out = _scratch(k, n)
+    scratch = _scratch(gather[0], tree[0].shape[0])
+    out = scratch[4]
     for g in range(m):
-        v = walk(
-            qpos[g], qnrm[g], pos, flag, pnrm, pdir, k, radius2, cos_normal, hd, hi, sd, sn, out
-        )
+        v = walk(qpos[g], qnrm[g], tree, gather, scratch)
         visits += v
         if used + v > lines.shape[0]:
             grown = np.empty(max(lines.shape[0] * 3 // 2, used + v), kind.dtype)

@@ -86,9 +86,10 @@ def heap_bound2(heap, found, k, radius2, scratch):
 
 
 @numba.njit(cache=True)
-def candidate(p, nrm, drc, i, q, qn, radius2, cos_normal, scratch):
-    """``(key, ok)`` of stored photon ``i`` for query ``q`` — :func:`photonmap.core.knn.accept`'s
-    rule."""
+def candidate(photons, i, q, qn, radius2, cos_normal, scratch):
+    """``(key, ok)`` of stored photon ``i`` (of ``photons``, :func:`stored_photons`) for query
+    ``q`` — :func:`photonmap.core.knn.accept`'s rule."""
+    p, nrm, drc, _ = photons
     dx = p[i, 0] - q[0]
     dy = p[i, 1] - q[1]
     dz = p[i, 2] - q[2]

@@ -74,15 +74,9 @@ class KDRecords:
         )
 
     def args(self) -> tuple:
-        return (
-            self.record,
-            self.record.view(np.uint32),
-            self.normal,
-            self.direction,
-            self.k,
-            squared_radius(self.radius),
-            self.cos_normal,
-        )
+        """``(tree, gather)`` as :func:`.kdwalk.walk` takes them."""
+        tree = (self.record, self.record.view(np.uint32), self.normal, self.direction)
+        return tree, (self.k, squared_radius(self.radius), self.cos_normal)
 
 
 @dataclass
@@ -202,8 +196,9 @@ class GatherTrace:
             m, sa, c = simulate_reads(perm, offset, count, lines, segcap[0], sets[0], max(ways, 1))
             misses, sa, compulsory, visits = m[None], np.array([sa]), np.array([c]), self._visits
         else:
+            caches = (per_line, segcap, sets, max(ways, 1))
             misses, sa, compulsory, visits = kdwalk.simulate(
-                perm, *self._queries(), *self.tree.args(), per_line, segcap, sets, max(ways, 1)
+                perm, *self._queries(), *self.tree.args(), caches
             )
             self._visits = int(visits)
         at = np.searchsorted(distinct, caps)
