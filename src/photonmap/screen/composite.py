@@ -62,12 +62,14 @@ class ChainEnds:
     pixel: mi.UInt32
 
 
-def _chain(scene, light, si, throughput, active, first, max_depth: int, eps, null_shapes):
-    """Follow delta interactions from ``si`` (first choice ``first`` per lane, then
-    transmission) and return the throughput-weighted direct light and emission at the first
+def _chain(scene, light, start, max_depth: int, eps, null_shapes):
+    """Follow delta interactions from ``start = (si, throughput, active, first)``: from ``si``
+    with ``throughput`` where ``active`` (first choice ``first`` per lane, then transmission),
+    and return the throughput-weighted direct light and emission at the first
     non-delta surface, with that surface's position, normal, albedo and the throughput reaching
     it. After m delta interactions the end's emission ends a path of m + 1 segments, its direct
     light one of m + 2: each is kept within ``max_depth`` (Mitsuba's; -1 unbounded)."""
+    si, throughput, active, first = start
     bounded = max_depth != UNBOUNDED
     levels = min(max_depth - 1, MAX_LEVELS) if bounded else MAX_LEVELS
     ctx = mi.BSDFContext(mi.TransportMode.Radiance)
@@ -92,7 +94,7 @@ def _chain(scene, light, si, throughput, active, first, max_depth: int, eps, nul
         albedo = diffuse_albedo(bsdf, si, end)
         lit = si.emitter(scene).eval(si, end)
         if not bounded or level + 2 <= max_depth:
-            *_, direct = shade(scene, light, si.p, n, albedo, end, eps, distances=False,
+            *_, direct = shade(scene, light, (si.p, n, albedo, end), eps, distances=False,
                                samples=True, null_shapes=null_shapes)  # fmt: skip
             lit += direct
         L += dr.select(end, throughput * lit, 0.0)
@@ -133,8 +135,9 @@ def glass_eye(
     active = si.is_valid() & (transmitted | glass)  # mirrors: only the first branch
     first = dr.select(transmitted, TRANSMIT, REFLECT)
     one = dr.ones(mi.Color3f, 2 * count)
-    L, (p, n, albedo, T, level) = _chain(scene, light, si, one, active, first, max_depth, eps,
-                                         null_shapes)  # fmt: skip
+    L, (p, n, albedo, T, level) = _chain(
+        scene, light, (si, one, active, first), max_depth, eps, null_shapes
+    )
     out = dr.zeros(mi.Color3f, dr.width(specular))
     dr.scatter_add(out, L, pixel)
     points = GBuffer(2 * count, 1, p, mi.Normal3f(n), dr.zeros(mi.Float, 2 * count), albedo,

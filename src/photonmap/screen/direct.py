@@ -64,18 +64,20 @@ class DirectLight:
 
 
 def shade(
-    scene: mi.Scene, light: Light, p, n, albedo, active, eps, distances: bool = True,
+    scene: mi.Scene, light: Light, points: tuple, eps, distances: bool = True,
     samples: bool = False, null_shapes: bool | None = None,
 ):  # fmt: skip
     """Unshadowed direct radiance L, the hard visibility V_h, the occluder distance d, the light
     distance D and the sampled shadowed radiance (None unless ``samples``; module docstring) at
-    points ``p`` with normals ``n`` (for the eye G-buffer and for ray-traced glass,
+    ``points = (p, n, albedo, active)``: positions ``p`` with normals ``n`` and diffuse
+    ``albedo`` where ``active`` (for the eye G-buffer and for ray-traced glass,
     :mod:`.composite`). Shadow rays are any-hit tests, as the thesis's OptiX any-hit program; only
     the blocked rays are cast again for their closest hit, which gives d (module docstring).
     ``distances=False`` skips that second pass (d is then 0); for an area light with
     ``samples=True`` it skips the shadow map altogether (V_h = 1: the samples' rays shadow it)."""
     if null_shapes is None:
         null_shapes = has_null_shapes(scene)
+    p, n, albedo, active = points
     to_light = light_point(light) - p
     dist = dr.norm(to_light)
     l = to_light / dr.maximum(dist, 1e-12)
@@ -83,8 +85,7 @@ def shade(
     lit = active & (cos > 0) & (dist > 2 * eps)
     sampled = None
     if light.kind == "area":
-        radiance, sampled = _area_light(scene, light, p, n, albedo, active, eps, samples,
-                                        null_shapes)  # fmt: skip
+        radiance, sampled = _area_light(scene, light, points, eps, samples, null_shapes)
     else:
         radiance = albedo * dr.inv_pi * intensity(light, -l) * cos / dr.square(dist)
         radiance = dr.select(lit, radiance, 0.0)
@@ -115,10 +116,11 @@ def shade(
 
 
 @dr.syntax
-def _area_light(scene, light, p, n, albedo, active, eps, samples: bool, null_shapes: bool):
+def _area_light(scene, light, points, eps, samples: bool, null_shapes: bool):
     """The unshadowed and (``samples``) the sampled shadowed direct radiance of an area light
-    at ``p`` (module docstring): K jittered-stratified samples of ``emitter.sample_direction``,
-    each with its own shadow ray when ``samples``."""
+    at ``points = (p, n, albedo, active)`` (module docstring): K jittered-stratified samples of
+    ``emitter.sample_direction``, each with its own shadow ray when ``samples``."""
+    p, n, albedo, active = points
     width = dr.width(active)
     lane = dr.arange(mi.UInt32, width)
     it = dr.zeros(mi.Interaction3f, width)
@@ -163,13 +165,7 @@ def direct_light(
     eps = dr.opaque(mi.Float, EPSILON * diagonal)
     out = DirectLight(
         *shade(
-            scene,
-            light,
-            gbuf.pos,
-            mi.Vector3f(gbuf.nrm),
-            gbuf.albedo,
-            gbuf.valid,
-            eps,
+            scene, light, (gbuf.pos, mi.Vector3f(gbuf.nrm), gbuf.albedo, gbuf.valid), eps,
             samples=samples,
         )  # fmt: skip
     )

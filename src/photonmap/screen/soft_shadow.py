@@ -116,23 +116,29 @@ def soft_visibility(
     pos = mi.Point3f(gbuf.pos)
     rec = dr.ravel(mi.Vector4f(pos.x, pos.y, pos.z, code))  # (x, y, z, d | −1 lit | −2 none)
     taps = [mi.Float(lattice(n).ravel()) for n in samples]
-    V = _gather(
-        idx, rec, gbuf.depth, light_dist, taps,
-        [dr.opaque(mi.UInt32, len(lattice(n))) for n in samples],
-        W, H,
+    counts = [dr.opaque(mi.UInt32, len(lattice(n))) for n in samples]
+    scales = (
         dr.opaque(mi.Float, f_px * radius),
         dr.opaque(mi.Float, 1.0 / (sigma * scene_diag * scene_diag)),
         dr.opaque(mi.Float, gap),
-        mode == "soft",
-    )  # fmt: skip
+    )
+    V = _gather(
+        idx, (rec, gbuf.depth, light_dist), (taps, counts), (W, H), scales, mode == "soft"
+    )
     dr.scatter(out, V, idx)
     dr.eval(out)
     return out
 
 
 @dr.syntax
-def _gather(idx, rec, depth, light_dist, taps, counts, W, H, size_px, k_gamma, gap, isg):
-    """V_s of the pixels ``idx`` (two passes of lattice taps; module docstring)."""
+def _gather(idx, buffers, lattices, size, scales, isg):
+    """V_s of the pixels ``idx`` (two passes of lattice taps; module docstring): ``buffers =
+    (rec, depth, light_dist)`` per pixel, ``lattices = (taps, counts)`` of the two passes, the
+    image ``size = (W, H)``, ``scales = (size_px, k_gamma, gap)``."""
+    rec, depth, light_dist = buffers
+    taps, counts = lattices
+    W, H = size
+    size_px, k_gamma, gap = scales
     lanes = dr.width(idx)
     x0 = mi.Float(idx % W)
     y0 = mi.Float(idx // W)

@@ -127,25 +127,26 @@ def _splat(gbuf: GBuffer, photons: ScreenPhotons, radius: float, tau: float, mod
     rec[:, 0:3], rec[:, 3] = pos[order], r_p[order]
     rec[:, 4:7], rec[:, 8:11] = nrm[order], power[order]
 
-    E = _gather(
-        gbuf,
-        mi.Float(rec.ravel()),
+    grid = (
         cell_start,
         dr.opaque(mi.Point3f, [float(v) for v in lo]),
         dr.opaque(mi.Float, 1.0 / cell),
         dr.opaque(mi.Point3i, [int(v) for v in dims]),
-        dr.opaque(mi.Float, reach),
-        dr.opaque(mi.Float, tau),
-        mode,
     )
+    E = _gather(
+        gbuf, mi.Float(rec.ravel()), grid, dr.opaque(mi.Float, reach), dr.opaque(mi.Float, tau),
+        mode,
+    )  # fmt: skip
     L = E * gbuf.albedo * dr.inv_pi
     dr.eval(L, E)
     return L, E
 
 
 @dr.syntax
-def _gather(gbuf, rec, cell_start, origin, inv_cell, dims, reach, tau, mode):
-    """Σ over photons of max(0, n_p·n) Φ_p κ per pixel (E_ind); see the module docstring."""
+def _gather(gbuf, rec, grid, reach, tau, mode):
+    """Σ over photons of max(0, n_p·n) Φ_p κ per pixel (E_ind); see the module docstring.
+    ``grid = (cell_start, origin, inv_cell, dims)``: the photons' uniform grid."""
+    cell_start, origin, inv_cell, dims = grid
     pixels = dr.width(gbuf.pos)
     s, n = mi.Point3f(gbuf.pos), mi.Vector3f(gbuf.nrm)
     # the cells overlapping the box s ± reach, clipped to the grid
