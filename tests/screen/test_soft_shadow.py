@@ -90,7 +90,7 @@ def test_zero_light_size_is_the_hard_shadow():
         {"radius": 0.1, "mode": "hard"},
         {"radius": 0.0, "mode": "fixed_radius"},
     ):
-        V = soft_visibility(gb, hard, d, D, scene_diag=3.0, **kwargs)
+        V = soft_visibility(gb, (hard, d, D), scene_diag=3.0, **kwargs)
         np.testing.assert_array_equal(V.numpy(), hard.numpy())
 
 
@@ -100,7 +100,7 @@ def test_straight_edge_penumbra_matches_the_area_light(f_px, angle):
     monotone, exact 0 / 1 beyond the penumbra (O16)."""
     W, H = 160, 128
     gb, hard, d, D, u, w = edge_scene(W, H, f_px, angle=angle)
-    V = soft_visibility(gb, hard, d, D, 0.1, scene_diag=3.0, sigma=1e6).numpy()
+    V = soft_visibility(gb, (hard, d, D), 0.1, scene_diag=3.0, sigma=1e6).numpy()
     rows = slice(60 * W, 68 * W)
     v, u = V[rows], u[rows] / w
     assert w * f_px == pytest.approx(f_px / 30)
@@ -118,7 +118,7 @@ def test_penumbra_widens_with_the_occluder_distance():
     width = {}
     for h in (0.5, 0.25):
         gb, hard, d, D, u, w = edge_scene(h=h)
-        v = soft_visibility(gb, hard, d, D, 0.1, scene_diag=3.0, sigma=1e6).numpy()[row]
+        v = soft_visibility(gb, (hard, d, D), 0.1, scene_diag=3.0, sigma=1e6).numpy()[row]
         width[h] = np.count_nonzero((v > 0) & (v < 1))
         assert width[h] == pytest.approx(2 * w * 600, abs=2)
     assert width[0.25] < width[0.5]
@@ -137,13 +137,13 @@ def test_matches_numpy_reference_on_a_blob_shadow():
     d = np.where(hard == 0, 0.4 + 0.005 * xx.ravel(), 0)
     D = np.full(W * H, 1.5)
     args = [to_jit(mi.Float, a) for a in (hard, d, D)]
-    V = soft_visibility(gb, *args, radius=0.3, scene_diag=8.0, samples=(3, 4))
+    V = soft_visibility(gb, args, radius=0.3, scene_diag=8.0, samples=(3, 4))
     ref = reference(gb, *args, L=0.3, diag=8.0, samples=(3, 4), sigma=0.05**2)
     assert np.count_nonzero((ref > 0) & (ref < 1)) > 300
     selected = _boundary_pixels(gb, *args, 0.3 * f_px, 8e-4, "soft")
     assert dr.width(selected) < W * H / 2  # the tile test skips most pixels
     np.testing.assert_allclose(V.numpy(), ref, atol=2e-5)
-    V = soft_visibility(gb, *args, 0.1, 8.0, mode="fixed_radius")
+    V = soft_visibility(gb, args, 0.1, 8.0, mode="fixed_radius")
     ref = reference(gb, *args, L=0.0, diag=8.0, samples=(4, 5), sigma=0.05**2, fixed=0.1)
     np.testing.assert_allclose(V.numpy(), ref, atol=2e-5)
 
@@ -160,7 +160,7 @@ def test_depth_discontinuity_rejects_background_shadow():
         hard = np.where(~front & shadow, 0.0, 1.0).astype(np.float32)
         d = np.where(hard == 0, 0.5, 0).astype(np.float32)
         V = soft_visibility(
-            gb, mi.Float(hard), mi.Float(d), mi.Float(np.full(W * H, 2.0)), 0.1, 2.0
+            gb, (mi.Float(hard), mi.Float(d), mi.Float(np.full(W * H, 2.0))), 0.1, 2.0
         )
         results.append(V.numpy()[front])
     assert np.max(np.abs(results[0] - results[1])) < 0.01
@@ -186,6 +186,6 @@ def test_bad_input_raises():
     ]
     for kwargs, message in cases:
         with pytest.raises(ParameterError, match=message):
-            soft_visibility(gb, hard, d, D, **{**ok, **kwargs})
+            soft_visibility(gb, (hard, d, D), **{**ok, **kwargs})
     with pytest.raises(ParameterError, match="hard has 3 entries"):
-        soft_visibility(gb, mi.Float(1, 1, 1), d, D, **ok)
+        soft_visibility(gb, (mi.Float(1, 1, 1), d, D), **ok)

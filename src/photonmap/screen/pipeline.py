@@ -413,7 +413,7 @@ class ScreenPipeline(Pipeline):
         radius = self.shadow_radius()
         shadow_key = (direct_key, sampled, p.shadows, radius, p.isg_pair())
         visibility = self.cache.stage("soft shadows", shadow_key, lambda: soft_visibility(
-            gbuf, direct.hard, direct.occluder_dist, direct.light_dist, radius, diag,
+            gbuf, (direct.hard, direct.occluder_dist, direct.light_dist), radius, diag,
             samples=p.isg_pair(), mode="hard" if sampled else p.shadows,
         ))  # fmt: skip
         return direct, visibility, shadow_key

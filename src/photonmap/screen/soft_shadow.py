@@ -64,16 +64,15 @@ def lattice(n: int) -> np.ndarray:
 
 def soft_visibility(
     gbuf: GBuffer,
-    hard: mi.Float,
-    occluder_dist: mi.Float,
-    light_dist: mi.Float,
+    shadow_map: tuple,
     radius: float,
     scene_diag: float,
     samples: tuple[int, int] = (4, 5),
     sigma: float = 0.05**2,
     mode: str = "soft",
 ) -> mi.Float:
-    """Soft visibility V_s ∈ [0, 1] per pixel of ``gbuf`` (module docstring).
+    """Soft visibility V_s ∈ [0, 1] per pixel of ``gbuf`` (module docstring) from its
+    ``shadow_map = (hard, occluder_dist, light_dist)`` (:func:`~.direct.shade`'s V_h, d and D).
 
     ``radius``: world-space radius — L, the virtual area light's (``"soft"``), or r, the blur's
     (``"fixed_radius"``); 0 gives V_h; ``scene_diag``: the scene's bounding-box diagonal (unit of
@@ -82,6 +81,7 @@ def soft_visibility(
     """
     if mode not in MODES:
         raise ParameterError(f"soft-shadow mode must be one of {MODES}, got {mode!r}")
+    hard, occluder_dist, light_dist = shadow_map
     if (
         not isinstance(samples, tuple | list)
         or len(samples) != 2
