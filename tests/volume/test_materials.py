@@ -11,7 +11,13 @@ from photonmap.core.arrays import to_jit
 from photonmap.core.errors import ParameterError
 from photonmap.core.grid import GridBox
 from photonmap.core.noise import perlin3, permutation
-from photonmap.volume.materials import BLUR_TAPS, from_arrays, gradient, material_grids
+from photonmap.volume.materials import (
+    BLUR_TAPS,
+    Perturbation,
+    from_arrays,
+    gradient,
+    material_grids,
+)
 from photonmap.volume.scene import Medium
 from photonmap.volume.voxelize import voxelize
 
@@ -126,10 +132,7 @@ def test_noise_perturbs_objects_only():
         [(mi.TensorXf(cov), GLASS)],
         FOG,
         BOX,
-        ior_noise=0.02,
-        sigma_s_noise=1.5,
-        noise_scale=4.0,
-        noise_seed=5,
+        noise=Perturbation(ior=0.02, sigma_s=1.5, scale=4.0, seed=5),
     )
     c = np.arange(N) + 0.5
     p = np.stack(np.meshgrid(c, c, c, indexing="ij")[::-1], axis=-1).reshape(-1, 3) / 4.0
@@ -145,8 +148,7 @@ def test_noise_perturbs_objects_only():
         [(mi.TensorXf(np.zeros((N, N, N), np.float32)), GLASS)],
         FOG,
         BOX,
-        ior_noise=0.02,
-        sigma_s_noise=0.8,
+        noise=Perturbation(ior=0.02, sigma_s=0.8),
     )
     np.testing.assert_allclose(fog_only.ior.numpy(), 1.0, atol=1e-6)
 

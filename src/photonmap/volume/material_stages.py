@@ -9,7 +9,7 @@ import drjit as dr
 import mitsuba as mi
 
 from ..core.stages import StageCache, cache_key
-from .materials import MaterialGrids, from_arrays, material_grids
+from .materials import MaterialGrids, Perturbation, from_arrays, material_grids
 from .params import VolumeParams
 from .scene import VolumeScene
 from .voxelize import voxelize
@@ -57,10 +57,7 @@ def voxelized_materials(
             surrounding,
             box,
             blur_all=p.blur_all,
-            ior_noise=p.ior_noise,
-            sigma_s_noise=p.sigma_s_noise,
-            noise_scale=p.noise_scale,
-            noise_seed=p.seed,
+            noise=Perturbation(p.ior_noise, p.sigma_s_noise, p.noise_scale, p.seed),
             media=list(zip(covs[k:], fog_media, strict=True)),
         ),
     )

@@ -17,7 +17,8 @@ evaluation, averaged over 2³ points per voxel). Coefficients are stored in **vo
 **Perturbation** (the cube scene of Pfeuti 2009 Fig 4.9): inside objects, at voxel centres
 ``v``, ``n_obj(v) = n_obj + a_n·perlin(v/s)`` and
 ``σ_s,obj(v) = σ_s,obj·max(0, 1 + a_σ·perlin'(v/s))`` with ``κ_obj = σ_s,obj + σ_a,obj``;
-``perlin`` is seeded with ``noise_seed``, ``perlin'`` with ``noise_seed + 1``.
+``perlin`` is seeded with ``seed``, ``perlin'`` with ``seed + 1`` (:class:`Perturbation`:
+``a_n``, ``a_σ``, ``s``, ``seed``).
 
 **Blur (S2).** Separable 9-tap Gaussian, σ = 9/6 = 1.5 voxels, normalised, clamp-to-edge
 (:data:`BLUR_TAPS`), applied to n (Pfeuti blurs "the refraction index voxel grid"); ``blur_all=True``
@@ -46,6 +47,17 @@ from .medium_grid import medium_on_grid
 
 BLUR_TAPS = gaussian_taps(4, 1.5)
 """The 9 taps of the S2 blur: [0.00761, 0.03607, 0.10959, 0.21344, 0.26656, 0.21344, ...]."""
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """The Perlin perturbation inside objects (module docstring): amplitudes ``ior`` (a_n) and
+    ``sigma_s`` (a_σ), feature size ``scale`` (s, voxels) and ``seed``; none by default."""
+
+    ior: float = 0.0
+    sigma_s: float = 0.0
+    scale: float = 16.0
+    seed: int = 0
 
 
 @dataclass
@@ -95,18 +107,16 @@ def material_grids(
     fog: Medium,
     box: GridBox,
     blur_all: bool = False,
-    ior_noise: float = 0.0,
-    sigma_s_noise: float = 0.0,
-    noise_scale: float = 16.0,
-    noise_seed: int = 0,
+    noise: Perturbation = Perturbation(),
     media: list[tuple[mi.TensorXf, Medium]] = (),
 ) -> MaterialGrids:
     """Map coverages (n_z, n_y, n_x) to n, σ_s and κ, then blur n: ``fog`` everywhere, then each
-    fog volume of ``media`` (σ_s and κ only), then each object of ``coverages``."""
+    fog volume of ``media`` (σ_s and κ only), then each object of ``coverages`` (perturbed by
+    ``noise``)."""
     dims, h, count = box.dims, box.h, box.voxels
     _check_material(fog.ior, fog.sigma_s, fog.kappa, "the fog")
-    if not (np.isfinite(noise_scale) and noise_scale > 0):
-        raise ParameterError(f"noise_scale must be positive, got {noise_scale!r}")
+    if not (np.isfinite(noise.scale) and noise.scale > 0):
+        raise ParameterError(f"noise_scale must be positive, got {noise.scale!r}")
 
     def opaque_color(c):
         return dr.opaque(mi.Color3f(*(float(x) * h for x in np.broadcast_to(c, 3))))
@@ -122,12 +132,12 @@ def material_grids(
     fog_s, fog_kappa, _ = values(fog, "the fog")
     sigma_s = fog_s * dr.ones(mi.Float, count)
     kappa = fog_kappa * dr.ones(mi.Float, count)
-    p = voxel_centres(dims) / dr.opaque(mi.Float, noise_scale)
+    p = voxel_centres(dims) / dr.opaque(mi.Float, noise.scale)
     noise_n = noise_s = 0.0
-    if ior_noise:
-        noise_n = dr.opaque(mi.Float, ior_noise) * perlin3(p, noise_seed)
-    if sigma_s_noise:
-        noise_s = dr.opaque(mi.Float, sigma_s_noise) * perlin3(p, noise_seed + 1)
+    if noise.ior:
+        noise_n = dr.opaque(mi.Float, noise.ior) * perlin3(p, noise.seed)
+    if noise.sigma_s:
+        noise_s = dr.opaque(mi.Float, noise.sigma_s) * perlin3(p, noise.seed + 1)
     for i, (coverage, medium) in enumerate(media):
         _check_coverage(coverage, dims, f"fog volume {i}")
         _check_material(1.0, medium.sigma_s, medium.kappa, f"fog volume {i}")
