@@ -13,6 +13,8 @@ some BSDF lets light through (Jensen & Christensen 1998: attenuated shadow rays)
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import drjit as dr
 import mitsuba as mi
 
@@ -102,14 +104,40 @@ def emitter_sampled(
     ``samples`` times where that many emitter samples are taken) — also the next-event
     estimation of a path that goes on by sampling the BSDF (its emitter hits take the other
     weight)."""
-    bsdf = si.bsdf()
+    light = light_sample(scene, si, u_light, gen, active, traits, medium)
+    wo = si.to_local(light.ds.d)
+    bsdf_val, bsdf_pdf = si.bsdf().eval_pdf(CONTEXT, si, wo, light.lit)  # smooth lobes only
+    return nee_weighted(light, bsdf_val, bsdf_pdf, samples)
+
+
+@dataclass
+class LightSample:
+    """An emitter sample of next-event estimation (:func:`light_sample`): its direction sample,
+    the emitter's weight ``L_e / p`` times the shadow ray's transmittance, and the lanes it
+    lights."""
+
+    ds: mi.DirectionSample3f
+    weight: mi.Spectrum
+    lit: mi.Bool
+
+
+def light_sample(scene, si, u_light, gen, active, traits: SceneTraits, medium) -> LightSample:
+    """Sample an emitter from ``si`` (``u_light``) and trace the shadow ray (with transmittance,
+    :func:`shadow_transmittance`) towards it."""
     ds, em_weight = scene.sample_emitter_direction(si, u_light, False, active)
     lit = active & (ds.pdf != 0)
     shadow = si.spawn_ray_to(ds.p)
     em_weight *= shadow_transmittance(scene, shadow, enter(si, ds.d, medium, lit), gen, lit, traits)
-    bsdf_val, bsdf_pdf = bsdf.eval_pdf(CONTEXT, si, si.to_local(ds.d), lit)  # smooth lobes only
+    return LightSample(ds, em_weight, lit)
+
+
+def nee_weighted(light: LightSample, bsdf_val, bsdf_pdf, samples: int = 1) -> mi.Spectrum:
+    """``light``'s contribution ``w f L_e T / p`` through the BSDF value ``bsdf_val`` (cosine
+    included) of its direction, weighted against BSDF sampling (density ``bsdf_pdf``) by the
+    power heuristic; a delta emitter takes weight 1."""
+    ds = light.ds
     w_em = dr.select(ds.delta, 1.0, power_heuristic(samples * ds.pdf, bsdf_pdf))
-    return dr.select(lit, w_em * bsdf_val * em_weight, 0.0)
+    return dr.select(light.lit, w_em * bsdf_val * light.weight, 0.0)
 
 
 def emitter_along(scene, ray, medium, gen, active, traits: SceneTraits):

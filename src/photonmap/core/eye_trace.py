@@ -75,7 +75,7 @@ import drjit as dr
 import mitsuba as mi
 
 from .bsdf import intersect_visible, is_rough_glass
-from .direct import emitter_sampled, piece_direct, power_heuristic
+from .direct import emitter_sampled, light_sample, nee_weighted, piece_direct, power_heuristic
 from .eye_rules import Caustics, EyeRules, EyeVertexRule, EyeVertices
 from .media import (
     Segments,
@@ -367,57 +367,23 @@ def _surface_vertex(scene, walk: _Walk, vertex, max_depth, gen, rules: _Rules, s
     if rules.vertex is not None:
         return _rule_vertex(walk, vertex, max_depth, gen, rules.vertex)
     si, surface, emitter, arrived = vertex
-    traits = rules.traits
     n = dr.width(surface)
-    ctx = mi.BSDFContext()
     bsdf = si.bsdf(walk.ray)
-    smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
     skip = dr.zeros(mi.Bool, n)  # hidden area emitters seen directly are passed
     if rules.hide:
         skip = surface & (emitter != None) & (arrived == 1)  # noqa: E711
-    bs, w_follow = bsdf.sample(
-        ctx, si, gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32()),
-        surface & ~skip,
-    )  # fmt: skip
-    whole = dr.zeros(mi.Bool, n)  # rough glass, followed whatever lobe it samples
-    if rules.rough_glass and not rules.continuing:
-        whole = is_rough_glass(bsdf, surface)
-        smooth &= ~whole
-    if rules.rough_nee:
-        lit = whole & ~skip & (arrived < max_depth)
-        u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
-        walk.radiance[lit] += walk.beta * emitter_sampled(
-            scene, si, u_light, gen, lit, traits, walk.medium
-        )
-        walk.rays[lit] += 1
-    followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
+    u = gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32())
     if rules.continuing:
-        here = surface & ~skip & smooth & (arrived < max_depth)
-        u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
-        walk.radiance[here] += walk.beta * emitter_sampled(
-            scene, si, u_light, gen, here, traits, walk.medium
-        )
-        walk.rays[here] += 1
-        if surface_light is not None:
-            walk.radiance[here] += walk.beta * surface_light(si, max_depth - arrived, here)
-        go_on = skip | (surface & (bs.pdf > 0))
-        q = dr.ones(mi.Float, n)
-        picked_smooth = go_on & ~skip & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
-        walk.prev_it[picked_smooth] = mi.Interaction3f(si)
-        walk.prev_pdf[picked_smooth] = bsdf.pdf(ctx, si, bs.wo, picked_smooth)
-        walk.origin[picked_smooth] = FROM_SURFACE
+        bs, w_follow, go_on, q, whole = _shade_and_go_on(
+            scene, walk, (si, bsdf, surface & ~skip, arrived), u, max_depth, gen, rules,
+            surface_light,
+        )  # fmt: skip
+        go_on |= skip
     else:
-        # end on the smooth lobes or follow a delta / Null lobe (module docstring)
-        w_follow = dr.select(followed, w_follow, 0.0)  # the followed lobes' share
-        w_max = dr.max(w_follow)
-        q = dr.select(smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0)
-        go_on = skip | (surface & (gen.next_float32() < q) & followed)
-        stop = surface & ~go_on & smooth
-        walk.si_end[stop] = si
-        walk.beta_end[stop] = walk.beta / (1.0 - q)
-        walk.medium_end[stop] = walk.medium
-        walk.depth[stop] = arrived
-        walk.found |= stop
+        bs, w_follow, go_on, q, whole = _end_or_follow(
+            scene, walk, (si, bsdf, surface, arrived), skip, u, max_depth, gen, rules
+        )
+    followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
     passed = skip | (go_on & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Null))
     bounced = go_on & ~passed
     d = dr.select(skip, walk.ray.d, si.to_world(bs.wo))
@@ -430,12 +396,74 @@ def _surface_vertex(scene, walk: _Walk, vertex, max_depth, gen, rules: _Rules, s
     if rules.rough_nee:  # its emitter hits take BSDF sampling's MIS weight
         glossy = bounced & whole
         walk.prev_it[glossy] = mi.Interaction3f(si)
-        walk.prev_pdf[glossy] = bsdf.pdf(ctx, si, bs.wo, glossy)
+        walk.prev_pdf[glossy] = bsdf.pdf(mi.BSDFContext(), si, bs.wo, glossy)
         walk.origin[glossy] = FROM_SURFACE
     walk.medium = enter(si, d, walk.medium, go_on)
     walk.ray[go_on] = si.spawn_ray(d)
     walk.active &= ~surface | (go_on & ((arrived < max_depth) | passed))
     return bounced
+
+
+def _shade_and_go_on(scene, walk: _Walk, vertex, u, max_depth, gen, rules, surface_light):
+    """``surfaces="continue"`` at ``vertex = (si, bsdf, active, arrived)``: next-event
+    estimation of the smooth lobes and the photons' light there (``surface_light``), and a
+    sample of the whole BSDF (``u``) to go on with — one BSDF call for both, as Mitsuba's
+    ``path`` (``eval_pdf_sample``); the sample's own density is what a later emitter hit weighs
+    against. Returns ``(bs, weight, go_on, q = 1, whole = False)``."""
+    si, bsdf, active, arrived = vertex
+    n = dr.width(active)
+    smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    here = active & smooth & (arrived < max_depth)
+    u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
+    light = light_sample(scene, si, u_light, gen, here, rules.traits, walk.medium)
+    f_light, pdf_light, bs, weight = bsdf.eval_pdf_sample(
+        mi.BSDFContext(), si, si.to_local(light.ds.d), u[0], u[1], active
+    )
+    walk.radiance[here] += walk.beta * nee_weighted(light, f_light, pdf_light)
+    walk.rays[here] += 1
+    if surface_light is not None:
+        walk.radiance[here] += walk.beta * surface_light(si, max_depth - arrived, here)
+    go_on = active & (bs.pdf > 0)
+    picked_smooth = go_on & mi.has_flag(bs.sampled_type, mi.BSDFFlags.Smooth)
+    walk.prev_it[picked_smooth] = mi.Interaction3f(si)
+    walk.prev_pdf[picked_smooth] = bs.pdf
+    walk.origin[picked_smooth] = FROM_SURFACE
+    return bs, weight, go_on, dr.ones(mi.Float, n), dr.zeros(mi.Bool, n)
+
+
+def _end_or_follow(scene, walk: _Walk, vertex, skip, u, max_depth, gen, rules):
+    """``surfaces="stop"`` at ``vertex = (si, bsdf, surface, arrived)``: end on the smooth lobes
+    or follow a delta / ``Null`` lobe of the BSDF sample ``u`` (module docstring; rough glass
+    followed whole with ``rules.rough_glass``, its glossy lobes lit by next-event estimation
+    with ``rules.rough_nee``). Returns ``(bs, weight, go_on, q, whole)``: ``q`` the probability
+    of going on, ``whole`` the rough glass followed."""
+    si, bsdf, surface, arrived = vertex
+    n = dr.width(surface)
+    smooth = mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+    bs, w_follow = bsdf.sample(mi.BSDFContext(), si, u[0], u[1], surface & ~skip)
+    whole = dr.zeros(mi.Bool, n)  # rough glass, followed whatever lobe it samples
+    if rules.rough_glass:
+        whole = is_rough_glass(bsdf, surface)
+        smooth &= ~whole
+    if rules.rough_nee:
+        lit = whole & ~skip & (arrived < max_depth)
+        u_light = mi.Point2f(gen.next_float32(), gen.next_float32())
+        walk.radiance[lit] += walk.beta * emitter_sampled(
+            scene, si, u_light, gen, lit, rules.traits, walk.medium
+        )
+        walk.rays[lit] += 1
+    followed = (mi.has_flag(bs.sampled_type, FOLLOWED) | whole) & (bs.pdf > 0)
+    w_follow = dr.select(followed, w_follow, 0.0)  # the followed lobes' share
+    w_max = dr.max(w_follow)
+    q = dr.select(smooth, dr.select(w_max > 0, dr.clip(w_max, SPLIT_MIN, SPLIT_MAX), 0.0), 1.0)
+    go_on = skip | (surface & (gen.next_float32() < q) & followed)
+    stop = surface & ~go_on & smooth
+    walk.si_end[stop] = si
+    walk.beta_end[stop] = walk.beta / (1.0 - q)
+    walk.medium_end[stop] = walk.medium
+    walk.depth[stop] = arrived
+    walk.found |= stop
+    return bs, w_follow, go_on, q, whole
 
 
 def _rule_vertex(walk: _Walk, vertex, max_depth, gen, rule: EyeVertexRule):
