@@ -230,16 +230,17 @@ def _splat_sum(rfilter, jitter, L, column, row, size, side, spp):
     acc = dr.zeros(mi.Spectrum, dr.width(column))
     weight = dr.zeros(mi.Float, dr.width(column))
     spp_o = dr.opaque(mi.UInt32, spp)
-    side_o = dr.opaque(mi.UInt32, side)
+    side_o = dr.opaque(mi.Int32, side)
     reach = dr.opaque(mi.Int32, side // 2)
-    taps = dr.opaque(mi.UInt32, side * side * spp)
-    t = mi.UInt32(0)
-    while t < taps:
-        near = t // spp_o
-        qx = column + mi.Int32(near % side_o) - reach
-        qy = row + mi.Int32(near // side_o) - reach
+    # the taps in order: sample k of the neighbour (ix, iy), k fastest, then ix, then iy —
+    # counters that wrap rather than divisions of a tap index (an AVX2 CPU has no vector
+    # integer division: it divides one lane at a time)
+    k, ix, iy = mi.UInt32(0), mi.Int32(0), mi.Int32(0)
+    while iy < side_o:
+        qx = column + ix - reach
+        qy = row + iy - reach
         inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
-        lane = mi.UInt32(qy * w + qx) * spp_o + t % spp_o
+        lane = mi.UInt32(qy * w + qx) * spp_o + k
         p = dr.gather(mi.Point2f, jitter, lane, inside)
         tap = rfilter.eval(mi.Float(column - qx) + 0.5 - p.x, inside) * rfilter.eval(
             mi.Float(row - qy) + 0.5 - p.y, inside
@@ -247,7 +248,13 @@ def _splat_sum(rfilter, jitter, L, column, row, size, side, spp):
         tap = dr.select(inside, tap, 0.0)
         acc += tap * dr.gather(mi.Spectrum, L, lane, inside)
         weight += tap
-        t += 1
+        k += 1
+        next_column = k == spp_o
+        k[next_column] = 0
+        ix[next_column] += 1
+        next_row = ix == side_o
+        ix[next_row] = 0
+        iy[next_row] += 1
     return acc, weight
 
 
