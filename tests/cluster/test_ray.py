@@ -18,7 +18,7 @@ from photonmap.cli import app
 from photonmap.cluster.connect import remove_session_files, spawn, start_local
 from photonmap.cluster.frames import parse_frames
 from photonmap.cluster.job import FrameState, SceneJob, build_pipeline
-from photonmap.cluster.progressive import render_progressive
+from photonmap.cluster.progressive import Watch, render_progressive
 from photonmap.cluster.schedule import run_tasks
 from photonmap.cluster.workers import FrameWorker
 from photonmap.core.errors import SceneError
@@ -74,8 +74,8 @@ def test_worker_killed_mid_run_gives_the_same_image(address, single):
             os.kill(info["pid"], signal.SIGKILL)
             killed.append(info["pid"])
 
-    result = render_progressive(SPPM, ITERATIONS, address=address, block=1, on_block=kill_first,
-                                preview=previews.append, preview_every=0)  # fmt: skip
+    watch = Watch(preview=previews.append, preview_every=0, on_block=kill_first)
+    result = render_progressive(SPPM, ITERATIONS, address=address, block=1, watch=watch)
     pids = {b["pid"] for b in result.blocks}
     assert killed and len(pids) >= 3  # Ray restarted the killed actor and ran its blocks again
     assert sorted(b["first"] for b in result.blocks) == list(range(1, ITERATIONS + 1))
@@ -92,7 +92,7 @@ def test_interrupted_driver_keeps_what_was_merged(address, single):
             raise KeyboardInterrupt
 
     result = render_progressive(SPPM, ITERATIONS, address=address, block=BLOCK,
-                                on_block=interrupt)  # fmt: skip
+                                watch=Watch(on_block=interrupt))  # fmt: skip
     assert result.interrupted and result.iterations >= BLOCK and result.iterations % BLOCK == 0
     expect = single[1].render_block(1, result.iterations).image()
     assert np.array_equal(result.sums.image(), expect)

@@ -245,7 +245,7 @@ def _distribute(job, outputs, seconds, preview_every, workers, address, run):
     (None: no block finished)."""
     from rich.progress import Progress
 
-    from ..cluster.progressive import render_progressive
+    from ..cluster.progressive import Watch, render_progressive
     from ..core.errors import PhotonmapError
     from ..core.image import write_image
     from ..core.progress import interactive
@@ -266,10 +266,8 @@ def _distribute(job, outputs, seconds, preview_every, workers, address, run):
                 description=f"sppm: {done} iterations merged",
             )
 
-        res = render_progressive(
-            job, iterations, seconds, workers, address, preview=preview,
-            preview_every=preview_every or float("inf"), on_block=on_block,
-        )  # fmt: skip
+        watch = Watch(preview, preview_every or float("inf"), on_block)
+        res = render_progressive(job, iterations, seconds, workers, address, watch=watch)
     if res.interrupted:
         run.note = f"the image of {count(res.iterations, 'iteration')}"
         return None if res.sums is None else res.sums.image()

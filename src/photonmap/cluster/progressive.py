@@ -35,6 +35,17 @@ MAX_BLOCK = 16  # iterations per block at most (how often previews and merges ha
 TIMED_BLOCK = 2  # iterations per block under a time budget
 
 
+@dataclass(frozen=True)
+class Watch:
+    """What a caller sees while :func:`render_progressive` runs: ``preview(image)``, called with
+    the merged image at most every ``preview_every`` seconds as blocks arrive, and
+    ``on_block(iterations merged, info)`` after each merge."""
+
+    preview: Callable | None = None
+    preview_every: float = 10.0
+    on_block: Callable[[int, dict], None] | None = None
+
+
 @dataclass
 class ProgressiveResult:
     """What a distributed progressive render returns: the merged ``sums`` (a ``BlockSums``, None
@@ -114,15 +125,13 @@ def render_progressive(
     workers: int | None = None,
     address: str | None = None,
     block: int | None = None,
-    preview: Callable | None = None,
-    preview_every: float = 10.0,
-    on_block: Callable[[int, dict], None] | None = None,
+    watch: Watch = Watch(),
 ) -> ProgressiveResult:
     """Render ``iterations`` memoryless iterations of ``job`` (or as many as ``seconds`` allow)
-    on Ray workers (``workers`` local ones, or the cluster at ``address``). ``preview(image)``
-    is called with the merged image at most every ``preview_every`` seconds as blocks arrive;
-    ``on_block(iterations merged, info)`` after each merge. Ctrl-C (KeyboardInterrupt) stops
-    the run and returns what was merged (``interrupted=True``)."""
+    in blocks of ``block`` iterations on Ray workers (``workers`` local ones, or the cluster at
+    ``address``), calling ``watch``'s previews and block callback as blocks arrive
+    (:class:`Watch`). Ctrl-C (KeyboardInterrupt) stops the run and returns what was merged
+    (``interrupted=True``)."""
     job = check_job(job)
     if iterations is None and seconds is None:
         raise ParameterError("give a budget: iterations (--set iterations=N) or seconds (--time)")
@@ -144,11 +153,12 @@ def render_progressive(
                 result.blocks.append({"first": first, "count": sums.iterations, **info})
                 merged.add(first, sums)
                 result.sums = merged.sums
-                if on_block is not None:
-                    on_block(result.iterations, info)
+                if watch.on_block is not None:
+                    watch.on_block(result.iterations, info)
                 now = time.perf_counter()
-                if preview is not None and result.sums is not None and now - last_preview >= preview_every:
-                    preview(result.sums.image())
+                due = now - last_preview >= watch.preview_every
+                if watch.preview is not None and result.sums is not None and due:
+                    watch.preview(result.sums.image())
                     last_preview = now
         except KeyboardInterrupt:
             result.interrupted = True
