@@ -28,7 +28,7 @@ import mitsuba as mi
 import numpy as np
 
 from .arrays import to_jit
-from .bsdf import instanced_shapes, rough_glass_flags
+from .bsdf import instanced_shapes, rough_glass_flags, shape_box
 from .sampling import rng
 
 _LOBES = int(mi.BSDFFlags.All)
@@ -48,13 +48,13 @@ def specular_spheres(scene: mi.Scene, rough_glass: bool = False) -> list[tuple[n
     for shape in scene.shapes():
         if shape.ptr in groups:  # an instance: aimed at as a whole if its group holds glass
             if any(_aimed(s, rough_glass) for s in groups[shape.ptr]):
-                box = shape.bbox()
+                box = shape_box(shape)
                 lo, hi = (np.array(c, dtype=np.float64).ravel() for c in (box.min, box.max))
                 spheres.append(((lo + hi) / 2, 0.5001 * float(np.linalg.norm(hi - lo))))
             continue
         if not _aimed(shape, rough_glass):
             continue
-        box = shape.bbox()
+        box = shape_box(shape)
         lo, hi = (np.array(c, dtype=np.float64).ravel() for c in (box.min, box.max))
         centre = (lo + hi) / 2
         if shape.is_mesh():

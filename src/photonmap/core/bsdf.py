@@ -19,6 +19,7 @@ import re
 
 import drjit as dr
 import mitsuba as mi
+import numpy as np
 
 # lobe bits of BSDFFlags (the side bits FrontSide/BackSide are not lobes)
 _LOBES = int(mi.BSDFFlags.All)
@@ -93,6 +94,16 @@ def surface_shapes(scene: mi.Scene) -> list[mi.Shape]:
     of its group (:func:`instanced_shapes`) — the list to read BSDFs from."""
     groups = {instance.ptr: shapes for instance, shapes in instanced_shapes(scene)}
     return [t for s in scene.shapes() for t in groups.get(s.ptr, [s])]
+
+
+def shape_box(shape: mi.Shape) -> mi.ScalarBoundingBox3f:
+    """``shape.bbox()``, or, where that box is invalid (the mesh Mitsuba merges from shapes of
+    equal BSDFs has none), the box of the mesh's vertices."""
+    box = shape.bbox()
+    if box.valid() or not shape.is_mesh() or not shape.vertex_count():
+        return box
+    points = np.array(shape.vertex_positions_buffer(), np.float64).reshape(-1, 3)
+    return mi.ScalarBoundingBox3f(points.min(axis=0), points.max(axis=0))
 
 
 def has_null_shapes(scene: mi.Scene) -> bool:

@@ -31,7 +31,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import intersect_visible
+from ..core.bsdf import intersect_visible, shape_box
 from ..core.emission import emitter_powers
 from ..core.errors import PhotonmapWarning, SceneError
 
@@ -112,7 +112,7 @@ def find_light(scene: mi.Scene, index: int = 0, warn: bool = False) -> Light:
     if kind == "area":
         shape = emitter.get_shape()
         ps = shape.sample_position(0.0, mi.Point2f(0.5, 0.5))
-        position = np.array(shape.bbox().center()).ravel()
+        position = np.array(shape_box(shape).center()).ravel()
         axis = np.array(ps.n).ravel()
         power = emitter_powers(scene, samples=1 << 14)[indices[index]]
         return Light(
@@ -141,7 +141,7 @@ def light_radius(shape: mi.Shape) -> float:
     of its area on average (Cauchy's formula for convex bodies), A_p = A/4 (a sphere: its
     radius)."""
     area = float(np.array(shape.surface_area()).ravel()[0])
-    extent = np.array(shape.bbox().extents()).ravel()
+    extent = np.array(shape_box(shape).extents()).ravel()
     flat = extent.min() < 1e-3 * extent.max()
     return math.sqrt(area / (1.0 if flat else 4.0) / math.pi)
 

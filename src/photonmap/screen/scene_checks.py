@@ -12,7 +12,7 @@ import warnings
 import mitsuba as mi
 import numpy as np
 
-from ..core.bsdf import MIRROR_OR_REFRACTION, is_null, surface_shapes
+from ..core.bsdf import MIRROR_OR_REFRACTION, is_null, shape_box, surface_shapes
 from ..core.errors import PhotonmapWarning, SceneError
 from ..core.scene_info import shape_name, warn_unmodelled
 
@@ -21,7 +21,7 @@ def visible_diagonal(scene: mi.Scene) -> float:
     """The bounding-box diagonal of the shapes the method sees, the scale of the automatic
     ``radius`` and the unit of ``light_size`` (module docstring): ``null``-BSDF shapes (a fog box
     around the scene) do not count, so that they change nothing in the image."""
-    boxes = [s.bbox() for s in scene.shapes() if not _null(s)]
+    boxes = [shape_box(s) for s in scene.shapes() if not _null(s)]
     if not boxes:
         return 0.0
     lo = np.min([np.array(b.min, dtype=np.float64).ravel() for b in boxes], axis=0)

@@ -23,6 +23,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.bsdf import shape_box
 from ..core.errors import SceneError
 from ..core.grid import GridBox
 from ..core.scene_info import has_media, warn_unmodelled
@@ -231,7 +232,7 @@ def _medium_shapes(scene: mi.Scene, media: MediaReader) -> tuple[list, list, lis
         elif kind in ("Null", "ThinDielectric") and shape.interior_medium() is not None:
             name = shape.id() or f"{shape.class_name()} {len(fog_volumes)} (no id)"
             check_closed(shape, name)
-            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape.bbox())
+            medium = media.read(shape.interior_medium(), f"the fog inside '{name}'", shape_box(shape))
             fog_volumes.append(FogVolume(name, shape, medium))
     return objects, fog_volumes, exteriors
 
@@ -278,7 +279,7 @@ def _refractive_object(shape, bsdf, media: MediaReader) -> RefractiveObject:
             "pipeline needs a finite n >= 1 (an object optically denser than the fog): fix its "
             "int_ior/ext_ior"
         )
-    medium = read_medium(shape.interior_medium(), f"the interior medium of '{name}'", shape.bbox())
+    medium = read_medium(shape.interior_medium(), f"the interior medium of '{name}'", shape_box(shape))
     medium.ior = eta
     return RefractiveObject(name, shape, medium)
 
@@ -326,14 +327,14 @@ def _grid_box(objects, fog_shapes, grid: int, grid_bbox) -> GridBox:
         return GridBox.fitted(lo, hi, grid, margin=0.0)
 
     def union(shapes):
-        lo = np.min([_np3(s.bbox().min) for s in shapes], axis=0)
-        hi = np.max([_np3(s.bbox().max) for s in shapes], axis=0)
+        lo = np.min([_np3(shape_box(s).min) for s in shapes], axis=0)
+        hi = np.max([_np3(shape_box(s).max) for s in shapes], axis=0)
         return lo, hi
 
     if fog_shapes:
         lo, hi = union(fog_shapes)
         inside = all(
-            np.all(_np3(o.shape.bbox().min) >= lo) and np.all(_np3(o.shape.bbox().max) <= hi)
+            np.all(_np3(shape_box(o.shape).min) >= lo) and np.all(_np3(shape_box(o.shape).max) <= hi)
             for o in objects
         )
         if inside:

@@ -28,6 +28,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ..core.bsdf import shape_box
 from ..core.errors import ParameterError, SceneError
 from ..core.grid import GridBox, filter_separable
 
@@ -162,7 +163,7 @@ def voxelize(
         raise ParameterError(f"supersample must be an integer in 1..8, got {supersample!r}")
     shape3, layer = box.shape, box.dims[0] * box.dims[1]
     scene = mi.load_dict({"type": "scene", "shape": shape})
-    z0 = min(shape.bbox().min.z, float(box.lo[2])) - box.h
+    z0 = min(shape_box(shape).min.z, float(box.lo[2])) - box.h
 
     voxels = dr.arange(mi.UInt32, box.voxels)
     centres = _column_crossings(scene, box, dr.arange(mi.UInt32, layer), 1, z0)
