@@ -449,12 +449,15 @@ class DifferentiablePhotonMapper:
 
     # ------------------------------------------------------------------ density estimates
     def _pairs(self, query: mi.Point3f, photons: mi.Point3f, radius: float):
-        """The (query, photon) pairs within ``radius``, found on detached positions (a hash
-        grid of cell ``2 radius``)."""
-        grid = HashGrid(dr.detach(photons), cell_size=2 * radius)
-        return grid.pairs_within(
-            dr.detach(query), dr.opaque(mi.Float, radius * radius), mi.Bool(True), span=2
+        """The (query, photon) pairs within ``radius``, found on detached positions: a hash grid
+        (cell ``2 radius``) over the queries, searched from each photon, so that a photon's
+        pairs are adjacent and the backward pass's scatter-adds into the photons reduce within
+        a SIMD packet."""
+        grid = HashGrid(dr.detach(query), cell_size=2 * radius)
+        photon, query_index = grid.pairs_within(
+            dr.detach(photons), dr.opaque(mi.Float, radius * radius), mi.Bool(True), span=2
         )
+        return query_index, photon
 
     def _depth_ok(self, eye_depth: mi.UInt32, photon_depth: mi.UInt32) -> mi.Bool:
         """The two paths together fit ``max_depth``."""
