@@ -123,8 +123,10 @@ QUICK = {"tutorial": {"n": 16, "res": 32, "truth_spp": 256, "photons": 20_000, "
 
 
 def loss_of(image: mi.TensorXf, target: mi.TensorXf) -> mi.Float:
-    """The tutorial's scale-independent L2 loss (``target`` has mean 1)."""
-    return dr.mean(dr.square(image / dr.mean(dr.detach(image), axis=None) - target), axis=None)
+    """The tutorial's scale-independent L2 loss (``target`` has mean 1). A black image (a few
+    samples that found no light) gives the loss of a black image and no gradient, not NaN."""
+    mean = dr.maximum(dr.mean(dr.detach(image), axis=None), 1e-30)
+    return dr.mean(dr.square(image / mean - target), axis=None)
 
 
 class Setup:
