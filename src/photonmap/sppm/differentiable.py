@@ -2,15 +2,22 @@
 with a smooth kernel, differentiated by Dr.Jit's automatic differentiation.
 
 One iteration traces ``photons`` light paths and ``spp`` eye paths per pixel and estimates the
-light at the eye paths' diffuse vertices from the photons within ``r`` (Jensen 2001, eq. 7.6,
+light at the eye paths' smooth vertices from the photons within ``r`` (Jensen 2001, eq. 7.6,
 with a kernel)::
 
     L(x, ω_o) ≈ Σ_p K(‖x − x_p‖) f(x, ω_o, ω_p) Φ_p,    K(d) = 2/(π r²) · (1 − d²/r²)
 
-(the Epanechnikov kernel, normalised on the disk; ``f`` is the BSDF without its cosine, its
-glossy lobes included where it also has a diffuse one). Eye paths go on through delta lobes (a
-vertex with a diffuse lobe) or by sampling the whole BSDF (glossy and specular vertices); photons
-are kept at diffuse vertices. A box kernel — counting the photons within ``r`` — has zero
+(the Epanechnikov kernel, normalised on the disk; ``f`` is the BSDF without its cosine).
+**The primal is** ``sppm``'s: photons are kept, and eye paths end, at the vertices whose BSDF has
+a smooth (diffuse or glossy: ``mi.BSDFFlags.Smooth``) lobe, the rule of
+:mod:`photonmap.core.photon_trace` and :mod:`photonmap.core.eye_trace`; eye paths go on through
+delta lobes alone (a smooth vertex's delta lobes, a plastic's coating, are followed as well: both
+terms, where ``sppm`` picks one by Russian roulette) and through every lobe of the others
+(mirrors, glass); the path settings are the file's, as :class:`~photonmap.core.settings.
+PathSettings` reads them. Where the two differ: the kernel (smooth here, a disk in ``sppm``), the
+radius (fixed here, :data:`RADIUS_PIXELS` footprints; ``sppm`` shrinks its own per pixel), and in
+scenes with media ``sppm`` path-traces the eye paths and reads caustic photons alone, where this
+estimate reads all light from photons. A box kernel — counting the photons within ``r`` — has zero
 derivative almost everywhere; ``K`` is continuous, so the estimate is differentiable in the photon
 positions ``x_p``, the visible points ``x`` and the weights ``Φ_p``, and reverse- or forward-mode
 AD through the photon trace, the eye trace and this sum gives its gradient (the smooth-kernel
@@ -79,7 +86,7 @@ FAR = 1e30  # a free flight's length where it meets nothing (finite: no NaN in d
 
 @dataclass
 class Photons:
-    """Light-path vertices on diffuse surfaces or at medium collisions, attached to the scene
+    """Light-path vertices on smooth surfaces or at medium collisions, attached to the scene
     parameters."""
 
     p: mi.Point3f  # position
@@ -91,7 +98,7 @@ class Photons:
 
 @dataclass
 class SurfacePoints:
-    """Eye-path vertices on diffuse surfaces: where the photons are read."""
+    """Eye-path vertices on smooth surfaces: where the photons are read."""
 
     si: mi.SurfaceInteraction3f  # the interaction (``wi`` towards the camera)
     beta: mi.Spectrum  # throughput from the pixel, over spp
@@ -319,7 +326,7 @@ class DifferentiablePhotonMapper:
 
     def photon_vertices(self, seed: int) -> tuple[Photons | None, Photons | None]:
         """Trace ``photons`` paths from the emitters (``scene.sample_emitter_ray``); keep
-        their vertices on diffuse surfaces and their collisions in media, at most
+        their vertices on smooth surfaces and their collisions in media, at most
         ``max_depth − 1`` segments from the light (an eye path needs one more). Each segment
         is one wavefront over the paths still alive, so that reverse-mode AD sees plain arrays
         (symbolic loops would need their own adjoint)."""
@@ -346,8 +353,8 @@ class DifferentiablePhotonMapper:
             si, bsdf, mei, scattered, depth = seg.si, seg.bsdf, seg.mei, seg.scattered, seg.depth
             on_surface, crossing, gen = seg.on_surface, seg.crossing, seg.gen
             power = power * seg.weight
-            diffuse = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Diffuse)
-            _keep(surface, Photons, diffuse & (depth <= limit), p=si.p, n=si.n, d=ray.d,
+            smooth = on_surface & mi.has_flag(bsdf.flags(), mi.BSDFFlags.Smooth)
+            _keep(surface, Photons, smooth & (depth <= limit), p=si.p, n=si.n, d=ray.d,
                   power=power, depth=depth)  # fmt: skip
             _keep(volume, Photons, scattered & (depth <= limit), p=mei.p,
                   n=dr.zeros(mi.Normal3f, dr.width(ids)), d=ray.d, power=power, depth=depth)
@@ -391,10 +398,10 @@ class DifferentiablePhotonMapper:
         return medium
 
     def eye_vertices(self, seed: int, image: mi.Color3f):
-        """Trace ``spp`` jittered eye paths per pixel; keep their vertices on diffuse surfaces
-        and their collisions in media (which end them). A path goes on through a diffuse
+        """Trace ``spp`` jittered eye paths per pixel; keep their vertices on smooth surfaces
+        and their collisions in media (which end them). A path goes on through a smooth
         vertex's delta lobes (a plastic's coating), sampled alone, and through the whole BSDF of
-        a vertex without a diffuse lobe (mirrors, glass, glossy metals). The emission the paths
+        a vertex without a smooth lobe (mirrors, glass). The emission the paths
         meet is added to ``image`` (emitters seen directly too, unless hidden)."""
         w, h = self.size
         count = w * h * self.spp
@@ -423,13 +430,13 @@ class DifferentiablePhotonMapper:
             _keep(volume, MediumPoints, scattered & (depth < self.bounces), mei=mei, beta=beta,
                   pixel=pixel, depth=depth)  # fmt: skip
             flags = bsdf.flags()
-            diffuse = on_surface & mi.has_flag(flags, mi.BSDFFlags.Diffuse)
-            _keep(surface, SurfacePoints, diffuse & (depth < self.bounces), si=si, beta=beta,
+            smooth = on_surface & mi.has_flag(flags, mi.BSDFFlags.Smooth)
+            _keep(surface, SurfacePoints, smooth & (depth < self.bounces), si=si, beta=beta,
                   pixel=pixel, depth=depth)  # fmt: skip
             u1, u2 = gen.next_float32(), mi.Point2f(gen.next_float32(), gen.next_float32())
-            through_delta = diffuse & mi.has_flag(flags, mi.BSDFFlags.Delta)
+            through_delta = smooth & mi.has_flag(flags, mi.BSDFFlags.Delta)
             bs, value = bsdf.sample(delta_only, si, u1, u2, through_delta)
-            other = on_surface & ~diffuse
+            other = on_surface & ~smooth
             bs_other, value_other = bsdf.sample(radiance, si, u1, u2, other)
             bs = dr.select(other, bs_other, bs)
             beta = beta * dr.select(other, value_other, value)
