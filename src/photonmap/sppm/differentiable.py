@@ -8,16 +8,10 @@ with a kernel)::
     L(x, ω_o) ≈ Σ_p K(‖x − x_p‖) f(x, ω_o, ω_p) Φ_p,    K(d) = 2/(π r²) · (1 − d²/r²)
 
 (the Epanechnikov kernel, normalised on the disk; ``f`` is the BSDF without its cosine).
-**The primal is** ``sppm``'s: photons are kept, and eye paths end, at the vertices whose BSDF has
-a smooth (diffuse or glossy: ``mi.BSDFFlags.Smooth``) lobe, the rule of
-:mod:`photonmap.core.photon_trace` and :mod:`photonmap.core.eye_trace`; eye paths go on through
-delta lobes alone (a smooth vertex's delta lobes, a plastic's coating, are followed as well: both
-terms, where ``sppm`` picks one by Russian roulette) and through every lobe of the others
-(mirrors, glass); the path settings are the file's, as :class:`~photonmap.core.settings.
-PathSettings` reads them. Where the two differ: the kernel (smooth here, a disk in ``sppm``), the
-radius (fixed here, :data:`RADIUS_PIXELS` footprints; ``sppm`` shrinks its own per pixel), and in
-scenes with media ``sppm`` path-traces the eye paths and reads caustic photons alone, where this
-estimate reads all light from photons. A box kernel — counting the photons within ``r`` — has zero
+The rules are ``sppm``'s (photons kept, and eye paths ended, at smooth lobes:
+``mi.BSDFFlags.Smooth``; the file's path settings); the kernel, the fixed radius, a smooth vertex's
+delta lobes (followed as well as read) and media (all light from photons) differ on purpose
+(docs/methods/differentiable.md). A box kernel — counting the photons within ``r`` — has zero
 derivative almost everywhere; ``K`` is continuous, so the estimate is differentiable in the photon
 positions ``x_p``, the visible points ``x`` and the weights ``Φ_p``, and reverse- or forward-mode
 AD through the photon trace, the eye trace and this sum gives its gradient (the smooth-kernel
@@ -33,15 +27,12 @@ What carries derivatives:
   (:mod:`photonmap.core.diff_dielectric`), the same interface with a differentiable ``eta``);
 - **weights**: emitted power (radiance, and the emitter's pose through its sampled positions),
   BSDF values (albedos, Fresnel), the eye paths' throughput and the emission they see;
-- **discrete choices** (a dielectric's reflect-or-refract, Russian roulette) are sampled with
-  detached probabilities and weighted by ``f / detach(f)`` where Mitsuba's BSDF does so, so the
-  derivative of the choice's probability enters the weight.
+- **discrete choices** (reflect or refract, Russian roulette): detached probabilities, weights
+  ``f / detach(f)`` where Mitsuba's BSDF does so (the choice's derivative enters the weight).
 
-What does not: **visibility** — a photon or eye ray that changes which surface it hits (a
-silhouette, an occluder's edge, a light moving into shadow) contributes no derivative for that
-change (no edge sampling or reparameterisation), and the kernel radius is fixed. Gradients are
-therefore those of the interior of each visibility region; caustics through smooth refractors
-and the light falling on open receivers are what they are built for.
+What does not: **visibility** — a ray that changes which surface it hits (a silhouette, a
+shadow's edge) gives no derivative for that change (no edge sampling or reparameterisation):
+gradients of the interior of each visibility region, as caustics through smooth refractors need.
 
 **Homogeneous participating media** (volumetric photon mapping, Jensen & Christensen 1998):
 photons and eye rays sample free-flight distances with detached coefficients (one colour
