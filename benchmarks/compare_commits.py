@@ -8,7 +8,10 @@ subprocess on their own sources (``PYTHONPATH=<side>/src``), in the order REV, t
 compiles its kernels. Per side and scene: the wall time of the render (the ``total`` row of
 ``--timings``, start-up excluded), every stage's milliseconds, the counters ``--timings`` prints
 (iterations, photons, ...), and the 4 × 4-block relative RMSE (``photonmap.compare``) against
-Mitsuba's own integrator on the file at ``--ref-spp`` (cached under ``results/cache/compare/``).
+Mitsuba's own integrator on the file at ``--ref-spp`` (two halves of independent seeds, cached
+under ``results/cache/compare/``), the reference's own error subtracted in quadrature
+(:func:`accuracy.vs_truth`): near that error the measured one stops falling, and a side that
+renders more samples would look no better.
 
 Time to equal error: an estimate's error falls as 1/√t, so the tree needs
 ``(t_tree · e_tree²) / (t_rev · e_rev²)`` of REV's time to reach the same error (below 1: the
@@ -37,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
 
 import report  # noqa: E402
+from accuracy import vs_truth  # noqa: E402
 
 CACHE = report.RESULTS / "cache"
 DEFAULT_SCENES = ["examples/glass_sphere_plane.xml"]
@@ -92,23 +96,30 @@ def render(side: Path, scene: Path, method: str, sets: list[str], seed: int) -> 
     return {"image": image, "stages_ms": stages, "counters": counters}
 
 
-def reference(scene: Path, spp: int) -> np.ndarray:
-    """Mitsuba's image of the file with its own integrator at ``spp`` (cached)."""
+def reference(scene: Path, spp: int) -> tuple[np.ndarray, float]:
+    """Mitsuba's image of the file with its own integrator at ``spp``, in two halves of
+    independent seeds (cached), and its own 4 × 4-block error (:func:`accuracy.reference_noise`:
+    the halves' difference over two is distributed as the mean's error)."""
     import mitsuba as mi
 
     mi.set_variant("llvm_ad_rgb")
-    path = CACHE / "compare" / f"{scene.stem}-{spp}spp.exr"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        loaded = mi.load_file(str(scene))
-        total, done = None, 0
-        while done < spp:
-            n = min(256, spp - done)
-            image = np.array(mi.render(loaded, spp=n, seed=done), dtype=np.float64)[..., :3] * n
-            total = image if total is None else total + image
-            done += n
-        mi.Bitmap((total / spp).astype(np.float32)).write(str(path))
-    return np.array(mi.Bitmap(str(path)), dtype=np.float64)[..., :3]
+    halves = []
+    for half in (0, 1):
+        path = CACHE / "compare" / f"{scene.stem}-{spp}spp-half{half}.exr"
+        if not path.exists():
+            path.parent.mkdir(parents=True, exist_ok=True)
+            loaded = mi.load_file(str(scene))
+            total, done = None, 0
+            while done < spp // 2:
+                n = min(256, spp // 2 - done)
+                seed = half * spp + done
+                image = np.array(mi.render(loaded, spp=n, seed=seed), np.float64)[..., :3] * n
+                total = image if total is None else total + image
+                done += n
+            mi.Bitmap((total / done).astype(np.float32)).write(str(path))
+        halves.append(np.array(mi.Bitmap(str(path)), dtype=np.float64)[..., :3])
+    ref = (halves[0] + halves[1]) / 2
+    return ref, error(ref + 0.5 * (halves[0] - halves[1]), ref)
 
 
 def error(image: np.ndarray, ref: np.ndarray) -> float:
@@ -153,6 +164,9 @@ def markdown(result: dict) -> str:
                      f"time to equal error {scene['time_to_equal_error']:.2f}×"])  # fmt: skip
     lines.append(report.markdown_table(["scene", "side", "seconds", "4×4 error", "stages (ms)"],
                                        rows))  # fmt: skip
+    for name, scene in result["scenes"].items():
+        lines.append(f"\n{name}: the reference's own 4×4 error {scene['reference_error']:.4f}, "
+                     "subtracted in quadrature from each error above")  # fmt: skip
     lines.append(f"\nload average at the end: {result['load_average_end']}")
     return "\n".join(lines) + "\n"
 
@@ -173,20 +187,22 @@ def main(argv: list[str] | None = None) -> dict:
     result = {"name": "compare_commits", "machine": report.machine_info(), "rev": sha,
               "method": args.method, "sets": args.sets, "runs": args.runs, "scenes": {}}  # fmt: skip
     for scene in [report.REPO / s for s in args.scenes.split(",")]:
-        ref = reference(scene, args.ref_spp)
+        ref, ref_error = reference(scene, args.ref_spp)
         for path in sides.values():  # compile each side's kernels
             render(path, scene, args.method, args.sets, seed=0)
         runs: dict[str, list] = {"rev": [], "tree": []}
         for seed in range(args.runs):
             for label, path in sides.items():
                 run = render(path, scene, args.method, args.sets, seed)
-                run["error"] = error(run.pop("image"), ref)
+                run["measured_error"] = error(run.pop("image"), ref)
+                run["error"] = vs_truth(run["measured_error"], ref_error)
                 runs[label].append(run)
                 print(f"{scene.name} {label:4} seed {seed}: {run['stages_ms'].get('total', 0):8.0f} "
                       f"ms, error {run['error']:.4f}", flush=True)  # fmt: skip
         a, b = summary(runs["rev"]), summary(runs["tree"])
         ratio = time_to_equal_error(a, b)
-        result["scenes"][scene.stem] = {"rev": a, "tree": b, "time_to_equal_error": ratio}
+        result["scenes"][scene.stem] = {"rev": a, "tree": b, "time_to_equal_error": ratio,
+                                        "reference_error": ref_error}  # fmt: skip
     result["load_average_end"] = report.load_average()
     stem = Path(args.out_dir) / f"compare_{args.name or sha[:10]}"
     text = markdown(result)
