@@ -110,14 +110,16 @@ def density_radius(
 ) -> float:
     """The radius of a sphere that holds about ``k`` of the points ``position``: the median
     distance of the ``k``-th nearest over up to ``samples`` of them (``bound`` where fewer lie
-    within it, and at most). ``grid``: a hash grid over ``position`` to search, if one exists."""
+    within it, and at most; ``bound`` where there are fewer than ``k`` points: with one point,
+    its nearest is itself, at distance 0). ``grid``: a hash grid over ``position`` to search,
+    if one exists."""
     count = dr.width(position)
-    if count == 0:
+    if count < k:
         return bound
     grid = grid or HashGrid(position)
     at = dr.gather(mi.Point3f, position, dr.arange(mi.UInt32, 0, count, max(1, count // samples)))
-    found = grid.knn(at, k=min(k, count), max_radius=bound)
-    r2 = dr.select(found.count < min(k, count), bound**2, found.radius2)
+    found = grid.knn(at, k=k, max_radius=bound)
+    r2 = dr.select(found.count < k, bound**2, found.radius2)
     return min(bound, float(np.sqrt(np.median(r2.numpy()))))
 
 
