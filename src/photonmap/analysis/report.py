@@ -4,6 +4,8 @@ order, or the curves of a sweep."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 from ..core import interrupt
 from ..core.errors import ParameterError
 from ..core.image import check_output
@@ -24,24 +26,29 @@ def _crop(text: str | None, size: int):
     return (x, y), (w, h)
 
 
-def bandwidth_report(
-    scene,
-    builtin,
-    orders,
-    cache,
-    line,
-    tile,
-    sweep_kind,
-    plot,
-    size,
-    crop,
-    params,
-    structure="kdtree",
-) -> str:
-    """The report text; ``params``: typed surface-method and scene parameters; ``structure``:
-    the photon map's layout (:data:`.structures.STRUCTURES`, Ch. 4)."""
-    cache_bytes, line_bytes = parse_size(cache), parse_size(line)
-    orders = _checked(orders, cache_bytes, line_bytes, structure, sweep_kind, plot)
+@dataclass
+class CacheModel:
+    """What ``photonmap analyze bandwidth`` measures the traffic under: the gather ``orders``
+    (None: all, or the sweep's), the ``cache`` and ``line`` sizes (``parse_size``), the ``tile``
+    edge in pixels, the photon map's layout (``structure``, :data:`.structures.STRUCTURES`,
+    Ch. 4), and a ``sweep`` (tile | cache | line: curves instead of a table, drawn to ``plot``)."""
+
+    orders: list[str] | None = None
+    cache: str = "128K"
+    line: str = "128"
+    tile: int = 16
+    structure: str = "kdtree"
+    sweep: str | None = None
+    plot: str | None = None
+
+
+def bandwidth_report(scene, builtin, params: dict, size: int, crop, model: CacheModel) -> str:
+    """The report text of ``scene`` (``builtin``: the built-in it names, traced at ``size``²,
+    cropped to ``crop``; ``params``: typed surface-method and scene parameters) under
+    ``model``."""
+    cache_bytes, line_bytes = parse_size(model.cache), parse_size(model.line)
+    structure, sweep_kind, plot, tile = model.structure, model.sweep, model.plot, model.tile
+    orders = _checked(model.orders, cache_bytes, line_bytes, structure, sweep_kind, plot)
     order_params = OrderParams(tile=tile)
     order_params.validate()
     target, surface = _target(scene, builtin, params, size, _crop(crop, size))

@@ -282,12 +282,11 @@ def analyze_bandwidth(
     """Photon-map memory traffic of SCENE's final gathers per gather order: exact k-NN gathers
     on the heap-order kd-tree, a fully associative LRU cache (and 8-way set-associative), bytes
     per image against the dissertation's uncached 20 bytes per visited node."""
-    from ..analysis.report import bandwidth_report
+    from ..analysis.report import CacheModel, bandwidth_report
 
     with command():
         request = scene_request(scene, set_)
         builtin, params = request.builtin, request.params("surface")
-        text = bandwidth_report(
-            scene, builtin, order, cache, line, tile, sweep, plot, size, crop, params, structure
-        )
+        model = CacheModel(order, cache, line, tile, structure, sweep, plot)
+        text = bandwidth_report(scene, builtin, params, size, crop, model)
         Console().print(text, markup=False, highlight=False, soft_wrap=True)
