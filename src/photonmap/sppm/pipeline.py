@@ -396,11 +396,24 @@ class SPPMPipeline(Progressive, Pipeline):
         if self.params.radius > 0 or not (self.path_traced and self.delta_lobes):
             return footprint
         if self._r1_caustic is None:
-            first = self._photon_pass(1)  # from (seed, 1) alone: memoryless blocks agree
-            self._r1_caustic = footprint
-            if first is not None and first.count:
-                self._r1_caustic = density_radius(first.position, CAUSTIC_PHOTONS, footprint)
+            self._automatic_radii()
         return self._r1_caustic
+
+    def _automatic_radii(self, first=None) -> None:
+        """The automatic ``r_1`` of path-traced eye paths' caustic photons and ``ρ_1``, from
+        iteration 1's photons (``first``, or traced here from ``(seed, 1)`` alone, so that
+        memoryless blocks agree), both from one photon pass: the disk or sphere that holds about
+        :data:`CAUSTIC_PHOTONS` or :data:`FIRST_PHOTONS` of them, within the footprint rule's
+        ``r_1`` and the scene-wide bound."""
+        first = first or self._photon_pass(1)
+        footprint = super().initial_radius()
+        self._r1_caustic = footprint
+        if first.count:
+            self._r1_caustic = density_radius(first.position, CAUSTIC_PHOTONS, footprint)
+        bound = VOLUME_RADIUS * scene_bounds(self.scene)[1]
+        self._rho1 = bound
+        if first.volume is not None:
+            self._rho1 = density_radius(first.volume.position, int(FIRST_PHOTONS), bound)
 
     def volume_radius_at(self, i: int) -> float:
         """``ρ_i = ρ_1 · i^((α−1)/3)``, the volume estimate's radius in iteration ``i`` (module
@@ -419,11 +432,7 @@ class SPPMPipeline(Progressive, Pipeline):
         if photons.volume is None:
             return None
         if not self.params.volume_radius and self._rho1 is None:
-            first = photons if i == 1 else self._photon_pass(1)  # from (seed, 1) alone
-            bound = VOLUME_RADIUS * scene_bounds(self.scene)[1]
-            self._rho1 = bound
-            if first.volume is not None:
-                self._rho1 = density_radius(first.volume.position, int(FIRST_PHOTONS), bound)
+            self._automatic_radii(photons if i == 1 else None)
         radius = self.volume_radius_at(i)
         vmap = VolumeMap.build(photons.volume, cell_size=radius)
         self.stats["volume_photons"] += vmap.size
