@@ -214,6 +214,14 @@ def test_ctrl_c_on_distributed_sppm_writes_the_merged_blocks(address, tmp_path, 
     assert read_image(str(out)).shape == (SPPM.height, SPPM.width, 3)
 
 
+def test_a_local_instance_runs_its_workers_at_the_drivers_priority(address):
+    """Ray's default niceness of 15 would starve the render beside any other busy process."""
+    def niceness():
+        return os.nice(0)
+
+    assert ray.get(ray.remote(niceness).remote()) == niceness()
+
+
 def test_a_local_instance_keeps_its_files_in_its_own_temporary_folder(address):
     """Ray left a /tmp/ray/session_* folder per run; a private instance's session
     lives in a temporary folder of its own, removed when it is shut down."""

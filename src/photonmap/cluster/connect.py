@@ -140,7 +140,8 @@ atexit.register(remove_session_files)
 
 def start_local(ray, cpus: int) -> str:
     """Start a private Ray instance with ``cpus`` CPUs on the loopback address, its workers
-    importing the same photonmap as this process; return its address (``host:port``). Its
+    importing the same photonmap as this process at this process's priority; return its address
+    (``host:port``). Its
     session files go to a temporary folder of its own (not ``/tmp/ray``), removed when it is
     shut down (:func:`remove_session_files`) or at exit."""
     from ray._private import ray_constants
@@ -160,6 +161,10 @@ def start_local(ray, cpus: int) -> str:
         _node_ip_address="127.0.0.1",
         _temp_dir=folder,
         runtime_env={"env_vars": {"PYTHONPATH": path}},
+        # Ray runs its workers at niceness 15 to keep its own daemons responsive; here the
+        # workers are the render, and at 15 any other busy process on the machine starves them
+        # (a 2-CPU instance beside two busy processes: 56 s to the first block instead of 7 s).
+        _system_config={"worker_niceness": 0},
         **QUIET,
     )
     return context.address_info["gcs_address"]
