@@ -141,9 +141,8 @@ atexit.register(remove_session_files)
 def start_local(ray, cpus: int) -> str:
     """Start a private Ray instance with ``cpus`` CPUs on the loopback address, its workers
     importing the same photonmap as this process at this process's priority; return its address
-    (``host:port``). Its
-    session files go to a temporary folder of its own (not ``/tmp/ray``), removed when it is
-    shut down (:func:`remove_session_files`) or at exit."""
+    (``host:port``). Its session files go to a temporary folder of its own (not ``/tmp/ray``),
+    removed when it is shut down (:func:`remove_session_files`) or at exit."""
     from ray._private import ray_constants
 
     # A private instance stays on the loopback address: without this Ray advertises the
