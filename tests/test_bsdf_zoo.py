@@ -14,6 +14,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap import METHODS, PhotonmapError, PhotonmapWarning
 
 BUMPS = {"type": "bitmap", "raw": True,  # a bump map needs a texture with gradients: a bitmap
@@ -67,8 +68,8 @@ _references: dict[str, np.ndarray] = {}
 
 def reference(name: str) -> np.ndarray:
     if name not in _references:
-        image = mi.render(mi.load_dict(scene(BSDFS[name])), spp=512, seed=1)
-        _references[name] = np.array(image)[..., :3]
+        image = mitsuba_reference.render(mi.load_dict(scene(BSDFS[name])), spp=512, seed=1)
+        _references[name] = image[..., :3]
     return _references[name]
 
 
@@ -100,7 +101,7 @@ def test_screen_mirror_and_glass_show_indirect_light(name):
     size = 48
     d = scene(BSDFS[name])
     d["sensor"]["film"].update(width=size, height=size)
-    ref = np.array(mi.render(mi.load_dict(d), spp=1024, seed=1))[..., :3]
+    ref = mitsuba_reference.render(mi.load_dict(d), spp=1024, seed=1)[..., :3]
     pipe = METHODS["screen"].pipeline(d)
     image = np.array(pipe.render())
     sensor = pipe.sensor  # the ball's pixels: camera rays through the pixel centres hit it

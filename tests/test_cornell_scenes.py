@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap import SurfacePipeline, dr, mi
 from photonmap.core.emission import emitter_powers
 from photonmap.core.photon_trace import PhotonRules, trace_photons
@@ -28,7 +29,7 @@ def test_surface_method_matches_mitsuba_path(name):
     scene, defaults = load_scene(name, **SMALL)
     assert defaults == {}
     path = mi.load_dict({"type": "path", "max_depth": 16})
-    ref = np.array(mi.render(scene, integrator=path, spp=1024))
+    ref = mitsuba_reference.render(scene, integrator=path, spp=1024)
     ours = np.array(SurfacePipeline(scene, photons=50_000, fg_rays=16, spp=4).render())
     assert ours.shape == (32, 32, 3) and np.all(np.isfinite(ours))
     assert abs(ours.mean() / ref.mean() - 1) < 0.035

@@ -8,6 +8,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap import METHODS
 
 SIZE = 64
@@ -23,7 +24,7 @@ def _scene(rfilter: str | None = None) -> mi.Scene:
 
 @pytest.fixture(scope="module")
 def reference():
-    return np.array(mi.render(_scene(), spp=2048, seed=0), dtype=np.float64)[..., :3]
+    return mitsuba_reference.render(_scene(), spp=2048, seed=0).astype(np.float64)[..., :3]
 
 
 def _rel_rmse(image, ref) -> float:
@@ -66,7 +67,7 @@ def test_a_crop_window_renders_the_crop(method, reference):
     d = mi.cornell_box()
     d["sensor"]["film"].update(width=SIZE, height=SIZE, **CROP)
     scene = mi.load_dict(d)
-    truth = np.array(mi.render(scene, spp=2048, seed=1), dtype=np.float64)[..., :3]
+    truth = mitsuba_reference.render(scene, spp=2048, seed=1).astype(np.float64)[..., :3]
     image = np.array(METHODS[method].pipeline(scene, **RUNS[method]).render(), dtype=np.float64)
     assert image.shape == truth.shape == (30, 40, 3)
     assert _rel_rmse(image, truth) < BOUND[method]

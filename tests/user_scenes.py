@@ -39,6 +39,8 @@ from pathlib import Path
 
 import numpy as np
 
+import mitsuba_reference
+
 REPO = Path(__file__).resolve().parent.parent
 SCENES = REPO / "tests" / "scenes"
 ASSETS = SCENES / "assets"
@@ -390,7 +392,7 @@ def reference_noise(path, ref: np.ndarray, ref_spp: int, spp: int = 512) -> floa
 
     scene = load(path)
     integrator = scene.integrator() or mi.load_dict({"type": "path"})
-    image = np.array(mi.render(scene, integrator=integrator, spp=spp, seed=20_000))[..., :3]
+    image = mitsuba_reference.render(scene, integrator=integrator, spp=spp, seed=20_000)[..., :3]
     e = errors(np.asarray(image, np.float64), ref)["block_rel_rmse"]
     ratio = spp / ref_spp
     return float(e * np.sqrt(ratio / (1 + ratio)))

@@ -7,6 +7,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap.core.camera import pixel_rays
 from photonmap.core.direct import direct_lighting, power_heuristic
 from photonmap.core.sampling import rng
@@ -78,7 +79,7 @@ def test_direct_lighting_at_camera_hits_matches_path_at_max_depth_2(scene_of):
     L = weight * direct_lighting(scene, si, u, gen, si.is_valid(), SceneTraits.of(scene))
     ours = np.array(L).T.reshape(h, w, spp, 3).mean(axis=2)
     ref_integrator = mi.load_dict({"type": "path", "max_depth": 2, "hide_emitters": True})
-    ref = np.array(mi.render(scene, integrator=ref_integrator, spp=1024, seed=5))
+    ref = mitsuba_reference.render(scene, integrator=ref_integrator, spp=1024, seed=5)
     assert np.all(np.isfinite(ours))
     assert ours.mean() == pytest.approx(ref.mean(), rel=0.03)
     ours, ref = (x.reshape(h // 8, 8, w // 8, 8, 3).mean(axis=(1, 3)) for x in (ours, ref))

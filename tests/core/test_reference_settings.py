@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+import mitsuba_reference
 from photonmap.cli import app
 from photonmap.core.reference import render_reference
 
@@ -35,7 +36,7 @@ DEPTH_3 = '<integrator type="path"><integer name="max_depth" value="3"/></integr
 def _mitsuba(path: Path, spp: int = SPP, seed: int = 100) -> np.ndarray:
     """Mitsuba's own render of the file, with the file's own integrator."""
     scene = mi.load_file(str(path))
-    return np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float64)[..., :3]
+    return mitsuba_reference.render(scene, spp=spp, seed=seed).astype(np.float64)[..., :3]
 
 
 def test_reference_takes_the_files_max_depth(tmp_path):

@@ -20,6 +20,7 @@ mean radiance within 5%.
 import mitsuba as mi
 import numpy as np
 
+import mitsuba_reference
 from photonmap import ScreenPipeline
 from photonmap.scenes import SCENES
 from photonmap.screen.scene_checks import visible_diagonal
@@ -48,7 +49,7 @@ def interior(pipe) -> np.ndarray:
 def test_converges_toward_path():
     scene = mi.load_dict(SCENES["cornell_ispm"].build(width=W, height=H))
     path = mi.load_dict({"type": "path", "max_depth": 4})
-    ref = np.array(mi.render(scene, integrator=path, spp=512, seed=1))
+    ref = mitsuba_reference.render(scene, integrator=path, spp=512, seed=1)
     errors, ratios = [], []
     for side, fraction in SEQUENCE:  # light G-buffer side, splat radius / scene diagonal
         radius = fraction * visible_diagonal(scene)

@@ -29,6 +29,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap import ScreenPipeline
 from photonmap.screen.scene_checks import visible_diagonal
 
@@ -77,7 +78,7 @@ def case(request):
     if "radius" in params:  # given as a fraction of the scene's diagonal
         params = {**params, "radius": params["radius"] * visible_diagonal(scene)}
     path = mi.load_dict({"type": "path", "max_depth": 4})
-    ref = np.array(mi.render(scene, integrator=path, spp=spp, seed=1))
+    ref = mitsuba_reference.render(scene, integrator=path, spp=spp, seed=1)
     return request.param, scene, params, ref, bound
 
 

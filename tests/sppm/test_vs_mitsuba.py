@@ -23,6 +23,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from caustic_scene import spot_caustic_scene
 from photonmap.core.errors import ParameterError
 from photonmap.core.image import compare
@@ -40,7 +41,7 @@ def caustic():
     """``ptracer``'s image of the caustic scene (each test builds its own scene: one kept alive
     would be traced into every later kernel of the module)."""
     ptracer = mi.load_dict({"type": "ptracer", "max_depth": 16})
-    return np.array(mi.render(spot_caustic_scene(FLOOR), integrator=ptracer, spp=1024, seed=0))
+    return mitsuba_reference.render(spot_caustic_scene(FLOOR), integrator=ptracer, spp=1024, seed=0)
 
 
 @pytest.mark.parametrize(("mode", "radius"), [("sppm", 0.25), ("memoryless", 0.0), ("sppm", 0.0)])
@@ -101,7 +102,7 @@ def test_cornell_box_against_path(transport):
     d["sensor"]["film"].update(width=48, height=48, rfilter={"type": "box"})
     scene = mi.load_dict(d)
     path = mi.load_dict({"type": "path", "max_depth": 16})
-    ref = np.array(mi.render(scene, integrator=path, spp=512, seed=0))
+    ref = mitsuba_reference.render(scene, integrator=path, spp=512, seed=0)
     pipe = SPPMPipeline(scene, photons=20_000, max_depth=16, transport=transport)
     image = np.array(pipe.run(iterations=16))
     assert (pipe.stats["photons"] > 0) == (transport == "photons")
@@ -139,7 +140,7 @@ def test_paths_read_the_caustic_photons_and_agree_with_path():
     xml = (EXAMPLES / "glass_sphere_plane.xml").read_text()
     xml = xml.replace('name="width" value="320"', 'name="width" value="48"')
     scene = mi.load_string(xml.replace('name="height" value="240"', 'name="height" value="36"'))
-    ref = np.array(mi.render(scene, spp=2048, seed=0))
+    ref = mitsuba_reference.render(scene, spp=2048, seed=0)
     paths = SPPMPipeline(scene, photons=20_000, transport="paths", seed=SEED)
     image = np.array(paths.run(iterations=16))
     assert paths.stats["photon_records"] > 0

@@ -10,6 +10,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap.surface.pipeline import SurfacePipeline
 
 T = mi.ScalarTransform4f
@@ -111,7 +112,7 @@ def errors(emitter: str, floor: str = "diffuse", seed: int = 0):
     of ``|image - reference|`` (largest channel), ours over Mitsuba's — fireflies raise both."""
     s = scene(emitter, floor)
     path = mi.load_dict({"type": "path", "max_depth": 2})
-    ref = np.array(mi.render(s, integrator=path, spp=REF_SPP, seed=7))
+    ref = mitsuba_reference.render(s, integrator=path, spp=REF_SPP, seed=7)
     same_spp = np.array(mi.render(s, integrator=path, spp=SPP, seed=seed + 11))
     pipe = SurfacePipeline(s, photons=10_000, caustic_photons=0, fg_rays=1, spp=SPP, seed=seed)
     image = np.array(pipe.render())

@@ -6,6 +6,7 @@ Mitsuba ``volpath``."""
 import mitsuba as mi
 import numpy as np
 
+import mitsuba_reference
 from fog_scene import FOG, fog_box
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
@@ -24,7 +25,7 @@ def sphere_light_in_fog() -> mi.Scene:
 
 def test_sphere_light_in_fog_agrees_with_volpath():
     volpath = mi.load_dict({"type": "volpath", "max_depth": 64})
-    reference = np.array(mi.render(sphere_light_in_fog(), integrator=volpath, spp=2048, seed=3))
+    reference = mitsuba_reference.render(sphere_light_in_fog(), integrator=volpath, spp=2048, seed=3)
     pipe = SurfacePipeline(
         sphere_light_in_fog(), photons=200_000, caustic_photons=0, spp=4, fg_rays=4, max_depth=32
     )

@@ -6,6 +6,7 @@ Mitsuba ``volpath`` on the same scene."""
 import mitsuba as mi
 import numpy as np
 
+import mitsuba_reference
 from fog_scene import fog_box
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
@@ -27,7 +28,7 @@ def fog_over_floor() -> mi.Scene:
 
 def test_fog_under_a_sky_agrees_with_volpath():
     volpath = mi.load_dict({"type": "volpath", "max_depth": 64})
-    reference = np.array(mi.render(fog_over_floor(), integrator=volpath, spp=1024, seed=3))
+    reference = mitsuba_reference.render(fog_over_floor(), integrator=volpath, spp=1024, seed=3)
     pipe = SurfacePipeline(
         fog_over_floor(), photons=400_000, caustic_photons=0, spp=4, fg_rays=16, max_depth=32
     )

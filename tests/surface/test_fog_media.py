@@ -8,6 +8,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from fog_scene import FOG, fog_box, spot_in_fog
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
@@ -31,7 +32,7 @@ def case(request):
     """The case, Mitsuba ``volpath`` (max_depth 64) at 2048 spp, and the surface method."""
     volpath = mi.load_dict({"type": "volpath", "max_depth": 64})
     scene = (*request.param.split(), "null")[:2]
-    reference = np.array(mi.render(fog_only(*scene), integrator=volpath, spp=2048, seed=3))
+    reference = mitsuba_reference.render(fog_only(*scene), integrator=volpath, spp=2048, seed=3)
     pipe = SurfacePipeline(
         fog_only(*scene), photons=200_000, caustic_photons=0, spp=4, fg_rays=4, max_depth=32
     )

@@ -7,6 +7,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap.core.arrays import columns
 from photonmap.core.errors import PhotonmapError
 from photonmap.core.settings import PathSettings
@@ -239,7 +240,7 @@ def test_extra_samples_clean_up_the_lights_and_their_specular_images():
     kw = dict(photons=5000, caustic_photons=20_000, fg_rays=1, width=48, height=48)
     scene = mi.load_dict(SCENES["cornell_steinhurst"].build(width=48, height=48))
     path = mi.load_dict({"type": "path", "max_depth": 16})
-    ref = np.array(mi.render(scene, integrator=path, spp=1024, seed=3))
+    ref = mitsuba_reference.render(scene, integrator=path, spp=1024, seed=3)
     plain = np.array(SurfacePipeline("cornell_steinhurst", emitter_spp=0, **kw).render())
     extra = np.array(SurfacePipeline("cornell_steinhurst", emitter_spp=256, **kw).render())
     bright = ref.max(-1) > 1.0  # the light and its images dominate these pixels

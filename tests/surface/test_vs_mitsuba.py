@@ -16,6 +16,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from caustic_scene import spot_caustic_scene
 from photonmap.core.image import block_means as blocks
 from photonmap.surface.pipeline import SurfacePipeline
@@ -32,7 +33,7 @@ def compare(image, ref):
 
 def path_reference(scene, max_depth, spp):
     path = mi.load_dict({"type": "path", "max_depth": max_depth})
-    return np.array(mi.render(scene, integrator=path, spp=spp, seed=0))
+    return mitsuba_reference.render(scene, integrator=path, spp=spp, seed=0)
 
 
 @pytest.fixture(scope="module")
@@ -132,7 +133,7 @@ def test_caustic_power_under_a_glass_ball_against_ptracer():
     caustic map at half power gives ~0.69, one without caustics 0.39."""
     scene = caustic_scene()
     ptracer = mi.load_dict({"type": "ptracer", "max_depth": 16})
-    ref = np.array(mi.render(scene, integrator=ptracer, spp=1024, seed=0))
+    ref = mitsuba_reference.render(scene, integrator=ptracer, spp=1024, seed=0)
     pipe = SurfacePipeline(scene, photons=10_000, caustic_photons=200_000, fg_rays=4, spp=4)
     ratio = np.array(pipe.render()).mean() / ref.mean()
     assert abs(ratio - 1) < 0.02, ratio

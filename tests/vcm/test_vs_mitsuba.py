@@ -19,6 +19,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from caustic_scene import spot_caustic_scene
 from photonmap.core.image import compare
 from photonmap.scenes import load_scene
@@ -61,10 +62,11 @@ def references(make, depth):
     ``ptracer`` at 4096 spp, and the pixels that do not see the light."""
     scene = make()
     out = {
-        kind: np.array(mi.render(scene, integrator=mi.load_dict({"type": kind, "max_depth": depth}),
-                                 spp=4096, seed=7))
+        kind: mitsuba_reference.render(
+            scene, integrator=mi.load_dict({"type": kind, "max_depth": depth}), spp=4096, seed=7
+        )
         for kind in ("path", "ptracer")
-    }  # fmt: skip
+    }
     return make, out, out["path"].max(axis=2) < 1.0
 
 
@@ -128,7 +130,7 @@ def test_error_falls_with_iterations():
     0.60–0.69 over seeds 0–2; brightness after 16 iterations 1.006–1.010)."""
     scene = spot_caustic_scene(-2.2)
     ptracer = mi.load_dict({"type": "ptracer", "max_depth": 16})
-    ref = np.array(mi.render(scene, integrator=ptracer, spp=1024, seed=0))
+    ref = mitsuba_reference.render(scene, integrator=ptracer, spp=1024, seed=0)
     pipe = VCMPipeline(scene, max_depth=16, spp=1)
     early = compare(np.array(pipe.run(iterations=4)), ref)
     late = compare(np.array(pipe.run(iterations=12)), ref)
@@ -158,8 +160,8 @@ def light_in_glass() -> mi.Scene:
 
 @pytest.fixture(scope="module")
 def light_in_glass_refs():
-    ref = np.array(mi.render(light_in_glass(), integrator=mi.load_dict({"type": "path",
-                   "max_depth": 12}), spp=8192, seed=1))  # fmt: skip
+    ref = mitsuba_reference.render(light_in_glass(), integrator=mi.load_dict({"type": "path",
+                   "max_depth": 12}), spp=8192, seed=1)  # fmt: skip
     return ref, ref.max(axis=2) < 1.0
 
 

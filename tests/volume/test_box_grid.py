@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import map_coordinates
 
+import mitsuba_reference
 from photonmap import VolumePipeline
 from photonmap.core.arrays import to_jit
 from photonmap.core.errors import ParameterError
@@ -197,7 +198,7 @@ def test_long_fog_box_matches_volpath(light):
     scene = long_fog_box(POINT if light == "point" else SKY, WIDTH, HEIGHT)
     with dr.scoped_set_flag(dr.JitFlag.Debug, False):  # volpath's film under Debug: DESIGN.md
         integrator = mi.load_dict({"type": "volpath", "max_depth": -1})
-        reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=512))
+        reference = mitsuba_reference.render(mi.load_dict(scene), integrator=integrator, spp=512)
     reference = reference[..., :3]
     pipe = VolumePipeline(scene, grid=48, photons=2**16, phase_k=0.0, table=0.0, spp=4)
     assert pipe.world.box.dims == (48, 24, 20)

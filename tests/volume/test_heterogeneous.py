@@ -16,6 +16,7 @@ import mitsuba as mi
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap import VolumePipeline
 from photonmap.core.errors import SceneError
 from photonmap.core.image import block_means
@@ -112,7 +113,7 @@ def test_heterogeneous_fog_box_matches_volpath():
     scene = fog_box_scene(ramp_medium(albedo_ramp=True), WIDTH, HEIGHT)
     with dr.scoped_set_flag(dr.JitFlag.Debug, False):  # volpath's film under Debug: DESIGN.md
         integrator = mi.load_dict({"type": "volpath", "max_depth": -1})
-        reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=512))
+        reference = mitsuba_reference.render(mi.load_dict(scene), integrator=integrator, spp=512)
     reference = reference[..., :3]
     pipe = VolumePipeline(scene, grid=40, photons=2**16, phase_k=0.0, table=0.0, spp=4)
     image = np.array(pipe.render())

@@ -20,6 +20,7 @@ bounds (~1.5-2x) are at ``CASES``.
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from camera_blocks import blocks_near
 from photonmap import VolumePipeline, mi
 from photonmap.core.image import block_means
@@ -174,7 +175,7 @@ def test_a_hidden_environment_matches_volpath():
     no interaction — is hidden, as volpath hides it; the fog it lights is not."""
     scene = fog_box("environment")
     integrator = mi.load_dict({"type": "volpath", "max_depth": 2, "hide_emitters": True})
-    reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=256))[..., :3]
+    reference = mitsuba_reference.render(mi.load_dict(scene), integrator=integrator, spp=256)[..., :3]
     pipe = VolumePipeline(scene, grid=32, photons=128**2, phase_k=0.0, table=0.0, spp=4,
                           scattering="single", hide_emitters="true")  # fmt: skip
     hidden = np.array(pipe.render())

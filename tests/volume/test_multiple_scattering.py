@@ -37,6 +37,7 @@ import numpy as np
 import pytest
 from scipy.stats import qmc
 
+import mitsuba_reference
 from photonmap import VolumePipeline
 from photonmap.core.arrays import columns
 from photonmap.core.errors import ParameterError, PhotonmapError
@@ -295,7 +296,7 @@ def volpath() -> dict:
     with dr.scoped_set_flag(dr.JitFlag.Debug, False):
         for depth in (-1, 2):
             integrator = mi.load_dict({"type": "volpath", "max_depth": depth})
-            out[depth] = np.array(mi.render(scene, integrator=integrator, spp=1024))[..., :3]
+            out[depth] = mitsuba_reference.render(scene, integrator=integrator, spp=1024)[..., :3]
     return out
 
 
@@ -404,7 +405,7 @@ def test_glass_ball_in_fog_agrees_with_volpath():
     ratio 0.70, block error 0.39 (volpath's full depth is 1.4× its depth 2)."""
     scene = fog_box_example()
     with dr.scoped_set_flag(dr.JitFlag.Debug, False):  # see the volpath fixture
-        reference = np.array(mi.render(mi.load_string(scene), spp=4096, seed=1))[..., :3]
+        reference = mitsuba_reference.render(mi.load_string(scene), spp=4096, seed=1)[..., :3]
     pipe = VolumePipeline(
         mi.load_string(scene),
         grid=64,

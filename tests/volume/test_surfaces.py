@@ -16,6 +16,7 @@ relative RMSE of 4 × 4-block means, ours deterministic, ``volpath`` at the seed
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from camera_blocks import blocks_near
 from photonmap import PhotonmapWarning, VolumePipeline, mi
 from photonmap.core.image import block_means
@@ -170,7 +171,7 @@ def compare(name: str, seed: int = 0) -> tuple[float, float, float]:
     build, spp, left_out = SETUP[name]
     scene = build()
     integrator = mi.load_dict({"type": "volpath", "max_depth": 64})
-    reference = np.array(mi.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed))
+    reference = mitsuba_reference.render(mi.load_dict(scene), integrator=integrator, spp=spp, seed=seed)
     ours = np.array(VolumePipeline(scene, **OURS).render())
     a, b = block_means(ours), block_means(reference[..., :3])
     sensor = mi.load_dict(scene["sensor"])

@@ -18,6 +18,7 @@ over the image; rays bent by 0.85 ∇n → 0.058 inside.
 import numpy as np
 import pytest
 
+import mitsuba_reference
 from photonmap import VolumePipeline, mi
 
 GRID, WIDTH, HEIGHT, FOV = 48, 64, 48, 30.0
@@ -76,7 +77,7 @@ def scene() -> dict:
 @pytest.fixture(scope="module")
 def volpath() -> np.ndarray:
     integrator = mi.load_dict({"type": "volpath", "max_depth": 32})
-    return np.array(mi.render(mi.load_dict(scene()), integrator=integrator, spp=256))
+    return mitsuba_reference.render(mi.load_dict(scene()), integrator=integrator, spp=256)
 
 
 @pytest.fixture(scope="module")
