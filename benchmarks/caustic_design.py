@@ -116,9 +116,9 @@ SETTINGS = {
 }  # fmt: skip
 QUICK = {"tutorial": {"n": 16, "res": 32, "truth_spp": 256, "photons": 20_000, "steps": 24,
                       "mi_spp": {"ptracer": 8, "prb": 8, "prb_projective": 2}},
-         "pool": {"n": 8, "res": 16, "truth_spp": 2048, "photons": 20_000, "steps": 4,
+         "pool": {"n": 8, "res": 16, "truth_spp": 512, "photons": 20_000, "steps": 4,
                   "mi_spp": {"ptracer": 4, "prb": 8, "prb_projective": 2}},
-         "window": {"n": 8, "res": 16, "truth_spp": 2048, "photons": 20_000, "steps": 4,
+         "window": {"n": 8, "res": 16, "truth_spp": 512, "photons": 20_000, "steps": 4,
                     "mi_spp": {"ptracer": 4, "prb": 8, "prb_projective": 2}}}  # fmt: skip
 
 
