@@ -31,11 +31,11 @@ CASES = {  # command lines of a fraction of a second to a second (after the firs
     "surface": ["render", "examples/cornell_box.xml", "--method", "surface", *SIZE,
                 "--set", "photons=20000", "--set", "caustic_photons=0", "--set", "fg_rays=4"],
     "screen": ["render", "cornell_ispm", *SIZE],
-    "sppm": ["render", "examples/cornell_box.xml", "--method", "sppm", *SIZE, "--time", "1",
-             "--preview-every", "0.3", "--set", "photons=20000"],
-    "vcm": ["render", "examples/cornell_box.xml", "--method", "vcm", *SIZE, "--time", "1",
-            "--preview-every", "0.3"],
-    "reference": ["reference", "examples/cornell_box.xml", *SIZE, "--spp", "4096", "--time", "1"],
+    "sppm": ["render", "examples/cornell_box.xml", "--method", "sppm", *SIZE, "--time", "0.5",
+             "--preview-every", "0.15", "--set", "photons=20000"],
+    "vcm": ["render", "examples/cornell_box.xml", "--method", "vcm", *SIZE, "--time", "0.5",
+            "--preview-every", "0.15"],
+    "reference": ["reference", "examples/cornell_box.xml", *SIZE, "--spp", "4096", "--time", "0.5"],
 }  # fmt: skip
 RUNS = 30
 
