@@ -1,12 +1,14 @@
 """Mitsuba's own images for the tests' comparisons, kept between runs.
 
-``render(scene, integrator, spp, seed)`` is ``np.array(mi.render(...))``: the same call, the same
-bits. The image is kept under ``benchmarks/results/cache/references/`` (git-ignored; CI starts
-without it), named by a digest of everything the render depends on: Mitsuba's version and
-variant, the scene's and the integrator's full description (``str``: every object with its
-properties), every differentiable parameter's value (``mi.traverse``: vertices, textures,
-transforms, at full precision), ``spp`` and ``seed``. A second run of the suite reads the images
-instead of rendering them again; a test that changes its scene gets a new digest.
+``render(scene, integrator, spp, seed)`` is ``np.array(mi.render(...))``: the same call, and on a
+later run the image that call gave (two fresh renders with one seed differ in the last bits: the
+film adds samples with atomics, in the threads' order). The image is kept under
+``benchmarks/results/cache/references/`` (git-ignored; CI starts without it), named by a digest
+of everything the render depends on: Mitsuba's version and variant, the scene's and the
+integrator's full description (``str``: every object with its properties), every differentiable
+parameter's value (``mi.traverse``: vertices, textures, transforms, at full precision), ``spp``
+and ``seed``. A second run of the suite reads the images instead of rendering them again; a test
+that changes its scene gets a new digest.
 """
 
 from __future__ import annotations

@@ -1,5 +1,5 @@
-"""The tests' cache of Mitsuba renders (``tests/mitsuba_reference.py``): a cached image is the
-same bits as a fresh ``mi.render``, and anything that changes the render changes its name."""
+"""The tests' cache of Mitsuba renders (``tests/mitsuba_reference.py``): a cached image is what
+``mi.render`` gave, and anything that changes the render changes its name."""
 
 import mitsuba as mi
 import numpy as np
