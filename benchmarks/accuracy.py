@@ -52,6 +52,24 @@ def render_passes(scene, spp: int, per_pass: int, seed: int, integrator=None) ->
     return sum(parts) / passes
 
 
+def cropped(scene, box, render: Callable[[], np.ndarray]) -> np.ndarray:
+    """``render()`` with the film of ``scene`` cropped to ``box = (x0, y0, x1, y1)`` (pixels),
+    the film's crop restored afterwards. Mitsuba samples the crop alone, so pixels within the
+    filter's reach of an edge cut inside the image miss the splats of the samples beyond it: use
+    the crop's interior."""
+    params = mi.traverse(scene)
+    offset = next(k for k in params.keys() if k.endswith("film.crop_offset"))
+    size = next(k for k in params.keys() if k.endswith("film.crop_size"))
+    before = (list(params[offset]), list(params[size]))
+    params[offset], params[size] = [box[0], box[1]], [box[2] - box[0], box[3] - box[1]]
+    params.update()
+    try:
+        return render()
+    finally:
+        params[offset], params[size] = before
+        params.update()
+
+
 def blend_weights(pilot_a, pilot_b, where: np.ndarray, window: int = 9) -> np.ndarray:
     """Per pixel, the weight ``w`` of estimate A in the inverse-variance blend ``w A + (1 − w) B``
     of two unbiased estimates of one image, from independent pilot renders of each (two halves

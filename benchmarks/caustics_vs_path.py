@@ -32,8 +32,13 @@ caustics seen directly that ``path`` finds by chance) by inverse-variance weight
 independent pilot renders (:func:`accuracy.blend_weights`) — where the two agree: where their
 means over those pixels differ by more than :data:`BLEND_AGREEMENT` (``cornell_steinhurst``:
 Mitsuba's ``ptracer`` renders 0.08× of ``path``'s light there), ``path`` alone serves and
-``reference_blend`` says so; cached in ``results/cache/`` (not in git; the file
-names hold the scene, size, max_depth and spp). The blended halves' difference estimates the
+``reference_blend`` says so. Where ``ptracer`` cannot serve (the camera sees glass or a
+mirror first), ``path`` alone is the reference, and its noise there (caustics seen through
+glass) is most of the reference's: ``path`` renders the bounding box of those pixels again, as a
+crop of the film, at :data:`DEEP_SHARE` times the samples, averaged in by sample count
+(``reference_blend["deep"]``: the window and its samples per pixel; skipped where the box covers
+more than :data:`DEEP_MAX_AREA` of the image). All cached in ``results/cache/`` (not in git; the
+file names hold the scene, size, max_depth, spp and window). The halves' difference estimates the
 reference's own error, reported as ``reference_rel_rmse`` and ``reference_block_rel_rmse``.
 
 Methods (``--methods``, default ``path,sppm,vcm,surface``): ``path`` at 4 … 4096 spp (timed
@@ -98,6 +103,7 @@ each). ``--iterations N`` gives each progressive method ``N`` iterations instead
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -111,6 +117,7 @@ import report
 from accuracy import (
     blend_weights,
     cached_image,
+    cropped,
     errors,
     light_image_mask,
     loglog_time_for,
@@ -203,6 +210,9 @@ def path_integrator(max_depth: int, kind: str = "path"):
 
 TRACER_SHARE, PILOT_SHARE = 4, 64  # ptracer's samples and the pilots' (each), of the reference's
 BLEND_AGREEMENT = 0.02  # ptracer's and path's means where blended: at most this far apart
+# path's samples again, ×, over the bounding box of the pixels ptracer does not serve (seen
+# through glass, in mirrors), where that box is at most DEEP_MAX_AREA of the image
+DEEP_SHARE, DEEP_MAX_AREA = 4, 0.5
 
 
 def camera_sees_smooth(scene) -> np.ndarray:
@@ -221,36 +231,86 @@ def camera_sees_smooth(scene) -> np.ndarray:
 
 def reference(name, scene, size, spp, max_depth, cache: Path) -> tuple[list[np.ndarray], dict]:
     """The two halves of the reference at ``spp`` samples per pixel (cached; module docstring):
-    ``path``'s, blended with ``ptracer``'s where :func:`camera_sees_smooth` and the two agree;
-    and ``{"blended", "ptracer_over_path"}`` (the ratio of their means there)."""
+    ``path``'s, blended with ``ptracer``'s where :func:`camera_sees_smooth` and the two agree,
+    then deepened where ``ptracer`` cannot serve (:func:`deepened`); and ``{"blended",
+    "ptracer_over_path", "deep"}`` (the ratio of their means where blended; the deep window)."""
     stem = f"caustics_{name}_{size[0]}x{size[1]}_d{max_depth}_{spp}spp"
 
-    def halves(kind: str, samples: int, seed: int, tag: str = "") -> list[np.ndarray]:
+    def halves(kind: str, samples: int, seed: int, tag: str = "", box=None) -> list[np.ndarray]:
+        def render(half):
+            return render_passes(
+                scene, samples // 2, 512, seed * (half + 1), path_integrator(max_depth, kind)
+            )
+
         return [
             cached_image(
                 cache / f"{stem}{tag}_{half}.exr",
-                lambda h=half: render_passes(
-                    scene, samples // 2, 512, seed * (h + 1), path_integrator(max_depth, kind)
-                ),
+                lambda h=half: render(h) if box is None else cropped(scene, box, lambda: render(h)),
             ).astype(np.float64)
             for half in (0, 1)
         ]
 
     path = halves("path", spp, 100_000)
     where = camera_sees_smooth(scene)
-    if not where.any():
-        return path, {"blended": False, "ptracer_over_path": None}
-    tracer = halves("ptracer", spp // TRACER_SHARE, 300_000, "_ptracer")
-    ratio = float(sum(t[where].mean() for t in tracer) / sum(p[where].mean() for p in path))
-    info = {"blended": abs(ratio - 1) <= BLEND_AGREEMENT, "ptracer_over_path": ratio}
-    if not info["blended"]:
-        print(f"  ptracer renders {ratio:.3f}x path where both see: path alone", flush=True)
-        return path, info
-    pilot = spp // PILOT_SHARE  # at the same ratio of samples as path and ptracer above
-    w = blend_weights(halves("path", pilot, 1_000_000, "_pilot_path"),
-                      halves("ptracer", pilot // TRACER_SHARE, 3_000_000, "_pilot_ptracer"),
-                      where)  # fmt: skip
-    return [w * p + (1 - w) * t for p, t in zip(path, tracer, strict=True)], info
+    info = {"blended": False, "ptracer_over_path": None}
+    if where.any():
+        tracer = halves("ptracer", spp // TRACER_SHARE, 300_000, "_ptracer")
+        ratio = float(sum(t[where].mean() for t in tracer) / sum(p[where].mean() for p in path))
+        info = {"blended": abs(ratio - 1) <= BLEND_AGREEMENT, "ptracer_over_path": ratio}
+        if info["blended"]:
+            pilot = spp // PILOT_SHARE  # at the same ratio of samples as path and ptracer above
+            w = blend_weights(halves("path", pilot, 1_000_000, "_pilot_path"),
+                              halves("ptracer", pilot // TRACER_SHARE, 3_000_000, "_pilot_ptracer"),
+                              where)  # fmt: skip
+            path = [w * p + (1 - w) * t for p, t in zip(path, tracer, strict=True)]
+        else:
+            print(f"  ptracer renders {ratio:.3f}x path where both see: path alone", flush=True)
+            where[:] = False  # path alone everywhere: deepen wherever it is alone
+    reach = math.ceil(float(scene.sensors()[0].film().rfilter().radius())) + 1
+    window = deep_window(where, reach)
+    info["deep"] = None
+    if window is not None:
+        box, inner = window
+        tag = f"_deep{DEEP_SHARE}x_{'_'.join(str(c) for c in box)}"
+        deep = halves("path", spp * DEEP_SHARE, 200_000, tag, box)
+        path = deepened(path, deep, where, box, inner)
+        info["deep"] = {"window": list(inner), "spp": spp * DEEP_SHARE}
+    return path, info
+
+
+def deep_window(where: np.ndarray, reach: int):
+    """``(box, inner)``: ``inner`` the bounding box ``(x0, y0, x1, y1)`` of the pixels outside
+    ``where`` (those ``path`` alone estimates), ``box`` that grown by ``reach`` pixels (the film
+    filter's, and one) within the image; None where there are none, or where ``inner`` covers
+    more than :data:`DEEP_MAX_AREA` of the image (a deep pass there costs ``DEEP_SHARE`` whole
+    references)."""
+    ys, xs = np.nonzero(~where)
+    if not len(xs):
+        return None
+    h, w = where.shape
+    inner = (int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1)
+    if (inner[2] - inner[0]) * (inner[3] - inner[1]) > DEEP_MAX_AREA * w * h:
+        return None
+    box = (max(0, inner[0] - reach), max(0, inner[1] - reach),
+           min(w, inner[2] + reach), min(h, inner[3] + reach))  # fmt: skip
+    return box, inner
+
+
+def deepened(halves, deep, where, box, inner) -> list[np.ndarray]:
+    """``halves`` with ``path``'s deep pass (``deep``: two halves rendered in the crop ``box``
+    at :data:`DEEP_SHARE` times the samples) averaged in by sample count over the pixels of
+    ``inner`` outside ``where``. ``box`` reaches past ``inner`` by the filter's reach: a crop's
+    edge pixels miss the splats of the samples beyond it, so only its interior is used."""
+    x0, y0, x1, y1 = inner
+    alone = ~where[y0:y1, x0:x1, None]
+    out = []
+    for half, extra in zip(halves, deep, strict=True):
+        half = half.copy()
+        inside = extra[y0 - box[1] : y1 - box[1], x0 - box[0] : x1 - box[0]]
+        mixed = (half[y0:y1, x0:x1] + DEEP_SHARE * inside) / (1 + DEEP_SHARE)
+        half[y0:y1, x0:x1] = np.where(alone, mixed, half[y0:y1, x0:x1])
+        out.append(half)
+    return out
 
 
 # ----------------------------------------------------------------------------------- methods

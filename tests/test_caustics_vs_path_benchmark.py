@@ -93,6 +93,12 @@ def test_quick_run_writes_schema(bench, quick, out):
         assert isinstance(scene["reference_ok"], bool) and len(scene["runs"]) == 1
         blend = scene["reference_blend"]  # ptracer's mean against path's where it is blended
         assert isinstance(blend["blended"], bool) and finite(blend["ptracer_over_path"])
+        deep = blend["deep"]  # path again where ptracer cannot serve, or None
+        if deep is not None:
+            x0, y0, x1, y1 = deep["window"]
+            w, h = scene["image"]
+            assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h
+            assert deep["spp"] == bench.DEEP_SHARE * scene["reference_spp"]
         run = scene["runs"][0]
         for method in bench.METHODS:
             assert run[method] and all(finite(r["seconds"]) for r in run[method])
@@ -194,3 +200,45 @@ def test_the_reference_blend_weighs_by_inverse_variance():
     x, y = gen.normal(0.0, 2.0, shape), gen.normal(0.0, 1.0, shape)
     blend = (w * x + (1 - w) * y)[:, 8:]
     assert np.var(blend) == pytest.approx(0.8, rel=0.1)
+
+
+def test_the_deep_pass_is_averaged_in_by_samples_where_path_alone_serves(bench):
+    """The window is the bounding box of the pixels outside ``where``, grown by the filter's
+    reach within the image; there the deep pass (``DEEP_SHARE`` times the samples) and the
+    reference average by sample count; elsewhere the reference is untouched; no window where the
+    box covers more than ``DEEP_MAX_AREA`` of the image or every pixel is served."""
+    where = np.ones((20, 30), bool)
+    where[5:9, 1:4] = False
+    where[12, 2] = False
+    box, inner = bench.deep_window(where, reach=2)
+    assert inner == (1, 5, 4, 13) and box == (0, 3, 6, 15)
+    halves = [np.full((20, 30, 3), 1.0), np.full((20, 30, 3), 2.0)]
+    deep = [np.full((12, 6, 3), 6.0), np.full((12, 6, 3), 7.0)]
+    out = bench.deepened(halves, deep, where, box, inner)
+    k = bench.DEEP_SHARE
+    for half, value, extra in zip(out, (1.0, 2.0), (6.0, 7.0), strict=True):
+        assert np.all(half[~where] == pytest.approx((value + k * extra) / (1 + k)))
+        assert np.all(half[where] == value)
+    assert bench.deep_window(np.ones((20, 30), bool), 2) is None
+    wide = np.ones((20, 30), bool)
+    wide[0, 0] = wide[-1, -1] = False  # a box of the whole image
+    assert bench.deep_window(wide, 2) is None
+
+
+def test_a_cropped_render_matches_the_full_render_inside_and_restores_the_film():
+    """``accuracy.cropped``: Mitsuba renders the crop alone (its shape), its interior agrees with
+    the full render within noise, and the film is whole again afterwards."""
+    from accuracy import cropped
+
+    d = mi.cornell_box()
+    d["sensor"]["film"].update(width=32, height=32, rfilter={"type": "box"})
+    scene = mi.load_dict(d)
+    path = mi.load_dict({"type": "path", "max_depth": 8})
+    full = np.array(mi.render(scene, integrator=path, spp=256, seed=1))
+    crop = cropped(scene, (4, 8, 20, 28),
+                   lambda: np.array(mi.render(scene, integrator=path, spp=256, seed=2)))  # fmt: skip
+    assert crop.shape == (20, 16, 3)
+    inside, ref = crop[1:-1, 1:-1], full[9:27, 5:19]
+    assert inside.mean() == pytest.approx(ref.mean(), rel=0.03)
+    assert tuple(scene.sensors()[0].film().crop_size()) == (32, 32)
+    assert np.array(mi.render(scene, integrator=path, spp=1)).shape == (32, 32, 3)
