@@ -227,7 +227,9 @@ def test_the_deep_pass_is_averaged_in_by_samples_where_path_alone_serves(bench):
 
 def test_a_cropped_render_matches_the_full_render_inside_and_restores_the_film():
     """``accuracy.cropped``: Mitsuba renders the crop alone (its shape), its interior agrees with
-    the full render within noise, and the film is whole again afterwards."""
+    the same pixels of the full render within noise (relative RMSE measured 0.095 at 256 spp;
+    0.35 against the pixels one further right and down, 5.5 against the image's corner), and the
+    film is whole again afterwards."""
     from accuracy import cropped
 
     d = mi.cornell_box()
@@ -238,7 +240,12 @@ def test_a_cropped_render_matches_the_full_render_inside_and_restores_the_film()
     crop = cropped(scene, (4, 8, 20, 28),
                    lambda: np.array(mi.render(scene, integrator=path, spp=256, seed=2)))  # fmt: skip
     assert crop.shape == (20, 16, 3)
-    inside, ref = crop[1:-1, 1:-1], full[9:27, 5:19]
-    assert inside.mean() == pytest.approx(ref.mean(), rel=0.03)
+    inside = crop[1:-1, 1:-1]
+
+    def rel_rmse(pixels):
+        return np.sqrt(np.mean((inside - pixels) ** 2)) / pixels.mean()
+
+    assert rel_rmse(full[9:27, 5:19]) < 0.15
+    assert rel_rmse(full[10:28, 6:20]) > 0.25 and rel_rmse(full[1:19, 1:15]) > 1.0
     assert tuple(scene.sensors()[0].film().crop_size()) == (32, 32)
     assert np.array(mi.render(scene, integrator=path, spp=1)).shape == (32, 32, 3)
