@@ -67,7 +67,7 @@ def _range_pyramid(values: mi.TensorXf, size: int) -> list[mi.Float]:
     lo = hi = dr.gather(mi.Float, values.array, flat_index(x, y, z, dims) * c + channel)
     ranges = [dr.zeros(mi.Float, dr.width(index))]
     channels = dr.opaque(mi.UInt32, c)
-    while size > 2:
+    while size > 1:
         size //= 2
         index = dr.arange(mi.UInt32, size**3 * c)
         m = dr.opaque(mi.UInt32, size)  # one kernel for every level (literals would make one each)
@@ -80,10 +80,6 @@ def _range_pyramid(values: mi.TensorXf, size: int) -> list[mi.Float]:
         hi = reduce(dr.maximum, [dr.gather(mi.Float, hi, j * channels + channel) for j in children])
         ranges.append(hi - lo)
         dr.eval(lo, hi, ranges[-1])
-    if size == 2:  # the root from its 8 children on the host: a kernel of width 1 would compile
-        # anew (Dr.Jit specialises width-1 kernels), for 8·c values
-        lo, hi = (np.asarray(a, np.float32).reshape(8, c) for a in (lo, hi))
-        ranges.append(mi.Float(hi.max(axis=0) - lo.min(axis=0)))
     return ranges
 
 
